@@ -1,0 +1,115 @@
+"""Geometry round trips and sign conventions (CONVENTIONS.md)."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from vipm_track import geometry as g
+
+K = np.array([[729.0, 0.0, 400.0], [0.0, 729.0, 300.0], [0.0, 0.0, 1.0]])
+
+poses = st.builds(
+    g.GroundPose,
+    pitch=st.floats(np.radians(5), np.radians(90)),
+    roll=st.floats(np.radians(-20), np.radians(20)),
+    height=st.floats(0.2, 3.0),
+)
+motions = st.builds(
+    g.PlanarMotion,
+    tx=st.floats(-2, 2),
+    tz=st.floats(-3, 3),
+    yaw=st.floats(-0.5, 0.5),
+)
+
+
+def _ground_pixels(pose: g.GroundPose, n: int = 50) -> np.ndarray:
+    rng = np.random.default_rng(0)
+    px = rng.uniform([0, 0], [800, 600], size=(n, 2))
+    return px[g.below_horizon(K, pose, px, margin=np.radians(2))]
+
+
+@settings(max_examples=200, deadline=None)
+@given(poses)
+def test_projection_inverts_back_projection(pose):
+    px = _ground_pixels(pose)
+    again = g.project(K, pose, g.back_project(K, pose, px))
+    np.testing.assert_allclose(again, px, atol=1e-7)
+
+
+@settings(max_examples=200, deadline=None)
+@given(motions)
+def test_motion_inverse_composes_to_identity(motion):
+    np.testing.assert_allclose(
+        g.motion_matrix(g.invert_motion(motion)) @ g.motion_matrix(motion), np.eye(3), atol=1e-12
+    )
+    ident = g.compose_motion(motion, g.invert_motion(motion))
+    np.testing.assert_allclose([ident.tx, ident.tz, ident.yaw], 0.0, atol=1e-12)
+
+
+@settings(max_examples=200, deadline=None)
+@given(motions, motions)
+def test_composition_matches_matrix_product(a, b):
+    ab = g.compose_motion(a, b)
+    np.testing.assert_allclose(g.motion_matrix(ab), g.motion_matrix(b) @ g.motion_matrix(a), atol=1e-12)
+
+
+@settings(max_examples=200, deadline=None)
+@given(poses, motions)
+def test_homographies_agree_with_pointwise_maps(pose, motion):
+    px = _ground_pixels(pose)
+    ground = g.back_project(K, pose, px)
+    np.testing.assert_allclose(
+        g.apply_homography(g.ground_from_image_homography(K, pose), px), ground, rtol=1e-9, atol=1e-9
+    )
+    np.testing.assert_allclose(
+        g.apply_homography(g.image_from_ground_homography(K, pose), ground), px, rtol=1e-9, atol=1e-9
+    )
+    pose2 = g.GroundPose(pose.pitch * 0.98, pose.roll * 0.9, pose.height)
+    expected = g.predict_pixels(K, pose, pose2, motion, px)
+    got = g.apply_homography(g.pair_homography(K, pose, pose2, motion), px)
+    ok = np.all(np.isfinite(expected), axis=1)
+    np.testing.assert_allclose(got[ok], expected[ok], rtol=1e-9, atol=1e-9)
+    grid = g.IpmGrid.from_extent(-2, 2, 0.5, 6, 0.01)
+    ipm_px = grid.pixel_from_ground(ground)
+    np.testing.assert_allclose(
+        g.apply_homography(g.image_from_ipm_homography(K, pose, grid), ipm_px), px, rtol=1e-9, atol=1e-9
+    )
+
+
+def test_signs_follow_conventions():
+    # Straight down: the principal point sees the ground point under the camera.
+    down = g.GroundPose(np.pi / 2, 0.0, 1.0)
+    np.testing.assert_allclose(g.back_project(K, down, [[400.0, 300.0]]), [[0.0, 0.0]], atol=1e-12)
+    # pitch > 0 looks down: the principal point sees ground ahead at h / tan(pitch).
+    pose = g.GroundPose(np.radians(30), 0.0, 1.5)
+    np.testing.assert_allclose(
+        g.back_project(K, pose, [[400.0, 300.0]]), [[0.0, 1.5 / np.tan(np.radians(30))]], atol=1e-9
+    )
+    # roll > 0 dips the image's right edge toward the ground: the right side of the image
+    # sees nearer ground than the left side on the same row.
+    rolled = g.GroundPose(np.radians(30), np.radians(5), 1.5)
+    left, right = g.back_project(K, rolled, [[100.0, 300.0], [700.0, 300.0]])
+    assert right[1] < left[1]
+    # Pixels above the horizon have no ground point.
+    assert np.all(np.isnan(g.back_project(K, pose, [[400.0, -2000.0]])))
+    assert not g.below_horizon(K, pose, [[400.0, -2000.0]])[0]
+    # yaw > 0 turns right: a point straight ahead ends up on the left (x < 0).
+    ahead = g.transform_ground(g.PlanarMotion(0, 0, np.radians(10)), [[0.0, 10.0]])
+    assert ahead[0, 0] < 0
+    # Forward motion: ground ahead comes closer by tz.
+    np.testing.assert_allclose(g.transform_ground(g.PlanarMotion(0, 1.0, 0), [[0.0, 5.0]]), [[0.0, 4.0]])
+
+
+def test_pose_from_rotation_round_trip():
+    for pitch, roll in [(0.3, 0.1), (1.2, -0.3), (0.05, 0.0)]:
+        r = g.rotation_ground_from_camera(pitch, roll)
+        np.testing.assert_allclose(g.pose_from_rotation(r), (pitch, roll), atol=1e-12)
+
+
+def test_horizon_row_separates_ground_from_sky():
+    pose = g.GroundPose(np.radians(3), np.radians(2), 1.5)
+    v = g.horizon_row(K, pose, 400.0)
+    assert g.below_horizon(K, pose, [[400.0, v + 1.0]])[0]
+    assert not g.below_horizon(K, pose, [[400.0, v - 1.0]])[0]

@@ -1,0 +1,299 @@
+"""Camera intrinsics and lens distortion, and the file formats they come in.
+
+Reads ROS ``camera_info`` YAML, OpenCV FileStorage YAML and KITTI ``calib.txt`` (P0), and
+writes ROS ``camera_info`` YAML. Models: pinhole with OpenCV distortion (``plumb_bob`` with
+5 coefficients, ``rational_polynomial`` with 8 or more) and equidistant fisheye (4).
+
+The estimator works on undistorted images whose intrinsic matrix is :attr:`CameraModel.k`
+(see :meth:`CameraModel.undistort_image`), so distortion lives here and nowhere else.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+from numpy.typing import ArrayLike, NDArray
+
+from .errors import InputError
+
+PINHOLE_MODELS = ("plumb_bob", "rational_polynomial", "none")
+FISHEYE_MODELS = ("equidistant", "fisheye")
+
+
+class CameraFileError(InputError):
+    """A camera file is missing, unreadable or has a wrong field; the message names both."""
+
+    def __init__(self, path: str | Path, problem: str, field_name: str | None = None) -> None:
+        where = f"{path}" + (f", field '{field_name}'" if field_name else "")
+        super().__init__(f"{where}: {problem}")
+        self.path = str(path)
+        self.field_name = field_name
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """Intrinsics ``k`` (3×3, pixels), image size (pixels) and lens distortion.
+
+    ``distortion_model`` is one of ``plumb_bob``, ``rational_polynomial``, ``none``
+    (OpenCV's pinhole model) or ``equidistant`` (OpenCV's fisheye model).
+    """
+
+    k: NDArray[np.float64]
+    width: int
+    height: int
+    distortion_model: str = "none"
+    distortion: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+
+    def __post_init__(self) -> None:
+        k = np.asarray(self.k, dtype=float)
+        object.__setattr__(self, "k", k)
+        object.__setattr__(self, "distortion", np.asarray(self.distortion, dtype=float).ravel())
+        if k.shape != (3, 3):
+            raise ValueError(f"camera matrix must be 3×3, got shape {k.shape}")
+        if not (k[0, 0] > 0 and k[1, 1] > 0):
+            raise ValueError(f"focal lengths must be > 0, got fx={k[0, 0]}, fy={k[1, 1]}")
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"image size must be positive, got {self.width}×{self.height}")
+        if self.distortion_model not in PINHOLE_MODELS + FISHEYE_MODELS:
+            raise ValueError(f"unknown distortion model '{self.distortion_model}'")
+
+    @property
+    def fx(self) -> float:
+        return float(self.k[0, 0])
+
+    @property
+    def fy(self) -> float:
+        return float(self.k[1, 1])
+
+    @property
+    def cx(self) -> float:
+        return float(self.k[0, 2])
+
+    @property
+    def cy(self) -> float:
+        return float(self.k[1, 2])
+
+    @property
+    def is_fisheye(self) -> bool:
+        return self.distortion_model in FISHEYE_MODELS
+
+    @property
+    def has_distortion(self) -> bool:
+        return bool(np.any(self.distortion != 0))
+
+    def check_image(self, shape: tuple[int, ...], source: str) -> None:
+        """Raise ValueError naming ``source`` if an image's shape disagrees with the model."""
+        if shape[0] != self.height or shape[1] != self.width:
+            raise ValueError(
+                f"{source}: image is {shape[1]}×{shape[0]} px but the camera model is "
+                f"{self.width}×{self.height} px"
+            )
+
+    def undistort_points(self, pixels: ArrayLike) -> NDArray[np.float64]:
+        """Distorted pixels (..., 2) → ideal pinhole pixels (..., 2) with matrix ``k``."""
+        p = np.asarray(pixels, dtype=np.float64)
+        if not self.has_distortion:
+            return p.copy()
+        flat = p.reshape(-1, 1, 2)
+        if self.is_fisheye:
+            out = cv2.fisheye.undistortPoints(flat, self.k, self.distortion[:4], P=self.k)
+        else:
+            out = cv2.undistortPoints(flat, self.k, self.distortion, P=self.k)
+        return out.reshape(p.shape)
+
+    def distort_points(self, pixels: ArrayLike) -> NDArray[np.float64]:
+        """Ideal pinhole pixels (..., 2) with matrix ``k`` → distorted pixels (..., 2)."""
+        p = np.asarray(pixels, dtype=np.float64)
+        if not self.has_distortion:
+            return p.copy()
+        kinv = np.linalg.inv(self.k)
+        norm = np.concatenate([p.reshape(-1, 2), np.ones((p[..., 0].size, 1))], axis=1) @ kinv.T
+        pts = norm[:, :2].reshape(-1, 1, 2)
+        if self.is_fisheye:
+            out = cv2.fisheye.distortPoints(pts, self.k, self.distortion[:4])
+        else:
+            obj = np.concatenate([pts.reshape(-1, 2), np.ones((pts.shape[0], 1))], axis=1)
+            out, _ = cv2.projectPoints(obj, np.zeros(3), np.zeros(3), self.k, self.distortion)
+        return out.reshape(p.shape)
+
+    def undistortion_maps(self) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        """cv2.remap maps producing the ideal pinhole image (matrix ``k``, same size)."""
+        size = (self.width, self.height)
+        if self.is_fisheye:
+            return cv2.fisheye.initUndistortRectifyMap(
+                self.k, self.distortion[:4], np.eye(3), self.k, size, cv2.CV_32FC1
+            )
+        return cv2.initUndistortRectifyMap(
+            self.k, self.distortion, np.eye(3), self.k, size, cv2.CV_32FC1
+        )
+
+    def undistort_image(self, image: NDArray) -> NDArray:
+        """The ideal pinhole image (matrix ``k``) of a distorted image; a copy-free pass
+        when there is no distortion."""
+        if not self.has_distortion:
+            return image
+        map_x, map_y = self.undistortion_maps()
+        return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR)
+
+
+# --- readers -------------------------------------------------------------------------------
+
+
+def load_camera(path: str | Path) -> CameraModel:
+    """Read a camera file, choosing the reader by content: ROS camera_info YAML, OpenCV
+    FileStorage YAML/XML, or KITTI calib.txt (P0)."""
+    path = Path(path)
+    if not path.is_file():
+        raise CameraFileError(path, "file not found")
+    text = path.read_text(errors="replace")
+    if text.lstrip().startswith("%YAML") or "opencv-matrix" in text or path.suffix == ".xml":
+        return _read_opencv_storage(path)
+    if path.suffix == ".txt" or text.lstrip().startswith("P0:"):
+        return read_kitti_calib(path)
+    return _read_ros_yaml(path, text)
+
+
+def read_kitti_calib(path: str | Path, image_size: tuple[int, int] | None = None) -> CameraModel:
+    """Camera 0 of a KITTI ``calib.txt`` (rectified, no distortion).
+
+    ``image_size`` is (width, height); KITTI files do not store it, so by default it is taken
+    from the first image in ``image_0/`` beside the file, else 1241×376."""
+    path = Path(path)
+    rows = {}
+    for line in path.read_text().splitlines():
+        if ":" in line:
+            key, values = line.split(":", 1)
+            rows[key.strip()] = values.split()
+    if "P0" not in rows:
+        raise CameraFileError(path, "no P0 line (KITTI calib.txt expected)", "P0")
+    try:
+        p0 = np.array([float(v) for v in rows["P0"]]).reshape(3, 4)
+    except ValueError as exc:
+        raise CameraFileError(path, f"P0 must hold 12 numbers ({exc})", "P0") from exc
+    if image_size is None:
+        image_size = _kitti_image_size(path.parent) or (1241, 376)
+    return _build(path, p0[:, :3], image_size[0], image_size[1], "none", np.zeros(0), "P0")
+
+
+def _kitti_image_size(folder: Path) -> tuple[int, int] | None:
+    for sub in ("image_0", "image_2", "."):
+        images = sorted((folder / sub).glob("*.png"))
+        if images:
+            img = cv2.imread(str(images[0]), cv2.IMREAD_UNCHANGED)
+            if img is not None:
+                return img.shape[1], img.shape[0]
+    return None
+
+
+def _read_ros_yaml(path: Path, text: str) -> CameraModel:
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise CameraFileError(path, f"not valid YAML ({exc})") from exc
+    if not isinstance(doc, dict):
+        raise CameraFileError(path, "expected a YAML mapping (ROS camera_info)")
+    width = _required(doc, "image_width", path)
+    height = _required(doc, "image_height", path)
+    k = _matrix(doc, "camera_matrix", path, (3, 3))
+    model = str(doc.get("distortion_model", "plumb_bob") or "plumb_bob")
+    dist = np.zeros(0)
+    if "distortion_coefficients" in doc:
+        dist = _matrix(doc, "distortion_coefficients", path, None).ravel()
+    return _build(path, k, width, height, model, dist, "camera_matrix")
+
+
+def _read_opencv_storage(path: Path) -> CameraModel:
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    if not fs.isOpened():
+        raise CameraFileError(path, "OpenCV FileStorage could not open it")
+    try:
+        k_node = fs.getNode("camera_matrix")
+        if k_node.empty():
+            raise CameraFileError(path, "missing", "camera_matrix")
+        k = k_node.mat()
+        if k is None or k.shape != (3, 3):
+            raise CameraFileError(path, "must be a 3×3 matrix", "camera_matrix")
+        dist_node = fs.getNode("distortion_coefficients")
+        dist = np.zeros(0) if dist_node.empty() else np.asarray(dist_node.mat()).ravel()
+        size = []
+        for name in ("image_width", "image_height"):
+            node = fs.getNode(name)
+            if node.empty():
+                raise CameraFileError(path, "missing", name)
+            size.append(int(node.real()))
+        model_node = fs.getNode("distortion_model")
+        model = model_node.string() if not model_node.empty() else ""
+        if not model:
+            model = "rational_polynomial" if dist.size > 5 else "plumb_bob"
+    finally:
+        fs.release()
+    return _build(path, k, size[0], size[1], model, dist, "camera_matrix")
+
+
+def _required(doc: dict, name: str, path: Path) -> int:
+    if name not in doc:
+        raise CameraFileError(path, "missing", name)
+    try:
+        return int(doc[name])
+    except (TypeError, ValueError) as exc:
+        raise CameraFileError(path, f"must be an integer, got {doc[name]!r}", name) from exc
+
+
+def _matrix(doc: dict, name: str, path: Path, shape: tuple[int, int] | None) -> NDArray:
+    node = doc.get(name)
+    if node is None:
+        raise CameraFileError(path, "missing", name)
+    data = node.get("data") if isinstance(node, dict) else node
+    try:
+        arr = np.asarray(data, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise CameraFileError(path, f"data must be numbers ({exc})", name) from exc
+    if shape is not None:
+        if arr.size != shape[0] * shape[1]:
+            raise CameraFileError(path, f"needs {shape[0] * shape[1]} numbers, got {arr.size}", name)
+        arr = arr.reshape(shape)
+    if not np.all(np.isfinite(arr)):
+        raise CameraFileError(path, "contains non-finite values", name)
+    return arr
+
+
+def _build(
+    path: Path, k: NDArray, width: int, height: int, model: str, dist: NDArray, k_field: str
+) -> CameraModel:
+    if not (k[0, 0] > 0 and k[1, 1] > 0):
+        raise CameraFileError(path, f"focal lengths must be > 0, got fx={k[0, 0]}, fy={k[1, 1]}", k_field)
+    if width <= 0 or height <= 0:
+        raise CameraFileError(path, f"image size must be positive, got {width}×{height}", "image_width")
+    model = {"equidistant": "equidistant", "fisheye": "equidistant", "": "plumb_bob"}.get(model, model)
+    if model not in PINHOLE_MODELS + FISHEYE_MODELS:
+        raise CameraFileError(path, f"unknown model '{model}'", "distortion_model")
+    if model == "equidistant" and dist.size not in (0, 4):
+        raise CameraFileError(path, f"equidistant needs 4 coefficients, got {dist.size}", "distortion_coefficients")
+    if model in ("plumb_bob", "rational_polynomial") and dist.size not in (0, 4, 5, 8, 12, 14):
+        raise CameraFileError(path, f"OpenCV distortion needs 4, 5, 8, 12 or 14 coefficients, got {dist.size}", "distortion_coefficients")
+    return CameraModel(k=k, width=int(width), height=int(height), distortion_model=model, distortion=dist)
+
+
+# --- writer --------------------------------------------------------------------------------
+
+
+def write_ros_yaml(camera: CameraModel, path: str | Path, name: str = "camera") -> None:
+    """Write ``camera`` as a ROS camera_info YAML (as ``camera_calibration`` does)."""
+    k = camera.k
+    p = np.hstack([k, np.zeros((3, 1))])
+    dist = camera.distortion if camera.distortion.size else np.zeros(5)
+    doc = {
+        "image_width": camera.width,
+        "image_height": camera.height,
+        "camera_name": name,
+        "camera_matrix": {"rows": 3, "cols": 3, "data": [float(v) for v in k.ravel()]},
+        "distortion_model": "plumb_bob" if camera.distortion_model == "none" else camera.distortion_model,
+        "distortion_coefficients": {"rows": 1, "cols": int(dist.size), "data": [float(v) for v in dist]},
+        "rectification_matrix": {"rows": 3, "cols": 3, "data": [float(v) for v in np.eye(3).ravel()]},
+        "projection_matrix": {"rows": 3, "cols": 4, "data": [float(v) for v in p.ravel()]},
+    }
+    Path(path).write_text(yaml.safe_dump(doc, sort_keys=False))

@@ -1,0 +1,57 @@
+"""Option groups shared by subcommands, so every subcommand spells them the same way."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_input_options(parser: argparse.ArgumentParser, required: bool = True) -> None:
+    """``--images DIR | --video FILE`` and ``--fps``."""
+    group = parser.add_mutually_exclusive_group(required=required)
+    group.add_argument("--images", metavar="DIR", help="folder of images sorted by name "
+                       "(timestamps from times.txt in it or its parent, else --fps)")
+    group.add_argument("--video", metavar="FILE", help="any video OpenCV reads")
+    parser.add_argument("--fps", type=float, default=None,
+                        help="frame rate for timestamps when the input has none [Hz]")
+
+
+def add_camera_options(parser: argparse.ArgumentParser, height_required: bool = True) -> None:
+    """``--camera`` (intrinsics file) and ``--height`` (nominal camera height, metres)."""
+    parser.add_argument("--camera", metavar="CAMERA.yaml", required=True,
+                        help="intrinsics: ROS camera_info YAML, OpenCV FileStorage YAML or "
+                        "KITTI calib.txt")
+    parser.add_argument("--height", type=float, required=height_required, metavar="H",
+                        help="nominal camera height above the ground [m]")
+
+
+def add_output_options(parser: argparse.ArgumentParser, what: str = "per-frame CSV") -> None:
+    """``--out`` and ``--parquet``."""
+    parser.add_argument("--out", required=True, metavar="OUT.csv", help=f"{what} to write")
+    parser.add_argument("--parquet", action="store_true",
+                        help="also write the table as Parquet beside the CSV")
+
+
+def add_speed_options(parser: argparse.ArgumentParser) -> None:
+    """Wheel speed: ``--speed-csv`` or ``--can LOG --dbc DBC --signals ...``."""
+    group = parser.add_argument_group("wheel speed (makes the camera height observable)")
+    group.add_argument("--speed-csv", metavar="FILE", help="CSV with columns t,speed_mps")
+    group.add_argument("--can", metavar="LOG", help="CAN log (.log/.asc/.blf/.trc/.csv/.mf4)")
+    group.add_argument("--dbc", metavar="DBC", help="DBC file decoding the CAN log")
+    group.add_argument("--signals", metavar="MSG.SIG[,MSG.SIG...]",
+                       help="speed signal(s); several are combined by --combine")
+    group.add_argument("--combine", default="mean", choices=("mean", "median", "min", "max"),
+                       help="rule combining several speed signals (default: mean)")
+    group.add_argument("--can-channel", metavar="CH", default=None,
+                       help="only use frames from this CAN channel")
+    group.add_argument("--speed-scale", type=float, default=1.0,
+                       help="scale factor on the speed (tyre-radius correction)")
+    group.add_argument("--clock-offset", type=float, default=0.0,
+                       help="seconds added to the speed timestamps to reach the camera clock")
+
+
+def add_rerun_options(parser: argparse.ArgumentParser) -> None:
+    """``--rerun OUT.rrd``, ``--rerun-spawn``, ``--rerun-connect ADDR``."""
+    group = parser.add_argument_group("rerun dashboard")
+    group.add_argument("--rerun", metavar="OUT.rrd", help="write a rerun recording")
+    group.add_argument("--rerun-spawn", action="store_true", help="spawn a rerun viewer")
+    group.add_argument("--rerun-connect", metavar="ADDR", help="stream to a running viewer")

@@ -1,0 +1,128 @@
+"""The two-frame measurement: what the front end hands the filters and the monitor.
+
+One :class:`PairMeasurement` per processed frame k (its motion is from frame k-1). The
+7-vector ``z`` is ordered as the estimator's parameters:
+
+    (pitch_prev, roll_prev, pitch_curr, roll_curr, tx, tz, yaw)   [rad, rad, rad, rad, m, m, rad]
+
+``tx``/``tz`` are metric *at the assumed height* ``height_assumed`` (CONVENTIONS.md, Scale):
+the true translation is ``t · h_true / height_assumed``. ``covariance`` is 7×7 in the same
+order and units. A frame whose ``status`` is not ``ok`` carries NaNs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .table import read_table
+
+PARAMETER_NAMES: tuple[str, ...] = ("pitch_prev", "roll_prev", "pitch", "roll", "tx", "tz", "yaw")
+_ANGLE = np.array([True, True, True, True, False, False, True])
+
+
+@dataclass(frozen=True)
+class PairMeasurement:
+    """Pose of both frames and motion between them, with covariance (see module doc)."""
+
+    frame: int
+    t: float
+    z: NDArray[np.float64]
+    covariance: NDArray[np.float64]
+    height_assumed: float
+    status: str = "ok"
+    inliers: int = 0
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok" and bool(np.all(np.isfinite(self.z)))
+
+    @property
+    def std(self) -> NDArray[np.float64]:
+        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+
+
+def measurements_from_table(columns: dict[str, NDArray], source: str = "table") -> list[PairMeasurement]:
+    """Measurements from the columns of an estimates table (``read_table``).
+
+    Needs the base columns plus ``prev_pitch_deg``/``prev_roll_deg`` and the ``*_std``
+    columns; a missing std column is a :class:`ValueError` naming ``source``."""
+    needed = (
+        "pitch_deg", "roll_deg", "height_m", "tx_m", "tz_m", "yaw_deg", "prev_pitch_deg",
+        "prev_roll_deg", "pitch_std_deg", "roll_std_deg", "prev_pitch_std_deg",
+        "prev_roll_std_deg", "tx_std_m", "tz_std_m", "yaw_std_deg",
+    )
+    missing = [c for c in needed if c not in columns]
+    if missing:
+        raise ValueError(f"{source}: estimates table lacks column(s) {missing}")
+    n = len(columns["frame"])
+    status = columns.get("status", np.array(["ok"] * n, dtype=object))
+    z_all = np.stack(
+        [
+            np.radians(columns["prev_pitch_deg"]), np.radians(columns["prev_roll_deg"]),
+            np.radians(columns["pitch_deg"]), np.radians(columns["roll_deg"]),
+            columns["tx_m"], columns["tz_m"], np.radians(columns["yaw_deg"]),
+        ],
+        axis=1,
+    )
+    std_all = np.stack(
+        [
+            np.radians(columns["prev_pitch_std_deg"]), np.radians(columns["prev_roll_std_deg"]),
+            np.radians(columns["pitch_std_deg"]), np.radians(columns["roll_std_deg"]),
+            columns["tx_std_m"], columns["tz_std_m"], np.radians(columns["yaw_std_deg"]),
+        ],
+        axis=1,
+    )
+    inliers = columns.get("inliers", np.zeros(n))
+    out = []
+    for i in range(n):
+        st = str(status[i]) or "ok"
+        out.append(
+            PairMeasurement(
+                frame=int(columns["frame"][i]),
+                t=float(columns["t"][i]),
+                z=z_all[i],
+                covariance=np.diag(std_all[i] ** 2),
+                height_assumed=float(columns["height_m"][i]),
+                status=st,
+                inliers=int(inliers[i]) if np.isfinite(inliers[i]) else 0,
+            )
+        )
+    return out
+
+
+def read_measurements(path: str | Path) -> list[PairMeasurement]:
+    """Measurements from an estimates CSV/Parquet written by ``vipm-track estimate``."""
+    return measurements_from_table(read_table(path), str(path))
+
+
+def measurement_row(m: PairMeasurement) -> dict[str, object]:
+    """The estimates-table row (base + ``ESTIMATE_COLUMNS``) of a measurement."""
+    z = np.where(_ANGLE, np.degrees(m.z), m.z)
+    s = np.where(_ANGLE, np.degrees(m.std), m.std)
+    ok = m.ok
+    val = (lambda x: float(x)) if ok else (lambda x: None)
+    return {
+        "frame": m.frame,
+        "t": m.t,
+        "pitch_deg": val(z[2]),
+        "roll_deg": val(z[3]),
+        "height_m": m.height_assumed,
+        "tx_m": val(z[4]),
+        "tz_m": val(z[5]),
+        "yaw_deg": val(z[6]),
+        "status": m.status,
+        "prev_pitch_deg": val(z[0]),
+        "prev_roll_deg": val(z[1]),
+        "pitch_std_deg": val(s[2]),
+        "roll_std_deg": val(s[3]),
+        "prev_pitch_std_deg": val(s[0]),
+        "prev_roll_std_deg": val(s[1]),
+        "tx_std_m": val(s[4]),
+        "tz_std_m": val(s[5]),
+        "yaw_std_deg": val(s[6]),
+        "inliers": m.inliers,
+    }

@@ -1,0 +1,205 @@
+"""Per-frame tables in the format of ``CONVENTIONS.md`` (CSV, and Parquet on request).
+
+The first eight columns are fixed (``BASE_COLUMNS``); further columns follow. Rows are
+written and flushed one at a time so an interrupted run keeps everything it computed.
+Numbers are written as text with enough digits to round-trip; missing numbers are empty.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .errors import InputError
+
+BASE_COLUMNS: tuple[str, ...] = (
+    "frame",
+    "t",
+    "pitch_deg",
+    "roll_deg",
+    "height_m",
+    "tx_m",
+    "tz_m",
+    "yaw_deg",
+    "status",
+)
+
+#: Columns the two-frame estimator adds after the base ones (see ``measurement.py``).
+ESTIMATE_COLUMNS: tuple[str, ...] = (
+    "prev_pitch_deg",
+    "prev_roll_deg",
+    "pitch_std_deg",
+    "roll_std_deg",
+    "prev_pitch_std_deg",
+    "prev_roll_std_deg",
+    "tx_std_m",
+    "tz_std_m",
+    "yaw_std_deg",
+    "inliers",
+    "patches",
+    "residual_px",
+)
+
+TEXT_COLUMNS = frozenset({"status", "monitor_state", "reason"})
+
+
+class TableError(InputError):
+    """A per-frame table is unreadable or lacks a column; the message names file and row."""
+
+
+def format_value(value: Any) -> str:
+    """Text of one cell: empty for None/NaN, ``repr`` precision for floats."""
+    if value is None:
+        return ""
+    if isinstance(value, (float, np.floating)):
+        v = float(value)
+        return "" if math.isnan(v) else repr(v)
+    if isinstance(value, (np.integer,)):
+        return str(int(value))
+    return str(value)
+
+
+class TableWriter:
+    """Stream rows (mappings of column → value) into a CSV, flushing each row.
+
+    With ``parquet_path`` the same rows are also written as Parquet when closed (needs
+    pyarrow). Use as a context manager.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        extra_columns: Sequence[str] = (),
+        parquet_path: str | Path | None = None,
+    ) -> None:
+        self.path = Path(path)
+        self.columns = list(BASE_COLUMNS) + [c for c in extra_columns if c not in BASE_COLUMNS]
+        self.parquet_path = Path(parquet_path) if parquet_path else None
+        if self.parquet_path is not None:
+            _require_pyarrow()
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = self.path.open("w", newline="")
+        self._writer = csv.writer(self._file)
+        self._writer.writerow(self.columns)
+        self._file.flush()
+        self._rows: list[dict[str, Any]] = []
+
+    def write(self, row: Mapping[str, Any]) -> None:
+        unknown = set(row) - set(self.columns)
+        if unknown:
+            raise KeyError(f"{self.path}: row has columns not in the table: {sorted(unknown)}")
+        self._writer.writerow([format_value(row.get(c)) for c in self.columns])
+        self._file.flush()
+        if self.parquet_path is not None:
+            self._rows.append(dict(row))
+
+    def close(self) -> None:
+        if self._file.closed:
+            return
+        self._file.close()
+        if self.parquet_path is not None:
+            write_parquet(self._rows, self.columns, self.parquet_path)
+
+    def __enter__(self) -> TableWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def write_table(
+    path: str | Path, rows: Iterable[Mapping[str, Any]], extra_columns: Sequence[str] = ()
+) -> None:
+    """Write all ``rows`` to ``path`` (CSV, or Parquet if the suffix is ``.parquet``)."""
+    rows = list(rows)
+    path = Path(path)
+    if path.suffix == ".parquet":
+        columns = list(BASE_COLUMNS) + [c for c in extra_columns if c not in BASE_COLUMNS]
+        write_parquet(rows, columns, path)
+        return
+    with TableWriter(path, extra_columns) as writer:
+        for row in rows:
+            writer.write(row)
+
+
+def write_parquet(rows: Sequence[Mapping[str, Any]], columns: Sequence[str], path: str | Path) -> None:
+    """Write rows as Parquet with the given column order (text columns as strings)."""
+    pa = _require_pyarrow()
+    import pyarrow.parquet as pq
+
+    arrays = {}
+    for c in columns:
+        values = [r.get(c) for r in rows]
+        if c in TEXT_COLUMNS:
+            arrays[c] = pa.array([None if v is None else str(v) for v in values], pa.string())
+        elif c == "frame":
+            arrays[c] = pa.array([int(v) for v in values], pa.int64())
+        else:
+            arrays[c] = pa.array([_to_float(v) for v in values], pa.float64())
+    pq.write_table(pa.table(arrays), str(path))
+
+
+def read_table(path: str | Path, required: Sequence[str] = BASE_COLUMNS[:2]) -> dict[str, NDArray]:
+    """Columns of a per-frame CSV or Parquet file: floats (NaN where empty), ``frame`` as int,
+    text columns as ``str`` arrays. Raises :class:`TableError` naming file, row and column."""
+    path = Path(path)
+    if not path.is_file():
+        raise TableError(f"{path}: file not found")
+    if path.suffix == ".parquet":
+        pa = _require_pyarrow()
+        import pyarrow.parquet as pq
+
+        del pa
+        table = pq.read_table(str(path))
+        raw = {name: table.column(name).to_pylist() for name in table.column_names}
+        header = list(raw)
+        records = [[raw[c][i] for c in header] for i in range(table.num_rows)]
+    else:
+        with path.open(newline="") as f:
+            reader = csv.reader(io.StringIO(f.read()))
+        try:
+            header = [h.strip() for h in next(reader)]
+        except StopIteration as exc:
+            raise TableError(f"{path}: empty file, expected a header row") from exc
+        records = [r for r in reader if r]
+    missing = [c for c in required if c not in header]
+    if missing:
+        raise TableError(f"{path}: missing column(s) {missing}; header is {header}")
+    out: dict[str, NDArray] = {}
+    for j, name in enumerate(header):
+        cells = [r[j] if j < len(r) else "" for r in records]
+        if name in TEXT_COLUMNS:
+            out[name] = np.array(["" if v is None else str(v) for v in cells], dtype=object)
+            continue
+        values = np.empty(len(cells))
+        for i, v in enumerate(cells):
+            try:
+                values[i] = _to_float(v)
+            except ValueError as exc:
+                raise TableError(f"{path}: row {i + 2}, column '{name}': not a number: {v!r}") from exc
+        out[name] = values.astype(np.int64) if name == "frame" and np.all(np.isfinite(values)) else values
+    return out
+
+
+def _to_float(v: Any) -> float:
+    if v is None:
+        return math.nan
+    if isinstance(v, str):
+        v = v.strip()
+        return math.nan if v == "" else float(v)
+    return float(v)
+
+
+def _require_pyarrow():
+    try:
+        import pyarrow
+    except ImportError as exc:  # pragma: no cover - depends on the environment
+        raise RuntimeError("Parquet output needs pyarrow: pip install 'vipm-track[parquet]'") from exc
+    return pyarrow
