@@ -49,6 +49,8 @@ COMBINE_RULES: dict[str, Callable[..., NDArray[np.float64]]] = {
 DEFAULT_MAX_GAP = 0.5
 #: Log suffixes python-can's LogReader reads (``.mf4`` needs asammdf).
 LOG_SUFFIXES = (".log", ".asc", ".blf", ".trc", ".csv", ".mf4", ".db")
+#: Unreadable records skipped in a candump log before reading gives up.
+MAX_READ_ERRORS = 1000
 
 
 @dataclass
@@ -310,11 +312,13 @@ class SpeedDecoder:
         t, v = self._process({id(wanted): ([float(msg.timestamp)], [bytes(msg.data)], [0])})
         return (float(t[0]), float(v[0])) if t.size else None
 
-    def feed_many(self, messages: Iterable, progress: bool = False) -> SpeedSeries:
+    def feed_many(self, messages: Iterable, progress: bool = False,
+                  resume: Callable[[], Iterator] | None = None) -> SpeedSeries:
         """Screen all ``messages``, decode the wanted ones at once; the samples they yield.
 
-        An exception from the iterator (an unreadable log tail) ends the reading; it is
-        recorded in ``summary.read_errors`` and what was read before is kept."""
+        An exception from the iterator (an unreadable record) is recorded in
+        ``summary.read_errors``; reading goes on with ``resume()`` (a fresh iterator that
+        continues after the bad record) where given, else stops keeping what was read."""
         batches: dict[int, tuple[list[float], list[bytes], list[int]]] = {}
         seq = 0
         iterator = iter(messages)
@@ -325,10 +329,15 @@ class SpeedDecoder:
             except StopIteration:
                 break
             except Exception as exc:  # python-can readers raise assorted types on bad files
-                self.summary.read_errors.append(
-                    f"reading stopped after frame {self.summary.frames}: "
-                    f"{type(exc).__name__}: {exc}")
-                break
+                errors = self.summary.read_errors
+                go_on = resume is not None and len(errors) < MAX_READ_ERRORS
+                errors.append(f"unreadable record after frame {self.summary.frames} "
+                              f"({type(exc).__name__}: {exc}); "
+                              + ("skipped" if go_on else "reading stopped there"))
+                if not go_on:
+                    break
+                iterator = resume()
+                continue
             if bar is not None and seq % 4096 == 0:
                 bar.update(self.summary.frames - bar.n)
             seq += 1
@@ -442,8 +451,13 @@ def decode_can_log(path: str | Path, dbc: str | Path | cantools.database.can.Dat
     decoder = SpeedDecoder(dbc, signals, combine=combine, channel=channel, scale=scale,
                            source=str(path))
     reader = _open_log(path)
+    # A candump reader iterates its file line by line: a fresh iterator resumes after a bad
+    # line. The other readers parse a header first, so they stop at the first bad record.
+    import can
+
+    resume = (lambda: iter(reader)) if isinstance(reader, can.CanutilsLogReader) else None
     try:
-        series = decoder.feed_many(reader, progress=progress)
+        series = decoder.feed_many(reader, progress=progress, resume=resume)
     finally:
         stop = getattr(reader, "stop", None)
         if stop is not None:
@@ -605,3 +619,20 @@ def speed_from_args(args: argparse.Namespace, progress: bool = True,
     if len(series) == 0:
         raise InputError(f"{series.source}: no speed samples")
     return series.shifted(offset) if offset else series
+
+
+def fit_speed_scale(series: SpeedSeries, ref_times: ArrayLike, ref_speed_mps: ArrayLike,
+                    min_speed: float = 1.0, max_gap: float = DEFAULT_MAX_GAP) -> float:
+    """Tyre-radius scale [-] taking ``series`` to a reference speed (e.g. GNSS): the median of
+    reference / wheel speed over the reference samples [s, series clock] where both are above
+    ``min_speed`` [m/s]. Use it as ``--speed-scale``."""
+    ref_t = np.asarray(ref_times, dtype=np.float64).reshape(-1)
+    ref_v = np.asarray(ref_speed_mps, dtype=np.float64).reshape(-1)
+    if ref_t.shape != ref_v.shape:
+        raise InputError(f"reference speed: {ref_t.size} times but {ref_v.size} speeds")
+    wheel = series.speed_at(ref_t, max_gap=max_gap)
+    use = np.isfinite(wheel) & np.isfinite(ref_v) & (wheel > min_speed) & (ref_v > min_speed)
+    if use.sum() < 10:
+        raise InputError(f"{series.source or 'speed'}: only {int(use.sum())} reference samples "
+                         f"overlap the speed above {min_speed} m/s; cannot fit a scale")
+    return float(np.median(ref_v[use] / wheel[use]))
