@@ -145,12 +145,26 @@ class MessageDecoder:
         self.signals = [message.get_signal_by_name(n) for n in signal_names]
         self.vectorised = self.length <= 8 and not message.is_multiplexed() and not any(
             s.is_float or s.multiplexer_ids for s in self.signals)
+        # Bit layout per signal: (little-endian word?, LSB position in that word, length,
+        # signed, scale, offset). Motorola start bits are the MSB in sawtooth numbering
+        # (byte*8 + bit); in the big-endian word of the whole payload that is the position
+        # 8*(length-1-byte) + bit.
+        self._layout = []
+        for sig in self.signals:
+            if sig.byte_order == "little_endian":
+                little, lsb = True, sig.start
+            else:
+                msb = 8 * (self.length - 1 - sig.start // 8) + sig.start % 8
+                little, lsb = False, msb - sig.length + 1
+            self._layout.append((little, lsb, sig.length, bool(sig.is_signed),
+                                 float(sig.scale), float(sig.offset)))
         lo = [s.minimum for s in self.signals]
         hi = [s.maximum for s in self.signals]
         # A [0|0] range (common in DBCs) means "not stated": cantools reports None for it.
         stated = [a is not None and b is not None and a != b for a, b in zip(lo, hi, strict=True)]
         self._lo = np.array([a if ok else -np.inf for a, ok in zip(lo, stated, strict=True)])
         self._hi = np.array([b if ok else np.inf for b, ok in zip(hi, stated, strict=True)])
+        self._lo_list, self._hi_list = self._lo.tolist(), self._hi.tolist()
 
     def decode(self, payloads: NDArray[np.uint8]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
         payloads = np.asarray(payloads, dtype=np.uint8).reshape(-1, self.length)
@@ -168,18 +182,33 @@ class MessageDecoder:
         little = np.bitwise_or.reduce(wide << shifts, axis=1) if n else np.zeros(0, np.uint64)
         big = np.bitwise_or.reduce(wide << shifts[::-1], axis=1) if n else np.zeros(0, np.uint64)
         out = np.empty((n, len(self.signals)), dtype=np.float64)
-        for j, sig in enumerate(self.signals):
-            if sig.byte_order == "little_endian":
-                word, lsb = little, sig.start
-            else:
-                # DBC Motorola start bit is the MSB in sawtooth numbering (byte*8 + bit).
-                msb = 8 * (length - 1 - sig.start // 8) + sig.start % 8
-                word, lsb = big, msb - sig.length + 1
-            raw = (word >> np.uint64(lsb)) & np.uint64((1 << sig.length) - 1)
+        for j, (is_little, lsb, nbits, signed, scale, offset) in enumerate(self._layout):
+            word = little if is_little else big
+            raw = (word >> np.uint64(lsb)) & np.uint64((1 << nbits) - 1)
             value = raw.astype(np.int64)
-            if sig.is_signed:
-                value = np.where(value >= 1 << (sig.length - 1), value - (1 << sig.length), value)
-            out[:, j] = value * float(sig.scale) + float(sig.offset)
+            if signed:
+                value = np.where(value >= 1 << (nbits - 1), value - (1 << nbits), value)
+            out[:, j] = value * scale + offset
+        return out
+
+    def decode_one(self, data: bytes) -> list[float] | None:
+        """Physical values of one payload (DBC units), or None if undecodable or out of the
+        DBC's range: the scalar twin of :meth:`decode` for live buses (a few µs a frame)."""
+        if not self.vectorised:
+            values, ok = self.decode(np.frombuffer(data, dtype=np.uint8))
+            return values[0].tolist() if ok[0] else None
+        little = int.from_bytes(data, "little")
+        big = int.from_bytes(data, "big")
+        out = []
+        for (is_little, lsb, nbits, signed, scale, offset), lo, hi in zip(
+                self._layout, self._lo_list, self._hi_list, strict=True):
+            raw = ((little if is_little else big) >> lsb) & ((1 << nbits) - 1)
+            if signed and raw >= 1 << (nbits - 1):
+                raw -= 1 << nbits
+            value = raw * scale + offset
+            if not lo <= value <= hi:
+                return None
+            out.append(value)
         return out
 
     def _decode_cantools(self, payloads: NDArray[np.uint8]) -> NDArray[np.float64]:

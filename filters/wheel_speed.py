@@ -26,6 +26,7 @@ import argparse
 import csv
 import math
 import re
+import statistics
 import sys
 import time
 from collections import Counter
@@ -44,6 +45,10 @@ from .can_decode import MessageDecoder, SignalSpec, load_dbc, parse_signal_specs
 #: Rules combining several speed signals into one speed (rows: samples, columns: signals).
 COMBINE_RULES: dict[str, Callable[..., NDArray[np.float64]]] = {
     "mean": np.mean, "median": np.median, "min": np.min, "max": np.max,
+}
+_COMBINE_SCALAR: dict[str, Callable[[list[float]], float]] = {
+    "mean": lambda v: sum(v) / len(v),
+    "median": statistics.median, "min": min, "max": max,
 }
 #: Default largest spacing of speed samples [s] across which interpolation is trusted.
 DEFAULT_MAX_GAP = 0.5
@@ -223,6 +228,10 @@ class _Wanted:
     columns: NDArray[np.intp]
     t_last: float = -math.inf
 
+    @property
+    def column_list(self) -> list[int]:
+        return self.columns.tolist()
+
 
 class SpeedDecoder:
     """Streaming speed decoder: feed python-can messages, get speed samples.
@@ -265,10 +274,13 @@ class SpeedDecoder:
             dec = MessageDecoder(msg, [self.specs[j].signal for j in cols])
             self._wanted[(msg.frame_id, bool(msg.is_extended_frame))] = _Wanted(dec, np.array(cols))
         self._to_mps = np.array([s.to_mps for s in self.specs])
-        self._hold = np.full(len(self.specs), np.nan)   # latest value of each signal [m/s]
-        self._t_max = -math.inf                          # latest accepted wanted-frame time
-        self._t: list[NDArray[np.float64]] = []
+        self._to_mps_list = self._to_mps.tolist()
+        self._hold = [math.nan] * len(self.specs)   # latest value of each signal [m/s]
+        self._t_max = -math.inf                      # latest accepted wanted-frame time
+        self._t: list[NDArray[np.float64]] = []     # emitted samples, in chunks
         self._v: list[NDArray[np.float64]] = []
+        self._pending_t: list[float] = []           # samples from feed() not yet chunked
+        self._pending_v: list[float] = []
 
     @property
     def signal_names(self) -> tuple[str, ...]:
@@ -305,12 +317,34 @@ class SpeedDecoder:
 
     def feed(self, msg) -> tuple[float, float] | None:
         """Screen and decode one ``can.Message``; the (t [s], speed [m/s]) sample it yields,
-        or None (other id, bad frame, or not every signal seen yet)."""
+        or None (other id, bad frame, or not every signal seen yet). Same rules and results
+        as :meth:`feed_many`, in scalar Python for per-frame speed."""
         wanted = self._screen(msg)
         if wanted is None:
             return None
-        t, v = self._process({id(wanted): ([float(msg.timestamp)], [bytes(msg.data)], [0])})
-        return (float(t[0]), float(v[0])) if t.size else None
+        s = self.summary
+        t = float(msg.timestamp)
+        if not (math.isfinite(t) and t > wanted.t_last):
+            s.non_monotonic += 1
+            return None
+        wanted.t_last = t
+        values = wanted.decoder.decode_one(bytes(msg.data))
+        if values is None:
+            s.decode_errors += 1
+            return None
+        s.used += 1
+        hold = self._hold
+        for col, value in zip(wanted.column_list, values, strict=True):
+            hold[col] = value * self._to_mps_list[col]
+        emit = t > self._t_max and not any(math.isnan(h) for h in hold)
+        self._t_max = max(self._t_max, t)
+        if not emit:
+            return None
+        speed = float(_COMBINE_SCALAR[self.combine](hold)) * self.scale
+        self._pending_t.append(t)
+        self._pending_v.append(speed)
+        s.samples += 1
+        return t, speed
 
     def feed_many(self, messages: Iterable, progress: bool = False,
                   resume: Callable[[], Iterator] | None = None) -> SpeedSeries:
@@ -355,8 +389,15 @@ class SpeedDecoder:
         return SpeedSeries(t, v, source=self.summary.source, signals=self.signal_names,
                            scale=self.scale, summary=self.summary)
 
+    def _flush(self) -> None:
+        if self._pending_t:
+            self._t.append(np.array(self._pending_t))
+            self._v.append(np.array(self._pending_v))
+            self._pending_t, self._pending_v = [], []
+
     def series(self) -> SpeedSeries:
         """Every sample produced so far (by ``feed`` and ``feed_many``)."""
+        self._flush()
         t = np.concatenate(self._t) if self._t else np.zeros(0)
         v = np.concatenate(self._v) if self._v else np.zeros(0)
         return SpeedSeries(t, v, source=self.summary.source, signals=self.signal_names,
@@ -365,6 +406,7 @@ class SpeedDecoder:
     # -- vectorised decode and combination --------------------------------------------------
     def _process(self, batches: dict[int, tuple[list[float], list[bytes], list[int]]]
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        self._flush()
         by_id = {id(w): w for w in self._wanted.values()}
         ev_t, ev_order, ev_rows, ev_msg = [], [], [], []
         for m_index, (key, (ts, data, order)) in enumerate(batches.items()):
@@ -393,14 +435,15 @@ class SpeedDecoder:
         rows = np.concatenate(ev_rows)[order]
         n = t.size
         # Sample-and-hold: each signal takes its latest value (or the held one from before).
+        hold = np.array(self._hold, dtype=np.float64)
         filled = np.empty_like(rows)
         for j in range(len(self.specs)):
             src = np.where(np.isfinite(rows[:, j]), np.arange(n), -1)
             src = np.maximum.accumulate(src)
-            filled[:, j] = np.where(src >= 0, rows[np.maximum(src, 0), j], self._hold[j])
+            filled[:, j] = np.where(src >= 0, rows[np.maximum(src, 0), j], hold[j])
         prior = np.maximum.accumulate(np.concatenate([[self._t_max], t[:-1]]))
         emit = np.all(np.isfinite(filled), axis=1) & (t > prior)
-        self._hold = filled[-1].copy()
+        self._hold = filled[-1].tolist()
         self._t_max = max(self._t_max, float(t.max()))
         speed = COMBINE_RULES[self.combine](filled[emit], axis=1) * self.scale
         self._t.append(t[emit])

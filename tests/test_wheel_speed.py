@@ -121,10 +121,14 @@ def test_bit_decoder_matches_cantools_on_every_dbc_signal(dbc):
         dec = MessageDecoder(msg, names)
         assert dec.vectorised
         payloads = rng.integers(0, 256, size=(20, msg.length), dtype=np.uint8)
-        values, _ = dec.decode(payloads)
-        for row, got in zip(payloads, values, strict=True):
+        values, ok = dec.decode(payloads)
+        for row, got, good in zip(payloads, values, ok, strict=True):
             want = msg.decode(bytes(row), decode_choices=False, scaling=True)
             np.testing.assert_allclose(got, [want[n] for n in names], rtol=1e-12, atol=1e-9)
+            one = dec.decode_one(bytes(row))  # the scalar twin used by live buses
+            assert (one is not None) == good
+            if good:
+                np.testing.assert_array_equal(one, got)
         checked += len(names)
     assert checked > 250  # big- and little-endian, signed and unsigned signals all covered
 
@@ -185,15 +189,17 @@ def test_unreadable_candump_line_is_skipped(data, tmp_path):
 # -- streaming / live buses ---------------------------------------------------------------------
 
 def test_feed_equals_feed_many_across_messages(dbc, messages):
-    spec = "WHEEL_SPEEDS.WHEEL_SPEED_RL,SPEED.SPEED"
     part = messages[:20000]
-    batch = SpeedDecoder(dbc, spec, combine="median").feed_many(part)
-    stream = SpeedDecoder(dbc, spec, combine="median")
-    samples = [s for s in (stream.feed(m) for m in part) if s is not None]
-    t, v = np.array(samples).T
-    np.testing.assert_array_equal(t, batch.t)
-    np.testing.assert_allclose(v, batch.speed_mps, rtol=1e-12)
-    assert np.all(np.diff(batch.t) > 0) and len(batch) > 1000
+    for spec, rule in (("WHEEL_SPEEDS.WHEEL_SPEED_RL,SPEED.SPEED", "median"),
+                       (ALL_WHEELS, "mean")):
+        batch = SpeedDecoder(dbc, spec, combine=rule).feed_many(part)
+        stream = SpeedDecoder(dbc, spec, combine=rule)
+        samples = [s for s in (stream.feed(m) for m in part) if s is not None]
+        t, v = np.array(samples).T
+        np.testing.assert_array_equal(t, batch.t)
+        np.testing.assert_allclose(v, batch.speed_mps, rtol=1e-12)
+        np.testing.assert_array_equal(stream.series().t, t)
+        assert np.all(np.diff(batch.t) > 0) and len(batch) > 1000
 
 
 def test_virtual_bus_streams_speed_to_frame_times(data, messages, ref_wheels, ref_gnss):
