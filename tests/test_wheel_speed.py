@@ -200,6 +200,12 @@ def test_feed_equals_feed_many_across_messages(dbc, messages):
         np.testing.assert_allclose(v, batch.speed_mps, rtol=1e-12)
         np.testing.assert_array_equal(stream.series().t, t)
         assert np.all(np.diff(batch.t) > 0) and len(batch) > 1000
+        mixed = SpeedDecoder(dbc, spec, combine=rule)  # feed() then feed_many() share state
+        for m in part[:7000]:
+            mixed.feed(m)
+        mixed.feed_many(part[7000:])
+        np.testing.assert_array_equal(mixed.series().t, batch.t)
+        np.testing.assert_allclose(mixed.series().speed_mps, batch.speed_mps, rtol=1e-12)
 
 
 def test_virtual_bus_streams_speed_to_frame_times(data, messages, ref_wheels, ref_gnss):
