@@ -18,11 +18,15 @@ def data_path(*parts: str) -> Path:
     if candidate.exists():
         return candidate
     try:
-        installed = Path(str(resources.files("vipm_track.data").joinpath(*parts)))
+        node = resources.files("vipm_track.data")
     except ModuleNotFoundError:
-        installed = None
-    if installed is not None and installed.exists():
-        return installed
+        node = None
+    if node is not None:
+        for part in parts:
+            node = node.joinpath(part)
+        installed = Path(str(node))
+        if installed.exists():
+            return installed
     raise FileNotFoundError(
         f"embedded data '{'/'.join(parts)}' not found in {_REPO_DATA} nor in the installed "
         "vipm_track.data package"
