@@ -342,3 +342,17 @@ def test_cli_can_speed(data, tmp_path, capsys):
     rc = main(["can-speed", str(tmp_path / "missing.log"), "--dbc",
                str(data / "toyota_2017.dbc"), "--out", str(out)])
     assert rc == 2 and "CAN log not found" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("suffix", ["trc", "csv"])
+def test_other_python_can_formats(dbc, messages, tmp_path, suffix):
+    part = messages[:3000]
+    path = tmp_path / f"part.{suffix}"
+    with can.Logger(str(path)) as writer:
+        for m in part:
+            writer.on_message_received(m)
+    series, summary = decode_can_log(path, dbc)
+    want = SpeedDecoder(dbc).feed_many(part)
+    assert summary.frames == len(part) and summary.bad == 0
+    np.testing.assert_allclose(series.speed_mps, want.speed_mps, atol=1e-12)
+    np.testing.assert_allclose(np.diff(series.t), np.diff(want.t), atol=2e-4)
