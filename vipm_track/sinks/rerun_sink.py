@@ -44,6 +44,7 @@ from numpy.typing import NDArray
 
 from ..errors import InputError
 from ..geometry import PlanarMotion, compose_motion
+from .trajectory import planar_path
 
 FRAME_TIMELINE = "frame"
 TIME_TIMELINE = "time"
@@ -239,17 +240,16 @@ class RerunSink:
 
     def log_table(self, columns: Mapping[str, NDArray], kind: str = "smoothed") -> None:
         """Log a whole per-frame table (``table.read_table`` columns) as the ``kind`` series,
-        batched with ``send_columns``. A ground-truth table with ``world_x_m``/``world_z_m``
-        columns gives the trajectory directly, otherwise the motions are chained."""
+        batched with ``send_columns``; rows log the columns where they have numbers. A
+        ground-truth table with ``world_x_m``/``world_z_m`` columns gives the trajectory
+        directly, otherwise the motions are chained (``trajectory.planar_path``)."""
         import rerun as rr
 
         _check_kind(kind)
         frame = np.asarray(columns["frame"], dtype=np.int64)
         n = len(frame)
         t = np.asarray(columns.get("t", np.full(n, np.nan)), dtype=float)
-        status = columns.get("status")
-        valid = np.ones(n, bool) if status is None else np.isin(
-            np.asarray(status, dtype=object), ["ok", "first", ""])
+        valid = np.ones(n, bool)  # rows without an estimate have empty (NaN) numbers
         for name, (col, std_col) in COLUMNS.items():
             if col not in columns:
                 continue
@@ -273,7 +273,7 @@ class RerunSink:
                         columns=rr.Scalars.columns(scalars=band[rows]).partition(
                             np.full(int(rows.sum()), 2)),
                     )
-        xz = _table_path(columns, valid)
+        xz = planar_path(columns, valid)
         if xz is not None:
             finite = np.all(np.isfinite(xz), axis=1)
             idx = np.flatnonzero(finite)
@@ -477,30 +477,6 @@ def _to_uint8(image: NDArray) -> NDArray[np.uint8]:
     if img.dtype == np.uint8:
         return img
     return np.clip(np.nan_to_num(img, nan=0.0), 0, 255).astype(np.uint8)
-
-
-def _table_path(columns: Mapping[str, NDArray], valid: NDArray) -> NDArray | None:
-    """(N, 2) world (x, z) per row [m]: ``world_x_m``/``world_z_m`` if present, else the
-    motions chained from the first valid row (rows without a motion hold the position)."""
-    if "world_x_m" in columns and "world_z_m" in columns:
-        xz = np.stack([np.asarray(columns["world_x_m"], float),
-                       np.asarray(columns["world_z_m"], float)], 1)
-        xz[~valid] = np.nan
-        return xz
-    if not all(COLUMNS[n][0] in columns for n in MOTION):
-        return None
-    tx, tz, yaw = (np.asarray(columns[COLUMNS[n][0]], float) for n in MOTION)
-    xz = np.full((len(tx), 2), np.nan)
-    pose = PlanarMotion(0.0, 0.0, 0.0)
-    started = False
-    for i in np.flatnonzero(valid):
-        step = (tx[i], tz[i], math.radians(yaw[i]))
-        if all(math.isfinite(v) for v in step):
-            pose = compose_motion(pose, PlanarMotion(*step))
-            started = True
-        if started:
-            xz[i] = (pose.tx, pose.tz)
-    return xz
 
 
 # --- layout --------------------------------------------------------------------------------
