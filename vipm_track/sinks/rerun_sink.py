@@ -223,12 +223,10 @@ class RerunSink:
 
     def log_track_row(self, row: Mapping[str, Any], kind: str = "filtered") -> None:
         """Log one per-frame table row (CONVENTIONS.md columns, optional ``*_std_*`` columns)
-        as the ``kind`` series (``filtered``, ``smoothed``, ``truth``, ``per_frame``)."""
+        as the ``kind`` series (``filtered``, ``smoothed``, ``truth``, ``per_frame``); the
+        columns with numbers are logged, whatever the status word."""
         _check_kind(kind)
         self.set_time(int(row["frame"]), _float(row.get("t")))
-        status = row.get("status", "ok")
-        if status not in ("ok", "", None):
-            return
         for name, (col, std_col) in COLUMNS.items():
             value = _float(row.get(col))
             if math.isfinite(value):

@@ -1,0 +1,329 @@
+"""Dashboards: rerun recordings read back with rerun's chunk reader, plot reports, the CLI."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vipm_track.cli import main
+from vipm_track.errors import InputError
+from vipm_track.measurement import PairMeasurement
+from vipm_track.sim import GT_EXTRA_COLUMNS, PRESETS, gt_rows, make_trajectory
+from vipm_track.sinks.rerun_sink import (
+    RerunSink,
+    default_blueprint,
+    grpc_url,
+    recording_entities,
+    sink_from_args,
+)
+from vipm_track.sinks.trajectory import planar_path
+from vipm_track.table import read_table, write_table
+
+# --- helpers ---------------------------------------------------------------------------------
+
+
+def entity_rows(path: Path, entity: str, component: str) -> dict[int, np.ndarray]:
+    """frame → values of one component of one entity in a recording (temporal rows)."""
+    from rerun.chunk import RrdReader
+
+    out: dict[int, np.ndarray] = {}
+    for chunk in RrdReader(path).stream():
+        if chunk.entity_path != entity or chunk.is_static:
+            continue
+        batch = chunk.to_record_batch()
+        frames = batch.column("frame").to_pylist()
+        values = batch.column(component).to_pylist()
+        for f, v in zip(frames, values, strict=True):
+            out[int(f)] = np.asarray(v, dtype=float)
+    return out
+
+
+def truth_table(tmp_path: Path, profile: str = "turn", n: int = 40, seed: int = 3) -> Path:
+    traj = make_trajectory(profile, n, preset="cart", seed=seed)
+    path = tmp_path / "gt.csv"
+    write_table(path, gt_rows(traj), GT_EXTRA_COLUMNS)
+    return path
+
+
+def noisy_track(truth: dict, tmp_path: Path, sigma_deg: float = 0.2, seed: int = 1,
+                monitor: bool = True) -> Path:
+    """A track table: truth + Gaussian noise of ``sigma_deg`` on pitch/roll, std columns,
+    a failed row and (optionally) a monitor state column."""
+    rng = np.random.default_rng(seed)
+    n = len(truth["frame"])
+    rows = []
+    for i in range(n):
+        row = {c: truth[c][i] for c in ("frame", "t", "height_m", "tx_m", "tz_m", "yaw_deg")}
+        row["pitch_deg"] = truth["pitch_deg"][i] + rng.normal(0, sigma_deg)
+        row["roll_deg"] = truth["roll_deg"][i] + rng.normal(0, sigma_deg)
+        row["pitch_std_deg"] = row["roll_std_deg"] = sigma_deg
+        row["status"] = "ok"
+        if monitor:
+            row["monitor_state"] = ("UNCALIBRATED", "CALIBRATED", "DRIFTING")[min(2, i // 15)]
+            row["monitor_statistic"] = i / n
+        rows.append(row)
+    rows[10] = {"frame": truth["frame"][10], "t": truth["t"][10], "status": "too few inliers"}
+    path = tmp_path / "track.csv"
+    extra = ["pitch_std_deg", "roll_std_deg"] + (
+        ["monitor_state", "monitor_statistic"] if monitor else [])
+    write_table(path, rows, extra)
+    return path
+
+
+@dataclass
+class FakeStage:
+    """The estimator's PatchField fields the sink reads."""
+
+    plane: str
+    centres: np.ndarray
+    displacements: np.ndarray
+    peaks: np.ndarray
+    inliers: np.ndarray
+    sizes: np.ndarray
+
+
+@dataclass
+class FakeResult:
+    """The estimator's PairResult fields the sink reads (the real one is tested below)."""
+
+    status: str
+    z: np.ndarray
+    stages: list = field(default_factory=list)
+    ipm_images: tuple | None = None
+    timings: dict = field(default_factory=dict)
+    residual_px: float = 0.5
+    reason: str = ""
+
+    def to_measurement(self, frame: int, t: float) -> PairMeasurement:
+        cov = np.diag(np.full(7, 1e-4)) if self.status == "ok" else np.full((7, 7), np.nan)
+        z = self.z if self.status == "ok" else np.full(7, np.nan)
+        return PairMeasurement(frame, t, z, cov, 0.7, self.status, 30)
+
+
+def fake_stage(plane: str, rng: np.random.Generator, n: int = 12) -> FakeStage:
+    centres = rng.uniform(100, 500, (n, 2))
+    disp = rng.normal(0, 5, (n, 2))
+    disp[0] = np.nan  # not measured
+    inliers = np.arange(n) % 3 != 1
+    inliers[0] = False
+    return FakeStage(plane, centres, disp, np.full(n, 0.5), inliers, np.full(n, 64))
+
+
+# --- rerun -----------------------------------------------------------------------------------
+
+
+def test_recording_entities_rows_and_values(tmp_path: Path) -> None:
+    """Pairs, a filtered track, ground truth and monitor outputs written and read back: entity
+    paths, row counts, logged numbers (degrees from radians, ±2σ band, scaled arrows)."""
+    rng = np.random.default_rng(0)
+    gt = read_table(truth_table(tmp_path, n=12))
+    rrd = tmp_path / "run.rrd"
+    sink = RerunSink.to_file(rrd, image_every=2, max_image_side=400)
+    z_true = {}
+    image = rng.integers(0, 255, (600, 800), dtype=np.uint8)  # downscaled by 0.5 when logged
+    stages = {}
+    for k in range(1, 7):
+        z = np.array([0.78, 0.01, 0.79 + 0.001 * k, -0.02, 0.0, 0.12, 0.003])
+        status = "too few inliers" if k == 4 else "ok"
+        stages[k] = [fake_stage("image", rng), fake_stage("ipm", rng)]
+        ipm = (rng.random((900, 700)).astype(np.float32) * 255, np.full((900, 700), np.nan))
+        result = FakeResult(status, z, stages[k], ipm, {"poc": 0.01, "lm": 0.02})
+        sink.log_pair(k, 0.1 * k, result, image)
+        z_true[k] = z
+    sink.log_gt(gt)
+    for i in range(len(gt["frame"])):
+        sink.log_track_row({c: gt[c][i] for c in gt}, "filtered")
+
+    @dataclass
+    class Out:  # the monitor's MonitorOutput fields the sink reads
+        frame: int
+        t: float
+        state: str
+        reason: str
+        statistic: np.ndarray
+        deviation: np.ndarray
+        estimate: np.ndarray | None = None
+        event: dict | None = None
+
+    for k in range(6):
+        state = "CALIBRATED" if k < 4 else "RECALIBRATE"
+        est = np.array([0.8, 0.0, 0.7]) if state == "RECALIBRATE" else None
+        event = {"state": state} if k in (0, 4) else None
+        sink.log_monitor(Out(k, 0.1 * k, state, "pitch +1.2°" if k == 4 else "",
+                             np.array([0.1 * k, 0.0, np.nan]), np.array([0.01, 0.0, 0.0]),
+                             est, event))
+    sink.finish()
+    sink.finish()  # idempotent
+
+    rows = recording_entities(rrd)
+    ok_pairs, shown = 5, 3  # pairs 1..6 minus the failed one; images of pairs 1, 3, 5
+    assert rows["/series/pitch/per_frame"] == ok_pairs
+    assert rows["/series/pitch/per_frame_band"] == ok_pairs
+    assert rows["/motion/tz/per_frame"] == ok_pairs
+    assert rows["/trajectory/per_frame"] == ok_pairs
+    assert rows["/camera/image"] == shown
+    assert rows["/camera/patches"] == rows["/camera/displacements"] == shown
+    assert rows["/ipm/prev/image"] == rows["/ipm/curr/image"] == rows["/ipm/curr/matches"] == shown
+    assert rows["/timing/poc"] == 6
+    assert rows["/series/pitch/truth"] == 12 and rows["/motion/tz/truth"] == 11
+    assert rows["/trajectory/truth"] == 11
+    assert rows["/series/roll/filtered"] == 12 and rows["/motion/yaw/filtered"] == 11
+    assert rows["/monitor/state"] == 2  # state changes only
+    assert rows["/monitor/state_code"] == 6 and rows["/monitor/statistic/pitch"] == 6
+    assert "/monitor/statistic/height" not in rows  # NaN statistics are not logged
+    assert rows["/series/pitch/monitor"] == 2
+    assert rows["/log"] == 1 + 2  # the failed pair, two monitor events
+    static = recording_entities(rrd, static=True)
+    assert "/series/pitch/per_frame" in static  # series styles are static
+
+    pitch = entity_rows(rrd, "/series/pitch/per_frame", "Scalars:scalars")
+    assert sorted(pitch) == [1, 2, 3, 5, 6]
+    for k, v in pitch.items():
+        assert v[0] == pytest.approx(math.degrees(z_true[k][2]))
+    band = entity_rows(rrd, "/series/pitch/per_frame_band", "Scalars:scalars")
+    sigma = math.degrees(1e-2)
+    assert band[2] == pytest.approx(pitch[2][0] + np.array([-2 * sigma, 2 * sigma]))
+    arrows = entity_rows(rrd, "/camera/displacements", "Arrows2D:vectors")
+    disp = stages[3][0].displacements
+    np.testing.assert_allclose(arrows[3].reshape(-1, 2), 0.5 * disp[1:], rtol=1e-6)
+    truth_pitch = entity_rows(rrd, "/series/pitch/truth", "Scalars:scalars")
+    np.testing.assert_allclose([truth_pitch[k][0] for k in range(12)], gt["pitch_deg"])
+
+
+def test_recording_from_real_estimator(tmp_path: Path) -> None:
+    """Two rendered pairs through the real estimator: patches, IPM images and series land."""
+    estimator = pytest.importorskip("vipm_track.estimator")
+    from vipm_track.sim import preset_texture, render_trajectory_frame
+
+    preset = PRESETS["cart"]
+    traj = make_trajectory("static", 3, preset="cart", seed=2)
+    camera = preset.camera()
+    texture = preset_texture(preset, seed=2)
+    images = [render_trajectory_frame(texture, camera, traj, k) for k in range(3)]
+    est = estimator.TwoFrameEstimator(camera, preset.height_m,
+                                      estimator.EstimatorConfig(keep_images=True))
+    rrd = tmp_path / "pairs.rrd"
+    with RerunSink.to_file(rrd) as sink:
+        results = []
+        for k in (1, 2):
+            result = est.estimate(images[k - 1], images[k])
+            sink.log_pair(k, float(traj.t[k]), result, images[k])
+            results.append(result)
+    assert all(r.status == "ok" for r in results), [r.reason for r in results]
+    rows = recording_entities(rrd)
+    for entity in ("/camera/image", "/camera/patches", "/camera/displacements",
+                   "/ipm/prev/image", "/ipm/prev/displacements", "/ipm/curr/image",
+                   "/series/pitch/per_frame", "/series/roll/per_frame", "/trajectory/per_frame"):
+        assert rows.get(entity) == 2, (entity, rows.get(entity))
+    pitch = entity_rows(rrd, "/series/pitch/per_frame", "Scalars:scalars")
+    assert pitch[2][0] == pytest.approx(math.degrees(traj.pitch[2]), abs=1.0)
+
+
+def test_sink_from_args_and_urls(tmp_path: Path) -> None:
+    args = argparse.Namespace(rerun=None, rerun_spawn=False, rerun_connect=None)
+    assert sink_from_args(args, "t") is None
+    args.rerun = str(tmp_path / "sub" / "x.rrd")
+    sink = sink_from_args(args, "t", image_every=3)
+    assert sink is not None and sink.image_every == 3
+    sink.log_text(0, 0.0, "hello")
+    sink.finish()
+    assert recording_entities(args.rerun) == {"/log": 1}
+    args.rerun = str(tmp_path)
+    with pytest.raises(InputError, match="folder"):
+        sink_from_args(args, "t")
+    assert grpc_url("10.0.0.2:9000") == "rerun+http://10.0.0.2:9000/proxy"
+    assert grpc_url("rerun+http://h:1/proxy") == "rerun+http://h:1/proxy"
+    with pytest.raises(InputError, match="port"):
+        grpc_url("host:abc")
+    with pytest.raises(InputError, match="jpeg"):
+        RerunSink(None, jpeg_quality=0)
+    assert default_blueprint() is not None
+    with pytest.raises(InputError, match="not found"):
+        recording_entities(tmp_path / "missing.rrd")
+
+
+# --- trajectory ------------------------------------------------------------------------------
+
+
+def test_planar_path_chains_motions_to_world_positions(tmp_path: Path) -> None:
+    """Chaining gt.csv's motions reproduces its world positions (a turning drive)."""
+    gt = read_table(truth_table(tmp_path, "turn", 60))
+    world = planar_path(gt)
+    np.testing.assert_allclose(world, np.stack([gt["world_x_m"], gt["world_z_m"]], 1))
+    chained = planar_path({k: v for k, v in gt.items() if not k.startswith("world_")})
+    np.testing.assert_allclose(chained, world - world[0], atol=1e-9)
+    assert abs(world[-1, 0]) > 0.2  # the turn bends the path
+    assert planar_path({"frame": gt["frame"]}) is None
+
+
+# --- report ----------------------------------------------------------------------------------
+
+
+def _non_trivial_png(path: Path) -> None:
+    import matplotlib.image as mpimg
+
+    assert path.is_file() and path.stat().st_size > 15_000, path
+    pixels = mpimg.imread(path)
+    assert pixels.shape[0] > 200 and pixels.shape[1] > 400
+    assert pixels[..., :3].std() > 0.05  # not a blank canvas
+    assert len(np.unique(pixels[..., :3].reshape(-1, 3), axis=0)) > 50
+
+
+def test_report_with_ground_truth(tmp_path: Path) -> None:
+    """Plots exist and are non-trivial; the summary's errors match the injected noise."""
+    pytest.importorskip("vipm_track.evaluate")
+    from vipm_track.sinks.report import write_report
+
+    gt_path = truth_table(tmp_path, "gradual", 200, seed=5)
+    truth = read_table(gt_path)
+    track = noisy_track(truth, tmp_path, sigma_deg=0.2)
+    report = write_report(track, tmp_path / "rep", gt=gt_path, title="test drive")
+    assert set(report.plots) == {"pitch_roll_height", "errors", "motion", "monitor"}
+    for path in report.plots.values():
+        _non_trivial_png(path)
+    assert report.errors["pitch_deg"]["n"] == 199
+    assert report.errors["pitch_deg"]["rms"] == pytest.approx(0.2, rel=0.15)
+    assert report.errors["roll_deg"]["rms"] == pytest.approx(0.2, rel=0.15)
+    assert report.errors["height_m"]["max_abs"] == pytest.approx(0.0, abs=1e-9)
+    assert report.errors["distance_m"]["max_abs"] == pytest.approx(0.0, abs=1e-9)
+    text = report.markdown.read_text()
+    assert "## Error against ground truth" in text and "too few inliers × 1" in text
+    assert "UNCALIBRATED → CALIBRATED" in text and "CALIBRATED → DRIFTING" in text
+    assert "![errors](errors.png)" in text
+
+
+def test_report_drift_and_without_truth(tmp_path: Path) -> None:
+    """A known linear pitch drift is reported as such; no GT → no errors plot."""
+    from vipm_track.sinks.report import write_report
+
+    t = np.arange(0, 120, 0.5)
+    rows = [{"frame": i, "t": ti, "pitch_deg": 3.0 + 0.5 * ti / 60.0, "roll_deg": 0.1,
+             "height_m": 1.5, "tx_m": 0.0, "tz_m": 5.0, "yaw_deg": 0.0, "status": "ok"}
+            for i, ti in enumerate(t)]
+    write_table(tmp_path / "track.csv", rows)
+    report = write_report(tmp_path / "track.csv", tmp_path / "rep")
+    assert set(report.plots) == {"pitch_roll_height", "motion"}
+    for path in report.plots.values():
+        _non_trivial_png(path)
+    pitch = report.summary["pitch_deg"]
+    assert pitch["slope_per_min"] == pytest.approx(0.5, rel=1e-6)
+    assert pitch["end_minus_start"] == pytest.approx(0.5 * (t[-12] - t[11]) / 60, rel=0.05)
+    assert report.summary["roll_deg"]["std"] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_report_cli_and_errors(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    gt_path = truth_table(tmp_path, "static", 20)
+    track = noisy_track(read_table(gt_path), tmp_path, monitor=False)
+    assert main(["report", str(track), "--out", str(tmp_path / "r")]) == 0
+    assert (tmp_path / "r" / "report.md").is_file()
+    assert "report.md" in capsys.readouterr().err
+    assert main(["report", str(tmp_path / "nope.csv"), "--out", str(tmp_path / "r")]) == 2
+    assert "nope.csv" in capsys.readouterr().err
+    (tmp_path / "bad.csv").write_text("frame,t,speed\n0,0.0,1\n")
+    assert main(["report", str(tmp_path / "bad.csv"), "--out", str(tmp_path / "r")]) == 2
+    assert "no pose or motion column" in capsys.readouterr().err
