@@ -196,32 +196,44 @@ def test_recording_entities_rows_and_values(tmp_path: Path) -> None:
 
 
 def test_recording_from_real_estimator(tmp_path: Path) -> None:
-    """Two rendered pairs through the real estimator: patches, IPM images and series land."""
+    """Two rendered pairs through the real estimator: camera image, patches, IPM images and
+    series land with one row per pair (series only for pairs the estimator got)."""
     estimator = pytest.importorskip("vipm_track.estimator")
     from vipm_track.sim import preset_texture, render_trajectory_frame
 
     preset = PRESETS["cart"]
-    traj = make_trajectory("static", 3, preset="cart", seed=2)
+    traj = make_trajectory("shaking", 3, preset="cart", seed=7)
     camera = preset.camera()
-    texture = preset_texture(preset, seed=2)
+    texture = preset_texture(preset, seed=7)
     images = [render_trajectory_frame(texture, camera, traj, k) for k in range(3)]
     est = estimator.TwoFrameEstimator(camera, preset.height_m,
                                       estimator.EstimatorConfig(keep_images=True))
     rrd = tmp_path / "pairs.rrd"
+    results = {}
     with RerunSink.to_file(rrd) as sink:
-        results = []
         for k in (1, 2):
-            result = est.estimate(images[k - 1], images[k])
-            sink.log_pair(k, float(traj.t[k]), result, images[k])
-            results.append(result)
-    assert all(r.status == "ok" for r in results), [r.reason for r in results]
+            results[k] = est.estimate(images[k - 1], images[k])
+            sink.log_pair(k, float(traj.t[k]), results[k], images[k])
     rows = recording_entities(rrd)
-    for entity in ("/camera/image", "/camera/patches", "/camera/displacements",
-                   "/ipm/prev/image", "/ipm/prev/displacements", "/ipm/curr/image",
-                   "/series/pitch/per_frame", "/series/roll/per_frame", "/trajectory/per_frame"):
-        assert rows.get(entity) == 2, (entity, rows.get(entity))
+    assert rows["/camera/image"] == 2
+    assert rows["/camera/patches"] == rows["/camera/displacements"] == 2
+    n_ok = sum(r.status == "ok" for r in results.values())
+    n_ipm = sum(r.ipm_images is not None for r in results.values())
+    assert n_ok >= 1, [r.reason for r in results.values()]
+    for entity in ("/series/pitch/per_frame", "/series/roll/per_frame", "/trajectory/per_frame"):
+        assert rows.get(entity) == n_ok, entity
+    for entity in ("/ipm/prev/image", "/ipm/prev/displacements", "/ipm/curr/image"):
+        assert rows.get(entity) == n_ipm, entity
+    assert rows.get("/log", 0) == 2 - n_ok
+    arrows = entity_rows(rrd, "/camera/displacements", "Arrows2D:vectors")
+    field = results[1].stages[0]
+    measured = np.all(np.isfinite(field.displacements), axis=1)
+    np.testing.assert_allclose(arrows[1].reshape(-1, 2), field.displacements[measured],
+                               rtol=1e-6)
     pitch = entity_rows(rrd, "/series/pitch/per_frame", "Scalars:scalars")
-    assert pitch[2][0] == pytest.approx(math.degrees(traj.pitch[2]), abs=1.0)
+    for k, v in pitch.items():
+        assert v[0] == pytest.approx(math.degrees(results[k].pose_curr.pitch))
+        assert v[0] == pytest.approx(math.degrees(traj.pitch[k]), abs=5.0)
 
 
 def test_sink_from_args_and_urls(tmp_path: Path) -> None:
