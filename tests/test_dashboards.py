@@ -339,3 +339,31 @@ def test_report_cli_and_errors(tmp_path: Path, capsys: pytest.CaptureFixture) ->
     (tmp_path / "bad.csv").write_text("frame,t,speed\n0,0.0,1\n")
     assert main(["report", str(tmp_path / "bad.csv"), "--out", str(tmp_path / "r")]) == 2
     assert "no pose or motion column" in capsys.readouterr().err
+
+
+def test_track_cli_writes_recording(tmp_path: Path) -> None:
+    """``track --estimates ... --rerun``: measurements, filtered and mount series per frame."""
+    drive_sim = pytest.importorskip("filters.drive_sim")
+    pytest.importorskip("filters.track")
+    from vipm_track.measurement import measurement_row
+    from vipm_track.table import ESTIMATE_COLUMNS
+
+    run = drive_sim.simulate_drive(drive_sim.DriveConfig.preset(
+        "car", duration_s=4.0, height_m=1.5, height_assumed_m=1.5), 0)
+    est = tmp_path / "est.csv"
+    write_table(est, [measurement_row(m) for m in run.measurements], ESTIMATE_COLUMNS)
+    out, rrd = tmp_path / "track.csv", tmp_path / "track.rrd"
+    assert main(["track", "--estimates", str(est), "--height", "1.5", "--out", str(out),
+                 "--quiet", "--rerun", str(rrd)]) == 0
+    tab = read_table(out)
+    rows = recording_entities(rrd)
+    n_filtered = int(np.isfinite(tab["pitch_deg"]).sum())
+    n_meas = sum(m.ok for m in run.measurements)
+    assert n_filtered > 0.8 * len(tab["frame"])
+    assert rows["/series/pitch/filtered"] == rows["/series/pitch/filtered_band"] == n_filtered
+    assert rows["/series/roll/mount"] == n_filtered
+    assert rows["/series/pitch/per_frame"] == n_meas
+    filtered = entity_rows(rrd, "/series/height/mount", "Scalars:scalars")
+    ok = np.flatnonzero(np.isfinite(tab["mount_height_m"]))
+    np.testing.assert_allclose([filtered[int(tab["frame"][i])][0] for i in ok],
+                               tab["mount_height_m"][ok])

@@ -13,7 +13,13 @@ import numpy as np
 
 from ..errors import InputError
 from ..measurement import PairMeasurement, read_measurements
-from .common import add_camera_options, add_input_options, add_output_options, add_speed_options
+from .common import (
+    add_camera_options,
+    add_input_options,
+    add_output_options,
+    add_rerun_options,
+    add_speed_options,
+)
 
 try:  # the estimator's options, where the sequence runner has landed
     from .estimate import add_estimator_options, build_config
@@ -44,6 +50,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     group.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
     if add_estimator_options is not None:
         add_estimator_options(parser)
+    add_rerun_options(parser)
     parser.set_defaults(handler=run)
 
 
@@ -60,6 +67,9 @@ def run(args: argparse.Namespace) -> int:
     config = EkfConfig(height_m=height, noise=NoiseParams.for_preset(args.vehicle),
                        gate_probability=args.gate, speed_gate_probability=args.gate)
     speed = load_speed(args)
+    from ..sinks.rerun_sink import log_track_steps, sink_from_args
+
+    sink = sink_from_args(args, "vipm-track track")
     if args.estimates:
         if args.images or args.video:
             raise InputError("give --estimates or --images/--video, not both")
@@ -72,11 +82,11 @@ def run(args: argparse.Namespace) -> int:
     elif args.images or args.video:
         if not args.camera:
             raise InputError("--images/--video need --camera CAMERA.yaml")
-        stream, total = _estimate_stream(args, height), None
+        stream, total = _estimate_stream(args, height, sink), None
     else:
         raise InputError("give --images DIR, --video FILE or --estimates EST.csv")
 
-    steps = track(stream, speed, config)
+    steps = log_track_steps(sink, track(stream, speed, config))
     if not args.quiet:
         from tqdm import tqdm
 
@@ -130,8 +140,11 @@ def read_speed_csv(path: str | Path, scale: float = 1.0, clock_offset: float = 0
     return _Speed(t + clock_offset, v * scale)
 
 
-def _estimate_stream(args: argparse.Namespace, height: float) -> Iterator[PairMeasurement]:
-    """Measurements of the images/video through the sequence runner."""
+def _estimate_stream(
+    args: argparse.Namespace, height: float, sink=None
+) -> Iterator[PairMeasurement]:
+    """Measurements of the images/video through the sequence runner (their images, patches
+    and IPM views logged to the rerun ``sink`` where given)."""
     try:
         from ..pipeline import run_sequence
         from ..sources import open_source
@@ -143,8 +156,18 @@ def _estimate_stream(args: argparse.Namespace, height: float) -> Iterator[PairMe
     camera = load_camera(args.camera)
     est_config = build_config(args, camera) if build_config is not None else None
     source = open_source(images=args.images, video=args.video, fps=args.fps)
+    if sink is not None:
+        from dataclasses import replace
+
+        from ..estimator import EstimatorConfig
+        from ..sinks.rerun_sink import ImageTap
+
+        source = ImageTap(source, camera)
+        est_config = replace(est_config or EstimatorConfig(), keep_images=True)
     nan7, nan77 = np.full(7, np.nan), np.full((7, 7), np.nan)
     for step in run_sequence(source, camera, height, est_config):
+        if sink is not None and step.result is not None:
+            sink.log_pair_views(step.frame, step.t, step.result, source.image(step.frame))
         if step.result is not None and step.status == "ok":
             yield step.result.to_measurement(step.frame, step.t)
         else:

@@ -13,10 +13,12 @@ the frame index) and ``time`` (duration, the frame timestamp in seconds). Entity
 ``ipm/prev/{image,patches,displacements}``  virtual IPM of frame k-1 with the refinement's vectors
 ``ipm/curr/{image,matches}``           virtual IPM of frame k and where each patch was found
 ``series/{pitch,roll,height}/KIND``    pose of frame k (degrees, metres); KIND is ``per_frame``
-                                       (pair measurements), ``filtered``, ``smoothed``, ``truth``
-                                       or ``monitor`` (the monitor's new-extrinsics estimate)
+                                       (pair measurements), ``filtered``, ``smoothed``, ``mount``
+                                       (the filter's slow mount part: the calibration),
+                                       ``truth`` or ``monitor`` (its new-extrinsics estimate)
 ``series/{axis}/KIND_band``            ±2σ band (two series: low, high)
 ``motion/{tx,tz,yaw}/KIND``            motion k-1 → k (metres, degrees)
+``motion/speed/{KIND,wheel}``          filtered and wheel speed, m/s
 ``trajectory/KIND``                    planar path (x right, −z up: forward is up), metres
 ``quality/{inliers,residual_px}``      estimator quality; ``timing/*`` its stage times, ms
 ``monitor/state``                      monitor state (``StateChange``); ``monitor/state_code``
@@ -60,13 +62,22 @@ COLUMNS: dict[str, tuple[str, str]] = {
     "tz": ("tz_m", "tz_std_m"),
     "yaw": ("yaw_deg", "yaw_std_deg"),
 }
-KINDS: tuple[str, ...] = ("per_frame", "filtered", "smoothed", "truth", "monitor")
+KINDS: tuple[str, ...] = ("per_frame", "filtered", "smoothed", "mount", "truth", "monitor",
+                          "wheel")
 KIND_COLORS: dict[str, tuple[int, int, int]] = {
     "per_frame": (70, 130, 220),
     "filtered": (240, 130, 20),
     "smoothed": (40, 170, 70),
+    "mount": (230, 40, 40),
     "truth": (200, 200, 200),
     "monitor": (210, 60, 210),
+    "wheel": (120, 120, 255),
+}
+#: Mount (calibration) columns of a track table (``filters/track.py``) and their std columns.
+MOUNT_COLUMNS: dict[str, tuple[str, str]] = {
+    "pitch": ("mount_pitch_deg", "mount_pitch_std_deg"),
+    "roll": ("mount_roll_deg", "mount_roll_std_deg"),
+    "height": ("mount_height_m", "mount_height_std_m"),
 }
 INLIER_COLOR = (40, 220, 60)
 OUTLIER_COLOR = (235, 50, 40)
@@ -156,11 +167,9 @@ class RerunSink:
         self.log_pair(step.frame, step.t, step.result, image)
 
     def log_pair(self, frame: int, t: float, result: Any, image: NDArray | None = None) -> None:
-        """Log an ``estimator.PairResult`` for frame ``frame`` (pair k-1 → k) at ``t`` [s].
-
-        ``image`` (grey or BGR, the undistorted frame k) is logged every ``image_every``-th
-        pair with the image-plane patches and displacements; the virtual IPM images with the
-        last refinement's vectors when the result kept them."""
+        """Log an ``estimator.PairResult`` for frame ``frame`` (pair k-1 → k) at ``t`` [s]:
+        its measurement as the ``per_frame`` series (a failure as a log line) and
+        :meth:`log_pair_views`."""
         self.set_time(frame, t)
         status = getattr(result, "status", "no result")
         if status != "ok":
@@ -170,6 +179,16 @@ class RerunSink:
         measurement = result.to_measurement(frame, t) if hasattr(result, "to_measurement") else None
         if measurement is not None:
             self._log_measurement_values(measurement)
+        self.log_pair_views(frame, t, result, image)
+
+    def log_pair_views(self, frame: int, t: float, result: Any,
+                       image: NDArray | None = None) -> None:
+        """Log what the estimator saw for a pair, not its numbers: quality and stage timings;
+        every ``image_every``-th pair ``image`` (grey or BGR, the undistorted frame k) with the
+        image-plane patches and displacements, and the virtual IPM images with the last
+        refinement's vectors when the result kept them."""
+        self.set_time(frame, t)
+        status = getattr(result, "status", "no result")
         residual = getattr(result, "residual_px", float("nan"))
         if status == "ok" and residual is not None and math.isfinite(residual):
             self._scalar("quality/residual_px", residual)
@@ -224,7 +243,9 @@ class RerunSink:
     def log_track_row(self, row: Mapping[str, Any], kind: str = "filtered") -> None:
         """Log one per-frame table row (CONVENTIONS.md columns, optional ``*_std_*`` columns)
         as the ``kind`` series (``filtered``, ``smoothed``, ``truth``, ``per_frame``); the
-        columns with numbers are logged, whatever the status word."""
+        columns with numbers are logged, whatever the status word. A track row's mount
+        columns (``filters/track.py``) go to the ``mount`` series, its speeds to
+        ``motion/speed``."""
         _check_kind(kind)
         self.set_time(int(row["frame"]), _float(row.get("t")))
         for name, (col, std_col) in COLUMNS.items():
@@ -232,6 +253,15 @@ class RerunSink:
             if math.isfinite(value):
                 group = "motion" if name in MOTION else "series"
                 self._value(f"{group}/{name}", kind, value, _float(row.get(std_col)))
+        for name, (col, std_col) in MOUNT_COLUMNS.items():
+            value = _float(row.get(col))
+            if math.isfinite(value):
+                self._value(f"series/{name}", "mount", value, _float(row.get(std_col)))
+        for col, path in (("speed_mps", f"motion/speed/{kind}"),
+                          ("wheel_speed_mps", "motion/speed/wheel")):
+            value = _float(row.get(col))
+            if math.isfinite(value):
+                self._scalar(path, value)
         motion = [_float(row.get(COLUMNS[n][0])) for n in MOTION]
         if all(math.isfinite(v) for v in motion):
             self._step_path(kind, PlanarMotion(motion[0], motion[1], math.radians(motion[2])))
@@ -477,6 +507,82 @@ def _to_uint8(image: NDArray) -> NDArray[np.uint8]:
     return np.clip(np.nan_to_num(img, nan=0.0), 0, 255).astype(np.uint8)
 
 
+# --- wiring helpers ------------------------------------------------------------------------
+
+
+class ImageTap:
+    """A frame source that remembers the images it hands out, so that a sink can show the
+    image of the step the sequence runner yields for it (the runner keeps images private).
+
+    Wraps any iterable of ``sources.Frame`` (``len`` and ``description`` pass through); keeps
+    the last ``keep`` images. With ``camera`` the images given back are undistorted like the
+    runner's (the patches live on the undistorted image)."""
+
+    def __init__(self, source: Any, camera: Any = None, keep: int = 3) -> None:
+        self.source = source
+        self.camera = camera
+        self.keep = keep
+        self._images: dict[int, NDArray] = {}
+        self.description = getattr(source, "description", "")
+
+    def __len__(self) -> int:
+        return len(self.source)
+
+    def __iter__(self) -> Any:
+        for frame in self.source:
+            if frame.image is not None:
+                self._images[frame.index] = frame.image
+                while len(self._images) > self.keep:
+                    self._images.pop(next(iter(self._images)))
+            yield frame
+
+    def image(self, index: int) -> NDArray | None:
+        """The image of frame ``index`` (undistorted with ``camera``), if still kept."""
+        image = self._images.get(index)
+        if image is None or self.camera is None or not getattr(self.camera, "has_distortion",
+                                                               False):
+            return image
+        return self.camera.undistort_image(image)
+
+
+def log_steps(sink: RerunSink | None, steps: Any, tap: ImageTap | None = None) -> Any:
+    """Pass the runner's ``SequenceStep`` s through, logging each (with its image from
+    ``tap``); the sink is finished when the steps end. ``sink`` None: ``steps`` unchanged."""
+    if sink is None:
+        return steps
+
+    def logged() -> Any:
+        try:
+            for step in steps:
+                sink.log_step(step, tap.image(step.frame) if tap is not None else None)
+                yield step
+        finally:
+            sink.finish()
+
+    return logged()
+
+
+def log_track_steps(sink: RerunSink | None, steps: Any) -> Any:
+    """Pass ``filters.track.track`` output ``(state, measurement, speed)`` through, logging
+    the measurement (``per_frame``) and the filter's row (``filtered``, ``mount``, speeds);
+    the sink is finished when the steps end. ``sink`` None: ``steps`` unchanged."""
+    if sink is None:
+        return steps
+    from filters.track import track_row
+
+    def logged() -> Any:
+        try:
+            for state, measurement, speed in steps:
+                if measurement is not None:
+                    sink.log_measurement(measurement)
+                sink.log_track_row(track_row(state, measurement, speed), "filtered")
+                yield state, measurement, speed
+        finally:
+            sink.finish()
+
+    return logged()
+
+
 # --- layout --------------------------------------------------------------------------------
 
 
@@ -598,6 +704,6 @@ def recording_entities(path: str | Path, static: bool = False) -> dict[str, int]
 
 
 __all__: Sequence[str] = [
-    "RerunSink", "default_blueprint", "grpc_url", "recording_entities", "sink_from_args",
-    "wants_rerun",
+    "ImageTap", "RerunSink", "default_blueprint", "grpc_url", "log_steps", "log_track_steps",
+    "recording_entities", "sink_from_args", "wants_rerun",
 ]
