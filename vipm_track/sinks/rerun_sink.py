@@ -36,7 +36,8 @@ from __future__ import annotations
 
 import argparse
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -545,6 +546,41 @@ class ImageTap:
         return self.camera.undistort_image(image)
 
 
+@dataclass
+class RunLogging:
+    """What a command needs to log a sequence run: the source to iterate (an
+    :class:`ImageTap` when logging), the estimator config (IPM images kept when logging), the
+    ``on_step`` callback for ``pipeline.estimate_sequence`` and ``finish``. Without a sink
+    everything passes through unchanged and ``on_step`` is None."""
+
+    sink: RerunSink | None
+    source: Any
+    config: Any
+    on_step: Callable[[Any], None] | None = None
+
+    def finish(self) -> None:
+        if self.sink is not None:
+            self.sink.finish()
+
+
+def run_logging(args: argparse.Namespace, app_id: str, source: Any, camera: Any,
+                config: Any = None) -> RunLogging:
+    """:class:`RunLogging` for the ``add_rerun_options`` flags of ``args`` (see
+    :func:`sink_from_args`); ``config`` is an ``EstimatorConfig`` or None (defaults)."""
+    sink = sink_from_args(args, app_id)
+    if sink is None:
+        return RunLogging(None, source, config)
+    from ..estimator import EstimatorConfig
+
+    tap = ImageTap(source, camera)
+    config = replace(config or EstimatorConfig(), keep_images=True)
+
+    def on_step(step: Any) -> None:
+        sink.log_step(step, tap.image(step.frame))
+
+    return RunLogging(sink, tap, config, on_step)
+
+
 def log_steps(sink: RerunSink | None, steps: Any, tap: ImageTap | None = None) -> Any:
     """Pass the runner's ``SequenceStep`` s through, logging each (with its image from
     ``tap``); the sink is finished when the steps end. ``sink`` None: ``steps`` unchanged."""
@@ -704,6 +740,15 @@ def recording_entities(path: str | Path, static: bool = False) -> dict[str, int]
 
 
 __all__: Sequence[str] = [
-    "ImageTap", "RerunSink", "default_blueprint", "grpc_url", "log_steps", "log_track_steps",
-    "recording_entities", "sink_from_args", "wants_rerun",
+    "ImageTap",
+    "RerunSink",
+    "RunLogging",
+    "default_blueprint",
+    "grpc_url",
+    "log_steps",
+    "log_track_steps",
+    "recording_entities",
+    "run_logging",
+    "sink_from_args",
+    "wants_rerun",
 ]
