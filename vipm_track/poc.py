@@ -119,14 +119,15 @@ def patch_spectra(patches: ArrayLike, *, band: float = DEFAULT_BAND, window: boo
     PatchSpectra
     """
     arr = _as_batch(patches, "patches")
-    n, h, w = arr.shape
+    _, h, w = arr.shape
     layout = _band_layout(h, w, band)
     win = _hann(h, w) if window else np.ones((h, w), np.float32)
     workers = workers or _default_workers()
     # The window-weighted mean is removed so that the window leaves no DC hump; a NaN or
-    # inf anywhere in a patch shows in its mean, which saves a pass over the data.
+    # inf anywhere in a patch shows in its mean, which saves a pass over the data. (einsum,
+    # not a BLAS matrix-vector product: BLAS threads stall on a busy machine.)
     with np.errstate(invalid="ignore", over="ignore"):
-        mean = (arr.reshape(n, -1) @ win.reshape(-1)) / np.float32(win.sum())
+        mean = np.einsum("nij,ij->n", arr, win) / np.float32(win.sum())
     finite = np.isfinite(mean)
     if not finite.all():
         arr = np.where(finite[:, None, None], arr, np.float32(0.0))
@@ -139,7 +140,7 @@ def patch_spectra(patches: ArrayLike, *, band: float = DEFAULT_BAND, window: boo
     full = scipy.fft.fft(cols, axis=2, workers=workers, overwrite_x=True)
     spectra = np.concatenate([full[:, :, : layout.kx_max],
                               full[:, :, w - layout.kx_max + 1:]], axis=2)
-    power = np.einsum("nyx,yx->n", (spectra * spectra.conj()).real, layout.hermitian)
+    power = ((spectra.real**2 + spectra.imag**2) * layout.hermitian).sum(axis=(1, 2))
     texture = np.sqrt(np.maximum(power, 0) / (h * w * float(np.square(win).sum())))
     valid = finite & (texture > MIN_TEXTURE)
     texture = np.where(valid, texture, 0.0).astype(np.float64)
@@ -206,11 +207,11 @@ def correlate_spectra(ref: PatchSpectra, moving: PatchSpectra, *,
     # Fine: Newton ascent on the (weighted) continuous POC function from the coarse peak.
     rw = r if weighting == 0 else r * np.power(mag, np.float32(weighting))
     for _ in range(iterations):
-        grad, hess = _poc_derivatives(rw, layout, d)
+        _, grad, hess = _poc_moments(rw, layout, d)
         step = np.linalg.solve(_negative_definite(hess), -grad[..., None])[..., 0]
         norm = np.linalg.norm(step, axis=1, keepdims=True)
         d += step * np.minimum(1.0, MAX_STEP_PX / np.maximum(norm, 1e-12))
-    value = _poc_value(r, layout, d) / layout.n_frequencies
+    value = _poc_moments(r, layout, d)[0] / layout.n_frequencies
     usable = (value > 0) & (np.abs(d) < [w / 2, h / 2]).all(axis=1)
     shift[ok[usable]] = d[usable]
     peak[ok[usable]] = value[usable]
@@ -469,18 +470,13 @@ def _phasors(layout: _BandLayout, d: FloatArray) -> tuple[NDArray[np.complex64],
     return ey, ex
 
 
-def _poc_value(r: NDArray[np.complex64], layout: _BandLayout, d: FloatArray) -> FloatArray:
-    """r(d) = Σ Re(R(u) e^{2πi u·d}) per pair (R already carries the Hermitian weights)."""
-    ey, ex = _phasors(layout, d)
-    return np.einsum("ny,ny->n", ey, (r @ ex[:, :, None])[:, :, 0]).real.astype(np.float64)
-
-
-def _poc_derivatives(r: NDArray[np.complex64], layout: _BandLayout, d: FloatArray,
-                     ) -> tuple[FloatArray, FloatArray]:
-    """Gradient (N, 2) and Hessian (N, 2, 2) of r(d) = Σ Re(R(u) e^{2πi u·d}) in (dx, dy).
+def _poc_moments(r: NDArray[np.complex64], layout: _BandLayout, d: FloatArray,
+                 ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Value (N,), gradient (N, 2) and Hessian (N, 2, 2) in (dx, dy) of the POC function
+    r(d) = Σ Re(R(u) e^{2πi u·d}) (R already carries the Hermitian weights).
 
     The phasor is separable, so every moment Σ R e^{…} uy^a ux^b comes out of two batched
-    matrix products.
+    matrix products (with three columns: numpy's batched matrix-vector path is slow).
     """
     ey, ex = _phasors(layout, d)
     ux, uy = layout.ux.astype(np.float32), layout.uy.astype(np.float32)
@@ -493,7 +489,7 @@ def _poc_derivatives(r: NDArray[np.complex64], layout: _BandLayout, d: FloatArra
     hyy = -(two_pi**2) * m[:, 2, 0].real
     hxy = -(two_pi**2) * m[:, 1, 1].real
     hess = np.stack([np.stack([hxx, hxy], -1), np.stack([hxy, hyy], -1)], -2)
-    return grad, hess
+    return m[:, 0, 0].real, grad, hess
 
 
 def _negative_definite(hess: FloatArray) -> FloatArray:
