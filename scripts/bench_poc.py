@@ -37,6 +37,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import cv2
@@ -191,9 +192,11 @@ def check_signs() -> None:
             raise SystemExit(f"{name}: sign check failed, got {got} for (5, -3)")
 
 
-def median_ms_per_pair(fn: Callable[[], object], n_pairs: int, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
+def median_ms_per_pair(fn: Callable[[], object], n_pairs: int, repeats: int,
+                       budget_s: float = 3.0) -> float:
+    """Median over ``repeats`` runs (fewer once ``budget_s`` is spent: the slow methods)."""
+    times: list[float] = []
+    while len(times) < repeats and (not times or sum(times) < budget_s):
         t0 = time.perf_counter()
         fn()
         times.append(time.perf_counter() - t0)
@@ -225,13 +228,13 @@ def main() -> None:
         ref, mov, true = make_pairs(case, args.pairs, args.seed + i)
         for name, fn in METHODS.items():
             est = fn(ref, mov)
-            ms = median_ms_per_pair(lambda fn=fn: fn(ref, mov), len(ref), args.repeats)
+            ms = median_ms_per_pair(partial(fn, ref, mov), len(ref), args.repeats)
             rows.append((case.name, name, *errors(est, true), ms))
             print(f"{case.name:28s} {name:30s} rmse {rows[-1][2]:.4f} px "
                   f"outliers {rows[-1][4]:6.1%}  {ms:.3f} ms/pair", file=sys.stderr)
         if case.size == 128 and case.noise == 2.0 and case.max_shift == 2.0 and i == 0:
             spectra = patch_spectra(ref)
-            ms = median_ms_per_pair(lambda: phase_correlate(None, mov, ref_spectra=spectra),
+            ms = median_ms_per_pair(partial(phase_correlate, None, mov, ref_spectra=spectra),
                                     len(ref), args.repeats)
             est = phase_correlate(None, mov, ref_spectra=spectra)[0]
             rows.append((case.name, "vipm_track.poc (ref spectra reused)", *errors(est, true),
@@ -243,7 +246,8 @@ def main() -> None:
         f"{args.pairs} pairs per case of real texture photos (gravel, grass, brick in turn); "
         "translations by exact Fourier shift, rotation/scale/perspective by Lanczos-4 "
         "warps about the patch centre; Gaussian noise σ on both patches. Error = "
-        "|estimated − true| of the shift vector; RMSE over the pairs with a result. Outlier: error > 0.5 px or no result. "
+        "|estimated − true| of the shift vector (the true shift is where the patch centre "
+        "goes); RMSE over the pairs with a result. Outlier: error > 0.5 px or no result. "
         f"Time: ms per pair, median of {args.repeats} runs of the whole batch "
         f"(ours: one batched call; the others: a loop over pairs). Machine: "
         f"{platform.machine()}, {os.cpu_count()} cores shared with other jobs while "
@@ -255,6 +259,15 @@ def main() -> None:
     for case, method, rmse_all, rmse_in, outl, ms in rows:
         lines.append(f"| {case} | {method} | {rmse_all:.4f} | {rmse_in:.4f} | "
                      f"{outl:.1%} | {ms:.3f} |")
+    lines += [
+        "",
+        "Notes: rotation, scale and perspective spread the displacement over the patch, so "
+        "the correlation peak blurs. Under perspective the window-weighted mean displacement "
+        "itself differs from the centre's by about p·Var_w(x) ≈ 0.13 px for p = 4e-4 /px and "
+        "a 128-px Hann window, which bounds every method there (hence the estimator's IPM "
+        "plane). Targets: RMSE ≤ 0.02 px on the first row, ≤ 0.25 ms per pair in a batch of "
+        "99.",
+    ]
     table = "\n".join(lines) + "\n"
     print(table)
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -108,6 +108,19 @@ def test_reused_spectra_give_the_same_result() -> None:
     assert _rmse(c, true) < 0.03
 
 
+@pytest.mark.parametrize("shape", [(128, 128), (64, 80), (45, 33)])
+def test_band_spectra_equal_the_2d_dft(shape: tuple[int, int]) -> None:
+    rng = np.random.default_rng(9)
+    patches = rng.normal(100, 20, (3, *shape)).astype(np.float32)
+    spectra = patch_spectra(patches, band=0.5, window=False)
+    ky, kx = int(0.5 * shape[0] / 2), int(0.5 * shape[1] / 2)
+    ref = np.fft.rfft2(patches - patches.mean(axis=(1, 2), keepdims=True))
+    rows = np.r_[0:ky, shape[0] - ky + 1: shape[0]]
+    expected = ref[:, rows, :kx]
+    assert spectra.spectra.shape == expected.shape
+    np.testing.assert_allclose(spectra.spectra, expected, atol=1e-3 * np.abs(expected).max())
+
+
 @pytest.mark.parametrize("size", [256, (96, 128), (64, 80)])
 def test_other_patch_sizes(size: int | tuple[int, int]) -> None:
     ref, mov, true = _shifted_pairs("gravel", 6, size, 2.0, seed=4)
@@ -153,15 +166,17 @@ def test_shape_mismatch_and_bad_arguments_raise() -> None:
     with pytest.raises(ValueError, match="2-D grey image"):
         crop_patches(np.zeros((10, 10, 3)), [[5, 5]], 4)
     with pytest.raises(ValueError, match="centres"):
-        crop_patches(np.zeros((10, 10)), [[5, np.nan]], 4)
+        crop_patches(np.zeros((10, 10)), [[5, 5, 5]], 4)
+    with pytest.raises(ValueError, match="offsets"):
+        match_patches(np.zeros((64, 64)), np.zeros((64, 64)), [[32, 32]], 16, [[1, 2, 3]])
 
 
 def test_crop_patches_matches_slices_and_flags_patches_leaving_the_image() -> None:
     image = np.arange(60 * 80, dtype=np.uint16).reshape(60, 80)
-    centres = np.array([[40.0, 30.0], [10.4, 9.6], [5.0, 30.0], [40.0, 57.0]])
+    centres = np.array([[40.0, 30.0], [10.4, 9.6], [5.0, 30.0], [40.0, 57.0], [np.nan, 30.0]])
     patches, inside = crop_patches(image, centres, (16, 20), return_mask=True)
-    assert patches.dtype == np.float32 and patches.shape == (4, 16, 20)
-    np.testing.assert_array_equal(inside, [True, True, False, False])
+    assert patches.dtype == np.float32 and patches.shape == (5, 16, 20)
+    np.testing.assert_array_equal(inside, [True, True, False, False, False])
     np.testing.assert_array_equal(patches[0], image[22:38, 30:50])
     np.testing.assert_array_equal(patches[1], image[2:18, 0:20])
     assert np.isnan(patches[2:]).all()
@@ -182,6 +197,7 @@ def test_match_patches_recovers_a_large_shift_with_offsets() -> None:
     assert peak[3] == 0 and np.isnan(shift[3]).all()
     assert (peak[:3] > 0.7).all()
     np.testing.assert_allclose(shift[:3], np.tile(true, (3, 1)), atol=0.06)
-    again, _ = match_patches(img_ref, img_mov, centres[:3], 128, offsets=[33.0, -20.0],
-                             recentre=True)
-    np.testing.assert_allclose(again, np.tile(true, (3, 1)), atol=0.06)
+    offsets = np.array([[33.0, -20.0], [33.0, -20.0], [np.nan, np.nan]])
+    again, peak = match_patches(img_ref, img_mov, centres[:3], 128, offsets, recentre=True)
+    np.testing.assert_allclose(again[:2], np.tile(true, (2, 1)), atol=0.06)
+    assert peak[2] == 0 and np.isnan(again[2]).all()

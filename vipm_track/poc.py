@@ -5,19 +5,22 @@ correlation function (Kuglin & Hines 1975; Takita et al. 2003). This module comp
 for a whole batch of patch pairs at once:
 
 1. each patch has its (window-weighted) mean removed and is multiplied by a Hann window;
-   the whole batch goes through one real FFT (``scipy.fft``, float32, ``workers``), of
-   which only the band kept by step 2 is computed and stored (:class:`PatchSpectra`, made
-   once per frame and reusable for the next pair);
+   the whole batch is transformed at once in float32 (one ``cv2.dft`` call for the rows of
+   all patches, one ``scipy.fft`` call for the columns), and only the band kept by step 2
+   is computed and stored (:class:`PatchSpectra`: made once per set of patches, reusable,
+   e.g. when a frame's patches are the moving ones of one pair and the reference ones of
+   the next);
 2. the normalised cross-power spectrum ``R = F_mov · conj(F_ref) / |F_mov · conj(F_ref)|``
    is band-limited (Takita et al. 2003, BLPOC): frequencies above ``band`` × Nyquist on
    either axis, where noise and aliasing dominate, are dropped, and so is DC;
 3. one inverse FFT of the band, on the smallest grid that holds it exactly, samples the
-   band-limited POC surface; its highest sample is the coarse shift;
+   band-limited POC surface; its highest sample, refined by a parabola, is the coarse shift;
 4. the sub-pixel shift maximises the continuous band-limited POC function
    ``r(d) = Σ_u w(u) Re(R(u) · exp(2πi u·d))`` by a few batched Newton steps from the coarse
-   peak. With ``w = 1`` this is the exact peak that Takita's peak-model fit approximates;
-   the default weights ``w = |F_mov F_ref|^0.5`` (partial whitening) trust the strong,
-   less noisy frequencies more and halve the error on weakly textured patches.
+   peak (two suffice; three by default). With ``w = 1`` this is the exact peak that
+   Takita's peak-model fit approximates; the default weights ``w = |F_mov F_ref|^0.5``
+   (partial whitening) trust the strong, less noisy frequencies more and halve the error
+   on weakly textured patches.
 
 Sign convention (as ``CONVENTIONS.md``'s image coordinates: x right, y down, pixels):
 ``shift = (dx, dy)`` is the displacement of the content from ``ref`` to ``moving``,
@@ -33,10 +36,10 @@ small prime factors (powers of two such as 128 and 256).
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from functools import lru_cache
 
+import cv2
 import numpy as np
 import scipy.fft
 from numpy.typing import ArrayLike, NDArray
@@ -46,7 +49,7 @@ FloatArray = NDArray[np.float64]
 #: Default fraction of the Nyquist frequency kept by the band limit (per axis).
 DEFAULT_BAND = 0.5
 #: Default number of Newton iterations of the sub-pixel refinement.
-DEFAULT_ITERATIONS = 4
+DEFAULT_ITERATIONS = 3
 #: Default exponent of the spectral weights of the sub-pixel fit (see correlate_spectra).
 DEFAULT_WEIGHTING = 0.5
 #: Patches whose band-passed RMS (grey levels) is below this have no texture to correlate.
@@ -57,7 +60,9 @@ _MIN_SIZE = 8
 
 
 def _default_workers() -> int:
-    return max(1, min(os.cpu_count() or 1, 8))
+    # One thread: the heavy transform is cv2's (its own pool); scipy's remaining transforms
+    # are small, and its threads stall on a busy machine more than they gain.
+    return 1
 
 
 @dataclass(frozen=True)
@@ -66,11 +71,11 @@ class PatchSpectra:
 
     Attributes
     ----------
-    spectra : ndarray, complex64, shape (N, Ky, 2·Kx − 1)
-        Spectrum of each mean-removed, windowed patch on the band only: rows are the
-        vertical frequencies 0 … Ky − 1 (the other half is the complex conjugate), columns
-        the horizontal frequencies 0 … Kx − 1, −(Kx − 1) … −1 (FFT order), in cycles per
-        patch.
+    spectra : ndarray, complex64, shape (N, 2·Ky − 1, Kx)
+        2-D DFT of each mean-removed, windowed patch on the band only, in ``rfft2`` order:
+        rows are the vertical frequencies 0 … Ky − 1, −(Ky − 1) … −1, columns the horizontal
+        frequencies 0 … Kx − 1 (the negative ones are the complex conjugates), in cycles per
+        patch; Ky = floor(band·H/2), Kx = floor(band·W/2).
     valid : ndarray, bool, shape (N,)
         False for patches that cannot be correlated (a NaN or inf, no texture in the band).
     texture : ndarray, shape (N,)
@@ -112,7 +117,8 @@ def patch_spectra(patches: ArrayLike, *, band: float = DEFAULT_BAND, window: boo
         Multiply by a 2-D Hann window (against the edge discontinuities of the FFT's
         periodic extension). Switch off only for periodic content.
     workers : int, optional
-        Threads of ``scipy.fft``; default: the CPU count (at most 8).
+        Threads of ``scipy.fft`` for the column transforms; default 1 (the row transforms
+        run in OpenCV's own thread pool).
 
     Returns
     -------
@@ -134,12 +140,7 @@ def patch_spectra(patches: ArrayLike, *, band: float = DEFAULT_BAND, window: boo
         mean = np.where(finite, mean, np.float32(0.0))
     centred = np.subtract(arr, mean[:, None, None], dtype=np.float32)
     centred *= win
-    # Only the band is needed: a real FFT down the columns, cut to the band's rows, then a
-    # complex FFT along them, cut to the band's columns (half the work of a full rfft2).
-    cols = scipy.fft.rfft(centred, axis=1, workers=workers)[:, : layout.ky_max]
-    full = scipy.fft.fft(cols, axis=2, workers=workers, overwrite_x=True)
-    spectra = np.concatenate([full[:, :, : layout.kx_max],
-                              full[:, :, w - layout.kx_max + 1:]], axis=2)
+    spectra = _band_spectra(centred, layout, workers)
     power = ((spectra.real**2 + spectra.imag**2) * layout.hermitian).sum(axis=(1, 2))
     texture = np.sqrt(np.maximum(power, 0) / (h * w * float(np.square(win).sum())))
     valid = finite & (texture > MIN_TEXTURE)
@@ -197,18 +198,18 @@ def correlate_spectra(ref: PatchSpectra, moving: PatchSpectra, *,
     # Coarse: the band-limited POC surface sampled on the smallest grid that holds the band
     # (one inverse FFT for the batch); its highest sample is within a grid step of the peak.
     gy, gx = layout.grid
-    small = np.zeros((ok.size, layout.ky_max, gx), np.complex64)
-    small[:, :, layout.small_cols] = r
-    surface = scipy.fft.irfft2(small, s=(gx, gy), axes=(2, 1),
-                               workers=workers or _default_workers())
+    small = np.zeros((ok.size, gy, gx // 2 + 1), np.complex64)
+    small[:, layout.small_rows, : layout.kx_max] = r
+    surface = scipy.fft.irfft2(small, s=(gy, gx), workers=workers or _default_workers())
     iy, ix = np.divmod(surface.reshape(ok.size, -1).argmax(axis=1), gx)
-    d = np.stack([_wrap(ix, gx) * (w / gx), _wrap(iy, gy) * (h / gy)], axis=1)
+    fy, fx = _parabolic_offsets(surface, iy, ix)
+    d = np.stack([(_wrap(ix, gx) + fx) * (w / gx), (_wrap(iy, gy) + fy) * (h / gy)], axis=1)
 
     # Fine: Newton ascent on the (weighted) continuous POC function from the coarse peak.
     rw = r if weighting == 0 else r * np.power(mag, np.float32(weighting))
     for _ in range(iterations):
         _, grad, hess = _poc_moments(rw, layout, d)
-        step = np.linalg.solve(_negative_definite(hess), -grad[..., None])[..., 0]
+        step = _ascent_step(grad, hess)
         norm = np.linalg.norm(step, axis=1, keepdims=True)
         d += step * np.minimum(1.0, MAX_STEP_PX / np.maximum(norm, 1e-12))
     value = _poc_moments(r, layout, d)[0] / layout.n_frequencies
@@ -282,7 +283,8 @@ def crop_patches(image: ArrayLike, centres: ArrayLike, size: int | tuple[int, in
     image : array_like, shape (H, W)
         Grey image.
     centres : array_like, shape (N, 2)
-        Patch centres (x, y) in pixels, rounded to the nearest pixel (halves up). The patch
+        Patch centres (x, y) in pixels, rounded to the nearest pixel (halves up); a NaN
+        centre gives a NaN patch (like one that leaves the image). The patch
         of size (h, w) centred on pixel (cx, cy) spans columns ``cx - w//2 … cx - w//2 + w - 1``
         (the centre pixel is the patch's pixel (w//2, h//2)), likewise rows.
     size : int or (h, w)
@@ -302,12 +304,15 @@ def crop_patches(image: ArrayLike, centres: ArrayLike, size: int | tuple[int, in
     if img.ndim != 2:
         raise ValueError(f"crop_patches needs a 2-D grey image, got shape {img.shape}")
     ph, pw = _patch_size(size)
-    corner = _corners(centres, ph, pw)
+    points = _as_points(centres, "centres")
+    known = np.isfinite(points).all(axis=1)
+    corner = np.zeros(points.shape, np.int64)
+    corner[known] = np.floor(points[known] + 0.5).astype(np.int64) - [pw // 2, ph // 2]
     height, width = img.shape
-    inside = ((corner[:, 0] >= 0) & (corner[:, 1] >= 0)
+    inside = (known & (corner[:, 0] >= 0) & (corner[:, 1] >= 0)
               & (corner[:, 0] + pw <= width) & (corner[:, 1] + ph <= height))
     patches = np.full((len(corner), ph, pw), np.nan, np.float32)
-    if inside.any() and ph <= height and pw <= width:
+    if inside.any():
         view = np.lib.stride_tricks.sliding_window_view(img, (ph, pw))
         patches[inside] = view[corner[inside, 1], corner[inside, 0]]
     return (patches, inside) if return_mask else patches
@@ -334,7 +339,8 @@ def match_patches(img_ref: ArrayLike, img_moving: ArrayLike, centres_ref: ArrayL
     size : int or (h, w)
         Patch size, pixels.
     offsets : array_like, shape (N, 2) or (2,), optional
-        Predicted displacements (dx, dy), pixels; default zero.
+        Predicted displacements (dx, dy), pixels; default zero. NaN rows (no prediction)
+        give those patches peak 0.
     recentre : bool
         Crop the moving patches a second time at the rounded measured displacement and
         measure again: the residual shift is then below half a pixel, where the window
@@ -351,14 +357,16 @@ def match_patches(img_ref: ArrayLike, img_moving: ArrayLike, centres_ref: ArrayL
     peak : ndarray, shape (N,)
         POC peak height (confidence), 0 for unusable patches.
     """
-    centres = _as_points(centres_ref, "centres_ref")
+    centres = _as_points(centres_ref, "centres_ref")  # NaN rows: peak 0
     if offsets is None:
         offset = np.zeros_like(centres)
     else:
-        offset = np.broadcast_to(np.asarray(offsets, np.float64), centres.shape).copy()
-        if not np.isfinite(offset).all():
-            raise ValueError("offsets contain NaN or inf")
-    offset = np.floor(offset + 0.5)
+        offset = np.asarray(offsets, np.float64)
+        if offset.shape not in ((2,), centres.shape):
+            raise ValueError(f"offsets must have shape (2,) or {centres.shape}, got "
+                             f"{offset.shape}")
+        offset = np.broadcast_to(offset, centres.shape)
+    offset = np.floor(offset + 0.5)  # a NaN offset makes a NaN centre: that patch gets peak 0
     ref_spec = patch_spectra(crop_patches(img_ref, centres, size), band=band, workers=workers)
     passes = 2 if recentre else 1
     for k in range(passes):
@@ -397,8 +405,6 @@ def _as_points(points: ArrayLike, name: str) -> FloatArray:
         arr = arr[None]
     if arr.ndim != 2 or arr.shape[1] != 2:
         raise ValueError(f"{name} must have shape (N, 2) as (x, y) pixels, got {arr.shape}")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{name} contain NaN or inf")
     return arr
 
 
@@ -409,10 +415,23 @@ def _patch_size(size: int | tuple[int, int]) -> tuple[int, int]:
     return int(ph), int(pw)
 
 
-def _corners(centres: ArrayLike, ph: int, pw: int) -> NDArray[np.int64]:
-    """Top-left pixel (x, y) of each patch."""
-    pix = np.floor(_as_points(centres, "centres") + 0.5).astype(np.int64)
-    return pix - np.array([pw // 2, ph // 2])
+def _parabolic_offsets(surface: NDArray[np.float32], iy: NDArray[np.int64],
+                       ix: NDArray[np.int64]) -> tuple[FloatArray, FloatArray]:
+    """Sub-sample offsets (rows, cols), within ±0.5, of a parabola through each peak sample
+    and its neighbours (the surface is periodic): a better start for Newton."""
+    n, gy, gx = surface.shape
+    k = np.arange(n)
+
+    def vertex(minus: NDArray[np.float32], centre: NDArray[np.float32],
+               plus: NDArray[np.float32]) -> FloatArray:
+        curve = minus.astype(np.float64) - 2 * centre + plus
+        safe = np.where(curve < 0, curve, -1.0)
+        return np.where(curve < 0, np.clip((minus - plus) / (2 * safe), -0.5, 0.5), 0.0)
+
+    centre = surface[k, iy, ix]
+    fy = vertex(surface[k, (iy - 1) % gy, ix], centre, surface[k, (iy + 1) % gy, ix])
+    fx = vertex(surface[k, iy, (ix - 1) % gx], centre, surface[k, iy, (ix + 1) % gx])
+    return fy, fx
 
 
 def _wrap(index: NDArray[np.int64], n: int) -> NDArray[np.int64]:
@@ -431,18 +450,19 @@ def _hann(h: int, w: int) -> NDArray[np.float32]:
 
 @dataclass(frozen=True)
 class _BandLayout:
-    """The band block of a spectrum: vertical frequencies 0 ≤ ky < ky_max (the negative ones
-    are their conjugates), horizontal |kx| < kx_max in FFT order. The Nyquist frequency, whose
+    """The band block of a spectrum, in ``rfft2`` order: vertical frequencies
+    |ky| < ky_max (FFT order: 0 … ky_max − 1, −(ky_max − 1) … −1), horizontal
+    0 ≤ kx < kx_max (the negative ones are their conjugates). The Nyquist frequency, whose
     sign is ambiguous, never enters."""
 
     ky_max: int
     kx_max: int
-    hermitian: NDArray[np.float32]  # (Ky, Kx'): 2 for rows standing for ±ky, 1 for ky = 0
+    hermitian: NDArray[np.float32]  # (Ky', Kx): 2 for columns standing for ±kx, 1 for kx = 0
     n_frequencies: float  # frequencies of the full plane that the band holds (DC excluded)
-    uy: FloatArray  # (Ky,) cycles per pixel
-    ux: FloatArray  # (Kx',) cycles per pixel
+    uy: FloatArray  # (Ky',) cycles per pixel
+    ux: FloatArray  # (Kx,) cycles per pixel
     grid: tuple[int, int]  # (rows, cols) of the smallest even grid that samples the band
-    small_cols: NDArray[np.intp]  # column of each band column in that grid
+    small_rows: NDArray[np.intp]  # row of each band row in that grid
 
 
 @lru_cache(maxsize=16)
@@ -453,15 +473,34 @@ def _band_layout(h: int, w: int, band: float) -> _BandLayout:
     kx_max = int(np.floor(band * w / 2 + 1e-9))
     if ky_max < 2 or kx_max < 2:
         raise ValueError(f"band {band} keeps no frequencies of {h}×{w} patches; raise it")
-    ky = np.arange(ky_max)
-    kx = np.concatenate([np.arange(kx_max), np.arange(-kx_max + 1, 0)])
-    hermitian = np.where(ky == 0, 1.0, 2.0)[:, None] * np.ones((1, kx.size))
+    ky = np.concatenate([np.arange(ky_max), np.arange(-ky_max + 1, 0)])
+    kx = np.arange(kx_max)
+    hermitian = np.ones((ky.size, 1)) * np.where(kx == 0, 1.0, 2.0)[None, :]
     hermitian[0, 0] = 0.0  # DC carries the (removed) mean, not the shift
     herm = hermitian.astype(np.float32)
     herm.flags.writeable = False
     grid = (2 * ky_max, 2 * kx_max)
     return _BandLayout(ky_max, kx_max, herm, float(hermitian.sum()), ky / h, kx / w, grid,
-                       np.where(kx >= 0, kx, grid[1] + kx).astype(np.intp))
+                       np.where(ky >= 0, ky, grid[0] + ky).astype(np.intp))
+
+
+def _band_spectra(centred: NDArray[np.float32], layout: _BandLayout, workers: int,
+                  ) -> NDArray[np.complex64]:
+    """The band block (N, Ky', Kx) of the 2-D DFT of each patch, computed for the batch.
+
+    Only the band is needed. The real DFT along the rows goes through one ``cv2.dft`` call
+    for all rows of all patches (``DFT_ROWS``; several times faster than pocketfft at these
+    sizes), packed as OpenCV's CCS rows ``Re0, Re1, Im1, Re2, Im2, …``; the band's columns
+    are unpacked and one complex ``scipy.fft.fft`` down the columns finishes the transform.
+    """
+    n, h, w = centred.shape
+    kx = layout.kx_max
+    ccs = cv2.dft(centred.reshape(n * h, w), flags=cv2.DFT_ROWS)
+    half = np.empty((n * h, kx), np.complex64)
+    half[:, 0] = ccs[:, 0]
+    half[:, 1:] = np.ascontiguousarray(ccs[:, 1: 2 * kx - 1]).view(np.complex64)
+    full = scipy.fft.fft(half.reshape(n, h, kx), axis=1, workers=workers, overwrite_x=True)
+    return np.concatenate([full[:, : layout.ky_max], full[:, h - layout.ky_max + 1:]], axis=1)
 
 
 def _phasors(layout: _BandLayout, d: FloatArray) -> tuple[NDArray[np.complex64], ...]:
@@ -492,9 +531,18 @@ def _poc_moments(r: NDArray[np.complex64], layout: _BandLayout, d: FloatArray,
     return m[:, 0, 0].real, grad, hess
 
 
-def _negative_definite(hess: FloatArray) -> FloatArray:
-    """Hessians made safely negative definite (away from a peak, Newton would climb down)."""
-    vals, vecs = np.linalg.eigh(hess)
-    scale = np.abs(vals).max(axis=1, keepdims=True)
-    vals = -np.maximum(np.abs(vals), 1e-3 * np.maximum(scale, 1e-12))
-    return (vecs * vals[:, None, :]) @ np.swapaxes(vecs, 1, 2)
+def _ascent_step(grad: FloatArray, hess: FloatArray) -> FloatArray:
+    """Newton step −H⁻¹g where the 2×2 Hessian is negative definite (near the peak);
+    elsewhere a gradient step scaled by the largest curvature, so the ascent never
+    climbs down."""
+    a, b, c = hess[:, 0, 0], hess[:, 0, 1], hess[:, 1, 1]
+    det = a * c - b * b
+    half_gap = np.sqrt(0.25 * (a - c) ** 2 + b * b)
+    lam_max = 0.5 * (a + c) + half_gap  # the larger eigenvalue
+    scale = np.maximum(np.abs(0.5 * (a + c)) + half_gap, 1e-12)
+    newton = (lam_max < -1e-3 * scale) & (det > 0)
+    safe = np.where(newton, det, 1.0)
+    gx, gy = grad[:, 0], grad[:, 1]
+    nx = -(c * gx - b * gy) / safe
+    ny = -(a * gy - b * gx) / safe
+    return np.where(newton[:, None], np.stack([nx, ny], axis=1), grad / scale[:, None])
