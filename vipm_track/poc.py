@@ -192,8 +192,9 @@ def correlate_spectra(ref: PatchSpectra, moving: PatchSpectra, *,
     cross = moving.spectra[ok] * np.conj(ref.spectra[ok])
     mag = np.abs(cross)
     nonzero = mag > 0
-    r = np.where(nonzero, cross / np.where(nonzero, mag, np.float32(1)), np.complex64(0))
-    r *= layout.hermitian
+    # Multiply by a real reciprocal: a complex division costs several times more.
+    inv = np.divide(layout.hermitian, mag, out=np.zeros_like(mag), where=nonzero)
+    r = cross * inv  # unit phasors times the Hermitian weights, 0 where there is no signal
 
     # Coarse: the band-limited POC surface sampled on the smallest grid that holds the band
     # (one inverse FFT for the batch); its highest sample is within a grid step of the peak.
@@ -206,7 +207,10 @@ def correlate_spectra(ref: PatchSpectra, moving: PatchSpectra, *,
     d = np.stack([(_wrap(ix, gx) + fx) * (w / gx), (_wrap(iy, gy) + fy) * (h / gy)], axis=1)
 
     # Fine: Newton ascent on the (weighted) continuous POC function from the coarse peak.
-    rw = r if weighting == 0 else r * np.power(mag, np.float32(weighting))
+    if weighting == 0:
+        rw = r
+    else:
+        rw = r * (np.sqrt(mag) if weighting == 0.5 else np.power(mag, np.float32(weighting)))
     for _ in range(iterations):
         _, grad, hess = _poc_moments(rw, layout, d)
         step = _ascent_step(grad, hess)
