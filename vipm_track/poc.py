@@ -17,7 +17,7 @@ for a whole batch of patch pairs at once:
    band-limited POC surface; its highest sample, refined by a parabola, is the coarse shift;
 4. the sub-pixel shift maximises the continuous band-limited POC function
    ``r(d) = Σ_u w(u) Re(R(u) · exp(2πi u·d))`` by a few batched Newton steps from the coarse
-   peak (two suffice; three by default). With ``w = 1`` this is the exact peak that
+   peak (two, the default, suffice from the parabola start). With ``w = 1`` this is the peak that
    Takita's peak-model fit approximates; the default weights ``w = |F_mov F_ref|^0.5``
    (partial whitening) trust the strong, less noisy frequencies more and halve the error
    on weakly textured patches.
@@ -49,7 +49,7 @@ FloatArray = NDArray[np.float64]
 #: Default fraction of the Nyquist frequency kept by the band limit (per axis).
 DEFAULT_BAND = 0.5
 #: Default number of Newton iterations of the sub-pixel refinement.
-DEFAULT_ITERATIONS = 3
+DEFAULT_ITERATIONS = 2
 #: Default exponent of the spectral weights of the sub-pixel fit (see correlate_spectra).
 DEFAULT_WEIGHTING = 0.5
 #: Patches whose band-passed RMS (grey levels) is below this have no texture to correlate.
