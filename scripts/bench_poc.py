@@ -269,9 +269,9 @@ def main() -> None:
         "99.",
     ]
     table = "\n".join(lines) + "\n"
-    print(table)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(table, encoding="utf-8")
+    print(table)
     print(f"wrote {args.out}", file=sys.stderr)
 
 
