@@ -9,7 +9,7 @@ States (``STATES``):
   above ``warn_enter`` × its threshold);
 - ``RECALIBRATE``: a test crossed its threshold; the output carries the new extrinsics and
   their 95 % interval. Left only after ``clear_after_s`` of usable frames with every
-  statistic below ``warn_exit`` (hysteresis), or by ``accept`` of a new calibration;
+  statistic below ``warn_enter`` (hysteresis), or by ``accept`` of a new calibration;
 - ``INVALID``: the extrinsics are physically implausible (``NominalCalibration`` limits);
 - ``HOLD``: this frame's evidence cannot be trusted (estimator failure, too few inliers,
   standstill, a frame the filter gated); the statistics are frozen.
@@ -227,7 +227,7 @@ class MonitorConfig:
     invalid_tau_s: float = 1.0
     #: frames the filter gated feed the test once gating persists this long (a moved camera
     #: is gated on every frame; the monitor must still see it)
-    max_gated_run_s: float = 1.0
+    max_gated_run_s: float = 0.3
     #: history kept for the new-extrinsics estimate
     history_s: float = 60.0
 
@@ -536,9 +536,9 @@ class MonitorCore:
         if alarm.any():
             s.cusum[alarm] = 0.0
             s.zero_count[alarm] = s.count[alarm][:, None, None, None]
-        # RECALIBRATE → CALIBRATED after clear_after_s of calm frames
+        # RECALIBRATE → CALIBRATED after clear_after_s of frames without a warning
         recal = usable & was_recal & ~alarm & (base == RECALIBRATE)
-        s.quiet = np.where(recal, np.where(calm, s.quiet + 1, 0), s.quiet)
+        s.quiet = np.where(recal, np.where(warn, 0, s.quiet + 1), s.quiet)
         base = np.where(recal & (s.quiet >= self.clear_frames), CALIBRATED, base)
         # UNCALIBRATED / CALIBRATED / DRIFTING
         normal = usable & ~alarm & np.isin(base, (UNCALIBRATED, CALIBRATED, DRIFTING))
@@ -553,6 +553,11 @@ class MonitorCore:
             ),
         )
         base = np.where(normal, nxt, base)
+        # implausible extrinsics say nothing about a small change: the test restarts after
+        inv = base == INVALID
+        if inv.any():
+            s.cusum[inv] = 0.0
+            s.zero_count[inv] = s.count[inv][:, None, None, None]
         s.base = base
         return np.where(usable, base, HOLD)
 

@@ -107,13 +107,16 @@ def input_arrays(
             height = h0 * d_wheel / travel
             height_var = height**2 * (travel_var / travel**2 + dist_var / d_wheel**2)
             moving = v_mean > min_speed_mps
-            still = ~(v_now > min_speed_mps)
         height = np.where(moving, height, np.nan)
         height_var = np.where(moving, height_var, np.nan)
     else:
-        with np.errstate(invalid="ignore", divide="ignore"):
-            still = ~(travel / dt > min_speed_mps)
-        still[0] = False  # nothing to say about the first frame's motion
+        v_now = np.full(n, np.nan)
+    # standstill: from the wheel speed where it covers the frame, else from the estimated
+    # travel at the assumed height (the first frame has no motion to judge)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        v_visual = travel / dt
+    v_est = np.where(np.isfinite(v_now), v_now, v_visual)
+    still = np.isfinite(v_est) & (v_est <= min_speed_mps)
     reason = np.full(n, "", dtype=object)
     if min_inliers > 0 and inliers is not None:
         inl = np.asarray(inliers)
@@ -169,17 +172,20 @@ def inputs_from_measurements(
 
 
 def mount_from_state(state: Any) -> tuple[FloatArray | None, FloatArray | None, bool]:
-    """(mount (3,), covariance (3, 3), gated) of a filter state; None where absent.
+    """(mount (3,), covariance (3, 3), pose gated) of a filter state; None where absent.
 
     Reads ``mount`` (or ``mount_pitch``, ``mount_roll``, ``mount_height``), ``mount_cov`` and
-    ``gated`` attributes, so the EKF's and the smoother's state types both work."""
-    if state is None:
+    ``gated`` (``filters.ekf.FilterState``: '', 'pose', 'motion', 'pose+motion'; only a
+    gated *pose* concerns the monitor; a bool is taken as is). A state whose ``status`` is
+    ``waiting`` (filter not initialised) has no mount."""
+    if state is None or getattr(state, "status", "") == "waiting":
         return None, None, False
     mount = getattr(state, "mount", None)
     if mount is None and hasattr(state, "mount_pitch"):
         mount = [state.mount_pitch, state.mount_roll, state.mount_height]
     cov = getattr(state, "mount_cov", None)
-    gated = bool(getattr(state, "gated", False))
+    g = getattr(state, "gated", False)
+    gated = "pose" in g if isinstance(g, str) else bool(g)
     return (
         None if mount is None else np.asarray(mount, dtype=float).reshape(3),
         None if cov is None else np.asarray(cov, dtype=float).reshape(3, 3),
