@@ -6,7 +6,8 @@ pair measurements the filter is fed, wheel speed, and the filter's states.
   d_wheel is the wheel-speed distance travelled between frames k−1 and k (trapezoidal
   integral of the samples, so every sample counts once); its variance combines the
   translation covariance and the speed noise. Without speed the height is NaN (untested);
-- HOLD reasons: the estimator's status when not ``ok``; ``too few inliers`` below
+- HOLD reasons: the estimator's status when not ``ok``; ``inconsistent with neighbouring
+  pairs`` (an outlier: see ``inconsistent_pairs``); ``too few inliers`` below
   ``min_inliers``; ``standstill`` below ``min_speed_mps`` (wheel speed, or the estimated
   travel at the assumed height without it);
 - mount / covariance / gated: from the filter's per-frame states where given.
@@ -71,6 +72,7 @@ def input_arrays(
     min_inliers: int = 0,
     speed_std_rel: float = 0.005,
     speed_std_abs_mps: float = 0.002,
+    consistency_gate: float = 5.0,
 ) -> InputArrays:
     """Vectorised core of ``inputs_from_measurements`` on the measurement arrays: ``z`` (n, 7)
     and ``cov`` (n, 7, 7) in the order of ``vipm_track.measurement``, ``status`` per frame."""
@@ -118,6 +120,9 @@ def input_arrays(
     v_est = np.where(np.isfinite(v_now), v_now, v_visual)
     still = np.isfinite(v_est) & (v_est <= min_speed_mps)
     reason = np.full(n, "", dtype=object)
+    if consistency_gate > 0:
+        reason[inconsistent_pairs(frame, z, cov, consistency_gate)] = (
+            "inconsistent with neighbouring pairs")
     if min_inliers > 0 and inliers is not None:
         inl = np.asarray(inliers)
         reason[(inl > 0) & (inl < min_inliers)] = "too few inliers"
@@ -127,6 +132,31 @@ def input_arrays(
     pose = np.stack([z[:, 2], z[:, 3], height], axis=1)
     pose_var = np.stack([cov[:, 2, 2], cov[:, 3, 3], height_var], axis=1)
     return InputArrays(frame, t, pose, pose_var, reason)
+
+
+def inconsistent_pairs(
+    frame: NDArray[np.int64], z: FloatArray, cov: FloatArray, gate: float = 5.0
+) -> NDArray[np.bool_]:
+    """Pairs whose angles disagree with a neighbouring pair (outliers), (n,) bool.
+
+    Pair k measures frames k−1 and k; pair k+1 measures frames k and k+1: both measure the
+    pose of frame k, so ``z[k, 2:4]`` and ``z[k+1, 0:2]`` agree within their noise whatever
+    the mount does (a mount step shifts both). When they differ by more than ``gate``
+    standard deviations one of the two is wrong and neither is trusted (two outliers in a row
+    can agree with each other, so requiring both sides would let them through). Needs one
+    frame of look-ahead.
+    """
+    n = len(frame)
+    bad_next = np.zeros(n, dtype=bool)
+    if n > 1:
+        adjacent = np.asarray(frame)[1:] == np.asarray(frame)[:-1] + 1
+        diff = z[:-1, 2:4] - z[1:, 0:2]
+        var = np.stack([cov[:-1, 2, 2] + cov[1:, 0, 0], cov[:-1, 3, 3] + cov[1:, 1, 1]], axis=1)
+        with np.errstate(invalid="ignore"):
+            big = np.abs(diff) > gate * np.sqrt(var)
+        known = adjacent & np.all(np.isfinite(diff), axis=1)
+        bad_next[:-1] = known & big.any(axis=1)
+    return bad_next | np.concatenate([[False], bad_next[:-1]])
 
 
 def inputs_from_measurements(
