@@ -24,7 +24,13 @@ from numpy.typing import NDArray
 
 from vipm_track.measurement import PairMeasurement
 
-from .monitor import MonitorInput
+from .monitor import (
+    DriftMonitor,
+    MonitorConfig,
+    MonitorInput,
+    MonitorOutput,
+    NominalCalibration,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -221,3 +227,44 @@ def mount_from_state(state: Any) -> tuple[FloatArray | None, FloatArray | None, 
         None if cov is None else np.asarray(cov, dtype=float).reshape(3, 3),
         gated,
     )
+
+
+def monitor_measurements(
+    measurements: Sequence[PairMeasurement],
+    nominal: NominalCalibration,
+    speed: Any | None = None,
+    config: MonitorConfig | None = None,
+    ekf_config: Any | None = None,
+    progress: bool = False,
+    **options: Any,
+) -> tuple[list[Any], list[MonitorOutput]]:
+    """The filter pipeline then the monitor over a whole sequence: the EKF
+    (``filters.ekf.run_filter``, with ``speed`` on the camera clock) gives the mount estimate
+    and the gating of each frame, then ``DriftMonitor`` judges every frame. ``config``
+    defaults to the EKF model's body noise at the measurements' median frame rate.
+    Returns (filter states, monitor outputs), one of each per measurement."""
+    from .ekf import EkfConfig, run_filter
+
+    ekf_config = ekf_config or EkfConfig(height_m=nominal.height_m)
+    if config is None:
+        config = MonitorConfig.from_noise(ekf_config.noise, fps=frame_rate(measurements))
+    states = run_filter(measurements, speed, ekf_config, progress=progress)
+    inputs = inputs_from_measurements(measurements, speed, states, **options)
+    mon = DriftMonitor(nominal, config)
+    it = inputs
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(inputs, desc="monitor", unit="frame")
+    return states, [mon.update(i) for i in it]
+
+
+def frame_rate(measurements: Sequence[PairMeasurement], default: float = 10.0) -> float:
+    """Median frame rate (Hz) of consecutive measurements, ``default`` if unknown."""
+    t = np.array([m.t for m in measurements], dtype=float)
+    f = np.array([m.frame for m in measurements])
+    if len(t) < 2:
+        return default
+    dt = np.diff(t) / np.maximum(np.diff(f), 1)
+    dt = dt[np.isfinite(dt) & (dt > 0)]
+    return float(1.0 / np.median(dt)) if len(dt) else default
