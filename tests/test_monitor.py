@@ -284,3 +284,83 @@ def test_mount_from_ekf_like_state():
     assert m is not None and c.shape == (3, 3) and g is False
     S.gated = "pose+motion"
     assert mount_from_state(S())[2] is True
+
+
+# --- command line ---------------------------------------------------------------------------
+
+
+@pytest.fixture
+def cli_inputs(tmp_path):
+    """An estimates CSV and a wheel-speed CSV of a drive bumped by 1° pitch at 30 s, a
+    camera file and the shipped car nominal calibration."""
+    from pathlib import Path
+
+    from filters.wheel_speed import SpeedSeries, write_speed_csv
+    from vipm_track.measurement import measurement_row
+    from vipm_track.table import ESTIMATE_COLUMNS, write_table
+
+    run = drive(50.0, seed=21, changes=[MountChange(30.0, pitch_deg=1.0)], stop_probability=0.0)
+    write_table(tmp_path / "est.csv", [measurement_row(m) for m in run.measurements],
+                ESTIMATE_COLUMNS)
+    write_speed_csv(SpeedSeries(run.speed.t, run.speed.speed_mps), tmp_path / "speed.csv")
+    (tmp_path / "cam.yaml").write_text(
+        "image_width: 1280\nimage_height: 720\ncamera_matrix: {rows: 3, cols: 3, data: "
+        "[900, 0, 640, 0, 900, 360, 0, 0, 1]}\ndistortion_model: plumb_bob\n"
+        "distortion_coefficients: {rows: 1, cols: 5, data: [0, 0, 0, 0, 0]}\n")
+    nominal = Path(__file__).resolve().parents[1] / "data" / "nominal_car.yaml"
+    return tmp_path, nominal
+
+
+def test_cli_monitor_from_estimates(cli_inputs):
+    from vipm_track.cli import main
+    from vipm_track.table import read_table
+
+    d, nominal = cli_inputs
+    rc = main(["monitor", "--estimates", str(d / "est.csv"), "--camera", str(d / "cam.yaml"),
+               "--speed-csv", str(d / "speed.csv"), "--nominal", str(nominal),
+               "--out", str(d / "mon.csv"), "--events", str(d / "ev.jsonl"), "--quiet"])
+    assert rc == 0
+    table = read_table(d / "mon.csv")
+    states, t = table["monitor_state"], table["t"]
+    assert not np.any(states[t < 30.0] == "RECALIBRATE")
+    flagged = t[states == "RECALIBRATE"]
+    assert len(flagged) and 30.0 <= flagged.min() <= 33.0
+    last = np.flatnonzero(states == "RECALIBRATE")[-1]
+    assert table["new_pitch_lo_deg"][last] <= 4.0 <= table["new_pitch_hi_deg"][last]
+    assert np.nanmax(np.abs(table["mount_height_m"] - 1.5)) < 0.05  # EKF ran with speed
+    events = [json.loads(x) for x in (d / "ev.jsonl").read_text().splitlines()]
+    assert any(e["state"] == "RECALIBRATE" and "filter_mount" in e for e in events)
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--nominal", "missing.yaml"], "missing.yaml"),
+        (["--images", "somewhere"], "exactly one of"),
+        (["--false-alarms-per-hour", "0"], "false-alarms-per-hour"),
+    ],
+)
+def test_cli_monitor_errors_exit_2(cli_inputs, capsys, extra, message):
+    from vipm_track.cli import main
+
+    d, nominal = cli_inputs
+    args = ["monitor", "--estimates", str(d / "est.csv"), "--camera", str(d / "cam.yaml"),
+            "--nominal", str(nominal), "--out", str(d / "mon.csv"), "--quiet"]
+    for i in range(0, len(extra), 2):
+        if extra[i] in args:
+            args[args.index(extra[i]) + 1] = extra[i + 1]
+        else:
+            args += extra[i:i + 2]
+    assert main(args) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_cli_monitor_estimates_without_std_columns(cli_inputs, capsys):
+    from vipm_track.cli import main
+
+    d, nominal = cli_inputs
+    (d / "bad.csv").write_text("frame,t,pitch_deg,roll_deg,height_m,tx_m,tz_m,yaw_deg,status\n"
+                               "0,0.0,3,0,1.5,0,1,0,ok\n")
+    assert main(["monitor", "--estimates", str(d / "bad.csv"), "--camera", str(d / "cam.yaml"),
+                 "--nominal", str(nominal), "--out", str(d / "mon.csv"), "--quiet"]) == 2
+    assert "bad.csv" in capsys.readouterr().err

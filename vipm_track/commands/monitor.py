@@ -83,7 +83,12 @@ def run(args: argparse.Namespace) -> int:
     speed = _speed(args)
     progress = not args.quiet
     if args.estimates:
-        measurements = read_measurements(args.estimates)
+        try:
+            measurements = read_measurements(args.estimates)
+        except ValueError as exc:  # TableError is an InputError; a missing column is not
+            if isinstance(exc, InputError):
+                raise
+            raise InputError(str(exc)) from exc
         if not measurements:
             raise InputError(f"{args.estimates}: no rows")
     else:
