@@ -5,7 +5,8 @@ pair measurements the filter is fed, wheel speed, and the filter's states.
 - height: with wheel speed, h_k = h_assumed · d_wheel / ‖t_est‖ (CONVENTIONS.md, Scale), where
   d_wheel is the wheel-speed distance travelled between frames k−1 and k (trapezoidal
   integral of the samples, so every sample counts once); its variance combines the
-  translation covariance and the speed noise. Without speed the height is NaN (untested);
+  translation covariance and the speed noise. Without speed, or across a gap of more than
+  ``max_speed_gap_s`` in the speed samples, the height is NaN (untested);
 - HOLD reasons: the estimator's status when not ``ok``; ``inconsistent with neighbouring
   pairs`` (an outlier: see ``inconsistent_pairs``); ``too few inliers`` below
   ``min_inliers``; ``standstill`` below ``min_speed_mps`` (wheel speed, or the estimated
@@ -79,6 +80,7 @@ def input_arrays(
     speed_std_rel: float = 0.005,
     speed_std_abs_mps: float = 0.002,
     consistency_gate: float = 5.0,
+    max_speed_gap_s: float = 0.5,
 ) -> InputArrays:
     """Vectorised core of ``inputs_from_measurements`` on the measurement arrays: ``z`` (n, 7)
     and ``cov`` (n, 7, 7) in the order of ``vipm_track.measurement``, ``status`` per frame."""
@@ -101,6 +103,10 @@ def input_arrays(
         ts = np.asarray(speed.t, dtype=float) + clock_offset_s
         vs = np.asarray(speed.speed_mps, dtype=float)
         dist = wheel_distance(ts, vs, t)
+        # a speed gap longer than the frame interval brackets one of the interval's ends
+        j = np.clip(np.searchsorted(ts, t), 1, max(1, len(ts) - 1))
+        spacing = ts[j] - ts[j - 1] if len(ts) > 1 else np.full(n, np.inf)
+        dist[spacing > max_speed_gap_s] = np.nan
         v_now = np.interp(t, ts, vs, left=np.nan, right=np.nan)
         d_wheel = np.full(n, np.nan)
         d_wheel[1:] = np.where(consecutive[1:], dist[1:] - dist[:-1], np.nan)

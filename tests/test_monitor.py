@@ -364,3 +364,19 @@ def test_cli_monitor_estimates_without_std_columns(cli_inputs, capsys):
     assert main(["monitor", "--estimates", str(d / "bad.csv"), "--camera", str(d / "cam.yaml"),
                  "--nominal", str(nominal), "--out", str(d / "mon.csv"), "--quiet"]) == 2
     assert "bad.csv" in capsys.readouterr().err
+
+
+def test_height_needs_speed_without_gaps():
+    from filters.drive_sim import SpeedSamples
+
+    run = drive(30.0, seed=22, stop_probability=0.0)
+    keep = (run.speed.t < 10.0) | (run.speed.t > 12.0)  # a 2 s hole in the wheel speed
+    holed = SpeedSamples(run.speed.t[keep], run.speed.speed_mps[keep])
+    arr = input_arrays(np.arange(len(run.z)), run.truth.t, run.z, run.covariance, 1.5,
+                       run.status, None, holed)
+    t = run.truth.t
+    ok = arr.usable
+    assert np.all(np.isnan(arr.pose[(t > 10.05) & (t < 11.95), 2]))
+    good = ok & ((t < 9.9) | (t > 12.2)) & (t > 0.2) & (t < 29.8)
+    assert np.all(np.isfinite(arr.pose[good, 2]))
+    assert np.nanmedian(np.abs(arr.pose[good, 2] - 1.5)) < 0.01
