@@ -56,6 +56,7 @@ class EkfConfig:
     max_consecutive_gated: int = 15
     max_mount_angle_std_deg: float = 10.0
     default_dt_s: float = 0.05  # frame interval assumed before the first frame time is known
+    init_pairs: int = 5  # good pairs whose medians start (and restart) the filter
     speed_timeout_s: float = 1.0  # h is estimated only while wheel speeds are this recent
 
 
@@ -148,6 +149,7 @@ class ExtrinsicsEKF:
         self._motion_gated_run = 0
         self._motion_note = ""
         self._pending_reset = ""
+        self._boot: list[tuple[PairMeasurement | None, float | None, float]] = []
         self._last_speed_t: float | None = None
         h0 = self._cfg.height_m
         self._height = (h0, (self._cfg.noise.prior_height_std_rel * h0) ** 2)
@@ -186,24 +188,27 @@ class ExtrinsicsEKF:
 
         reason = ""
         if self._kf is None:
-            if not usable:
+            # bootstrap: collect init_pairs good pairs, start from their medians (robust to an
+            # outlier among them), then run them through the filter like any other frame
+            if not usable and not self._boot:
+                return self._state(frame, t, "waiting")
+            self._boot.append((measurement if usable else None, speed, dt))
+            if sum(m is not None for m, _, _ in self._boot) < self._cfg.init_pairs:
                 return self._state(frame, t, "waiting")
             if self._pending_reset:
                 reason = f"re-initialised after {self._pending_reset}"
             self._pending_reset = ""
-            self._initialise(measurement, dt, speed)  # type: ignore[arg-type]
-        else:
-            self._kf.predict_dt(dt)
-
-        speed_nis, speed_gated = float("nan"), False
-        if speed is not None and np.isfinite(speed):
-            speed_nis, speed_gated = self._update_speed(float(speed))
-
-        nis, gated = float("nan"), ""
-        status = "predicted"
-        if usable:
-            nis, gated = self._update_pair(measurement, dt)  # type: ignore[arg-type]
-            status = {"": "ok", "pose+motion": "gated"}.get(gated, "partial")
+            boot, self._boot = self._boot, []
+            self._initialise(boot)
+            for m, v, d in boot[:-1]:
+                self._advance(m, v, d)
+            if self._pending_reset:  # the start itself failed: try again on the next pairs
+                problem = self._pending_reset
+                self._reset(problem)
+                return self._state(frame, t, "waiting", reset_reason=problem)
+        status, nis, gated, speed_nis, speed_gated = self._advance(
+            measurement if usable else None, speed, dt
+        )
         if self._motion_note:
             reason = "; ".join(r for r in (reason, self._motion_note) if r)
             self._motion_note = ""
@@ -217,21 +222,43 @@ class ExtrinsicsEKF:
         return self._state(frame, t, status, nis=nis, gated=gated, speed_nis=speed_nis,
                            speed_gated=speed_gated, reset_reason=reason)
 
+    def _advance(
+        self, m: PairMeasurement | None, speed: float | None, dt: float
+    ) -> tuple[str, float, str, float, bool]:
+        """Predict over ``dt`` and apply the speed and the pair: (status, nis, gated blocks,
+        speed NIS, speed gated)."""
+        assert self._kf is not None
+        self._kf.predict_dt(dt)
+        speed_nis, speed_gated = float("nan"), False
+        if speed is not None and np.isfinite(speed):
+            speed_nis, speed_gated = self._update_speed(float(speed))
+        if m is None:
+            return "predicted", float("nan"), "", speed_nis, speed_gated
+        nis, gated = self._update_pair(m, dt)
+        status = {"": "ok", "pose+motion": "gated"}.get(gated, "partial")
+        return status, nis, gated, speed_nis, speed_gated
+
     # --- internals --------------------------------------------------------------------------
 
-    def _initialise(self, m: PairMeasurement, dt: float, speed: float | None) -> None:
-        """Start at the previous frame time from the prior and this pair's rough values, then
-        predict over ``dt`` so the pair is applied like any other."""
+    def _initialise(
+        self, boot: list[tuple[PairMeasurement | None, float | None, float]]
+    ) -> None:
+        """Start, at the frame before the first of ``boot`` (pairs, speeds, intervals), from
+        the prior and the medians of the pairs' angles, speed and yaw rate."""
         nz = self._cfg.noise
-        z = m.z
         h_mean, h_var = self._height
+        pairs = [(m, d) for m, _, d in boot if m is not None]
+        zs = np.array([m.z for m, _ in pairs])
+        dts = np.array([d for _, d in pairs])
+        h0s = np.array([m.height_assumed for m, _ in pairs])
+        travel = np.hypot(zs[:, 4], zs[:, 5]) * h_mean / h0s
+        speeds = np.array([v for _, v, _ in boot if v is not None and np.isfinite(v)])
         x = np.zeros(M.STATE_DIM)
-        x[M.MOUNT_PITCH] = 0.5 * (z[0] + z[2])
-        x[M.MOUNT_ROLL] = 0.5 * (z[1] + z[3])
+        x[M.MOUNT_PITCH] = float(np.median(0.5 * (zs[:, 0] + zs[:, 2])))
+        x[M.MOUNT_ROLL] = float(np.median(0.5 * (zs[:, 1] + zs[:, 3])))
         x[M.MOUNT_HEIGHT] = h_mean
-        travel = float(np.hypot(z[4], z[5])) * h_mean / m.height_assumed
-        x[M.SPEED] = speed if speed is not None and np.isfinite(speed) else travel / dt
-        x[M.YAW_RATE] = z[6] / dt
+        x[M.SPEED] = float(np.median(speeds)) if len(speeds) else float(np.median(travel / dts))
+        x[M.YAW_RATE] = float(np.median(zs[:, 6] / dts))
         p = np.zeros((M.STATE_DIM, M.STATE_DIM))
         ang = np.radians(nz.prior_mount_angle_std_deg) ** 2
         p[M.MOUNT_PITCH, M.MOUNT_PITCH] = p[M.MOUNT_ROLL, M.MOUNT_ROLL] = ang
@@ -244,7 +271,6 @@ class ExtrinsicsEKF:
         p[M.YAW_RATE, M.YAW_RATE] = np.radians(nz.prior_yaw_rate_std_dps) ** 2
         kf = _ClonedEKF(nz)
         kf.x, kf.P = x, p
-        kf.predict_dt(dt)
         self._kf = kf
         self._pose_gated_run = self._motion_gated_run = 0
 
@@ -295,13 +321,16 @@ class ExtrinsicsEKF:
         x, p = kf.x.copy(), kf.P.copy()
         x[M.SPEED] = float(np.hypot(m.z[4], m.z[5])) * x[M.MOUNT_HEIGHT] / m.height_assumed / dt
         x[M.YAW_RATE] = m.z[6] / dt
+        h_prior = (nz.prior_height_std_rel * self._cfg.height_m) ** 2
+        # a wrong height also makes every translation disagree: let the next pairs move it
         for i, var in ((M.SPEED, nz.prior_speed_std_mps**2),
-                       (M.YAW_RATE, np.radians(nz.prior_yaw_rate_std_dps) ** 2)):
+                       (M.YAW_RATE, np.radians(nz.prior_yaw_rate_std_dps) ** 2),
+                       (M.MOUNT_HEIGHT, max(h_prior, float(p[M.MOUNT_HEIGHT, M.MOUNT_HEIGHT])))):
             p[i, :] = p[:, i] = 0.0
             p[i, i] = var
         kf.x, kf.P = x, p
         self._motion_note = (
-            f"speed/yaw rate re-initialised after {self._motion_gated_run} pairs gated on motion"
+            f"speed/yaw rate/height re-opened after {self._motion_gated_run} pairs gated on motion"
         )
         self._motion_gated_run = 0
 

@@ -76,11 +76,12 @@ class NoiseParams:
     mount_height_rw_m_per_sqrt_s: float = 0.0002
     mount_yaw_rw_deg_per_sqrt_s: float = 0.002
     #: body shaking: first-order Gauss–Markov
-    body_tau_s: float = 0.5
+    body_tau_s: float = 0.3
     body_std_deg: float = 0.2
-    #: planar motion random walks (speed in m/s per √s, yaw rate in deg/s per √s)
-    speed_rw_mps_per_sqrt_s: float = 0.25
-    yaw_rate_rw_dps_per_sqrt_s: float = 1.0
+    #: planar motion random walks (speed in m/s per √s, yaw rate in deg/s per √s): large
+    #: enough that speed changes and turn entries rarely trip the motion gate
+    speed_rw_mps_per_sqrt_s: float = 0.5
+    yaw_rate_rw_dps_per_sqrt_s: float = 2.0
     #: priors (standard deviations) at initialisation
     prior_mount_angle_std_deg: float = 3.0
     prior_height_std_rel: float = 0.05
@@ -98,7 +99,7 @@ class NoiseParams:
         if preset == "car":
             return cls()
         if preset == "cart":
-            return cls(speed_rw_mps_per_sqrt_s=0.05, yaw_rate_rw_dps_per_sqrt_s=1.0)
+            return cls(speed_rw_mps_per_sqrt_s=0.1, yaw_rate_rw_dps_per_sqrt_s=5.0)
         raise ValueError(f"unknown preset {preset!r}; expected 'car' or 'cart'")
 
     def speed_meas_var(self, speed_mps: float) -> float:

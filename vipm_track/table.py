@@ -47,7 +47,9 @@ ESTIMATE_COLUMNS: tuple[str, ...] = (
     "residual_px",
 )
 
-TEXT_COLUMNS = frozenset({"status", "monitor_state", "reason"})
+TEXT_COLUMNS = frozenset(
+    {"status", "monitor_state", "reason", "filter_status", "meas_status", "gated", "reset_reason"}
+)
 
 
 class TableError(InputError):
