@@ -214,7 +214,7 @@ class MonitorConfig:
     angle_shifts_deg: tuple[float, ...] = (0.15, 0.4, 1.0)
     height_shifts_m: tuple[float, ...] = (0.005, 0.015)
     #: body shaking (the filter model's Gauss–Markov) on pitch, roll; height has none
-    body_tau_s: float = 0.5
+    body_tau_s: float = 0.3
     body_std_deg: float = 0.2
     meas_angle_std_deg: float = 0.1
     meas_height_std_m: float = 0.006

@@ -43,7 +43,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="is the camera still calibrated? per-frame state and recalibration events",
         description="Estimate (or read) the per-frame pose, filter it, and judge every frame "
         "against a nominal calibration: UNCALIBRATED, CALIBRATED, DRIFTING, RECALIBRATE (with "
-        "the new extrinsics and their 95 %% interval), INVALID, HOLD.",
+        "the new extrinsics and their 95 % interval), INVALID, HOLD.",
     )
     add_input_options(parser, required=False)
     parser.add_argument("--estimates", metavar="EST.csv",
