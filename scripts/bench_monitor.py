@@ -332,18 +332,20 @@ def main(argv: list[str] | None = None) -> int:
         print(row)
         lines.append(row)
 
-    mcfg = MonitorConfig(fps=FPS)
+    noise = NoiseParams()
+    mcfg = MonitorConfig.from_noise(noise, fps=FPS)
     core = MonitorCore(NOMINAL, mcfg, batch=1)
     w_deg = [math.degrees(math.sqrt(w)) for w in core.w_nominal[:2]]
-    a = math.exp(-1 / FPS / 0.5)
+    a = math.exp(-1 / FPS / noise.body_tau_s)
+    check = math.degrees(math.sqrt(long_run_variance(rad(noise.body_std_deg), a, rad(0.1) ** 2)))
     note = [
         "",
         f"Monitor: tolerances {NOMINAL.pitch_tol_deg}° / {NOMINAL.roll_tol_deg}° / "
         f"{NOMINAL.height_tol_m * 100:.1f} cm, false_alarms_per_hour "
         f"{mcfg.false_alarms_per_hour}, design shifts {mcfg.angle_shifts_deg}° and "
-        f"{mcfg.height_shifts_m} m. Long-run per-frame std of the pose with 0.2° shaking "
-        f"(τ 0.5 s) and 0.1° noise: {w_deg[0]:.2f}° "
-        f"(check: {math.degrees(math.sqrt(long_run_variance(rad(0.2), a, rad(0.1) ** 2))):.2f}°).",
+        f"{mcfg.height_shifts_m} m. Long-run per-frame std of the pose with "
+        f"{noise.body_std_deg}° shaking (τ {noise.body_tau_s} s) and 0.1° noise: "
+        f"{w_deg[0]:.2f}° (check: {check:.2f}°).",
         "Delays are seconds from the change to the first RECALIBRATE/INVALID (monitor) or "
         "recalibrating/invalid (openpilot); 'early flags' counts monitor flags before the change; "
         "'> window' = more than 5 % of drives not flagged within 120 s (ramp: 180 s). The ramp's "
