@@ -234,12 +234,14 @@ def estimate_sequence(
     parquet: bool = False,
     progress: bool | None = None,
     on_step: Callable[[SequenceStep], None] | None = None,
+    estimator: TwoFrameEstimator | None = None,
 ) -> RunSummary:
     """Run ``source`` and stream one row per frame into the CSV ``out`` (and Parquet beside it
     with ``parquet``). Rows are flushed as they come, so an interrupted run keeps them.
 
     ``progress``: show a tqdm bar on stderr (``None``: only when stderr is a terminal).
-    ``on_step`` is called with every step (e.g. a live display)."""
+    ``on_step`` is called with every step (e.g. a live display); ``estimator`` replaces the
+    one built from ``camera``, ``height`` and ``config``."""
     from tqdm import tqdm
 
     out = Path(out)
@@ -248,7 +250,7 @@ def estimate_sequence(
         progress = sys.stderr.isatty()
     summary = RunSummary()
     start = time.perf_counter()
-    steps = run_sequence(source, camera, height, config, tracking)
+    steps = run_sequence(source, camera, height, config, tracking, estimator)
     with (
         TableWriter(out, ROW_COLUMNS, parquet_path) as writer,
         tqdm(total=len(source), disable=not progress, file=sys.stderr, unit="frame") as bar,

@@ -1,0 +1,129 @@
+"""Sequence runner plumbing: statuses, rows, flushing, tracking seeds; then the real estimator
+end to end on a rendered sequence (checked against its ground truth)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from vipm_track.camera import CameraModel
+from vipm_track.errors import InputError
+from vipm_track.geometry import GroundPose, PlanarMotion
+from vipm_track.measurement import PairMeasurement, read_measurements
+from vipm_track.pipeline import (
+    FIRST_FRAME,
+    NO_PREVIOUS,
+    WRONG_SIZE,
+    RunSummary,
+    estimate_sequence,
+    run_sequence,
+    step_row,
+)
+from vipm_track.sources import open_source
+from vipm_track.table import read_table
+
+CAMERA = CameraModel(k=np.array([[50.0, 0, 20], [0, 50.0, 15], [0, 0, 1]]), width=40, height=30)
+
+
+@dataclass
+class _Result:
+    """Minimal stand-in for ``PairResult`` (status, poses, motion, to_measurement)."""
+
+    status: str
+    motion: PlanarMotion
+    pose_curr: GroundPose
+    stages: list = field(default_factory=list)
+    residual_px: float = 0.1
+
+    def to_measurement(self, frame: int, t: float) -> PairMeasurement:
+        ok = self.status == "ok"
+        z = np.array([0.5, 0.0, 0.5, 0.0, self.motion.tx, self.motion.tz, self.motion.yaw])
+        return PairMeasurement(frame, t, z if ok else np.full(7, np.nan), np.eye(7) * 1e-4,
+                               1.0, self.status, 42)
+
+
+class _FakeEstimator:
+    """Reports the mean-brightness change as tz; fails where the images are equal."""
+
+    def __init__(self) -> None:
+        self.guesses: list = []
+
+    def estimate(self, prev, curr, guess=None):
+        self.guesses.append(guess)
+        d = float(curr.mean()) - float(prev.mean())
+        status = "ok" if d != 0 else "too few inliers"
+        return _Result(status, PlanarMotion(0.0, d / 100.0, 0.0), GroundPose(0.5, 0.0, 1.0))
+
+
+def _folder(tmp_path: Path, values: list[int | None], size=(40, 30)) -> Path:
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    for i, v in enumerate(values):
+        path = tmp_path / f"{i:06d}.png"
+        if v is None:
+            path.write_bytes(b"broken")
+        else:
+            cv2.imwrite(str(path), np.full((size[1], size[0]), v, np.uint8))
+    (tmp_path / "times.txt").write_text("".join(f"{0.1 * i:.3f}\n" for i in range(len(values))))
+    return tmp_path
+
+
+def test_statuses_of_first_unreadable_and_failed_frames(tmp_path: Path) -> None:
+    folder = _folder(tmp_path, [10, 20, None, 30, 40, 40, 50])
+    steps = list(run_sequence(open_source(images=folder), CAMERA, 1.0,
+                              tracking=False, estimator=_FakeEstimator()))
+    assert [s.frame for s in steps] == list(range(7))
+    assert [s.status for s in steps] == [
+        FIRST_FRAME, "ok", f"unreadable frame: {folder / '000002.png'}", NO_PREVIOUS, "ok",
+        "too few inliers", "ok",
+    ]
+    np.testing.assert_allclose([s.t for s in steps], 0.1 * np.arange(7))
+    assert steps[1].result.motion.tz == pytest.approx(0.1)
+
+
+def test_rows_are_written_and_read_back_as_measurements(tmp_path: Path) -> None:
+    folder = _folder(tmp_path / "img", [10, 20, 20, 35])
+    out = tmp_path / "est.csv"
+    summary = estimate_sequence(open_source(images=folder), CAMERA, 1.0, out, tracking=False,
+                                parquet=True, progress=False, estimator=_FakeEstimator())
+    assert (summary.frames, summary.ok, summary.pairs) == (4, 2, 3)
+    assert "2/4 frames ok" in summary.line() and "1× too few inliers" in summary.line()
+    table = read_table(out)
+    assert list(table["status"]) == [FIRST_FRAME, "ok", "too few inliers", "ok"]
+    np.testing.assert_allclose(table["tz_m"], [np.nan, 0.1, np.nan, 0.15], equal_nan=True)
+    assert np.isnan(table["pitch_deg"][0]) and table["pitch_deg"][1] == pytest.approx(
+        np.degrees(0.5))
+    parquet = read_table(out.with_suffix(".parquet"))
+    np.testing.assert_allclose(parquet["tz_m"], table["tz_m"], equal_nan=True)
+    ms = read_measurements(out)
+    assert [m.ok for m in ms] == [False, True, False, True]
+
+
+def test_wrong_size_first_frame_fails_fast_later_frames_get_a_row(tmp_path: Path) -> None:
+    folder = _folder(tmp_path / "a", [10, 20], size=(41, 30))
+    with pytest.raises(InputError, match=r"41×30 px but the camera model is 40×30"):
+        list(run_sequence(open_source(images=folder), CAMERA, 1.0, estimator=_FakeEstimator()))
+    folder = _folder(tmp_path / "b", [10, 20, 30])
+    cv2.imwrite(str(folder / "000001.png"), np.zeros((30, 41), np.uint8))
+    steps = list(run_sequence(open_source(images=folder), CAMERA, 1.0, tracking=False,
+                              estimator=_FakeEstimator()))
+    assert [s.status for s in steps] == [FIRST_FRAME, WRONG_SIZE, NO_PREVIOUS]
+
+
+def test_bad_height_is_an_input_error(tmp_path: Path) -> None:
+    folder = _folder(tmp_path, [10, 20])
+    with pytest.raises(InputError, match="--height must be a positive"):
+        list(run_sequence(open_source(images=folder), CAMERA, -1.0, estimator=_FakeEstimator()))
+
+
+def test_row_of_a_step_without_result_has_empty_numbers() -> None:
+    from vipm_track.pipeline import SequenceStep
+
+    row = step_row(SequenceStep(3, 0.3, None, FIRST_FRAME), 1.5)
+    assert row == {"frame": 3, "t": 0.3, "height_m": 1.5, "status": FIRST_FRAME}
+    summary = RunSummary()
+    summary.add(SequenceStep(3, 0.3, None, FIRST_FRAME))
+    assert summary.frames == 1 and summary.ok == 0
