@@ -103,6 +103,29 @@ def open_source(
     return VideoSource(video, fps=fps, start=start, max_frames=max_frames)
 
 
+class ArraySource(FrameSource):
+    """Frames from images already in memory (grey or BGR arrays) at times ``t`` [s]; a
+    ``None`` image stands for an unreadable frame."""
+
+    def __init__(self, images: list[NDArray | None], t: NDArray | list[float],
+                 description: str = "arrays") -> None:
+        t = np.asarray(t, dtype=float)
+        if t.shape != (len(images),):
+            raise SourceError(f"{description}: {len(images)} images but {t.size} timestamps")
+        self.images, self.t, self.description = images, t, description
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+    def __iter__(self) -> Iterator[Frame]:
+        for i, image in enumerate(self.images):
+            name = f"{self.description}#{i}"
+            if image is None:
+                yield Frame(i, float(self.t[i]), None, f"unreadable frame: {name}", name)
+            else:
+                yield Frame(i, float(self.t[i]), _to_grey(image), None, name)
+
+
 # --- image folders ---------------------------------------------------------------------------
 
 
