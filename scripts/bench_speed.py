@@ -7,7 +7,7 @@ pairs per second, wall time per pair and the estimator's per-stage breakdown
 (``PairResult.timings``: POC, warps, LM), with the share of pairs ok and the median travel
 distance error against the rendered ground truth.
 
-    python scripts/bench_speed.py [--frames 8] [--repeats 1] [--results scripts/results/bench_speed.md]
+    python scripts/bench_speed.py [--frames 8] [--repeats 1] [--results FILE.md]
 
 Timings on a shared machine are noisy: they are medians over all pairs of all repeats.
 """
