@@ -127,3 +127,35 @@ def test_row_of_a_step_without_result_has_empty_numbers() -> None:
     summary = RunSummary()
     summary.add(SequenceStep(3, 0.3, None, FIRST_FRAME))
     assert summary.frames == 1 and summary.ok == 0
+
+
+# --- estimate CLI option parsing ---------------------------------------------------------------
+
+
+def test_parse_grid_and_roi(tmp_path: Path) -> None:
+    from vipm_track.commands.estimate import parse_grid, parse_roi
+
+    assert parse_grid("11x9") == (11, 9) and parse_grid("5×4") == (5, 4)
+    for bad in ("11", "ax9", "1x9"):
+        with pytest.raises(InputError, match="--grid"):
+            parse_grid(bad)
+    mask = parse_roi("10,5,30,25", CAMERA)
+    assert mask.shape == (30, 40) and mask.sum() == 20 * 20 and mask[5, 10] and not mask[4, 10]
+    with pytest.raises(InputError, match=r"need 0 <= x0 < x1 <= 40"):
+        parse_roi("10,5,50,25", CAMERA)
+    with pytest.raises(InputError, match="neither a file nor a rectangle"):
+        parse_roi("10,5,30", CAMERA)
+    polygon = tmp_path / "road.txt"
+    polygon.write_text("# x y\n0 29\n39 29\n20 10\n")
+    tri = parse_roi(str(polygon), CAMERA)
+    assert tri[28, 20] and not tri[5, 20] and not tri[12, 2]
+    polygon.write_text("0 29\n39 29\n")
+    with pytest.raises(InputError, match="at least 3 vertices"):
+        parse_roi(str(polygon), CAMERA)
+    image = np.zeros((30, 40), np.uint8)
+    image[15:, :] = 255
+    cv2.imwrite(str(tmp_path / "mask.png"), image)
+    assert parse_roi(str(tmp_path / "mask.png"), CAMERA).sum() == 15 * 40
+    cv2.imwrite(str(tmp_path / "small.png"), image[:20])
+    with pytest.raises(InputError, match="mask is 40×20 px but the camera image is 40×30"):
+        parse_roi(str(tmp_path / "small.png"), CAMERA)
