@@ -30,7 +30,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "demo",
         help="render the embedded cart sequence, estimate it, print errors, plot",
-        description=__doc__.split("\n\n")[1].replace("\n", " "),
+        description=__doc__.split("\n\n")[1].replace("\n", " ").replace("``", ""),
     )
     parser.add_argument("--out", default="out/demo", metavar="DIR",
                         help="folder for the sequence, estimates.csv and demo.png "
