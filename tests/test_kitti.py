@@ -25,7 +25,9 @@ def test_kitti_ground_truth_motion_is_planar_and_forward() -> None:
     assert gt.tz[0] == pytest.approx(0.0915, abs=1e-3)
     assert gt.tx[0] == pytest.approx(-0.0046, abs=1e-4)
     assert abs(np.degrees(gt.yaw)).max() < 4.0
-    np.testing.assert_allclose(np.degrees(gt.pitch), 1.0, atol=0.3)
+    # Pitch changes between frames are small (< 0.8°; braking near frame 137).
+    np.testing.assert_allclose(np.degrees(gt.pitch), 1.0, atol=0.8)
+    assert abs(np.median(np.degrees(gt.pitch)) - 1.0) < 0.1
 
 
 #: Same options as scripts/eval_kitti.py (the documented KITTI command).
