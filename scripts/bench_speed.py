@@ -50,7 +50,7 @@ def bench_case(preset: str, source: ArraySource, truth: dict, refinements: int,
     p = PRESETS[preset]
     camera = p.camera()
     config = config_with(EstimatorConfig(), refinements=refinements,
-                         initial_pitch=math.radians(p.pitch_deg))
+                         initial_pitch_deg=p.pitch_deg)
     estimator = TwoFrameEstimator(camera, p.height_m, config)
     wall, stages, ok, dist_err = [], {s: [] for s in STAGES}, 0, []
     pairs = 0

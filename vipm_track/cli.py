@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from .errors import InputError
 
 #: Subcommand modules under ``vipm_track.commands``, in the order ``--help`` lists them.
-COMMANDS: tuple[str, ...] = ("estimate", "demo")
+COMMANDS: tuple[str, ...] = ("simulate", "estimate", "demo")
 
 
 def build_parser() -> argparse.ArgumentParser:

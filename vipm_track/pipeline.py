@@ -66,11 +66,11 @@ class SequenceStep:
 
 
 def prepare_image(frame: Frame, camera: CameraModel) -> NDArray[np.uint8]:
-    """The undistorted grey image of a readable frame; ``ValueError`` if its size is not the
-    camera's."""
+    """The grey image of a readable frame, as read (the estimator undistorts it);
+    ``ValueError`` if its size is not the camera's."""
     assert frame.image is not None
     camera.check_image(frame.image.shape, frame.name or f"frame {frame.index}")
-    return camera.undistort_image(frame.image)
+    return frame.image
 
 
 def predict_guess(previous: PairResult, dt_prev: float, dt: float) -> PairGuess:

@@ -16,7 +16,7 @@ oscillations of ~1–2° plus a little height change), ``height`` (height variat
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -261,7 +261,7 @@ def simulate_sequence(
 ) -> Trajectory:
     """Render a sequence and write it to ``out_dir`` (see module doc); returns its truth.
 
-    ``effects.seed`` is set from ``seed`` when ``effects`` is given without one.
+    ``effects`` are used as given (their own ``seed`` fixes noise and highlight layout).
     """
     p = PRESETS[preset] if isinstance(preset, str) else preset
     out = Path(out_dir)
@@ -269,7 +269,6 @@ def simulate_sequence(
     traj = make_trajectory(profile, frames, fps, p, seed, speed, amplitude)
     tex = preset_texture(p, texture, seed)
     camera = p.camera()
-    fx = replace(effects, seed=seed) if effects is not None and effects.seed == 0 else effects
     write_ros_yaml(camera, out / "camera.yaml", name=f"vipm_sim_{p.name}")
     (out / "times.txt").write_text("".join(f"{t:.6e}\n" for t in traj.t))
     iterator = range(frames)
@@ -279,7 +278,7 @@ def simulate_sequence(
         iterator = tqdm(iterator, desc=f"simulate {p.name}", unit="frame")
     with TableWriter(out / "gt.csv", GT_EXTRA_COLUMNS) as writer:
         for k, row in zip(iterator, gt_rows(traj), strict=True):
-            img = render_trajectory_frame(tex, camera, traj, k, fx)
+            img = render_trajectory_frame(tex, camera, traj, k, effects)
             if not cv2.imwrite(str(out / "images" / f"{k:06d}.png"), img):
                 raise OSError(f"could not write {out / 'images' / f'{k:06d}.png'}")
             writer.write(row)

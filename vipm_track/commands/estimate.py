@@ -105,9 +105,9 @@ def build_config(args: argparse.Namespace, camera: CameraModel):
         EstimatorConfig(),
         grid=grid,
         refinements=args.refinements,
-        patch_size=args.patch_size,
-        initial_pitch=pitch,
-        initial_roll=roll,
+        patch_image=args.patch_size,
+        initial_pitch_deg=pitch,
+        initial_roll_deg=roll,
         roi=roi,
     )
 
@@ -132,7 +132,7 @@ def _angle(value: float | None, option: str, low: float, high: float) -> float |
         return None
     if not (math.isfinite(value) and low <= value <= high):
         raise InputError(f"{option} must be in [{low}, {high}] degrees, got {value}")
-    return math.radians(value)
+    return float(value)
 
 
 def parse_grid(text: str) -> tuple[int, int]:
