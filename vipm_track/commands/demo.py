@@ -105,7 +105,7 @@ def run_demo(
     est, truth = read_table(estimates), read_table(sequence / "gt.csv")
     errors = frame_errors(est, truth)
     table = error_table(errors, tuple(n for n in DEMO_ERRORS if n in errors),
-                        title=f"|error|, {DEMO_PRESET} {profile}")
+                        title=f"abs. error ({DEMO_PRESET}, {profile})")
     plot = out / "demo.png"
     plot_estimates(est, truth, plot, title=f"vipm-track demo: {DEMO_PRESET} preset, "
                    f"{profile} profile, {frames} frames")

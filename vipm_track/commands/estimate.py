@@ -43,7 +43,8 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--grid", default=None, metavar="COLSxROWS",
                        help="patch grid, e.g. 11x9 (default: the estimator's)")
     group.add_argument("--patch-size", type=int, default=None, metavar="PX",
-                       help="image-plane patch size in pixels, a power of two (default: 128)")
+                       help="largest image-plane patch size in pixels, a multiple of 16 "
+                       "(default: the estimator's, 128)")
     group.add_argument("--pitch", type=float, default=None, metavar="DEG",
                        help="nominal pitch for the cold start, degrees, > 0 looking down "
                        "(default: the estimator's, 60; give ~0-5 for forward cameras)")
@@ -94,10 +95,8 @@ def build_config(args: argparse.Namespace, camera: CameraModel):
     grid = parse_grid(args.grid) if args.grid else None
     if args.refinements is not None and not 0 <= args.refinements <= 10:
         raise InputError(f"--refinements must be between 0 and 10, got {args.refinements}")
-    if args.patch_size is not None and (
-        args.patch_size < 16 or args.patch_size & (args.patch_size - 1)
-    ):
-        raise InputError(f"--patch-size must be a power of two >= 16, got {args.patch_size}")
+    if args.patch_size is not None and (args.patch_size < 32 or args.patch_size % 16):
+        raise InputError(f"--patch-size must be a multiple of 16, >= 32, got {args.patch_size}")
     pitch = _angle(args.pitch, "--pitch", -10.0, 90.0)
     roll = _angle(args.roll, "--roll", -45.0, 45.0)
     roi = parse_roi(args.roi, camera) if args.roi else None
