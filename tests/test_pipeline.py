@@ -159,3 +159,88 @@ def test_parse_grid_and_roi(tmp_path: Path) -> None:
     cv2.imwrite(str(tmp_path / "small.png"), image[:20])
     with pytest.raises(InputError, match="mask is 40×20 px but the camera image is 40×30"):
         parse_roi(str(tmp_path / "small.png"), CAMERA)
+
+
+# --- the real estimator on a rendered sequence -------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def cart_sequence(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from vipm_track.sim import simulate_sequence
+
+    folder = tmp_path_factory.mktemp("cart")
+    simulate_sequence("cart", 5, folder, seed=3, profile="static")
+    return folder
+
+
+def test_estimate_cli_on_rendered_cart_matches_ground_truth(cart_sequence: Path,
+                                                            tmp_path: Path) -> None:
+    from vipm_track.cli import main
+    from vipm_track.evaluate import frame_errors
+
+    out = tmp_path / "est.csv"
+    rc = main(["estimate", "--images", str(cart_sequence / "images"), "--camera",
+               str(cart_sequence / "camera.yaml"), "--height", "0.7", "--out", str(out),
+               "--parquet", "--quiet"])
+    assert rc == 0
+    est, truth = read_table(out), read_table(cart_sequence / "gt.csv")
+    assert list(est["status"]) == [FIRST_FRAME] + ["ok"] * 4
+    np.testing.assert_allclose(est["t"], truth["t"])
+    errors = frame_errors(est, truth)
+    assert errors["frame"].size == 4
+    assert np.max(np.abs(errors["pitch_deg"])) < 1.0
+    assert np.max(np.abs(errors["roll_deg"])) < 1.0
+    assert np.max(np.abs(errors["distance_pct"])) < 2.0
+    assert np.max(np.abs(errors["yaw_deg"])) < 0.2
+    assert np.all(est["inliers"][1:] >= 12) and np.all(est["patches"][1:] >= est["inliers"][1:])
+    assert read_table(out.with_suffix(".parquet"))["status"][1] == "ok"
+
+
+def test_tracking_seeds_each_pair_from_the_previous_result(cart_sequence: Path) -> None:
+    from vipm_track.camera import load_camera
+
+    camera = load_camera(cart_sequence / "camera.yaml")
+    steps = list(run_sequence(open_source(images=cart_sequence / "images", max_frames=4),
+                              camera, 0.7))
+    assert [s.tracked for s in steps] == [False, False, True, True]
+    assert all(s.ok for s in steps[1:])
+    # The seed of pair 3 was pair 2's motion: the estimate moved only a little from it.
+    assert abs(steps[3].result.motion.tz - steps[2].result.motion.tz) < 0.01
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--grid", "11"], "--grid must look like 11x9"),
+        (["--refinements", "-1"], "--refinements must be between 0 and 10"),
+        (["--pitch", "95"], r"--pitch must be in \[-10.0, 90.0\] degrees"),
+        (["--patch-size", "100"], "--patch-size must be a multiple of 16"),
+        (["--roi", "0,0,9000,10"], "--roi '0,0,9000,10': need 0 <= x0 < x1 <= 800"),
+        (["--height", "-2"], "--height must be a positive"),
+        (["--start", "50"], "--start 50 but the folder has 5 images"),
+    ],
+)
+def test_estimate_cli_bad_options_exit_2_with_a_message(
+    cart_sequence: Path, tmp_path: Path, capsys: pytest.CaptureFixture, extra: list[str],
+    message: str,
+) -> None:
+    from vipm_track.cli import main
+
+    argv = ["estimate", "--images", str(cart_sequence / "images"), "--camera",
+            str(cart_sequence / "camera.yaml"), "--height", "0.7",
+            "--out", str(tmp_path / "e.csv"), "--quiet", *extra]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "vipm-track estimate: error:" in err
+    assert __import__("re").search(message, err), err
+
+
+def test_estimate_cli_bad_camera_file(cart_sequence: Path, tmp_path: Path,
+                                      capsys: pytest.CaptureFixture) -> None:
+    from vipm_track.cli import main
+
+    bad = tmp_path / "camera.yaml"
+    bad.write_text("image_width: 800\nimage_height: 600\n")
+    assert main(["estimate", "--images", str(cart_sequence / "images"), "--camera", str(bad),
+                 "--height", "0.7", "--out", str(tmp_path / "e.csv")]) == 2
+    assert "field 'camera_matrix': missing" in capsys.readouterr().err
