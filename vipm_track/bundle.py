@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from .geometry import GroundPose, PlanarMotion
+from .geometry import GroundPose, PlanarMotion, compose_motion, invert_motion
 
 FloatArray = NDArray[np.float64]
 N_PARAMS = 7
@@ -322,7 +322,7 @@ def robust_fit(
     for s in range(1, len(weights)):
         weights[s, rng.choice(use_idx, size=m, replace=False)] = 1.0
     candidates, _ = lm_batch(model, x0, weights)
-    candidates = wrap_angles(candidates)
+    candidates = np.array([canonical(c) for c in candidates])
     c2 = inlier_px**2
     e = model.errors_batch(candidates)[:, use_idx]
     scores = np.sum(np.minimum(e**2, c2), axis=1)
@@ -354,7 +354,12 @@ def robust_fit(
     else:
         cov = np.full((N_PARAMS, N_PARAMS), np.nan)
         rms = float("nan")
-    return FitResult(wrap_angles(x), inl, errors, cov, rms, converged, nfev)
+    xc = canonical(x)
+    if not np.allclose(xc, wrap_angles(x)):
+        # The same solution in the canonical chart: re-evaluate its covariance there.
+        _, _, jac, res, _ = fit_lm(model, xc, np.flatnonzero(inl), max_nfev=20)
+        cov = covariance_from_jacobian(jac, res) if jac.shape[0] >= 2 * N_PARAMS else cov
+    return FitResult(xc, inl, errors, cov, rms, converged, nfev)
 
 
 def wrap_angles(x: FloatArray) -> FloatArray:
@@ -363,6 +368,27 @@ def wrap_angles(x: FloatArray) -> FloatArray:
     ang = [0, 1, 2, 3, 6]
     out[..., ang] = -((-out[..., ang] + np.pi) % (2 * np.pi) - np.pi)
     return out
+
+
+def canonical(x: FloatArray) -> FloatArray:
+    """Parameters (7,) with angles wrapped and each pitch in [-π/2, π/2].
+
+    A pitch beyond 90° with the roll turned by 180° is the same camera with its ground
+    frame G turned by 180° about the normal (G's z axis is the optical axis projected onto
+    the ground); the motion is re-expressed between the turned frames."""
+    w = wrap_angles(x)
+    flips = []
+    for i in (0, 2):
+        flip = abs(w[i]) > np.pi / 2
+        if flip:
+            w[i] = np.sign(w[i]) * np.pi - w[i]
+            w[i + 1] += np.pi
+        flips.append(PlanarMotion(0.0, 0.0, np.pi if flip else 0.0))
+    if flips[0].yaw or flips[1].yaw:
+        m = compose_motion(invert_motion(flips[0]),
+                           compose_motion(PlanarMotion(w[4], w[5], w[6]), flips[1]))
+        w[4:7] = m.tx, m.tz, m.yaw
+    return wrap_angles(w)
 
 
 def plausible(x: FloatArray) -> NDArray[np.bool_]:

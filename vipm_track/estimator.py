@@ -392,10 +392,20 @@ class TwoFrameEstimator:
         disp, peaks = poc.match_patches(small_p, small_c, coarse_centres, patch)
         result.timings["poc"] += time.perf_counter() - t0
         pix = coarse_centres * s + (s - 1) / 2
+        # Content fixed in the image (the vehicle's body, lens dirt, reflections) correlates
+        # perfectly at zero shift while the ground moves: not ground, whatever its peak.
+        mag = np.linalg.norm(np.nan_to_num(disp), axis=1) * s
+        valid = peaks >= cfg.min_peak
+        if not valid.any():
+            return x0, np.zeros_like(self.centres)
+        static = mag < max(cfg.min_motion_px, 0.1 * float(np.median(mag[valid])))
         # Patches whose content left the window still give a (lower) peak; trust the ones
-        # that correlate nearly as well as the best.
-        floor = cfg.coarse_peak_ratio * float(np.percentile(peaks, 90))
-        usable = peaks >= max(cfg.min_peak, floor)
+        # that correlate nearly as well as the best moving ones.
+        moving = valid & ~static
+        if not moving.any():
+            return x0, np.zeros_like(self.centres)
+        floor = cfg.coarse_peak_ratio * float(np.percentile(peaks[moving], 90))
+        usable = moving & (peaks >= max(cfg.min_peak, floor))
         if usable.sum() < cfg.min_inliers:
             return x0, np.zeros_like(self.centres)
         model = DisplacementModel(self.k, self.height, pix, pix + disp * s)
