@@ -70,7 +70,11 @@ class EstimatorConfig:
     refinements : virtual-IPM refinements after the initial estimate (paper: 1).
     initial_pitch_deg, initial_roll_deg : cold-start pose (paper: 60°, 0°); give the nominal
         calibration for cameras far from it (forward-looking ones).
-    coarse_scale : downsampling of the cold-start coarse pass (1 disables it).
+    coarse_scale, coarse_patch : downsampling and patch size (downsampled pixels) of the
+        cold-start coarse pass (``coarse_scale = 1`` disables it).
+    coarse_inlier_px : inlier threshold of the coarse pass, full-resolution pixels.
+    coarse_peak_ratio : coarse patches whose POC peak is below this fraction of the 90th
+        percentile peak are not used.
     min_peak : POC peaks below this mark a patch unusable.
     max_displacement_factor : image-plane displacements longer than this times the median
         (plus the patch size / 8) are obvious outliers.
@@ -101,10 +105,13 @@ class EstimatorConfig:
     refinements: int = 1
     initial_pitch_deg: float = 60.0
     initial_roll_deg: float = 0.0
-    coarse_scale: int = 2
+    coarse_scale: int = 4
+    coarse_patch: int = 64
+    coarse_inlier_px: float = 10.0
+    coarse_peak_ratio: float = 0.6
     min_peak: float = 0.05
     max_displacement_factor: float = 4.0
-    inlier_px_image: float = 1.5
+    inlier_px_image: float = 3.0
     inlier_px_ipm: float = 1.5
     refine_outlier_px: float = 8.0
     min_inliers: int = 12
@@ -376,7 +383,7 @@ class TwoFrameEstimator:
         size = (curr.shape[1] // s, curr.shape[0] // s)
         small_p = cv2.resize(prev, size, interpolation=cv2.INTER_AREA)
         small_c = cv2.resize(curr, size, interpolation=cv2.INTER_AREA)
-        patch = int(min(cfg.patch_image, (min(size) - 2) // 16 * 16))
+        patch = int(min(cfg.coarse_patch, (min(size) - 2) // 16 * 16))
         half = patch / 2
         coarse_centres = np.round(
             np.clip((self.centres - (s - 1) / 2) / s, [half, half],
@@ -385,12 +392,24 @@ class TwoFrameEstimator:
         disp, peaks = poc.match_patches(small_p, small_c, coarse_centres, patch)
         result.timings["poc"] += time.perf_counter() - t0
         pix = coarse_centres * s + (s - 1) / 2
-        usable = peaks >= cfg.min_peak
+        # Content fixed in the image (the vehicle's body, lens dirt, reflections) correlates
+        # perfectly at zero shift while the ground moves: not ground, whatever its peak.
+        mag = np.linalg.norm(np.nan_to_num(disp), axis=1) * s
+        valid = peaks >= cfg.min_peak
+        if not valid.any():
+            return x0, np.zeros_like(self.centres)
+        static = mag < max(cfg.min_motion_px, 0.1 * float(np.median(mag[valid])))
+        # Patches whose content left the window still give a (lower) peak; trust the ones
+        # that correlate nearly as well as the best moving ones.
+        moving = valid & ~static
+        if not moving.any():
+            return x0, np.zeros_like(self.centres)
+        floor = cfg.coarse_peak_ratio * float(np.percentile(peaks[moving], 90))
+        usable = moving & (peaks >= max(cfg.min_peak, floor))
         if usable.sum() < cfg.min_inliers:
             return x0, np.zeros_like(self.centres)
         model = DisplacementModel(self.k, self.height, pix, pix + disp * s)
-        fit = self._fit(model, x0, usable, min(cfg.n_subsets, 20), 2 * s * cfg.inlier_px_image,
-                        rng, result)
+        fit = self._fit(model, x0, usable, cfg.n_subsets, cfg.coarse_inlier_px, rng, result)
         if fit.inliers.sum() < cfg.min_inliers or not fit.converged:
             return x0, np.zeros_like(self.centres)
         return fit.x, self._predicted_displacements(fit.x)
