@@ -244,3 +244,20 @@ def test_estimate_cli_bad_camera_file(cart_sequence: Path, tmp_path: Path,
     assert main(["estimate", "--images", str(cart_sequence / "images"), "--camera", str(bad),
                  "--height", "0.7", "--out", str(tmp_path / "e.csv")]) == 2
     assert "field 'camera_matrix': missing" in capsys.readouterr().err
+
+
+def test_interrupted_run_keeps_the_rows_written(tmp_path: Path) -> None:
+    folder = _folder(tmp_path / "img", [10, 20, 30, 40, 50])
+    out = tmp_path / "est.csv"
+
+    def interrupt_at_frame_2(step) -> None:
+        if step.frame == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        estimate_sequence(open_source(images=folder), CAMERA, 1.0, out, tracking=False,
+                          progress=False, on_step=interrupt_at_frame_2,
+                          estimator=_FakeEstimator())
+    table = read_table(out)
+    assert list(table["frame"]) == [0, 1, 2]
+    np.testing.assert_allclose(table["tz_m"][1:], [0.1, 0.1])
