@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import shlex
 import sys
 import time
@@ -32,18 +33,16 @@ from vipm_track.table import read_table  # noqa: E402
 #: KITTI set-up: camera 1.65 m above the road, nearly level (pitch ~1°, looking down).
 KITTI_HEIGHT = 1.65
 KITTI_PITCH_DEG = 1.0
-#: The road: lower middle of the 1226×370 image (below the horizon at row ~170; the bonnet
-#: is not in view), away from the parked cars at the sides.
-KITTI_ROI = "250,200,976,370"
 
 TARGETS = {"ok_share_pct": 95.0, "distance_pct_median": 3.0, "yaw_deg_median": 0.1}
 
 
 def kitti_command(data: Path, out_csv: Path, extra: list[str]) -> list[str]:
-    """The ``vipm-track estimate`` argument list used on KITTI 07."""
+    """The ``vipm-track estimate`` argument list used on KITTI 07 (the region of interest is
+    the estimator's automatic one unless ``extra`` holds ``--roi``)."""
     return [
         "estimate", "--images", str(data / "image_0"), "--camera", str(data / "calib.txt"),
-        "--height", str(KITTI_HEIGHT), "--pitch", str(KITTI_PITCH_DEG), "--roi", KITTI_ROI,
+        "--height", str(KITTI_HEIGHT), "--pitch", str(KITTI_PITCH_DEG),
         "--out", str(out_csv), *extra,
     ]
 
@@ -133,8 +132,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data" / "kitti07")
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "kitti")
     parser.add_argument("--results", type=Path, default=ROOT / "scripts" / "results" / "kitti.md")
-    parser.add_argument("extra", nargs="*", help="extra options for vipm-track estimate")
+    parser.add_argument("extra", nargs=argparse.REMAINDER,
+                        help="extra options for vipm-track estimate (after --)")
     args = parser.parse_args(argv)
+    args.extra = [a for a in args.extra if a != "--"]
     if not (args.data / "poses.txt").is_file():
         print(f"KITTI data not found at {args.data}", file=sys.stderr)
         return 2
@@ -146,13 +147,19 @@ def main(argv: list[str] | None = None) -> int:
     if rc:
         return rc
     errors, headline = evaluate(est_csv, args.data)
-    shown = [shlex.quote(a) for a in cli_args]
-    text = report(headline, errors, " ".join(shown).replace(str(ROOT.parent), ".."), seconds,
-                  read_table(est_csv))
+    shown = [shlex.quote(_relative(a)) for a in cli_args]
+    text = report(headline, errors, " ".join(shown), seconds, read_table(est_csv))
     print(text)
     args.results.parent.mkdir(parents=True, exist_ok=True)
     args.results.write_text(text)
     return 0
+
+
+def _relative(arg: str) -> str:
+    """Paths as seen from the repository root (what the README's commands assume)."""
+    if arg.startswith("/") and Path(arg).is_absolute():
+        return os.path.relpath(arg, ROOT)
+    return arg
 
 
 if __name__ == "__main__":
