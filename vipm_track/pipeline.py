@@ -93,21 +93,13 @@ def run_sequence(
     tracking: bool = True,
     estimator: TwoFrameEstimator | None = None,
     retry_cold: bool = True,
-    max_pose_jump_deg: float = 3.0,
 ) -> Iterator[SequenceStep]:
     """Yield one :class:`SequenceStep` per frame of ``source`` (see module doc).
 
     ``height`` is the assumed camera height [m] that makes the motion metric. Raises
     :class:`InputError` when the first readable frame's size disagrees with ``camera``;
     later frames of a wrong size get status ``wrong image size``.
-
-    A tracked pair is estimated again from a cold start when it fails or when its pose of
-    frame k-1 disagrees with the previous pair's pose of the same frame by more than
-    ``max_pose_jump_deg`` in pitch or roll (the seed led it into a wrong solution, or the
-    previous pair was wrong: either way the tracking chain is broken and the cold start, from
-    the configuration's nominal pose, does not inherit the error).
     """
-    max_pose_jump = float(np.radians(max_pose_jump_deg))
     if not (np.isfinite(height) and height > 0):
         raise InputError(f"--height must be a positive number of metres, got {height}")
     if estimator is None:
@@ -143,24 +135,13 @@ def run_sequence(
             guess = predict_guess(previous_ok, prev_dt, dt)
         start = time.perf_counter()
         result = _estimate(estimator, prev_image, image, guess)
-        if guess is not None and retry_cold and (
-            result.status != "ok" or pose_jump(previous_ok, result) > max_pose_jump
-        ):
+        if guess is not None and result.status != "ok" and retry_cold:
             result = _estimate(estimator, prev_image, image, None)
             guess = None
         seconds = time.perf_counter() - start
         previous_ok = result if result.status == "ok" else None
         prev_image, prev_t, prev_dt = image, frame.t, dt
         yield SequenceStep(frame.index, frame.t, result, result.status, guess is not None, seconds)
-
-
-def pose_jump(previous: PairResult | None, result: PairResult) -> float:
-    """Largest |pitch|/|roll| difference [rad] between the previous pair's pose of frame k-1
-    and this pair's (0 when either is missing)."""
-    if previous is None or result.status != "ok" or result.pose_prev is None:
-        return 0.0
-    a, b = previous.pose_curr, result.pose_prev
-    return max(abs(a.pitch - b.pitch), abs(a.roll - b.roll))
 
 
 def _estimate(
