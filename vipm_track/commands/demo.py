@@ -21,7 +21,7 @@ from .estimate import add_estimator_options, build_config
 
 DEMO_PRESET = "cart"
 DEMO_PROFILE = "shaking"
-DEMO_FRAMES = 30
+DEMO_FRAMES = 20
 DEMO_SEED = 7
 DEMO_ERRORS = ("pitch_deg", "roll_deg", "distance_m", "distance_pct", "yaw_deg")
 
