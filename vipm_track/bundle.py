@@ -86,9 +86,14 @@ class DisplacementModel:
     def n_points(self) -> int:
         return int(self.pixels_prev.shape[0])
 
+    def full(self, xs: FloatArray) -> FloatArray:
+        """The 7- (or 8-) parameter vectors (..., 7|8) of this model's parameters."""
+        return np.asarray(xs, dtype=float)
+
     def predict_batch(self, xs: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:
         """Predicted positions (B, n, 2) for parameter vectors ``xs`` (B, 7); NaN where a
         point is above the horizon of Θ_p or behind the camera of Θ_c."""
+        xs = self.full(xs)
         pix = self.pixels_prev if idx is None else self.pixels_prev[idx]
         m = np.concatenate([pix, np.ones((len(pix), 1))], axis=1)  # (n, 3)
         a = np.eye(3) if self.plane_from_image is None else self.plane_from_image
@@ -185,6 +190,23 @@ def _rotations(pitch: FloatArray, roll: FloatArray) -> FloatArray:
     r[:, 1] = np.stack([c * sr, c * cr, s], axis=1)
     r[:, 2] = np.stack([-s * sr, -s * cr, c], axis=1)
     return r
+
+
+@dataclass(frozen=True)
+class SteadyPoseModel(DisplacementModel):
+    """The model with one pose for both frames: parameters (pitch, roll, tx, tz, yaw).
+
+    Fewer unknowns for the cold start's coarse pass, whose few trusted displacements only
+    need to predict where the patches go."""
+
+    def full(self, xs: FloatArray) -> FloatArray:
+        xs = np.asarray(xs, dtype=float)
+        return np.concatenate([xs[..., :2], xs[..., :2], xs[..., 2:5]], axis=-1)
+
+    @staticmethod
+    def reduce(x: FloatArray) -> FloatArray:
+        """(pitch, roll, tx, tz, yaw) of a 7-vector (its current-frame pose)."""
+        return np.concatenate([x[2:4], x[4:7]])
 
 
 #: Central-difference step of the Jacobian, radians / metres.
@@ -334,11 +356,12 @@ def robust_fit(
     for s in range(1, len(weights)):
         weights[s, rng.choice(use_idx, size=m, replace=False)] = 1.0
     candidates, _ = lm_batch(model, x0, weights)
-    candidates = np.array([canonical(c) for c in candidates])
+    if candidates.shape[1] >= N_PARAMS:
+        candidates = np.array([canonical(c) for c in candidates])
     c2 = inlier_px**2
     e = model.errors_batch(candidates)[:, use_idx]
     scores = np.sum(np.minimum(e**2, c2), axis=1)
-    scores[~plausible(candidates)] = np.inf
+    scores[~plausible(model.full(candidates))] = np.inf
     best = candidates[int(np.argmin(scores))]
     ok_all = bool(np.isfinite(scores.min()))
 
@@ -366,8 +389,8 @@ def robust_fit(
     else:
         cov = np.full((len(x0), len(x0)), np.nan)
         rms = float("nan")
-    xc = canonical(x)
-    if not np.allclose(xc, wrap_angles(x)):
+    xc = canonical(x) if len(x) >= N_PARAMS else x
+    if not np.allclose(xc, x if len(x) < N_PARAMS else wrap_angles(x)):
         # The same solution in the canonical chart: re-evaluate its covariance there.
         _, _, jac, res, _ = fit_lm(model, xc, np.flatnonzero(inl), max_nfev=20)
         cov = covariance_from_jacobian(jac, res) if jac.shape[0] >= 2 * len(x0) else cov

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import ipm, poc
-from .bundle import DisplacementModel, FitResult, pack, robust_fit, unpack
+from .bundle import DisplacementModel, FitResult, SteadyPoseModel, pack, robust_fit, unpack
 from .camera import CameraModel
 from .errors import InputError
 from .geometry import (
@@ -419,11 +419,15 @@ class TwoFrameEstimator:
         usable = moving & (peaks >= max(cfg.min_peak, floor))
         if usable.sum() < cfg.min_inliers:
             return x0, np.zeros_like(self.centres)
-        model = DisplacementModel(self.k, self.height, pix, pix + disp * s)
-        fit = self._fit(model, x0, usable, cfg.n_subsets, cfg.coarse_inlier_px, rng, result)
+        model = SteadyPoseModel(self.k, self.height, pix, pix + disp * s)
+        fit = self._fit(model, SteadyPoseModel.reduce(x0), usable, cfg.n_subsets,
+                        cfg.coarse_inlier_px, rng, result)
         if fit.inliers.sum() < cfg.min_inliers or not fit.converged:
             return x0, np.zeros_like(self.centres)
-        return fit.x, self._predicted_displacements(fit.x)
+        x = model.full(fit.x)
+        if len(x0) > len(x):
+            x = np.append(x, x0[len(x):])
+        return x, self._predicted_displacements(x)
 
     def _refine(
         self, prev: NDArray, curr: NDArray, x: FloatArray, rng: np.random.Generator,
