@@ -21,7 +21,13 @@ from vipm_track.estimator import (
 )
 from vipm_track.measurement import PairMeasurement
 from vipm_track.render import OBSTACLE_POLYGON, Effects
-from vipm_track.sim import PRESETS, Trajectory, make_trajectory, preset_texture, render_trajectory_frame
+from vipm_track.sim import (
+    PRESETS,
+    Trajectory,
+    make_trajectory,
+    preset_texture,
+    render_trajectory_frame,
+)
 
 
 @cache
@@ -47,7 +53,8 @@ def _errors(traj: Trajectory, k: int, pose_prev, pose_curr, motion) -> dict[str,
     return {
         "pitch": float(np.degrees(max(abs(pose_prev.pitch - tp.pitch),
                                       abs(pose_curr.pitch - tc.pitch)))),
-        "roll": float(np.degrees(max(abs(pose_prev.roll - tp.roll), abs(pose_curr.roll - tc.roll)))),
+        "roll": float(np.degrees(max(abs(pose_prev.roll - tp.roll),
+                                     abs(pose_curr.roll - tc.roll)))),
         "dist_mm": abs(motion.distance - tm.distance) * 1e3,
         "yaw": float(np.degrees(abs(motion.yaw - tm.yaw))),
     }

@@ -2,7 +2,10 @@
 
 The seven parameters are ordered as :data:`vipm_track.measurement.PARAMETER_NAMES`:
 ``(pitch_prev, roll_prev, pitch, roll, tx, tz, yaw)`` in radians and metres, the height
-being fixed to the assumed one within the pair (CONVENTIONS.md, Scale).
+being fixed to the assumed one within the pair (CONVENTIONS.md, Scale). Optionally an eighth
+parameter ``dh`` [m], the camera's vertical motion within the pair (frame k at height
+``h + dh``), for rigs that bounce (the paper assumes it negligible; each millimetre of it
+otherwise shows up as about 0.25° of pitch on a 0.7 m, 45° camera).
 
 One residual model serves both planes of the paper (section III):
 
@@ -34,16 +37,19 @@ INVALID_RESIDUAL = 1e3
 
 
 def unpack(x: FloatArray, height: float) -> tuple[GroundPose, GroundPose, PlanarMotion]:
-    """(pose_prev, pose_curr, motion) of a parameter 7-vector at the given height [m]."""
+    """(pose_prev, pose_curr, motion) of a parameter 7- or 8-vector at the assumed height
+    [m] (frame k at ``height + x[7]`` for an 8-vector)."""
+    h_c = height + (float(x[7]) if len(x) > N_PARAMS else 0.0)
     return (
         GroundPose(float(x[0]), float(x[1]), height),
-        GroundPose(float(x[2]), float(x[3]), height),
+        GroundPose(float(x[2]), float(x[3]), h_c),
         PlanarMotion(float(x[4]), float(x[5]), float(x[6])),
     )
 
 
 def pack(pose_prev: GroundPose, pose_curr: GroundPose, motion: PlanarMotion) -> FloatArray:
-    """Parameter 7-vector (radians, metres) of two poses and the motion between them."""
+    """Parameter 7-vector (radians, metres) of two poses and the motion between them (the
+    heights are not part of it)."""
     return np.array(
         [pose_prev.pitch, pose_prev.roll, pose_curr.pitch, pose_curr.roll,
          motion.tx, motion.tz, motion.yaw],
@@ -80,9 +86,14 @@ class DisplacementModel:
     def n_points(self) -> int:
         return int(self.pixels_prev.shape[0])
 
+    def full(self, xs: FloatArray) -> FloatArray:
+        """The 7- (or 8-) parameter vectors (..., 7|8) of this model's parameters."""
+        return np.asarray(xs, dtype=float)
+
     def predict_batch(self, xs: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:
         """Predicted positions (B, n, 2) for parameter vectors ``xs`` (B, 7); NaN where a
         point is above the horizon of Θ_p or behind the camera of Θ_c."""
+        xs = self.full(xs)
         pix = self.pixels_prev if idx is None else self.pixels_prev[idx]
         m = np.concatenate([pix, np.ones((len(pix), 1))], axis=1)  # (n, 3)
         a = np.eye(3) if self.plane_from_image is None else self.plane_from_image
@@ -108,11 +119,12 @@ class DisplacementModel:
 
     def jacobian(self, x: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:
         """Jacobian (2n, 7) of :meth:`residuals` by central differences (one batched call)."""
-        steps = np.eye(N_PARAMS) * _FD_STEP
+        n = len(x)
+        steps = np.eye(n) * _FD_STEP
         xs = np.concatenate([x + steps, x - steps])
         p = self.predict_batch(xs, idx)
-        d = (p[:N_PARAMS] - p[N_PARAMS:]) / (2 * _FD_STEP)  # (7, n, 2)
-        jac = d.reshape(N_PARAMS, -1).T
+        d = (p[:n] - p[n:]) / (2 * _FD_STEP)  # (n_params, n_points, 2)
+        jac = d.reshape(n, -1).T
         return np.where(np.isfinite(jac), jac, 0.0)
 
     def residuals_batch(self, xs: FloatArray) -> FloatArray:
@@ -123,10 +135,10 @@ class DisplacementModel:
 
     def jacobian_batch(self, xs: FloatArray) -> FloatArray:
         """Jacobians (B, N, 2, 7) of the residuals for parameter vectors (B, 7)."""
-        b = len(xs)
-        steps = np.eye(N_PARAMS) * _FD_STEP
+        b, n = xs.shape
+        steps = np.eye(n) * _FD_STEP
         pert = np.concatenate([xs[:, None] + steps[None], xs[:, None] - steps[None]], axis=1)
-        p = self.predict_batch(pert.reshape(-1, N_PARAMS)).reshape(b, 2, N_PARAMS, -1, 2)
+        p = self.predict_batch(pert.reshape(-1, n)).reshape(b, 2, n, -1, 2)
         d = (p[:, 0] - p[:, 1]) / (2 * _FD_STEP)  # (B, 7, N, 2)
         return np.where(np.isfinite(d), d, 0.0).transpose(0, 2, 3, 1)
 
@@ -141,7 +153,9 @@ class DisplacementModel:
         return np.where(np.isfinite(e), e, np.inf)
 
 
-def pair_homographies(k: FloatArray, height: float, xs: FloatArray) -> tuple[FloatArray, FloatArray]:
+def pair_homographies(
+    k: FloatArray, height: float, xs: FloatArray
+) -> tuple[FloatArray, FloatArray]:
     """Batched factors of geometry's pair homography for parameter vectors ``xs`` (B, 7).
 
     Returns ``ground_from_image(Θ_p)`` (B, 3, 3) and ``image_from_ground(Θ_c) · T(Ψ)``
@@ -151,8 +165,10 @@ def pair_homographies(k: FloatArray, height: float, xs: FloatArray) -> tuple[Flo
     """
     xs = np.asarray(xs, dtype=float)
     kinv = np.linalg.inv(k)
-    lift = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, height], [0.0, 1.0, 0.0]])
     lift_inv = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0 / height, 0.0]])
+    lift = np.zeros((len(xs), 3, 3))
+    lift[:, 0, 0] = lift[:, 2, 1] = 1.0
+    lift[:, 1, 2] = height + (xs[:, 7] if xs.shape[1] > N_PARAMS else 0.0)
     r_p = _rotations(xs[:, 0], xs[:, 1])
     r_c = _rotations(xs[:, 2], xs[:, 3])
     g_from_i = lift_inv @ r_p @ kinv
@@ -174,6 +190,23 @@ def _rotations(pitch: FloatArray, roll: FloatArray) -> FloatArray:
     r[:, 1] = np.stack([c * sr, c * cr, s], axis=1)
     r[:, 2] = np.stack([-s * sr, -s * cr, c], axis=1)
     return r
+
+
+@dataclass(frozen=True)
+class SteadyPoseModel(DisplacementModel):
+    """The model with one pose for both frames: parameters (pitch, roll, tx, tz, yaw).
+
+    Fewer unknowns for the cold start's coarse pass, whose few trusted displacements only
+    need to predict where the patches go."""
+
+    def full(self, xs: FloatArray) -> FloatArray:
+        xs = np.asarray(xs, dtype=float)
+        return np.concatenate([xs[..., :2], xs[..., :2], xs[..., 2:5]], axis=-1)
+
+    @staticmethod
+    def reduce(x: FloatArray) -> FloatArray:
+        """(pitch, roll, tx, tz, yaw) of a 7-vector (its current-frame pose)."""
+        return np.concatenate([x[2:4], x[4:7]])
 
 
 #: Central-difference step of the Jacobian, radians / metres.
@@ -240,7 +273,8 @@ def lm_batch(
     x : (S, 7) solutions, converged : (S,) whether each met the tolerance.
     """
     n_sets = weights.shape[0]
-    x = np.broadcast_to(np.asarray(x0, dtype=float), (n_sets, N_PARAMS)).copy()
+    n_par = np.shape(x0)[-1]
+    x = np.broadcast_to(np.asarray(x0, dtype=float), (n_sets, n_par)).copy()
     def cost(xs: FloatArray, wts: FloatArray) -> FloatArray:
         return np.sum(wts[:, :, None] * model.residuals_batch(xs) ** 2, axis=(1, 2))
 
@@ -248,7 +282,7 @@ def lm_batch(
     lam = np.full(n_sets, 1e-3)
     active = np.ones(n_sets, bool)
     converged = np.zeros(n_sets, bool)
-    eye = np.eye(N_PARAMS)
+    eye = np.eye(n_par)
     for _ in range(max_iterations):
         idx = np.flatnonzero(active)
         if idx.size == 0:
@@ -322,11 +356,12 @@ def robust_fit(
     for s in range(1, len(weights)):
         weights[s, rng.choice(use_idx, size=m, replace=False)] = 1.0
     candidates, _ = lm_batch(model, x0, weights)
-    candidates = np.array([canonical(c) for c in candidates])
+    if candidates.shape[1] >= N_PARAMS:
+        candidates = np.array([canonical(c) for c in candidates])
     c2 = inlier_px**2
     e = model.errors_batch(candidates)[:, use_idx]
     scores = np.sum(np.minimum(e**2, c2), axis=1)
-    scores[~plausible(candidates)] = np.inf
+    scores[~plausible(model.full(candidates))] = np.inf
     best = candidates[int(np.argmin(scores))]
     ok_all = bool(np.isfinite(scores.min()))
 
@@ -334,7 +369,7 @@ def robust_fit(
     x = best
     converged = ok_all
     inl = usable & (model.errors(x) < inlier_px)
-    jac = np.zeros((0, N_PARAMS))
+    jac = np.zeros((0, len(x0)))
     res = np.zeros(0)
     for _ in range(3):
         idx = np.flatnonzero(inl)
@@ -348,17 +383,17 @@ def robust_fit(
         inl = new_inl
     errors = model.errors(x)
     inl = usable & (errors < inlier_px)
-    if jac.shape[0] >= 2 * N_PARAMS:
+    if jac.shape[0] >= 2 * len(x0):
         cov = covariance_from_jacobian(jac, res)
         rms = float(np.sqrt(np.mean(res**2) * 2)) if res.size else float("nan")
     else:
-        cov = np.full((N_PARAMS, N_PARAMS), np.nan)
+        cov = np.full((len(x0), len(x0)), np.nan)
         rms = float("nan")
-    xc = canonical(x)
-    if not np.allclose(xc, wrap_angles(x)):
+    xc = canonical(x) if len(x) >= N_PARAMS else x
+    if not np.allclose(xc, x if len(x) < N_PARAMS else wrap_angles(x)):
         # The same solution in the canonical chart: re-evaluate its covariance there.
         _, _, jac, res, _ = fit_lm(model, xc, np.flatnonzero(inl), max_nfev=20)
-        cov = covariance_from_jacobian(jac, res) if jac.shape[0] >= 2 * N_PARAMS else cov
+        cov = covariance_from_jacobian(jac, res) if jac.shape[0] >= 2 * len(x0) else cov
     return FitResult(xc, inl, errors, cov, rms, converged, nfev)
 
 

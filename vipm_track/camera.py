@@ -98,11 +98,18 @@ class CameraModel:
         p = np.asarray(pixels, dtype=np.float64)
         if not self.has_distortion:
             return p.copy()
-        flat = p.reshape(-1, 1, 2)
+        flat = np.ascontiguousarray(p.reshape(-1, 1, 2))
+        # OpenCV's default is 5 fixed-point iterations (~mpx errors at the corners of a
+        # strongly distorted lens); iterate to convergence instead.
+        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
         if self.is_fisheye:
-            out = cv2.fisheye.undistortPoints(flat, self.k, self.distortion[:4], P=self.k)
+            out = cv2.fisheye.undistortPoints(flat, self.k, self.distortion[:4], P=self.k,
+                                              criteria=criteria)
+        elif hasattr(cv2, "undistortPointsIter"):  # OpenCV 4.x spells the criteria variant so
+            out = cv2.undistortPointsIter(flat, self.k, self.distortion, np.eye(3), self.k,
+                                          criteria)
         else:
-            out = cv2.undistortPoints(flat, self.k, self.distortion, P=self.k)
+            out = cv2.undistortPoints(flat, self.k, self.distortion, P=self.k, criteria=criteria)
         return out.reshape(p.shape)
 
     def distort_points(self, pixels: ArrayLike) -> NDArray[np.float64]:
@@ -112,7 +119,8 @@ class CameraModel:
             return p.copy()
         kinv = np.linalg.inv(self.k)
         norm = np.concatenate([p.reshape(-1, 2), np.ones((p[..., 0].size, 1))], axis=1) @ kinv.T
-        pts = norm[:, :2].reshape(-1, 1, 2)
+        # Contiguous copy: OpenCV's bindings misread the strided view of norm[:, :2].
+        pts = np.ascontiguousarray(norm[:, :2]).reshape(-1, 1, 2)
         if self.is_fisheye:
             out = cv2.fisheye.distortPoints(pts, self.k, self.distortion[:4])
         else:

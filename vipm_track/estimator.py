@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import ipm, poc
-from .bundle import DisplacementModel, FitResult, pack, robust_fit, unpack
+from .bundle import DisplacementModel, FitResult, SteadyPoseModel, pack, robust_fit, unpack
 from .camera import CameraModel
 from .errors import InputError
 from .geometry import (
@@ -86,6 +86,9 @@ class EstimatorConfig:
     ipm_resolution_scale : IPM metres per pixel as a multiple of the interest points'
         median ground sampling distance.
     ipm_max_side : largest IPM image side, pixels.
+    vertical_motion : also estimate the camera's vertical motion within the pair (an eighth
+        parameter; the paper neglects it, which costs ~0.25° of pitch per millimetre on a
+        bouncing 0.7 m cart camera). Frame k's pose then has height ``height + dh``.
     seed : seed of the subset sampler (runs are deterministic).
     keep_images : keep the last refinement's IPM images in the result.
     """
@@ -118,6 +121,7 @@ class EstimatorConfig:
     min_motion_px: float = 0.5
     ipm_resolution_scale: float = 1.0
     ipm_max_side: int = 3000
+    vertical_motion: bool = True
     seed: int = 0
     keep_images: bool = False
 
@@ -204,6 +208,8 @@ class PairResult:
     "too few inliers", "did not converge", "degenerate"); ``reason`` explains it. Poses and
     motion are None unless ``ok``. ``covariance`` is 7×7 in ``measurement`` order (radians,
     metres); ``residual_px`` is the final stage's inlier RMS residual in that stage's pixels.
+    ``height`` is the assumed height of frame k-1 [m]; ``height_change`` the estimated
+    vertical motion within the pair [m] (0 unless ``config.vertical_motion``).
     """
 
     status: str
@@ -219,6 +225,7 @@ class PairResult:
     n_inliers: int = 0
     residual_px: float = float("nan")
     height: float = float("nan")
+    height_change: float = 0.0
 
     @property
     def ok(self) -> bool:
@@ -232,7 +239,7 @@ class PairResult:
     def to_measurement(self, frame: int, t: float) -> PairMeasurement:
         """This pair as the filters' measurement for frame ``frame`` at time ``t`` [s]."""
         if self.ok and self.pose_prev and self.pose_curr and self.motion:
-            z = pack(self.pose_prev, self.pose_curr, self.motion)
+            z = pack(self.pose_prev, self.pose_curr, self.motion)[:7]
             cov = self.covariance
         else:
             z = np.full(7, np.nan)
@@ -333,10 +340,14 @@ class TwoFrameEstimator:
                 GroundPose(guess.pose_curr.pitch, guess.pose_curr.roll, self.height),
                 guess.motion,
             )
+            if cfg.vertical_motion:
+                x0 = np.append(x0, 0.0)
             offsets = self._predicted_displacements(x0)
         else:
             pitch0, roll0 = cfg.initial_pose
             x0 = np.array([pitch0, roll0, pitch0, roll0, 0.0, 0.0, 0.0])
+            if cfg.vertical_motion:
+                x0 = np.append(x0, 0.0)
             offsets = np.zeros_like(self.centres)
             if cfg.coarse_scale > 1:
                 x0, offsets = self._coarse(prev, curr, x0, rng, result)
@@ -408,11 +419,15 @@ class TwoFrameEstimator:
         usable = moving & (peaks >= max(cfg.min_peak, floor))
         if usable.sum() < cfg.min_inliers:
             return x0, np.zeros_like(self.centres)
-        model = DisplacementModel(self.k, self.height, pix, pix + disp * s)
-        fit = self._fit(model, x0, usable, cfg.n_subsets, cfg.coarse_inlier_px, rng, result)
+        model = SteadyPoseModel(self.k, self.height, pix, pix + disp * s)
+        fit = self._fit(model, SteadyPoseModel.reduce(x0), usable, cfg.n_subsets,
+                        cfg.coarse_inlier_px, rng, result)
         if fit.inliers.sum() < cfg.min_inliers or not fit.converged:
             return x0, np.zeros_like(self.centres)
-        return fit.x, self._predicted_displacements(fit.x)
+        x = model.full(fit.x)
+        if len(x0) > len(x):
+            x = np.append(x, x0[len(x):])
+        return x, self._predicted_displacements(x)
 
     def _refine(
         self, prev: NDArray, curr: NDArray, x: FloatArray, rng: np.random.Generator,
@@ -500,7 +515,8 @@ class TwoFrameEstimator:
         if not (fit.converged and plausible):
             raise _StageFailure(
                 STATUS_NOT_CONVERGED,
-                f"{stage}: LM {'did not converge' if not fit.converged else 'left the plausible range'}"
+                f"{stage}: LM "
+                f"{'did not converge' if not fit.converged else 'left the plausible range'}"
                 f" (pitch {np.degrees(pose_c.pitch):.1f}°, roll {np.degrees(pose_c.roll):.1f}°)",
             )
         cov = fit.covariance
@@ -510,7 +526,8 @@ class TwoFrameEstimator:
                 "(singular normal equations)"
             )
         result.pose_prev, result.pose_curr, result.motion = pose_p, pose_c, motion
-        result.covariance = cov
+        result.covariance = cov[:7, :7]
+        result.height_change = float(fit.x[7]) if len(fit.x) > 7 else 0.0
         result.n_inliers = n_in
         result.residual_px = fit.rms
         result.stage_estimates.append(StageEstimate(pose_p, pose_c, motion))
@@ -528,7 +545,8 @@ class TwoFrameEstimator:
             return self._cache[1]
         arr = np.asarray(image)
         if arr.ndim == 3 and arr.shape[2] in (3, 4):
-            arr = cv2.cvtColor(arr, cv2.COLOR_BGR2GRAY if arr.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
+            code = cv2.COLOR_BGR2GRAY if arr.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
+            arr = cv2.cvtColor(arr, code)
         if arr.ndim != 2:
             raise InputError(f"{name}: expected a grey or BGR image, got shape {arr.shape}")
         if arr.shape != (self.camera.height, self.camera.width):

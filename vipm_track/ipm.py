@@ -33,8 +33,8 @@ def ground_sampling(k: FloatArray, pose: GroundPose, pixels: FloatArray) -> Floa
     """Finest ground sampling distance (N,) at image pixels (N, 2): metres per pixel along
     the ground direction that one image pixel spans least (lateral, for oblique views)."""
     g0 = back_project(k, pose, pixels)
-    gx = back_project(k, pose, pixels + [1.0, 0.0]) - g0
-    gy = back_project(k, pose, pixels + [0.0, 1.0]) - g0
+    gx = back_project(k, pose, pixels + np.array([1.0, 0.0])) - g0
+    gy = back_project(k, pose, pixels + np.array([0.0, 1.0])) - g0
     jac = np.stack([gx, gy], axis=-1)  # (N, 2, 2): columns d(ground)/du, d(ground)/dv
     return np.linalg.svd(jac, compute_uv=False)[:, -1]
 

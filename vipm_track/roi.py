@@ -10,7 +10,6 @@ takes the whole image for steep cameras and the near road for forward-looking on
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Union
 
 import cv2
 import numpy as np
@@ -20,7 +19,7 @@ from .camera import CameraModel
 from .errors import InputError
 from .geometry import GroundPose, back_project, below_horizon, horizon_row
 
-RoiSpec = Union[None, tuple[float, float, float, float], NDArray, str, Path]
+RoiSpec = tuple[float, float, float, float] | NDArray | str | Path | None
 
 #: Patch sizes are rounded down to multiples of this (pixels), so that patches batch by size.
 SIZE_STEP = 16

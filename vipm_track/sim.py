@@ -69,7 +69,7 @@ PRESETS: dict[str, Preset] = {
     # The paper's cart: 800×600, f ≈ 729 px, h ≈ 0.7 m, looking 45° down, walking speed.
     "cart": Preset("cart", 800, 600, 729.0, 45.0, 0.7, 10.0, 1.2, 15.0, "gravel", 0.0015, 24),
     # Forward-looking dashcam: 1280×720, f ≈ 900 px, h ≈ 1.5 m, pitch 3°, 5–20 m/s.
-    "car": Preset("car", 1280, 720, 900.0, 3.0, 1.5, 20.0, 12.0, 8.0, "gravel", 0.008, 32),
+    "car": Preset("car", 1280, 720, 900.0, 3.0, 1.5, 20.0, 12.0, 8.0, "gravel", 0.008, 24),
 }
 
 
