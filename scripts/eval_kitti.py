@@ -42,7 +42,7 @@ def kitti_command(data: Path, out_csv: Path, extra: list[str]) -> list[str]:
     the estimator's automatic one unless ``extra`` holds ``--roi``)."""
     return [
         "estimate", "--images", str(data / "image_0"), "--camera", str(data / "calib.txt"),
-        "--height", str(KITTI_HEIGHT), "--pitch", str(KITTI_PITCH_DEG),
+        "--height", str(KITTI_HEIGHT), "--pitch", str(KITTI_PITCH_DEG), "--no-vertical-motion",
         "--out", str(out_csv), *extra,
     ]
 

@@ -50,6 +50,9 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
                        "(default: the estimator's, 60; give ~0-5 for forward cameras)")
     group.add_argument("--roll", type=float, default=None, metavar="DEG",
                        help="nominal roll for the cold start, degrees (default 0)")
+    group.add_argument("--no-vertical-motion", action="store_true",
+                       help="do not estimate the camera's vertical motion within a pair "
+                       "(steadier on level, forward-looking cameras such as KITTI's)")
 
 
 def add_run_options(parser: argparse.ArgumentParser) -> None:
@@ -108,6 +111,7 @@ def build_config(args: argparse.Namespace, camera: CameraModel):
         initial_pitch_deg=pitch,
         initial_roll_deg=roll,
         roi=roi,
+        vertical_motion=False if args.no_vertical_motion else None,
     )
 
 
