@@ -11,7 +11,9 @@ from collections.abc import Sequence
 from .errors import InputError
 
 #: Subcommand modules under ``vipm_track.commands``, in the order ``--help`` lists them.
-COMMANDS: tuple[str, ...] = ("simulate", "can_speed", "track", "monitor", "report")
+COMMANDS: tuple[str, ...] = (
+    "simulate", "estimate", "track", "monitor", "can_speed", "report", "demo",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

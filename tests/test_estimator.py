@@ -1,0 +1,249 @@
+"""Two-frame estimator: accuracy against rendered ground truth, cold start, refinement,
+tracking seeds, outliers, failure statuses and the covariance."""
+
+from __future__ import annotations
+
+import dataclasses
+from functools import cache
+
+import numpy as np
+import pytest
+
+from vipm_track import bundle, geometry
+from vipm_track.errors import InputError
+from vipm_track.estimator import (
+    STATUS_NO_MOTION,
+    STATUS_NO_TEXTURE,
+    EstimatorConfig,
+    PairGuess,
+    PairResult,
+    TwoFrameEstimator,
+)
+from vipm_track.measurement import PairMeasurement
+from vipm_track.render import OBSTACLE_POLYGON, Effects
+from vipm_track.sim import (
+    PRESETS,
+    Trajectory,
+    make_trajectory,
+    preset_texture,
+    render_trajectory_frame,
+)
+
+
+@cache
+def _sequence(
+    preset: str = "cart", profile: str = "static", frames: int = 2, pitch_deg: float | None = None,
+    obstacle: bool = False, seed: int = 1,
+) -> tuple[Trajectory, tuple[np.ndarray, ...], object]:
+    p = PRESETS[preset]
+    if pitch_deg is not None:
+        p = dataclasses.replace(p, pitch_deg=pitch_deg)
+    traj = make_trajectory(profile, frames, preset=p, seed=seed)
+    tex = preset_texture(p)
+    cam = p.camera()
+    fx = Effects(obstacle=obstacle) if obstacle else None
+    imgs = tuple(render_trajectory_frame(tex, cam, traj, k, fx) for k in range(frames))
+    return traj, imgs, cam
+
+
+def _errors(traj: Trajectory, k: int, pose_prev, pose_curr, motion) -> dict[str, float]:
+    """Absolute errors of a pair's estimate: pitch/roll (both frames) in degrees, travel
+    distance in mm, yaw change in degrees."""
+    tp, tc, tm = traj.pose(k - 1), traj.pose(k), traj.motion(k)
+    return {
+        "pitch": float(np.degrees(max(abs(pose_prev.pitch - tp.pitch),
+                                      abs(pose_curr.pitch - tc.pitch)))),
+        "roll": float(np.degrees(max(abs(pose_prev.roll - tp.roll),
+                                     abs(pose_curr.roll - tc.roll)))),
+        "dist_mm": abs(motion.distance - tm.distance) * 1e3,
+        "yaw": float(np.degrees(abs(motion.yaw - tm.yaw))),
+    }
+
+
+def _estimate(preset="cart", profile="static", k=1, frames=2, pitch_deg=None, config=None,
+              guess=None, obstacle=False) -> tuple[PairResult, Trajectory, object]:
+    traj, imgs, cam = _sequence(preset, profile, frames, pitch_deg, obstacle)
+    est = TwoFrameEstimator(cam, float(traj.height[k]), config)
+    return est.estimate(imgs[k - 1], imgs[k], guess), traj, cam
+
+
+# --- model consistency --------------------------------------------------------------------
+
+
+def test_batched_homographies_equal_geometry():
+    k = PRESETS["cart"].camera().k
+    rng = np.random.default_rng(0)
+    xs = rng.normal(size=(6, 7)) * [0.3, 0.1, 0.3, 0.1, 0.2, 0.5, 0.1] + [0.8, 0, 0.8, 0, 0, 0, 0]
+    g_from_i, out_from_g = bundle.pair_homographies(k, 0.7, xs)
+    for b, x in enumerate(xs):
+        pp, pc, mo = bundle.unpack(x, 0.7)
+        h_ref = geometry.pair_homography(k, pp, pc, mo)
+        h = out_from_g[b] @ g_from_i[b]
+        np.testing.assert_allclose(h / h[2, 2], h_ref / h_ref[2, 2], atol=1e-9)
+
+
+def test_model_residual_is_zero_at_truth_and_jacobian_matches():
+    k = PRESETS["cart"].camera().k
+    pp, pc = geometry.GroundPose(0.8, 0.02, 0.7), geometry.GroundPose(0.81, 0.01, 0.7)
+    mo = geometry.PlanarMotion(0.01, 0.1, 0.02)
+    pix = np.stack(np.meshgrid(np.linspace(50, 750, 5), np.linspace(50, 550, 4)), -1).reshape(-1, 2)
+    target = geometry.predict_pixels(k, pp, pc, mo, pix)
+    model = bundle.DisplacementModel(k, 0.7, pix, target)
+    x = bundle.pack(pp, pc, mo)
+    assert np.abs(model.residuals(x)).max() < 1e-9
+    jac = model.jacobian(x)
+    for i in range(7):
+        dx = np.zeros(7)
+        dx[i] = 1e-5
+        fd = (model.residuals(x + dx) - model.residuals(x - dx)) / 2e-5
+        np.testing.assert_allclose(jac[:, i], fd, rtol=1e-3, atol=1e-3)
+
+
+# --- accuracy ----------------------------------------------------------------------------
+
+
+def test_cart_static_pair_accuracy():
+    result, traj, _ = _estimate()
+    assert result.status == "ok", result.reason
+    err = _errors(traj, 1, result.pose_prev, result.pose_curr, result.motion)
+    assert err["pitch"] < 0.1 and err["roll"] < 0.1, err
+    assert err["dist_mm"] < 0.2, err
+    assert err["yaw"] < 0.05, err
+    assert set(result.timings) >= {"poc", "warp", "lm", "total"}
+    assert [s.plane for s in result.stages] == ["image", "ipm"]
+    assert len(result.stage_estimates) == 2
+
+
+@pytest.mark.parametrize("pitch_deg", [45.0, 70.0])
+def test_cold_start_from_60_degrees_converges(pitch_deg):
+    result, traj, _ = _estimate(pitch_deg=pitch_deg)
+    assert result.status == "ok", result.reason
+    err = _errors(traj, 1, result.pose_prev, result.pose_curr, result.motion)
+    assert err["pitch"] < 0.2 and err["roll"] < 0.2, err
+
+
+def test_refinement_lowers_error_against_initial():
+    initial, refined = [], []
+    for k in (1, 2, 3):
+        result, traj, _ = _estimate(profile="gradual", k=k, frames=4)
+        assert result.ok, result.reason
+        e0 = _errors(traj, k, *result.stage_estimates[0])
+        e1 = _errors(traj, k, *result.stage_estimates[1])
+        initial.append(e0["pitch"] + e0["roll"])
+        refined.append(e1["pitch"] + e1["roll"])
+    assert np.mean(refined) < 0.5 * np.mean(initial), (initial, refined)
+
+
+def test_car_preset_with_guess_converges():
+    traj, imgs, cam = _sequence("car", "static", 2)
+    tp, tc, tm = traj.pose(0), traj.pose(1), traj.motion(1)
+    off = np.radians(0.5)
+    guess = PairGuess(
+        geometry.GroundPose(tp.pitch + off, tp.roll - off, tp.height),
+        geometry.GroundPose(tc.pitch + off, tc.roll - off, tc.height),
+        geometry.PlanarMotion(tm.tx, tm.tz * 1.1, tm.yaw),
+    )
+    config = EstimatorConfig(initial_pitch_deg=PRESETS["car"].pitch_deg)
+    result = TwoFrameEstimator(cam, float(traj.height[1]), config).estimate(imgs[0], imgs[1], guess)
+    assert result.ok, result.reason
+    err = _errors(traj, 1, result.pose_prev, result.pose_curr, result.motion)
+    assert err["pitch"] < 0.15 and err["roll"] < 0.15, err
+    assert err["dist_mm"] / (tm.distance * 1e3) < 0.01, err  # under 1 % of ~0.6 m
+
+
+def test_obstacle_patches_are_outliers():
+    result, traj, cam = _estimate(obstacle=True)
+    assert result.ok, result.reason
+    stage = result.stages[0]
+    poly = OBSTACLE_POLYGON * [cam.width, cam.height]
+    inside = _inside_convex(poly, stage.centres)
+    # Patches well inside the obstacle (their whole window on it) must not be inliers.
+    deep = inside & _inside_convex(_shrink(poly, 70), stage.centres)
+    assert deep.sum() >= 3
+    assert not np.any(stage.inliers[deep])
+    assert stage.inliers[~inside].mean() > 0.6
+    err = _errors(traj, 1, result.pose_prev, result.pose_curr, result.motion)
+    assert err["pitch"] < 0.1 and err["roll"] < 0.1 and err["dist_mm"] < 0.3, err
+
+
+# --- failures ----------------------------------------------------------------------------
+
+
+def test_uniform_images_report_no_texture():
+    cam = PRESETS["cart"].camera()
+    flat = np.full((cam.height, cam.width), 128, np.uint8)
+    result = TwoFrameEstimator(cam, 0.7).estimate(flat, flat.copy())
+    assert result.status == STATUS_NO_TEXTURE
+    assert result.pose_curr is None
+    m = result.to_measurement(3, 0.3)
+    assert m.status == STATUS_NO_TEXTURE and not m.ok and np.all(np.isnan(m.z))
+
+
+def test_identical_frames_report_no_motion():
+    _, imgs, cam = _sequence()
+    result = TwoFrameEstimator(cam, 0.7).estimate(imgs[0], imgs[0].copy())
+    assert result.status == STATUS_NO_MOTION, result.reason
+    assert "motion" in result.reason
+
+
+def test_bad_input_is_a_clear_error():
+    cam = PRESETS["cart"].camera()
+    with pytest.raises(InputError, match="800×600"):
+        TwoFrameEstimator(cam, 0.7).estimate(np.zeros((10, 10), np.uint8), np.zeros((10, 10)))
+    with pytest.raises(InputError, match="n_subsets"):
+        EstimatorConfig(n_subsets=-1)
+    with pytest.raises(InputError, match="height"):
+        TwoFrameEstimator(cam, 0.0)
+
+
+# --- covariance and measurement -----------------------------------------------------------
+
+
+def test_covariance_is_positive_definite_and_in_the_ballpark():
+    ratios = []
+    for k in (1, 2):
+        result, traj, _ = _estimate(profile="gradual", k=k, frames=3)
+        assert result.ok, result.reason
+        cov = result.covariance
+        assert cov.shape == (7, 7)
+        np.testing.assert_allclose(cov, cov.T, atol=1e-15)
+        assert np.all(np.linalg.eigvalsh(cov) > 0)
+        truth = bundle.pack(traj.pose(k - 1), traj.pose(k), traj.motion(k))
+        est = bundle.pack(result.pose_prev, result.pose_curr, result.motion)
+        ratios.append(np.abs(est - truth) / result.std)
+    ratios = np.concatenate(ratios)
+    # Errors are a few standard deviations at most, and the std is not vastly pessimistic.
+    assert np.median(ratios) < 5.0, ratios
+    assert np.median(ratios) > 0.05, ratios
+
+
+def test_to_measurement_carries_estimate():
+    result, _, _ = _estimate()
+    m = result.to_measurement(7, 0.7)
+    assert isinstance(m, PairMeasurement)
+    assert m.ok and m.frame == 7 and m.t == 0.7 and m.height_assumed == pytest.approx(0.7)
+    np.testing.assert_allclose(m.z, bundle.pack(result.pose_prev, result.pose_curr, result.motion))
+    assert m.inliers == result.n_inliers > 12
+
+
+def test_guess_from_previous_result():
+    result, _, _ = _estimate()
+    g = PairGuess.from_previous(result)
+    assert g.pose_prev == result.pose_curr and g.motion == result.motion
+    assert PairGuess.from_previous(PairResult(status="no motion")) is None
+
+
+# --- helpers ------------------------------------------------------------------------------
+
+
+def _inside_convex(poly: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    edge = np.roll(poly, -1, axis=0) - poly
+    rel = pts[:, None, :] - poly[None]
+    cross = edge[None, :, 0] * rel[..., 1] - edge[None, :, 1] * rel[..., 0]
+    return np.all(cross >= 0, axis=1) | np.all(cross <= 0, axis=1)
+
+
+def _shrink(poly: np.ndarray, px: float) -> np.ndarray:
+    c = poly.mean(axis=0)
+    d = poly - c
+    return c + d * np.clip(1 - px / np.linalg.norm(d, axis=1, keepdims=True), 0, None)

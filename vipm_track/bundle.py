@@ -1,0 +1,440 @@
+"""Geometric bundle adjustment of a frame pair: residual models and their robust LM fit.
+
+The seven parameters are ordered as :data:`vipm_track.measurement.PARAMETER_NAMES`:
+``(pitch_prev, roll_prev, pitch, roll, tx, tz, yaw)`` in radians and metres, the height
+being fixed to the assumed one within the pair (CONVENTIONS.md, Scale). Optionally an eighth
+parameter ``dh`` [m], the camera's vertical motion within the pair (frame k at height
+``h + dh``), for rigs that bounce (the paper assumes it negligible; each millimetre of it
+otherwise shows up as about 0.25° of pitch on a 0.7 m, 45° camera).
+
+One residual model serves both planes of the paper (section III):
+
+- image plane (eq. 1): a ground point seen at ``m_p`` in frame k-1 is predicted at
+  ``m_c = π(T(Ψ) π⁻¹(m_p; Θ_p); Θ_c)`` and compared with ``m_p + d`` (``d`` from POC);
+- virtual IPM plane (eqs. 3-5): the same prediction mapped onto the current frame's
+  virtual IPM image by the *fixed* estimate Θ̂_c, compared with ``q_p + d̂`` in IPM pixels,
+  where ``m_p = π(q_p; Θ̂_p)`` is the image pixel of the previous IPM patch centre.
+
+So a model is the prediction followed by a fixed homography ``plane_from_image`` (the
+identity on the image plane, ``ipm_from_image_homography(k, Θ̂_c, grid)`` on the IPM).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import least_squares
+
+from .geometry import GroundPose, PlanarMotion, compose_motion, invert_motion
+
+FloatArray = NDArray[np.float64]
+N_PARAMS = 7
+#: Residual (plane pixels) given to a point that the candidate parameters put behind a
+#: camera or above the horizon: large, finite, so LM steps away from such candidates.
+INVALID_RESIDUAL = 1e3
+
+
+def unpack(x: FloatArray, height: float) -> tuple[GroundPose, GroundPose, PlanarMotion]:
+    """(pose_prev, pose_curr, motion) of a parameter 7- or 8-vector at the assumed height
+    [m] (frame k at ``height + x[7]`` for an 8-vector)."""
+    h_c = height + (float(x[7]) if len(x) > N_PARAMS else 0.0)
+    return (
+        GroundPose(float(x[0]), float(x[1]), height),
+        GroundPose(float(x[2]), float(x[3]), h_c),
+        PlanarMotion(float(x[4]), float(x[5]), float(x[6])),
+    )
+
+
+def pack(pose_prev: GroundPose, pose_curr: GroundPose, motion: PlanarMotion) -> FloatArray:
+    """Parameter 7-vector (radians, metres) of two poses and the motion between them (the
+    heights are not part of it)."""
+    return np.array(
+        [pose_prev.pitch, pose_prev.roll, pose_curr.pitch, pose_curr.roll,
+         motion.tx, motion.tz, motion.yaw],
+        dtype=float,
+    )
+
+
+@dataclass(frozen=True)
+class DisplacementModel:
+    """Where ground seen at ``pixels_prev`` in frame k-1 lands on frame k's measurement plane.
+
+    Attributes
+    ----------
+    k : (3, 3) intrinsic matrix, pixels.
+    height : assumed camera height [m], shared by both frames.
+    pixels_prev : (N, 2) image pixels of frame k-1 (patch centres).
+    targets : (N, 2) measured positions on frame k's plane (``centre + displacement``), in
+        that plane's pixels.
+    plane_from_image : (3, 3) fixed map from frame-k image pixels to the measurement plane,
+        or None for the image plane itself.
+
+    The prediction is the pair homography ``A · π(Θ_c) · T(Ψ) · π⁻¹(Θ_p)`` of geometry.py
+    (exact for ground points), evaluated for a batch of parameter vectors at once so that
+    the finite-difference Jacobian costs one vectorised call.
+    """
+
+    k: FloatArray
+    height: float
+    pixels_prev: FloatArray
+    targets: FloatArray
+    plane_from_image: FloatArray | None = None
+
+    @property
+    def n_points(self) -> int:
+        return int(self.pixels_prev.shape[0])
+
+    def full(self, xs: FloatArray) -> FloatArray:
+        """The 7- (or 8-) parameter vectors (..., 7|8) of this model's parameters."""
+        return np.asarray(xs, dtype=float)
+
+    def predict_batch(self, xs: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:
+        """Predicted positions (B, n, 2) for parameter vectors ``xs`` (B, 7); NaN where a
+        point is above the horizon of Θ_p or behind the camera of Θ_c."""
+        xs = self.full(xs)
+        pix = self.pixels_prev if idx is None else self.pixels_prev[idx]
+        m = np.concatenate([pix, np.ones((len(pix), 1))], axis=1)  # (n, 3)
+        a = np.eye(3) if self.plane_from_image is None else self.plane_from_image
+        g_from_i, out_from_g = pair_homographies(self.k, self.height, xs)
+        ground = np.einsum("bij,nj->bni", g_from_i, m)  # (B, n, 3); w > 0 on the ground
+        img = np.einsum("bij,bnj->bni", out_from_g, ground)  # w > 0 in front of camera k
+        plane = img @ a.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out = plane[..., :2] / plane[..., 2:3]
+        bad = ~((ground[..., 2] > 0) & (img[..., 2] > 0))
+        out[bad] = np.nan
+        return out
+
+    def predict(self, x: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:
+        """Predicted positions (n, 2) on the measurement plane; NaN where undefined."""
+        return self.predict_batch(np.asarray(x, dtype=float)[None], idx)[0]
+
+    def residuals(self, x: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:
+        """Flattened residuals (2n,) predicted − measured, plane pixels (LM's objective)."""
+        tgt = self.targets if idx is None else self.targets[idx]
+        r = (self.predict(x, idx) - tgt).ravel()
+        return np.where(np.isfinite(r), r, INVALID_RESIDUAL)
+
+    def jacobian(self, x: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:
+        """Jacobian (2n, 7) of :meth:`residuals` by central differences (one batched call)."""
+        n = len(x)
+        steps = np.eye(n) * _FD_STEP
+        xs = np.concatenate([x + steps, x - steps])
+        p = self.predict_batch(xs, idx)
+        d = (p[:n] - p[n:]) / (2 * _FD_STEP)  # (n_params, n_points, 2)
+        jac = d.reshape(n, -1).T
+        return np.where(np.isfinite(jac), jac, 0.0)
+
+    def residuals_batch(self, xs: FloatArray) -> FloatArray:
+        """Residuals (B, N, 2) over all points for parameter vectors (B, 7), invalid points
+        given :data:`INVALID_RESIDUAL`."""
+        r = self.predict_batch(xs) - self.targets[None]
+        return np.where(np.isfinite(r), r, INVALID_RESIDUAL)
+
+    def jacobian_batch(self, xs: FloatArray) -> FloatArray:
+        """Jacobians (B, N, 2, 7) of the residuals for parameter vectors (B, 7)."""
+        b, n = xs.shape
+        steps = np.eye(n) * _FD_STEP
+        pert = np.concatenate([xs[:, None] + steps[None], xs[:, None] - steps[None]], axis=1)
+        p = self.predict_batch(pert.reshape(-1, n)).reshape(b, 2, n, -1, 2)
+        d = (p[:, 0] - p[:, 1]) / (2 * _FD_STEP)  # (B, 7, N, 2)
+        return np.where(np.isfinite(d), d, 0.0).transpose(0, 2, 3, 1)
+
+    def errors(self, x: FloatArray) -> FloatArray:
+        """Per-point residual norms (N,), plane pixels (inf where undefined)."""
+        e = np.linalg.norm(self.predict(x) - self.targets, axis=1)
+        return np.where(np.isfinite(e), e, np.inf)
+
+    def errors_batch(self, xs: FloatArray) -> FloatArray:
+        """Per-point residual norms (B, N) for parameter vectors (B, 7) (inf where undefined)."""
+        e = np.linalg.norm(self.predict_batch(xs) - self.targets[None], axis=2)
+        return np.where(np.isfinite(e), e, np.inf)
+
+
+def pair_homographies(
+    k: FloatArray, height: float, xs: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Batched factors of geometry's pair homography for parameter vectors ``xs`` (B, 7).
+
+    Returns ``ground_from_image(Θ_p)`` (B, 3, 3) and ``image_from_ground(Θ_c) · T(Ψ)``
+    (B, 3, 3), equal to geometry's ``ground_from_image_homography``,
+    ``image_from_ground_homography`` and ``motion_matrix`` (checked by the tests) but built
+    for the whole batch at once: R_GC = Rx(-pitch)·Rz(roll), lift (X, Z) → (X, h, Z).
+    """
+    xs = np.asarray(xs, dtype=float)
+    kinv = np.linalg.inv(k)
+    lift_inv = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0 / height, 0.0]])
+    lift = np.zeros((len(xs), 3, 3))
+    lift[:, 0, 0] = lift[:, 2, 1] = 1.0
+    lift[:, 1, 2] = height + (xs[:, 7] if xs.shape[1] > N_PARAMS else 0.0)
+    r_p = _rotations(xs[:, 0], xs[:, 1])
+    r_c = _rotations(xs[:, 2], xs[:, 3])
+    g_from_i = lift_inv @ r_p @ kinv
+    cy, sy = np.cos(xs[:, 6]), np.sin(xs[:, 6])
+    t = np.zeros((len(xs), 3, 3))
+    t[:, 0, 0], t[:, 0, 1], t[:, 1, 0], t[:, 1, 1], t[:, 2, 2] = cy, -sy, sy, cy, 1.0
+    t[:, 0, 2] = -(cy * xs[:, 4] - sy * xs[:, 5])
+    t[:, 1, 2] = -(sy * xs[:, 4] + cy * xs[:, 5])
+    out_from_g = k @ np.swapaxes(r_c, 1, 2) @ lift @ t
+    return g_from_i, out_from_g
+
+
+def _rotations(pitch: FloatArray, roll: FloatArray) -> FloatArray:
+    """R_GC (B, 3, 3) = Rx(-pitch) · Rz(roll) for arrays of angles (geometry's convention)."""
+    c, s = np.cos(pitch), np.sin(pitch)
+    cr, sr = np.cos(roll), np.sin(roll)
+    r = np.empty((len(pitch), 3, 3))
+    r[:, 0] = np.stack([cr, -sr, np.zeros_like(cr)], axis=1)
+    r[:, 1] = np.stack([c * sr, c * cr, s], axis=1)
+    r[:, 2] = np.stack([-s * sr, -s * cr, c], axis=1)
+    return r
+
+
+@dataclass(frozen=True)
+class SteadyPoseModel(DisplacementModel):
+    """The model with one pose for both frames: parameters (pitch, roll, tx, tz, yaw).
+
+    Fewer unknowns for the cold start's coarse pass, whose few trusted displacements only
+    need to predict where the patches go."""
+
+    def full(self, xs: FloatArray) -> FloatArray:
+        xs = np.asarray(xs, dtype=float)
+        return np.concatenate([xs[..., :2], xs[..., :2], xs[..., 2:5]], axis=-1)
+
+    @staticmethod
+    def reduce(x: FloatArray) -> FloatArray:
+        """(pitch, roll, tx, tz, yaw) of a 7-vector (its current-frame pose)."""
+        return np.concatenate([x[2:4], x[4:7]])
+
+
+#: Central-difference step of the Jacobian, radians / metres.
+_FD_STEP = 1e-6
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """A robust fit: parameters, inlier flags over all points, covariance, quality."""
+
+    x: FloatArray
+    inliers: NDArray[np.bool_]
+    errors: FloatArray
+    covariance: FloatArray
+    rms: float
+    converged: bool
+    n_evaluations: int
+
+
+def fit_lm(
+    model: DisplacementModel, x0: FloatArray, idx: NDArray[np.intp], max_nfev: int = 400
+) -> tuple[FloatArray, bool, FloatArray, FloatArray, int]:
+    """Levenberg-Marquardt on the points ``idx`` from ``x0``.
+
+    Returns (x, success, jacobian (2n, 7), residuals (2n,), function evaluations)."""
+    res = least_squares(
+        model.residuals,
+        np.asarray(x0, dtype=float),
+        jac=model.jacobian,
+        args=(idx,),
+        method="lm",
+        x_scale="jac",
+        xtol=1e-10,
+        ftol=1e-10,
+        gtol=1e-10,
+        max_nfev=max_nfev,
+    )
+    return res.x, bool(res.status > 0), res.jac, res.fun, int(res.nfev)
+
+
+def lm_batch(
+    model: DisplacementModel,
+    x0: FloatArray,
+    weights: FloatArray,
+    max_iterations: int = 50,
+    tolerance: float = 1e-7,
+) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Levenberg-Marquardt run for many point subsets at once (the random subsets).
+
+    Each subset s minimises ``Σ_n weights[s, n] · |r_n(x_s)|²`` from ``x0`` with
+    Marquardt's diagonal damping; all subsets step in lockstep so that a step costs one
+    vectorised residual and Jacobian evaluation for the whole batch.
+
+    Parameters
+    ----------
+    model : residual model over all N points.
+    x0 : (7,) common start, or (S, 7) one start per subset.
+    weights : (S, N) point weights (0/1 for subsets).
+    max_iterations, tolerance : stop after this many steps, or once a subset's relative
+        cost decrease falls below ``tolerance``.
+
+    Returns
+    -------
+    x : (S, 7) solutions, converged : (S,) whether each met the tolerance.
+    """
+    n_sets = weights.shape[0]
+    n_par = np.shape(x0)[-1]
+    x = np.broadcast_to(np.asarray(x0, dtype=float), (n_sets, n_par)).copy()
+    def cost(xs: FloatArray, wts: FloatArray) -> FloatArray:
+        return np.sum(wts[:, :, None] * model.residuals_batch(xs) ** 2, axis=(1, 2))
+
+    c = cost(x, weights)
+    lam = np.full(n_sets, 1e-3)
+    active = np.ones(n_sets, bool)
+    converged = np.zeros(n_sets, bool)
+    eye = np.eye(n_par)
+    for _ in range(max_iterations):
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
+            break
+        xa = x[idx]
+        r = model.residuals_batch(xa)  # (A, N, 2)
+        jac = model.jacobian_batch(xa)  # (A, N, 2, 7)
+        wa = weights[idx][:, :, None, None]
+        jw = jac * wa
+        a = np.einsum("anki,ankj->aij", jw, jac)
+        g = np.einsum("anki,ank->ai", jw, r)
+        diag = np.einsum("aii->ai", a)
+        damp = (diag + 1e-9 * diag.max(axis=1, keepdims=True) + 1e-12)[:, :, None] * eye
+        step = -np.linalg.solve(a + lam[idx, None, None] * damp, g[..., None])[..., 0]
+        x_new = xa + step
+        c_new = cost(x_new, weights[idx])
+        better = c_new < c[idx]
+        rel = (c[idx] - c_new) / np.maximum(c[idx], 1e-300)
+        x[idx[better]] = x_new[better]
+        c[idx[better]] = c_new[better]
+        lam[idx] = np.where(better, np.maximum(lam[idx] / 3.0, 1e-9), lam[idx] * 4.0)
+        done = (better & (rel < tolerance)) | (lam[idx] > 1e9) | (
+            np.max(np.abs(step), axis=1) < 1e-12)
+        converged[idx[done & (lam[idx] <= 1e9)]] = True
+        active[idx[done]] = False
+    return x, converged
+
+
+def covariance_from_jacobian(jac: FloatArray, residuals: FloatArray) -> FloatArray:
+    """(JᵀJ)⁻¹ σ² with σ² the dof-corrected residual variance; NaN if rank-deficient."""
+    m, n = jac.shape
+    dof = max(m - n, 1)
+    sigma2 = float(residuals @ residuals) / dof
+    jtj = jac.T @ jac
+    try:
+        if np.linalg.cond(jtj) > 1e14:
+            raise np.linalg.LinAlgError("ill-conditioned")
+        return np.linalg.inv(jtj) * sigma2
+    except np.linalg.LinAlgError:
+        return np.full((n, n), np.nan)
+
+
+def robust_fit(
+    model: DisplacementModel,
+    x0: FloatArray,
+    usable: NDArray[np.bool_],
+    n_subsets: int,
+    fraction: float,
+    inlier_px: float,
+    rng: np.random.Generator,
+) -> FitResult:
+    """Best of random-subset LM fits, scored on all usable points, re-fitted on its inliers.
+
+    Parameters
+    ----------
+    model : the residual model over all N points.
+    x0 : start of the optimisation (cold-start value or a guess), parameter order above.
+    usable : (N,) points that survived the pre-rejection (peak, magnitude).
+    n_subsets, fraction : number of random subsets and the fraction of usable points each
+        holds (the paper: 50 and 0.6); ``n_subsets = 0`` fits all usable points once.
+    inlier_px : a point is an inlier when its residual norm is below this, plane pixels;
+        subsets are scored by the truncated squared residual ``Σ min(e², inlier_px²)``.
+    rng : seeded generator choosing the subsets.
+    """
+    use_idx = np.flatnonzero(usable)
+    nfev = 0
+    m = max(4, round(fraction * use_idx.size))
+    # Subset 0 holds every usable point; the others are random subsets of them.
+    weights = np.zeros((1 + (n_subsets if m < use_idx.size else 0), model.n_points))
+    weights[0, use_idx] = 1.0
+    for s in range(1, len(weights)):
+        weights[s, rng.choice(use_idx, size=m, replace=False)] = 1.0
+    candidates, _ = lm_batch(model, x0, weights)
+    if candidates.shape[1] >= N_PARAMS:
+        candidates = np.array([canonical(c) for c in candidates])
+    c2 = inlier_px**2
+    e = model.errors_batch(candidates)[:, use_idx]
+    scores = np.sum(np.minimum(e**2, c2), axis=1)
+    scores[~plausible(model.full(candidates))] = np.inf
+    best = candidates[int(np.argmin(scores))]
+    ok_all = bool(np.isfinite(scores.min()))
+
+    # Re-fit on the best candidate's inliers until the inlier set settles (twice at most).
+    x = best
+    converged = ok_all
+    inl = usable & (model.errors(x) < inlier_px)
+    jac = np.zeros((0, len(x0)))
+    res = np.zeros(0)
+    for _ in range(3):
+        idx = np.flatnonzero(inl)
+        if idx.size < 4:
+            break
+        x, converged, jac, res, n = fit_lm(model, x, idx)
+        nfev += n
+        new_inl = usable & (model.errors(x) < inlier_px)
+        if np.array_equal(new_inl, inl):
+            break
+        inl = new_inl
+    errors = model.errors(x)
+    inl = usable & (errors < inlier_px)
+    if jac.shape[0] >= 2 * len(x0):
+        cov = covariance_from_jacobian(jac, res)
+        rms = float(np.sqrt(np.mean(res**2) * 2)) if res.size else float("nan")
+    else:
+        cov = np.full((len(x0), len(x0)), np.nan)
+        rms = float("nan")
+    xc = canonical(x) if len(x) >= N_PARAMS else x
+    if not np.allclose(xc, x if len(x) < N_PARAMS else wrap_angles(x)):
+        # The same solution in the canonical chart: re-evaluate its covariance there.
+        _, _, jac, res, _ = fit_lm(model, xc, np.flatnonzero(inl), max_nfev=20)
+        cov = covariance_from_jacobian(jac, res) if jac.shape[0] >= 2 * len(x0) else cov
+    return FitResult(xc, inl, errors, cov, rms, converged, nfev)
+
+
+def wrap_angles(x: FloatArray) -> FloatArray:
+    """Parameters (..., 7) with the angles wrapped to (-π, π]."""
+    out = np.array(x, dtype=float)
+    ang = [0, 1, 2, 3, 6]
+    out[..., ang] = -((-out[..., ang] + np.pi) % (2 * np.pi) - np.pi)
+    return out
+
+
+def canonical(x: FloatArray) -> FloatArray:
+    """Parameters (7,) with angles wrapped and each pitch in [-π/2, π/2].
+
+    A pitch beyond 90° with the roll turned by 180° is the same camera with its ground
+    frame G turned by 180° about the normal (G's z axis is the optical axis projected onto
+    the ground); the motion is re-expressed between the turned frames."""
+    w = wrap_angles(x)
+    flips = []
+    for i in (0, 2):
+        flip = abs(w[i]) > np.pi / 2
+        if flip:
+            w[i] = np.sign(w[i]) * np.pi - w[i]
+            w[i + 1] += np.pi
+        flips.append(PlanarMotion(0.0, 0.0, np.pi if flip else 0.0))
+    if flips[0].yaw or flips[1].yaw:
+        m = compose_motion(invert_motion(flips[0]),
+                           compose_motion(PlanarMotion(w[4], w[5], w[6]), flips[1]))
+        w[4:7] = m.tx, m.tz, m.yaw
+    return wrap_angles(w)
+
+
+def plausible(x: FloatArray) -> NDArray[np.bool_]:
+    """Whether parameters (..., 7) describe a camera above the ground looking at it:
+    pitch in (-45°, 135°), |roll| < 45°, |yaw change| < 45° (angles wrapped first)."""
+    w = wrap_angles(x)
+    pitch = w[..., [0, 2]]
+    roll = w[..., [1, 3]]
+    return (
+        np.all(np.isfinite(w), axis=-1)
+        & np.all((pitch > -np.pi / 4) & (pitch < 3 * np.pi / 4), axis=-1)
+        & np.all(np.abs(roll) < np.pi / 4, axis=-1)
+        & (np.abs(w[..., 6]) < np.pi / 4)
+    )

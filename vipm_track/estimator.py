@@ -1,0 +1,579 @@
+"""Two-frame pose and motion estimator (Hirano et al., section III): the paper's method.
+
+For a pair of frames (k-1, k) it estimates the pose of both against the ground
+(pitch, roll; the height is the assumed one) and the planar motion between them:
+
+1. *Initial estimation on the image plane* (III-B): POC displacement of square patches at
+   a grid of interest points, obvious outliers dropped by POC peak and displacement
+   magnitude, LM over the seven parameters on random subsets, best by truncated residual,
+   re-fitted on its inliers. Without a guess, a coarse pass on a downsampled pair first
+   predicts each patch's displacement so that fast motion stays inside the patch windows.
+2. *Refinement via virtual IPM* (III-C), ``config.refinements`` times: both frames warped
+   onto bird's-eye planes of the current estimates, POC on IPM patches whose moving window
+   is offset by the displacement the estimate predicts, outliers rejected against that
+   prediction, LM on the reprojection residual on the IPM planes (eqs. 3-5).
+
+Frames follow CONVENTIONS.md; parameters are ordered as ``measurement.PARAMETER_NAMES``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from . import ipm, poc
+from .bundle import DisplacementModel, FitResult, SteadyPoseModel, pack, robust_fit, unpack
+from .camera import CameraModel
+from .errors import InputError
+from .geometry import (
+    GroundPose,
+    PlanarMotion,
+    apply_homography,
+    back_project,
+    image_from_ipm_homography,
+    ipm_from_image_homography,
+    predict_pixels,
+    transform_ground,
+)
+from .measurement import PairMeasurement
+from .roi import RoiSpec, interest_points, roi_mask, shrink_to_image
+
+FloatArray = NDArray[np.float64]
+
+STATUS_OK = "ok"
+STATUS_NO_TEXTURE = "no texture"
+STATUS_NO_MOTION = "no motion"
+STATUS_FEW_INLIERS = "too few inliers"
+STATUS_NOT_CONVERGED = "did not converge"
+STATUS_DEGENERATE = "degenerate"
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """Settings of :class:`TwoFrameEstimator` (defaults follow the paper where it says).
+
+    Attributes
+    ----------
+    grid : interest points (nx, ny) over the region of interest.
+    roi : region of interest (``roi.RoiSpec``); None picks the ground below the horizon
+        within ``roi_max_range_h`` and ``roi_max_lateral_h`` camera heights.
+    horizon_margin_deg : rays kept at least this far below the horizon (auto ROI, IPM).
+    patch_image, patch_ipm : patch sizes on the image and virtual IPM planes, pixels.
+    min_patch_image, min_patch_ipm : patches shrunk below these are dropped, pixels.
+    n_subsets, subset_fraction : random subsets of the initial LM (paper: 50, 0.6).
+    refine_subsets : random subsets in each refinement (0: one LM plus inlier trimming).
+    refinements : virtual-IPM refinements after the initial estimate (paper: 1).
+    initial_pitch_deg, initial_roll_deg : cold-start pose (paper: 60°, 0°); give the nominal
+        calibration for cameras far from it (forward-looking ones).
+    coarse_scale, coarse_patch : downsampling and patch size (downsampled pixels) of the
+        cold-start coarse pass (``coarse_scale = 1`` disables it).
+    coarse_inlier_px : inlier threshold of the coarse pass, full-resolution pixels.
+    coarse_peak_ratio : coarse patches whose POC peak is below this fraction of the 90th
+        percentile peak are not used.
+    min_peak : POC peaks below this mark a patch unusable.
+    max_displacement_factor : image-plane displacements longer than this times the median
+        (plus the patch size / 8) are obvious outliers.
+    inlier_px_image, inlier_px_ipm : inlier residual thresholds, image / IPM pixels.
+    refine_outlier_px : IPM displacements further than this from the prediction of the
+        previous estimate are outliers, IPM pixels.
+    min_inliers : fewer inliers than this fail the pair.
+    min_motion_px : a median image displacement below this is "no motion", pixels.
+    ipm_resolution_scale : IPM metres per pixel as a multiple of the interest points'
+        median ground sampling distance.
+    ipm_max_side : largest IPM image side, pixels.
+    vertical_motion : also estimate the camera's vertical motion within the pair (an eighth
+        parameter; the paper neglects it, which costs ~0.25° of pitch per millimetre on a
+        bouncing 0.7 m cart camera). Frame k's pose then has height ``height + dh``.
+    seed : seed of the subset sampler (runs are deterministic).
+    keep_images : keep the last refinement's IPM images in the result.
+    """
+
+    grid: tuple[int, int] = (11, 9)
+    roi: RoiSpec = None
+    roi_max_range_h: float = 15.0
+    roi_max_lateral_h: float = 3.0
+    horizon_margin_deg: float = 2.0
+    patch_image: int = 128
+    patch_ipm: int = 256
+    min_patch_image: int = 32
+    min_patch_ipm: int = 64
+    n_subsets: int = 50
+    subset_fraction: float = 0.6
+    refine_subsets: int = 0
+    refinements: int = 1
+    initial_pitch_deg: float = 60.0
+    initial_roll_deg: float = 0.0
+    coarse_scale: int = 4
+    coarse_patch: int = 64
+    coarse_inlier_px: float = 10.0
+    coarse_peak_ratio: float = 0.6
+    min_peak: float = 0.05
+    max_displacement_factor: float = 4.0
+    inlier_px_image: float = 3.0
+    inlier_px_ipm: float = 1.5
+    refine_outlier_px: float = 8.0
+    min_inliers: int = 12
+    min_motion_px: float = 0.5
+    ipm_resolution_scale: float = 1.0
+    ipm_max_side: int = 3000
+    vertical_motion: bool = True
+    seed: int = 0
+    keep_images: bool = False
+
+    def __post_init__(self) -> None:
+        checks = {
+            "grid": len(self.grid) == 2 and min(self.grid) >= 2,
+            "patch_image": self.patch_image >= 16,
+            "patch_ipm": self.patch_ipm >= 16,
+            "min_patch_image": 8 <= self.min_patch_image <= self.patch_image,
+            "min_patch_ipm": 8 <= self.min_patch_ipm <= self.patch_ipm,
+            "n_subsets": self.n_subsets >= 0,
+            "subset_fraction": 0.0 < self.subset_fraction <= 1.0,
+            "refine_subsets": self.refine_subsets >= 0,
+            "refinements": self.refinements >= 0,
+            "coarse_scale": self.coarse_scale >= 1,
+            "min_inliers": self.min_inliers >= 4,
+            "inlier_px_image": self.inlier_px_image > 0,
+            "inlier_px_ipm": self.inlier_px_ipm > 0,
+            "refine_outlier_px": self.refine_outlier_px > 0,
+            "ipm_resolution_scale": self.ipm_resolution_scale > 0,
+            "roi_max_range_h": self.roi_max_range_h > 0,
+            "roi_max_lateral_h": self.roi_max_lateral_h > 0,
+        }
+        bad = [name for name, ok in checks.items() if not ok]
+        if bad:
+            raise InputError(
+                "estimator config: invalid " + ", ".join(f"{b}={getattr(self, b)!r}" for b in bad)
+            )
+
+    @property
+    def initial_pose(self) -> tuple[float, float]:
+        """Cold-start (pitch, roll), radians."""
+        return float(np.radians(self.initial_pitch_deg)), float(np.radians(self.initial_roll_deg))
+
+
+@dataclass(frozen=True)
+class PairGuess:
+    """A prior for a pair (tracking mode): LM start and patch-window offsets."""
+
+    pose_prev: GroundPose
+    pose_curr: GroundPose
+    motion: PlanarMotion
+
+    @classmethod
+    def from_previous(cls, result: PairResult) -> PairGuess | None:
+        """Constant-pose, constant-velocity guess for the next pair from an ``ok`` result
+        (None otherwise, which means a cold start)."""
+        if result is None or result.status != STATUS_OK:
+            return None
+        return cls(result.pose_curr, result.pose_curr, result.motion)
+
+
+@dataclass(frozen=True)
+class PatchField:
+    """Displacements of one stage's patches, for dashboards.
+
+    ``centres`` (N, 2) are patch centres on the previous frame's plane (image or IPM
+    pixels), ``displacements`` (N, 2) the POC displacement to the current frame (same
+    pixels, NaN where not measured), ``peaks`` (N,) POC peaks, ``inliers`` (N,) flags,
+    ``sizes`` (N,) patch sides in pixels.
+    """
+
+    plane: str
+    centres: FloatArray
+    displacements: FloatArray
+    peaks: FloatArray
+    inliers: NDArray[np.bool_]
+    sizes: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+
+
+class StageEstimate(NamedTuple):
+    """Estimate after one stage."""
+
+    pose_prev: GroundPose
+    pose_curr: GroundPose
+    motion: PlanarMotion
+
+
+@dataclass
+class PairResult:
+    """Outcome of :meth:`TwoFrameEstimator.estimate` for one pair.
+
+    ``status`` is ``"ok"`` or a short stable reason ("no texture", "no motion",
+    "too few inliers", "did not converge", "degenerate"); ``reason`` explains it. Poses and
+    motion are None unless ``ok``. ``covariance`` is 7×7 in ``measurement`` order (radians,
+    metres); ``residual_px`` is the final stage's inlier RMS residual in that stage's pixels.
+    ``height`` is the assumed height of frame k-1 [m]; ``height_change`` the estimated
+    vertical motion within the pair [m] (0 unless ``config.vertical_motion``).
+    """
+
+    status: str
+    reason: str = ""
+    pose_prev: GroundPose | None = None
+    pose_curr: GroundPose | None = None
+    motion: PlanarMotion | None = None
+    covariance: FloatArray = field(default_factory=lambda: np.full((7, 7), np.nan))
+    stages: list[PatchField] = field(default_factory=list)
+    stage_estimates: list[StageEstimate] = field(default_factory=list)
+    ipm_images: tuple[NDArray, NDArray] | None = None
+    timings: dict[str, float] = field(default_factory=dict)
+    n_inliers: int = 0
+    residual_px: float = float("nan")
+    height: float = float("nan")
+    height_change: float = 0.0
+
+    @property
+    def ok(self) -> bool:
+        return self.status == STATUS_OK
+
+    @property
+    def std(self) -> FloatArray:
+        """Standard deviations (7,) of the parameters, radians / metres."""
+        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+
+    def to_measurement(self, frame: int, t: float) -> PairMeasurement:
+        """This pair as the filters' measurement for frame ``frame`` at time ``t`` [s]."""
+        if self.ok and self.pose_prev and self.pose_curr and self.motion:
+            z = pack(self.pose_prev, self.pose_curr, self.motion)[:7]
+            cov = self.covariance
+        else:
+            z = np.full(7, np.nan)
+            cov = np.full((7, 7), np.nan)
+        return PairMeasurement(
+            frame=frame, t=t, z=z, covariance=cov, height_assumed=self.height,
+            status=self.status, inliers=self.n_inliers,
+        )
+
+
+class _StageFailure(Exception):
+    def __init__(self, status: str, reason: str) -> None:
+        super().__init__(reason)
+        self.status = status
+        self.reason = reason
+
+
+class TwoFrameEstimator:
+    """Pose of two frames against the ground and the planar motion between them.
+
+    Parameters
+    ----------
+    camera : intrinsics; distorted frames are undistorted to ``camera.k`` first.
+    height : assumed camera height [m] (scale of the translation, CONVENTIONS.md).
+    config : settings; :class:`EstimatorConfig` defaults when None.
+    """
+
+    def __init__(self, camera: CameraModel, height: float, config: EstimatorConfig | None = None):
+        if not height > 0:
+            raise InputError(f"camera height must be > 0 m, got {height}")
+        self.camera = camera
+        self.height = float(height)
+        self.config = config or EstimatorConfig()
+        self.k = camera.k
+        pitch0, roll0 = self.config.initial_pose
+        self.nominal = GroundPose(pitch0, roll0, self.height)
+        margin = np.radians(self.config.horizon_margin_deg)
+        self._horizon_margin_px = float(np.tan(margin) * camera.fy)
+        mask = roi_mask(
+            camera, self.config.roi, self.nominal,
+            self.config.roi_max_range_h * self.height,
+            self.config.roi_max_lateral_h * self.height, margin,
+        )
+        self.roi = mask
+        self.centres, self.sizes = interest_points(
+            camera, mask, self.config.grid, self.config.patch_image,
+            self.config.min_patch_image, self.nominal, self._horizon_margin_px,
+        )
+        if len(self.centres) < self.config.min_inliers:
+            raise InputError(
+                f"region of interest holds {len(self.centres)} usable interest points, fewer "
+                f"than min_inliers={self.config.min_inliers}; enlarge the ROI or the grid"
+            )
+        self._maps = camera.undistortion_maps() if camera.has_distortion else None
+        self._cache: tuple[int, NDArray] | None = None
+
+    # --- public -----------------------------------------------------------------------------
+
+    def estimate(
+        self, prev_img: NDArray, curr_img: NDArray, guess: PairGuess | None = None
+    ) -> PairResult:
+        """Estimate both poses and the motion from frame k-1 (``prev_img``) to k.
+
+        Images are grey or BGR arrays of the camera's size. ``guess`` (tracking mode) seeds
+        the optimisation and offsets the patch windows by the displacements it predicts.
+        """
+        t_start = time.perf_counter()
+        timings = {"poc": 0.0, "warp": 0.0, "lm": 0.0}
+        result = PairResult(status=STATUS_OK, timings=timings, height=self.height)
+        prev = self._prepare(prev_img, "previous frame")
+        curr = self._prepare(curr_img, "current frame")
+        rng = np.random.default_rng(self.config.seed)
+        try:
+            x = self._initial(prev, curr, guess, rng, result)
+            for _ in range(self.config.refinements):
+                x = self._refine(prev, curr, x, rng, result)
+        except _StageFailure as failure:
+            result.status, result.reason = failure.status, failure.reason
+            result.pose_prev = result.pose_curr = result.motion = None
+            result.covariance = np.full((7, 7), np.nan)
+        timings["total"] = time.perf_counter() - t_start
+        return result
+
+    # --- stages -----------------------------------------------------------------------------
+
+    def _initial(
+        self,
+        prev: NDArray,
+        curr: NDArray,
+        guess: PairGuess | None,
+        rng: np.random.Generator,
+        result: PairResult,
+    ) -> FloatArray:
+        cfg = self.config
+        if guess is not None:
+            x0 = pack(
+                GroundPose(guess.pose_prev.pitch, guess.pose_prev.roll, self.height),
+                GroundPose(guess.pose_curr.pitch, guess.pose_curr.roll, self.height),
+                guess.motion,
+            )
+            if cfg.vertical_motion:
+                x0 = np.append(x0, 0.0)
+            offsets = self._predicted_displacements(x0)
+        else:
+            pitch0, roll0 = cfg.initial_pose
+            x0 = np.array([pitch0, roll0, pitch0, roll0, 0.0, 0.0, 0.0])
+            if cfg.vertical_motion:
+                x0 = np.append(x0, 0.0)
+            offsets = np.zeros_like(self.centres)
+            if cfg.coarse_scale > 1:
+                x0, offsets = self._coarse(prev, curr, x0, rng, result)
+
+        offsets = np.round(offsets)
+        sizes = shrink_to_image(self.centres + offsets, self.sizes, self.camera.width,
+                                self.camera.height, cfg.min_patch_image)
+        t0 = time.perf_counter()
+        disp, peaks = _match_grouped(prev, curr, self.centres, sizes, offsets)
+        result.timings["poc"] += time.perf_counter() - t0
+
+        usable = (sizes > 0) & (peaks >= cfg.min_peak)
+        n_textured = int(usable.sum())
+        if n_textured < cfg.min_inliers:
+            raise _StageFailure(
+                STATUS_NO_TEXTURE,
+                f"only {n_textured} of {len(peaks)} patches correlate (POC peak ≥ "
+                f"{cfg.min_peak}); the ground shows too little texture",
+            )
+        mag = np.where(usable, np.linalg.norm(np.nan_to_num(disp), axis=1), np.inf)
+        median_mag = float(np.median(mag[usable]))
+        if median_mag < cfg.min_motion_px:
+            raise _StageFailure(
+                STATUS_NO_MOTION,
+                f"median displacement {median_mag:.2f} px < {cfg.min_motion_px} px: without "
+                "motion the pose against the ground is unobservable",
+            )
+        usable &= mag <= cfg.max_displacement_factor * median_mag + cfg.patch_image / 8
+        model = DisplacementModel(self.k, self.height, self.centres, self.centres + disp)
+        fit = self._fit(model, x0, usable, cfg.n_subsets, cfg.inlier_px_image, rng, result)
+        result.stages.append(PatchField("image", self.centres, disp, peaks, fit.inliers, sizes))
+        self._accept(fit, result, "initial estimate")
+        return fit.x
+
+    def _coarse(
+        self, prev: NDArray, curr: NDArray, x0: FloatArray, rng: np.random.Generator,
+        result: PairResult,
+    ) -> tuple[FloatArray, FloatArray]:
+        """Cold start: displacements on a downsampled pair, a quick fit, and the patch
+        offsets it predicts at full resolution (zero offsets where it cannot tell)."""
+        cfg = self.config
+        s = cfg.coarse_scale
+        t0 = time.perf_counter()
+        size = (curr.shape[1] // s, curr.shape[0] // s)
+        small_p = cv2.resize(prev, size, interpolation=cv2.INTER_AREA)
+        small_c = cv2.resize(curr, size, interpolation=cv2.INTER_AREA)
+        patch = int(min(cfg.coarse_patch, (min(size) - 2) // 16 * 16))
+        half = patch / 2
+        coarse_centres = np.round(
+            np.clip((self.centres - (s - 1) / 2) / s, [half, half],
+                    [size[0] - 1 - half, size[1] - 1 - half])
+        )
+        disp, peaks = poc.match_patches(small_p, small_c, coarse_centres, patch)
+        result.timings["poc"] += time.perf_counter() - t0
+        pix = coarse_centres * s + (s - 1) / 2
+        # Content fixed in the image (the vehicle's body, lens dirt, reflections) correlates
+        # perfectly at zero shift while the ground moves: not ground, whatever its peak.
+        mag = np.linalg.norm(np.nan_to_num(disp), axis=1) * s
+        valid = peaks >= cfg.min_peak
+        if not valid.any():
+            return x0, np.zeros_like(self.centres)
+        static = mag < max(cfg.min_motion_px, 0.1 * float(np.median(mag[valid])))
+        # Patches whose content left the window still give a (lower) peak; trust the ones
+        # that correlate nearly as well as the best moving ones.
+        moving = valid & ~static
+        if not moving.any():
+            return x0, np.zeros_like(self.centres)
+        floor = cfg.coarse_peak_ratio * float(np.percentile(peaks[moving], 90))
+        usable = moving & (peaks >= max(cfg.min_peak, floor))
+        if usable.sum() < cfg.min_inliers:
+            return x0, np.zeros_like(self.centres)
+        model = SteadyPoseModel(self.k, self.height, pix, pix + disp * s)
+        fit = self._fit(model, SteadyPoseModel.reduce(x0), usable, cfg.n_subsets,
+                        cfg.coarse_inlier_px, rng, result)
+        if fit.inliers.sum() < cfg.min_inliers or not fit.converged:
+            return x0, np.zeros_like(self.centres)
+        x = model.full(fit.x)
+        if len(x0) > len(x):
+            x = np.append(x, x0[len(x):])
+        return x, self._predicted_displacements(x)
+
+    def _refine(
+        self, prev: NDArray, curr: NDArray, x: FloatArray, rng: np.random.Generator,
+        result: PairResult,
+    ) -> FloatArray:
+        """One virtual-IPM refinement from the estimate ``x``."""
+        cfg = self.config
+        pose_p, pose_c, motion = unpack(x, self.height)
+        t0 = time.perf_counter()
+        grid = ipm.choose_grid(self.k, pose_p, motion, self.centres, cfg.patch_ipm,
+                               cfg.ipm_resolution_scale, cfg.ipm_max_side)
+        ipm_p = ipm.warp(prev, self.k, pose_p, grid)
+        ipm_c = ipm.warp(curr, self.k, pose_c, grid)
+        # Patch centres: interest points on the previous virtual IPM plane, on whole pixels.
+        q_p = np.round(grid.pixel_from_ground(back_project(self.k, pose_p, self.centres)))
+        valid = np.all(np.isfinite(q_p), axis=1)
+        q_p = np.where(valid[:, None], q_p, 0.0)
+        pred = grid.pixel_from_ground(transform_ground(motion, grid.ground_from_pixel(q_p))) - q_p
+        offsets = np.round(pred)
+        size_img = (self.camera.width, self.camera.height)
+        poly_p = ipm.visible_polygon(self.k, pose_p, grid, size_img, self._horizon_margin_px)
+        poly_c = ipm.visible_polygon(self.k, pose_c, grid, size_img, self._horizon_margin_px)
+        sizes = ipm.patch_sizes(grid, poly_p, poly_c, q_p, offsets, cfg.patch_ipm,
+                                cfg.min_patch_ipm)
+        sizes[~valid] = 0
+        result.timings["warp"] += time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        disp, peaks = _match_grouped(ipm_p, ipm_c, q_p, sizes, offsets)
+        result.timings["poc"] += time.perf_counter() - t0
+
+        usable = (sizes > 0) & (peaks >= cfg.min_peak)
+        dev = np.linalg.norm(disp - pred, axis=1)
+        usable &= dev <= cfg.refine_outlier_px
+        pixels_prev = apply_homography(image_from_ipm_homography(self.k, pose_p, grid), q_p)
+        model = DisplacementModel(
+            self.k, self.height, pixels_prev, q_p + disp,
+            plane_from_image=ipm_from_image_homography(self.k, pose_c, grid),
+        )
+        if usable.sum() < cfg.min_inliers:
+            raise _StageFailure(
+                STATUS_FEW_INLIERS,
+                f"refinement {len(result.stages)}: {int(usable.sum())} IPM patches agree with "
+                f"the previous estimate (need {cfg.min_inliers})",
+            )
+        fit = self._fit(model, x, usable, cfg.refine_subsets, cfg.inlier_px_ipm, rng, result)
+        result.stages.append(PatchField("ipm", q_p, disp, peaks, fit.inliers, sizes))
+        if cfg.keep_images:
+            result.ipm_images = (ipm_p, ipm_c)
+        self._accept(fit, result, f"refinement {len(result.stages) - 1}")
+        return fit.x
+
+    # --- helpers ----------------------------------------------------------------------------
+
+    def _fit(
+        self, model: DisplacementModel, x0: FloatArray, usable: NDArray[np.bool_],
+        n_subsets: int, inlier_px: float, rng: np.random.Generator, result: PairResult,
+    ) -> FitResult:
+        t0 = time.perf_counter()
+        if usable.sum() < max(4, self.config.min_inliers):
+            raise _StageFailure(
+                STATUS_FEW_INLIERS,
+                f"{int(usable.sum())} usable patches (need {self.config.min_inliers})",
+            )
+        fit = robust_fit(model, x0, usable, n_subsets, self.config.subset_fraction, inlier_px,
+                         rng)
+        result.timings["lm"] += time.perf_counter() - t0
+        return fit
+
+    def _accept(self, fit: FitResult, result: PairResult, stage: str) -> None:
+        """Check a stage's fit and make it the result's current estimate."""
+        cfg = self.config
+        n_in = int(fit.inliers.sum())
+        if n_in < cfg.min_inliers:
+            raise _StageFailure(
+                STATUS_FEW_INLIERS, f"{stage}: {n_in} inliers (need {cfg.min_inliers})"
+            )
+        pose_p, pose_c, motion = unpack(fit.x, self.height)
+        plausible = (
+            np.all(np.isfinite(fit.x))
+            and all(-np.pi / 4 < p.pitch < 3 * np.pi / 4 for p in (pose_p, pose_c))
+            and all(abs(p.roll) < np.pi / 4 for p in (pose_p, pose_c))
+            and abs(motion.yaw) < np.pi / 4
+        )
+        if not (fit.converged and plausible):
+            raise _StageFailure(
+                STATUS_NOT_CONVERGED,
+                f"{stage}: LM "
+                f"{'did not converge' if not fit.converged else 'left the plausible range'}"
+                f" (pitch {np.degrees(pose_c.pitch):.1f}°, roll {np.degrees(pose_c.roll):.1f}°)",
+            )
+        cov = fit.covariance
+        if not np.all(np.isfinite(cov)) or np.any(np.linalg.eigvalsh(cov) <= 0):
+            raise _StageFailure(
+                STATUS_DEGENERATE, f"{stage}: the parameters are not all observable "
+                "(singular normal equations)"
+            )
+        result.pose_prev, result.pose_curr, result.motion = pose_p, pose_c, motion
+        result.covariance = cov[:7, :7]
+        result.height_change = float(fit.x[7]) if len(fit.x) > 7 else 0.0
+        result.n_inliers = n_in
+        result.residual_px = fit.rms
+        result.stage_estimates.append(StageEstimate(pose_p, pose_c, motion))
+
+    def _predicted_displacements(self, x: FloatArray) -> FloatArray:
+        """Image displacements (N, 2) the parameters predict at the interest points (0 where
+        undefined)."""
+        pose_p, pose_c, motion = unpack(x, self.height)
+        d = predict_pixels(self.k, pose_p, pose_c, motion, self.centres) - self.centres
+        return np.where(np.isfinite(d), d, 0.0)
+
+    def _prepare(self, image: NDArray, name: str) -> NDArray[np.float32]:
+        """Grey float32 undistorted image; the last one is cached (tracking reuses it)."""
+        if self._cache is not None and self._cache[0] is image:
+            return self._cache[1]
+        arr = np.asarray(image)
+        if arr.ndim == 3 and arr.shape[2] in (3, 4):
+            code = cv2.COLOR_BGR2GRAY if arr.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
+            arr = cv2.cvtColor(arr, code)
+        if arr.ndim != 2:
+            raise InputError(f"{name}: expected a grey or BGR image, got shape {arr.shape}")
+        if arr.shape != (self.camera.height, self.camera.width):
+            raise InputError(
+                f"{name}: image is {arr.shape[1]}×{arr.shape[0]} px but the camera model is "
+                f"{self.camera.width}×{self.camera.height} px"
+            )
+        out = arr.astype(np.float32)
+        if self._maps is not None:
+            out = cv2.remap(out, self._maps[0], self._maps[1], cv2.INTER_LINEAR)
+        self._cache = (image, out)
+        return out
+
+
+def _match_grouped(
+    ref: NDArray, moving: NDArray, centres: FloatArray, sizes: NDArray[np.int64],
+    offsets: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """POC displacements (N, 2) and peaks (N,) of patches batched by size (one call per
+    size); NaN displacement and zero peak where ``sizes`` is 0."""
+    disp = np.full((len(centres), 2), np.nan)
+    peaks = np.zeros(len(centres))
+    for s in np.unique(sizes):
+        if s <= 0:
+            continue
+        sel = np.flatnonzero(sizes == s)
+        d, p = poc.match_patches(ref, moving, centres[sel], int(s), offsets=np.round(offsets[sel]))
+        disp[sel] = d
+        peaks[sel] = p
+    return disp, peaks

@@ -1,0 +1,159 @@
+"""Virtual IPM: bird's-eye images of a frame from a pose *estimate*, and patches on them.
+
+The paper's refinement (section III-C) warps both frames onto ground planes set by the
+current estimates Θ̂_p, Θ̂_c (not the true poses), crops square patches centred at the
+interest points mapped onto the previous plane, and shrinks those that would leave the
+part of the plane the camera sees.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from .geometry import (
+    GroundPose,
+    IpmGrid,
+    PlanarMotion,
+    apply_homography,
+    back_project,
+    image_from_ipm_homography,
+    ipm_from_image_homography,
+    rotation_ground_from_camera,
+    transform_ground,
+)
+
+FloatArray = NDArray[np.float64]
+#: IPM patch sizes are multiples of this (pixels) so that patches batch by size.
+SIZE_STEP = 32
+
+
+def ground_sampling(k: FloatArray, pose: GroundPose, pixels: FloatArray) -> FloatArray:
+    """Finest ground sampling distance (N,) at image pixels (N, 2): metres per pixel along
+    the ground direction that one image pixel spans least (lateral, for oblique views)."""
+    g0 = back_project(k, pose, pixels)
+    gx = back_project(k, pose, pixels + np.array([1.0, 0.0])) - g0
+    gy = back_project(k, pose, pixels + np.array([0.0, 1.0])) - g0
+    jac = np.stack([gx, gy], axis=-1)  # (N, 2, 2): columns d(ground)/du, d(ground)/dv
+    return np.linalg.svd(jac, compute_uv=False)[:, -1]
+
+
+def choose_grid(
+    k: FloatArray,
+    pose_prev: GroundPose,
+    motion: PlanarMotion,
+    pixels_prev: FloatArray,
+    patch: int,
+    resolution_scale: float = 1.0,
+    max_side: int = 3000,
+) -> IpmGrid:
+    """IPM grid shared by both frames of a pair.
+
+    Resolution: the median finest ground sampling distance at the interest points times
+    ``resolution_scale`` (metres per IPM pixel). Extent: the interest points' ground
+    footprint in Ĝ_p and its predicted image in Ĝ_c, plus half a patch, coarsened if a side
+    would exceed ``max_side`` pixels.
+    """
+    ground_p = back_project(k, pose_prev, pixels_prev)
+    ok = np.all(np.isfinite(ground_p), axis=1)
+    if not np.any(ok):
+        raise ValueError("no interest point meets the ground under the estimated pose")
+    ground_p = ground_p[ok]
+    mpp = float(np.median(ground_sampling(k, pose_prev, pixels_prev[ok]))) * resolution_scale
+    ground_c = transform_ground(motion, ground_p)
+    pts = np.concatenate([ground_p, ground_c])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    side = max(hi[0] - lo[0], hi[1] - lo[1]) / mpp + patch
+    if side > max_side:
+        mpp *= side / max_side
+    pad = patch / 2 * mpp
+    return IpmGrid.from_extent(lo[0] - pad, hi[0] + pad, lo[1] - pad, hi[1] + pad, mpp)
+
+
+def warp(image: NDArray, k: FloatArray, pose: GroundPose, grid: IpmGrid) -> NDArray[np.float32]:
+    """Virtual IPM image (grid.height, grid.width) float32 of a grey image for ``pose``."""
+    h = image_from_ipm_homography(k, pose, grid)
+    return cv2.warpPerspective(
+        image, h, (grid.width, grid.height),
+        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT,
+    )
+
+
+def visible_polygon(
+    k: FloatArray,
+    pose: GroundPose,
+    grid: IpmGrid,
+    image_size: tuple[int, int],
+    margin_px: float,
+) -> FloatArray:
+    """Convex polygon (M, 2), IPM pixels, of the ground the camera sees: the image rectangle
+    inset by one pixel, cut ``margin_px`` below the horizon line, mapped onto the IPM grid."""
+    w, h = image_size
+    poly = np.array([[1.0, 1.0], [w - 2.0, 1.0], [w - 2.0, h - 2.0], [1.0, h - 2.0]])
+    # Horizon line n · (u, v, 1) = 0; ground side n · m > 0 (ray's y component in G).
+    n = (rotation_ground_from_camera(pose.pitch, pose.roll) @ np.linalg.inv(k))[1]
+    delta = margin_px * float(np.hypot(n[0], n[1]))
+    poly = _clip_half_plane(poly, n, delta)
+    if len(poly) < 3:
+        return np.zeros((0, 2))
+    return apply_homography(ipm_from_image_homography(k, pose, grid), poly)
+
+
+def _clip_half_plane(poly: FloatArray, n: FloatArray, delta: float) -> FloatArray:
+    """Sutherland-Hodgman: the part of a convex polygon where n·(u, v, 1) ≥ delta."""
+    f = poly @ n[:2] + n[2] - delta
+    out = []
+    for i in range(len(poly)):
+        a, b, fa, fb = poly[i], poly[(i + 1) % len(poly)], f[i], f[(i + 1) % len(poly)]
+        if fa >= 0:
+            out.append(a)
+        if (fa >= 0) != (fb >= 0):
+            out.append(a + (b - a) * (fa / (fa - fb)))
+    return np.array(out).reshape(-1, 2)
+
+
+def squares_inside(polygon: FloatArray, centres: FloatArray, size: int) -> NDArray[np.bool_]:
+    """(N,) whether squares of side ``size`` centred at ``centres`` (N, 2) lie in a convex
+    polygon (M, 2) (any orientation)."""
+    if len(polygon) < 3:
+        return np.zeros(len(centres), bool)
+    half = size / 2
+    corners = centres[:, None, :] + np.array([[-half, -half], [half, -half], [half, half],
+                                              [-half, half]])[None]
+    a = polygon
+    b = np.roll(polygon, -1, axis=0)
+    edge = b - a  # (M, 2)
+    rel = corners[:, :, None, :] - a[None, None]  # (N, 4, M, 2)
+    cross = edge[None, None, :, 0] * rel[..., 1] - edge[None, None, :, 1] * rel[..., 0]
+    orient = np.sign(np.sum(edge[:, 0] * np.roll(edge, -1, axis=0)[:, 1]
+                            - edge[:, 1] * np.roll(edge, -1, axis=0)[:, 0]))
+    return np.all(cross * orient >= 0, axis=(1, 2))
+
+
+def patch_sizes(
+    grid: IpmGrid,
+    polygon_prev: FloatArray,
+    polygon_curr: FloatArray,
+    centres: FloatArray,
+    offsets: FloatArray,
+    patch: int,
+    min_patch: int,
+) -> NDArray[np.int64]:
+    """Largest size (N,) ≤ ``patch`` (multiples of :data:`SIZE_STEP`) whose square at
+    ``centres`` stays in the previous frame's visible polygon and, moved by ``offsets``, in
+    the current one's, both inside the grid; 0 where even ``min_patch`` does not fit."""
+    box = np.array([[0.0, 0.0], [grid.width - 1.0, 0.0], [grid.width - 1.0, grid.height - 1.0],
+                    [0.0, grid.height - 1.0]])
+    sizes = np.zeros(len(centres), np.int64)
+    top = int(patch // SIZE_STEP * SIZE_STEP) if patch >= SIZE_STEP else patch
+    candidates = list(range(top, min_patch - 1, -SIZE_STEP)) or [patch]
+    for s in candidates:
+        fits = (
+            squares_inside(polygon_prev, centres, s)
+            & squares_inside(box, centres, s)
+            & squares_inside(polygon_curr, centres + offsets, s)
+            & squares_inside(box, centres + offsets, s)
+        )
+        sizes = np.where((sizes == 0) & fits, s, sizes)
+    return sizes
