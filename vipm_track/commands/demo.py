@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputError
+from .common import add_rerun_options
 from .estimate import add_estimator_options, build_config
 
 DEMO_PRESET = "cart"
@@ -45,6 +46,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="cold-start every pair")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     add_estimator_options(parser)
+    add_rerun_options(parser)
     parser.set_defaults(handler=run)
 
 
@@ -67,7 +69,8 @@ def run(args: argparse.Namespace) -> int:
 
     config = build_config(args, PRESETS[DEMO_PRESET].camera())
     result = run_demo(Path(args.out), args.frames, args.seed, args.profile, config,
-                      tracking=not args.no_tracking, progress=False if args.quiet else None)
+                      tracking=not args.no_tracking, progress=False if args.quiet else None,
+                      rerun_args=args)
     print(result.table)
     print(f"\n{result.summary}")
     print(f"wrote {result.estimates}, {result.plot}")
@@ -82,12 +85,15 @@ def run_demo(
     config=None,
     tracking: bool = True,
     progress: bool | None = None,
+    rerun_args: argparse.Namespace | None = None,
 ) -> DemoResult:
-    """Render, estimate, score and plot the demo sequence into ``out`` (see module doc)."""
+    """Render, estimate, score and plot the demo sequence into ``out`` (see module doc);
+    ``rerun_args`` (parsed ``--rerun*`` flags) also log the run and its ground truth."""
     from ..camera import load_camera
     from ..evaluate import error_table, frame_errors
     from ..pipeline import estimate_sequence
     from ..sim import PRESETS, simulate_sequence
+    from ..sinks.rerun_sink import run_logging
     from ..sources import open_source
     from ..table import read_table
 
@@ -99,9 +105,16 @@ def run_demo(
                       progress=progress)
     camera = load_camera(sequence / "camera.yaml")
     estimates = out / "estimates.csv"
-    summary = estimate_sequence(open_source(images=sequence / "images"), camera,
-                                preset.height_m, estimates, config, tracking=tracking,
-                                progress=progress)
+    logging = run_logging(rerun_args or argparse.Namespace(), "vipm-track demo",
+                          open_source(images=sequence / "images"), camera, config)
+    try:
+        if logging.sink is not None:
+            logging.sink.log_gt(read_table(sequence / "gt.csv"))
+        summary = estimate_sequence(logging.source, camera, preset.height_m, estimates,
+                                    logging.config, tracking=tracking, progress=progress,
+                                    on_step=logging.on_step)
+    finally:
+        logging.finish()
     est, truth = read_table(estimates), read_table(sequence / "gt.csv")
     errors = frame_errors(est, truth)
     table = error_table(errors, tuple(n for n in DEMO_ERRORS if n in errors),

@@ -13,7 +13,12 @@ from numpy.typing import NDArray
 
 from ..camera import CameraModel, load_camera
 from ..errors import InputError
-from .common import add_camera_options, add_input_options, add_output_options
+from .common import (
+    add_camera_options,
+    add_input_options,
+    add_output_options,
+    add_rerun_options,
+)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -28,6 +33,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_output_options(parser, "per-frame estimates CSV")
     add_estimator_options(parser)
     add_run_options(parser)
+    add_rerun_options(parser)
     parser.set_defaults(handler=run)
 
 
@@ -78,10 +84,17 @@ def run(args: argparse.Namespace) -> int:
     out = check_output(args.out)
     source = open_source(images=args.images, video=args.video, fps=args.fps,
                          start=args.start, max_frames=args.max_frames)
-    summary = estimate_sequence(
-        source, camera, height, out, config, tracking=not args.no_tracking,
-        parquet=args.parquet, progress=None if not args.quiet else False,
-    )
+    from ..sinks.rerun_sink import run_logging
+
+    logging = run_logging(args, "vipm-track estimate", source, camera, config)
+    try:
+        summary = estimate_sequence(
+            logging.source, camera, height, out, logging.config, tracking=not args.no_tracking,
+            parquet=args.parquet, progress=None if not args.quiet else False,
+            on_step=logging.on_step,
+        )
+    finally:
+        logging.finish()
     if not args.quiet:
         print(f"{out}: {summary.line()}", file=sys.stderr)
     return 0
