@@ -367,3 +367,114 @@ def test_track_cli_writes_recording(tmp_path: Path) -> None:
     ok = np.flatnonzero(np.isfinite(tab["mount_height_m"]))
     np.testing.assert_allclose([filtered[int(tab["frame"][i])][0] for i in ok],
                                tab["mount_height_m"][ok])
+
+
+# --- --rerun on the other subcommands --------------------------------------------------------
+
+
+def test_demo_and_estimate_cli_write_recordings(tmp_path: Path) -> None:
+    """``demo --rerun``: ground truth, per-frame series and camera/IPM views, one row per pair;
+    ``estimate --rerun`` on the demo's frames: every 2nd pair's image, all pairs' series."""
+    pytest.importorskip("vipm_track.pipeline")
+    rrd = tmp_path / "demo.rrd"
+    assert main(["demo", "--out", str(tmp_path / "demo"), "--frames", "4", "--quiet",
+                 "--rerun", str(rrd)]) == 0
+    est = read_table(tmp_path / "demo" / "estimates.csv")
+    gt = read_table(tmp_path / "demo" / "sequence" / "gt.csv")
+    rows = recording_entities(rrd)
+    n_ok = int(np.sum(est["status"] == "ok"))
+    assert n_ok >= 2
+    assert rows["/series/pitch/truth"] == 4 and rows["/trajectory/truth"] == 3
+    assert rows["/series/pitch/per_frame"] == rows["/series/roll/per_frame_band"] == n_ok
+    assert rows["/camera/image"] == rows["/camera/patches"] == 3
+    assert rows["/ipm/prev/image"] == rows["/ipm/curr/image"] == n_ok
+    pitch = entity_rows(rrd, "/series/pitch/per_frame", "Scalars:scalars")
+    ok = np.flatnonzero(est["status"] == "ok")
+    np.testing.assert_allclose([pitch[int(est["frame"][i])][0] for i in ok],
+                               est["pitch_deg"][ok], rtol=1e-9)
+    truth = entity_rows(rrd, "/series/pitch/truth", "Scalars:scalars")
+    np.testing.assert_allclose([truth[k][0] for k in range(4)], gt["pitch_deg"])
+
+    seq = tmp_path / "demo" / "sequence"
+    rrd2 = tmp_path / "est.rrd"
+    assert main(["estimate", "--images", str(seq / "images"), "--camera",
+                 str(seq / "camera.yaml"), "--height", str(PRESETS["cart"].height_m),
+                 "--pitch", str(PRESETS["cart"].pitch_deg), "--refinements", "0",
+                 "--out", str(tmp_path / "est.csv"), "--quiet", "--rerun", str(rrd2),
+                 "--rerun-image-every", "2"]) == 0
+    est2 = read_table(tmp_path / "est.csv")
+    rows2 = recording_entities(rrd2)
+    assert rows2["/series/pitch/per_frame"] == int(np.sum(est2["status"] == "ok")) >= 2
+    assert rows2["/camera/image"] == 2  # pairs 1 and 3 of 3
+    assert rows2["/timing/total"] == 3
+    assert "/series/pitch/truth" not in rows2
+
+
+@pytest.fixture
+def monitor_drive(tmp_path: Path) -> tuple[Path, Path, Path]:
+    """Estimates and wheel-speed CSVs of a 20 s car drive whose mount pitch steps by 1° at 8 s,
+    a camera file, the shipped nominal."""
+    drive_sim = pytest.importorskip("filters.drive_sim")
+    from filters.wheel_speed import SpeedSeries, write_speed_csv
+    from vipm_track.measurement import measurement_row
+    from vipm_track.table import ESTIMATE_COLUMNS
+
+    cfg = drive_sim.DriveConfig.preset(
+        "car", fps=10.0, duration_s=20.0, mount_random_walk=False, stop_probability=0.0,
+        mount_changes=(drive_sim.MountChange(8.0, pitch_deg=1.0),))
+    run = drive_sim.simulate_drive(cfg, seed=21)
+    write_table(tmp_path / "est.csv", [measurement_row(m) for m in run.measurements],
+                ESTIMATE_COLUMNS)
+    write_speed_csv(SpeedSeries(run.speed.t, run.speed.speed_mps), tmp_path / "speed.csv")
+    (tmp_path / "cam.yaml").write_text(
+        "image_width: 1280\nimage_height: 720\ncamera_matrix: {rows: 3, cols: 3, data: "
+        "[900, 0, 640, 0, 900, 360, 0, 0, 1]}\ndistortion_model: plumb_bob\n"
+        "distortion_coefficients: {rows: 1, cols: 5, data: [0, 0, 0, 0, 0]}\n")
+    return tmp_path / "est.csv", tmp_path / "speed.csv", tmp_path / "cam.yaml"
+
+
+def test_monitor_cli_writes_recording(tmp_path: Path, monitor_drive) -> None:
+    """``monitor --rerun``: state changes, events, statistics and deviation per frame, the
+    EKF's frame pose and mount with bands; numbers equal the monitor CSV's."""
+    est, speed, cam = monitor_drive
+    nominal = Path(__file__).resolve().parents[1] / "data" / "nominal_car.yaml"
+    out, rrd = tmp_path / "mon.csv", tmp_path / "mon.rrd"
+    assert main(["monitor", "--estimates", str(est), "--speed-csv", str(speed), "--camera",
+                 str(cam), "--nominal", str(nominal), "--out", str(out), "--quiet",
+                 "--rerun", str(rrd)]) == 0
+    tab = read_table(out)
+    rows = recording_entities(rrd)
+    n = len(tab["frame"])
+    states = tab["monitor_state"]
+    changes = 1 + int(np.sum(states[1:] != states[:-1]))
+    assert "RECALIBRATE" in set(states)
+    assert rows["/monitor/state"] == changes
+    assert rows["/monitor/state_code"] == rows["/monitor/statistic/pitch"] == n
+    assert rows["/monitor/deviation/roll"] == n
+    n_mount = int(np.isfinite(tab["mount_pitch_deg"]).sum())
+    assert rows["/series/pitch/mount"] == rows["/series/pitch/mount_band"] == n_mount
+    assert rows["/series/pitch/filtered"] == int(np.isfinite(tab["pitch_deg"]).sum())
+    assert rows["/series/pitch/monitor"] == int(np.isfinite(tab["new_pitch_deg"]).sum()) > 0
+    n_meas = int(np.sum(read_table(est)["status"] == "ok"))
+    assert rows["/series/pitch/per_frame"] == n_meas
+    stat = entity_rows(rrd, "/monitor/statistic/pitch", "Scalars:scalars")
+    np.testing.assert_allclose([stat[int(f)][0] for f in tab["frame"]], tab["stat_pitch"])
+    mount = entity_rows(rrd, "/series/pitch/mount", "Scalars:scalars")
+    ok = np.flatnonzero(np.isfinite(tab["mount_pitch_deg"]))
+    np.testing.assert_allclose([mount[int(tab["frame"][i])][0] for i in ok],
+                               tab["mount_pitch_deg"][ok], rtol=1e-9)
+    logs = entity_rows_text(rrd, "/log")
+    assert any("RECALIBRATE" in text for text in logs)
+
+
+def entity_rows_text(path: Path, entity: str) -> list[str]:
+    """All text-log lines of an entity of a recording."""
+    from rerun.chunk import RrdReader
+
+    out: list[str] = []
+    for chunk in RrdReader(path).stream():
+        if chunk.entity_path == entity and not chunk.is_static:
+            batch = chunk.to_record_batch()
+            for value in batch.column("TextLog:text").to_pylist():
+                out.extend(value if isinstance(value, list) else [value])
+    return out

@@ -25,7 +25,13 @@ from ..camera import load_camera
 from ..errors import InputError
 from ..measurement import PairMeasurement, read_measurements
 from ..table import TableWriter
-from .common import add_camera_options, add_input_options, add_output_options, add_speed_options
+from .common import (
+    add_camera_options,
+    add_input_options,
+    add_output_options,
+    add_rerun_options,
+    add_speed_options,
+)
 
 MONITOR_COLUMNS: tuple[str, ...] = (
     "monitor_state", "reason", "stat_pitch", "stat_roll", "stat_height",
@@ -60,6 +66,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--false-alarms-per-hour", type=float, default=0.1, metavar="RATE",
                         help="false-alarm rate the test is set for (default 0.1)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars or summary")
+    add_rerun_options(parser)
     parser.set_defaults(handler=run)
 
 
@@ -82,6 +89,9 @@ def run(args: argparse.Namespace) -> int:
     camera = load_camera(args.camera)
     speed = _speed(args)
     progress = not args.quiet
+    from ..sinks.rerun_sink import log_monitor_run, sink_from_args
+
+    sink = sink_from_args(args, "vipm-track monitor")
     if args.estimates:
         try:
             measurements = read_measurements(args.estimates)
@@ -92,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
         if not measurements:
             raise InputError(f"{args.estimates}: no rows")
     else:
-        measurements = estimate_measurements(args, camera, height, nominal, progress)
+        measurements = estimate_measurements(args, camera, height, nominal, progress, sink)
 
     from filters.ekf import EkfConfig
 
@@ -109,6 +119,7 @@ def run(args: argparse.Namespace) -> int:
         for m, s, o in zip(measurements, states, outputs, strict=True):
             writer.write(monitor_row(m, s, o))
     n_events = write_events(outputs, args.events) if args.events else 0
+    log_monitor_run(sink, measurements, states, outputs, progress)
     if progress:
         counts = Counter(o.state for o in outputs)
         summary = ", ".join(f"{k} {v}" for k, v in counts.most_common())
@@ -152,10 +163,12 @@ def monitor_row(m: PairMeasurement, state: Any, out: Any) -> dict[str, Any]:
 
 
 def estimate_measurements(
-    args: argparse.Namespace, camera: Any, height: float, nominal: Any, progress: bool
+    args: argparse.Namespace, camera: Any, height: float, nominal: Any, progress: bool,
+    sink: Any = None,
 ) -> list[PairMeasurement]:
     """Run the sequence runner over ``--images``/``--video``: one measurement per frame
-    (failed frames carry their status and NaNs)."""
+    (failed frames carry their status and NaNs); with a rerun ``sink`` each pair's image,
+    patches and IPM views are logged as they come."""
     try:
         from ..pipeline import run_sequence
         from ..sources import open_source
@@ -172,6 +185,14 @@ def estimate_measurements(
     except (ImportError, TypeError):
         config = None
     source = open_source(images=args.images, video=args.video, fps=args.fps)
+    if sink is not None:
+        from dataclasses import replace
+
+        from ..estimator import EstimatorConfig
+        from ..sinks.rerun_sink import ImageTap
+
+        source = ImageTap(source, camera)
+        config = replace(config or EstimatorConfig(), keep_images=True)
     steps: Sequence[Any] = run_sequence(source, camera, height, config)
     if progress:
         from tqdm import tqdm
@@ -179,6 +200,8 @@ def estimate_measurements(
         steps = tqdm(steps, desc="estimate", unit="frame")
     out = []
     for step in steps:
+        if sink is not None and step.result is not None:
+            sink.log_pair_views(step.frame, step.t, step.result, source.image(step.frame))
         m = step.result.to_measurement(step.frame, step.t) if step.result is not None else None
         if m is None or step.status != "ok":
             m = PairMeasurement(frame=step.frame, t=step.t, z=np.full(7, np.nan),

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -269,9 +270,11 @@ class RerunSink:
 
     def log_table(self, columns: Mapping[str, NDArray], kind: str = "smoothed") -> None:
         """Log a whole per-frame table (``table.read_table`` columns) as the ``kind`` series,
-        batched with ``send_columns``; rows log the columns where they have numbers. A
-        ground-truth table with ``world_x_m``/``world_z_m`` columns gives the trajectory
-        directly, otherwise the motions are chained (``trajectory.planar_path``)."""
+        batched with ``send_columns``; rows log the columns where they have numbers. A track
+        table's mount columns (``filters/track.py``) go to the ``mount`` series, its speeds to
+        ``motion/speed``. A ground-truth table with ``world_x_m``/``world_z_m`` columns gives
+        the trajectory directly, otherwise the motions are chained
+        (``trajectory.planar_path``)."""
         import rerun as rr
 
         _check_kind(kind)
@@ -279,29 +282,24 @@ class RerunSink:
         n = len(frame)
         t = np.asarray(columns.get("t", np.full(n, np.nan)), dtype=float)
         valid = np.ones(n, bool)  # rows without an estimate have empty (NaN) numbers
-        for name, (col, std_col) in COLUMNS.items():
+        series = [("motion" if name in MOTION else "series", name, kind, col, std_col)
+                  for name, (col, std_col) in COLUMNS.items()]
+        series += [("series", name, "mount", col, std_col)
+                   for name, (col, std_col) in MOUNT_COLUMNS.items()]
+        for group, name, series_kind, col, std_col in series:
             if col not in columns:
                 continue
-            group = "motion" if name in MOTION else "series"
-            values = np.asarray(columns[col], dtype=float)
-            rows = valid & np.isfinite(values)
-            if not rows.any():
-                continue
-            path = f"{group}/{name}/{kind}"
-            self._style_series(path, kind, name)
-            self.rec.send_columns(path, indexes=self._indexes(frame[rows], t[rows]),
-                                  columns=rr.Scalars.columns(scalars=values[rows]))
-            if std_col in columns:
-                std = np.asarray(columns[std_col], dtype=float)
-                rows &= np.isfinite(std)
+            std = np.asarray(columns[std_col], dtype=float) if std_col in columns else None
+            self._send_series(f"{group}/{name}/{series_kind}", series_kind, name, frame, t,
+                              np.asarray(columns[col], dtype=float), std)
+        for col, path in (("speed_mps", f"motion/speed/{kind}"),
+                          ("wheel_speed_mps", "motion/speed/wheel")):
+            if col in columns:
+                values = np.asarray(columns[col], dtype=float)
+                rows = np.isfinite(values)
                 if rows.any():
-                    band = np.stack([values - BAND_SIGMA * std, values + BAND_SIGMA * std], 1)
-                    self._style_band(f"{path}_band", kind)
-                    self.rec.send_columns(
-                        f"{path}_band", indexes=self._indexes(frame[rows], t[rows]),
-                        columns=rr.Scalars.columns(scalars=band[rows]).partition(
-                            np.full(int(rows.sum()), 2)),
-                    )
+                    self.rec.send_columns(path, indexes=self._indexes(frame[rows], t[rows]),
+                                          columns=rr.Scalars.columns(scalars=values[rows]))
         xz = planar_path(columns, valid)
         if xz is not None:
             finite = np.all(np.isfinite(xz), axis=1)
@@ -317,6 +315,28 @@ class RerunSink:
     def log_gt(self, columns: Mapping[str, NDArray]) -> None:
         """Log a ground-truth table (``gt.csv`` of ``vipm-track simulate``) as ``truth``."""
         self.log_table(columns, "truth")
+
+    def _send_series(self, path: str, kind: str, name: str, frame: NDArray, t: NDArray,
+                     values: NDArray, std: NDArray | None) -> None:
+        """One series (and its ±2σ band where ``std`` is finite), its finite rows batched."""
+        rr = self._rr
+        rows = np.isfinite(values)
+        if not rows.any():
+            return
+        self._style_series(path, kind, name)
+        self.rec.send_columns(path, indexes=self._indexes(frame[rows], t[rows]),
+                              columns=rr.Scalars.columns(scalars=values[rows]))
+        if std is None:
+            return
+        rows &= np.isfinite(std)
+        if rows.any():
+            band = np.stack([values - BAND_SIGMA * std, values + BAND_SIGMA * std], 1)
+            self._style_band(f"{path}_band", kind)
+            self.rec.send_columns(
+                f"{path}_band", indexes=self._indexes(frame[rows], t[rows]),
+                columns=rr.Scalars.columns(scalars=band[rows]).partition(
+                    np.full(int(rows.sum()), 2)),
+            )
 
     # --- monitor -----------------------------------------------------------------------------
 
@@ -619,6 +639,56 @@ def log_track_steps(sink: RerunSink | None, steps: Any) -> Any:
     return logged()
 
 
+def log_monitor_run(sink: RerunSink | None, measurements: Sequence[Any], states: Sequence[Any],
+                    outputs: Sequence[Any], progress: bool = False) -> None:
+    """Log a whole monitor run (``filters.monitor_inputs.monitor_measurements``): the
+    measurements (``per_frame``), the EKF's frame pose and mount with ±2σ bands
+    (``filtered``, ``mount``; batched), and every monitor output (state, events, statistics,
+    deviation, new extrinsics). ``sink`` None: nothing. The sink is finished afterwards."""
+    if sink is None:
+        return
+    from filters.track import track_row
+
+    from ..measurement import measurement_row
+
+    try:
+        ok = [measurement_row(m) for m in measurements if m.ok]
+        if ok:
+            sink.log_table(table_columns(ok), "per_frame")
+        for m in measurements:
+            if not m.ok:
+                sink.log_text(m.frame, m.t, f"frame {m.frame}: {m.status}", "WARN")
+        rows = [track_row(s, m, None) for m, s in zip(measurements, states, strict=True)
+                if s is not None]
+        if rows:
+            sink.log_table(table_columns(rows), "filtered")
+        it: Any = outputs
+        if progress:
+            from tqdm import tqdm
+
+            it = tqdm(outputs, desc="rerun", unit="frame", file=sys.stderr)
+        for output in it:
+            sink.log_monitor(output)
+    finally:
+        sink.finish()
+
+
+def table_columns(rows: Sequence[Mapping[str, Any]]) -> dict[str, NDArray]:
+    """Column dict of table rows (``read_table``'s layout): float arrays with NaN where a row
+    lacks a number, text columns (``table.TEXT_COLUMNS``) as object arrays."""
+    from ..table import TEXT_COLUMNS
+
+    names = list(dict.fromkeys(k for row in rows for k in row))
+    out: dict[str, NDArray] = {}
+    for name in names:
+        values = [row.get(name) for row in rows]
+        if name in TEXT_COLUMNS:
+            out[name] = np.array(["" if v is None else str(v) for v in values], dtype=object)
+        else:
+            out[name] = np.array([_float(v) for v in values], dtype=float)
+    return out
+
+
 # --- layout --------------------------------------------------------------------------------
 
 
@@ -745,10 +815,12 @@ __all__: Sequence[str] = [
     "RunLogging",
     "default_blueprint",
     "grpc_url",
+    "log_monitor_run",
     "log_steps",
     "log_track_steps",
     "recording_entities",
     "run_logging",
     "sink_from_args",
+    "table_columns",
     "wants_rerun",
 ]
