@@ -478,3 +478,38 @@ def entity_rows_text(path: Path, entity: str) -> list[str]:
             for value in batch.column("TextLog:text").to_pylist():
                 out.extend(value if isinstance(value, list) else [value])
     return out
+
+
+def test_report_of_monitor_table(tmp_path: Path, monitor_drive) -> None:
+    """The report of a ``vipm-track monitor`` CSV plots its states, statistics, deviations and
+    new extrinsics, and states the last new extrinsics: the 1° pitch step on a 3° nominal."""
+    from vipm_track.sinks.report import write_report
+
+    est, speed, cam = monitor_drive
+    nominal = Path(__file__).resolve().parents[1] / "data" / "nominal_car.yaml"
+    out = tmp_path / "mon.csv"
+    assert main(["monitor", "--estimates", str(est), "--speed-csv", str(speed), "--camera",
+                 str(cam), "--nominal", str(nominal), "--out", str(out), "--quiet"]) == 0
+    report = write_report(out, tmp_path / "rep")
+    _non_trivial_png(report.plots["monitor"])
+    text = report.markdown.read_text()
+    line = next(x for x in text.splitlines() if x.startswith("- pitch: "))
+    value, lo, hi = (float(v) for v in
+                     line.removeprefix("- pitch: ").replace("[", "").replace("]", "")
+                     .replace(",", "").split()[:3])
+    assert lo <= value <= hi and value == pytest.approx(4.0, abs=0.15)
+    assert "RECALIBRATE" in text.split("New extrinsics at frame")[1].splitlines()[0]
+
+
+def test_frame_errors_include_height(tmp_path: Path) -> None:
+    """``evaluate.frame_errors`` scores the height (est − truth) of the ok rows."""
+    from vipm_track.evaluate import error_table, frame_errors
+
+    gt = read_table(truth_table(tmp_path, "height", 20))
+    est = {k: np.array(v, copy=True) for k, v in gt.items()}
+    est["height_m"] = est["height_m"] + 0.02
+    est["status"] = np.array(["ok"] * 19 + ["too few inliers"], dtype=object)
+    errors = frame_errors(est, gt)
+    np.testing.assert_allclose(errors["height_m"], 0.02, atol=1e-12)
+    assert len(errors["height_m"]) == 19
+    assert "| height | m | 19 | 0.0200 |" in error_table(errors, ("height_m",))

@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 ERROR_UNITS: dict[str, str] = {
     "pitch_deg": "deg",
     "roll_deg": "deg",
+    "height_m": "m",
     "prev_pitch_deg": "deg",
     "prev_roll_deg": "deg",
     "pitch_change_deg": "deg",
@@ -52,9 +53,10 @@ def frame_errors(est: dict[str, NDArray], truth: dict[str, NDArray]) -> dict[str
     """Per-frame signed errors (estimate − truth) for frames ok in ``est`` and in ``truth``.
 
     Returns ``frame`` (the scored frames) and, where both tables have the columns, the
-    entries of :data:`ERROR_UNITS`: poses, pose changes within the pair (``pitch − prev_pitch``,
-    what a camera-relative ground truth such as KITTI's can check), travel distance (metres
-    and % of the true distance) and yaw change."""
+    entries of :data:`ERROR_UNITS`: poses (pitch, roll in degrees; height in metres: the
+    height assumed by the estimator or estimated by a filter), pose changes within the pair
+    (``pitch − prev_pitch``, what a camera-relative ground truth such as KITTI's can check),
+    travel distance (metres and % of the true distance) and yaw change."""
     status = est.get("status", np.array(["ok"] * len(est["frame"]), dtype=object))
     index = {int(f): i for i, f in enumerate(truth["frame"])}
     rows = [(i, index[int(f)]) for i, f in enumerate(est["frame"])
@@ -69,7 +71,7 @@ def frame_errors(est: dict[str, NDArray], truth: dict[str, NDArray]) -> dict[str
             return None
         return np.asarray(est[e_col], float)[ei] - np.asarray(truth[t_col], float)[ti]
 
-    for name in ("pitch_deg", "roll_deg", "prev_pitch_deg", "prev_roll_deg"):
+    for name in ("pitch_deg", "roll_deg", "height_m", "prev_pitch_deg", "prev_roll_deg"):
         d = diff(name)
         if d is not None:
             out[name] = d

@@ -10,9 +10,13 @@ Parquet, CONVENTIONS.md columns) and, optionally, a ground-truth table (``gt.csv
   travel distance and yaw;
 - ``motion.png``: tx, tz, yaw per frame and the planar trajectory (motions chained);
 - ``monitor.png`` (when the table has a ``monitor_state`` column): the monitor's state over
-  time and its numeric ``monitor_*`` columns;
+  time; where the table has them (``vipm-track monitor``'s columns) its CUSUM statistics
+  ``stat_*`` against the alarm level, the deviations ``dev_*`` from the nominal, and the
+  filter's mount ``mount_*`` with the new extrinsics ``new_*`` and their 95 % interval
+  ``new_*_lo``/``new_*_hi``; other numeric ``monitor_*`` columns join the statistics;
 - ``report.md``: summary numbers (mean, std, range, drift of each axis; error statistics
-  against ground truth; statuses; monitor states and transitions) and the plots.
+  against ground truth; statuses; monitor states, transitions and the last new extrinsics)
+  and the plots.
 
 A row is plotted and scored where its numbers are finite (CONVENTIONS.md: rows without an
 estimate have empty numbers), whatever its status word (a filter's ``partial`` rows count).
@@ -59,6 +63,14 @@ STATE_COLORS: dict[str, str] = {
     "RECALIBRATE": "#e53935", "INVALID": "#8e24aa", "HOLD": "#90a4ae",
 }
 EST_COLOR, TRUTH_COLOR = "tab:blue", "0.25"
+#: Deviation columns of a monitor table (``vipm-track monitor``): 1 s mean pose − nominal.
+MONITOR_DEVIATIONS: tuple[str, ...] = ("dev_pitch_deg", "dev_roll_deg", "dev_height_m")
+#: (label, mount column, new-extrinsics column, its 95 % low / high columns, unit).
+MONITOR_AXES: tuple[tuple[str, str, str, str, str, str], ...] = (
+    ("pitch", "mount_pitch_deg", "new_pitch_deg", "new_pitch_lo_deg", "new_pitch_hi_deg", "deg"),
+    ("roll", "mount_roll_deg", "new_roll_deg", "new_roll_lo_deg", "new_roll_hi_deg", "deg"),
+    ("height", "mount_height_m", "new_height_m", "new_height_lo_m", "new_height_hi_m", "m"),
+)
 
 
 @dataclass(frozen=True)
@@ -153,22 +165,15 @@ def summarize(est: Mapping[str, NDArray]) -> dict[str, dict[str, float]]:
 
 
 def frame_errors(est: Mapping[str, NDArray], truth: Mapping[str, NDArray]) -> dict[str, NDArray]:
-    """Signed per-frame errors (estimate − truth) of the rows with numbers, matched by frame:
-    ``evaluate.frame_errors`` (poses, pose changes, distance, yaw) plus ``height_m``."""
+    """Signed per-frame errors (estimate − truth, ``evaluate.frame_errors``: poses, height,
+    pose changes, distance, yaw) of the rows with numbers, matched by frame: a row counts
+    where its pitch is finite, whatever its status word (a filter's ``partial`` rows)."""
     from ..evaluate import frame_errors as pose_errors
 
     pitch = np.asarray(est.get("pitch_deg", np.full(len(est["frame"]), np.nan)), float)
     scored = dict(est)
     scored["status"] = np.where(np.isfinite(pitch), "ok", "no estimate").astype(object)
-    errors = pose_errors(scored, truth)
-    if "height_m" in est and "height_m" in truth:
-        index = {int(f): i for i, f in enumerate(truth["frame"])}
-        rows = [index.get(int(f), -1) for f in errors["frame"]]
-        mine = {int(f): i for i, f in enumerate(est["frame"])}
-        e = np.array([est["height_m"][mine[int(f)]] for f in errors["frame"]], float)
-        t = np.array([truth["height_m"][r] if r >= 0 else np.nan for r in rows], float)
-        errors["height_m"] = e - t
-    return errors
+    return pose_errors(scored, truth)
 
 
 def _abs_stats(values: NDArray) -> dict[str, float]:
@@ -304,13 +309,20 @@ def _motion_figure(plt: Any, est: Mapping, truth: Mapping | None, x: NDArray,
 
 def _monitor_figure(plt: Any, est: Mapping, x: NDArray, x_label: str, path: Path,
                     title: str) -> Path:
+    """State over time, then (where the table has them) the CUSUM statistics ``stat_*``
+    against the alarm level 1, the 1 s deviations ``dev_*`` from the nominal, and per axis
+    the filter's mount ``mount_*`` with the monitor's new extrinsics ``new_*`` and their 95 %
+    interval (``filters/monitor.py`` via ``vipm-track monitor``)."""
     states = np.asarray(est["monitor_state"], dtype=object)
-    numeric = [c for c in est if c.startswith("monitor_") and c != "monitor_state"
-               and np.isfinite(np.asarray(est[c], float)).any()]
-    fig, axes = plt.subplots(2 if numeric else 1, 1, figsize=(11, 5.5 if numeric else 2.8),
-                             sharex=True, squeeze=False,
-                             gridspec_kw={"height_ratios": [1, 2] if numeric else [1]})
-    ax = axes[0, 0]
+    stats = [c for c in est if (c.startswith("stat_") or (
+        c.startswith("monitor_") and c != "monitor_state")) and _finite(est, c)]
+    devs = [c for c in MONITOR_DEVIATIONS if _finite(est, c)]
+    axes_new = [p for p in MONITOR_AXES if _finite(est, p[1]) or _finite(est, p[2])]
+    ratios = [1.0] + [1.6] * bool(stats) + [1.6] * bool(devs) + [1.6] * len(axes_new)
+    fig, axes = plt.subplots(len(ratios), 1, figsize=(11, 1.0 + 1.7 * sum(ratios)),
+                             sharex=True, squeeze=False, gridspec_kw={"height_ratios": ratios})
+    panels = iter(axes[:, 0])
+    ax = next(panels)
     names = [s for s in STATE_COLORS if s in set(states)]
     names += sorted({s for s in states if s and s not in STATE_COLORS})
     level = {s: i for i, s in enumerate(names)}
@@ -325,16 +337,61 @@ def _monitor_figure(plt: Any, est: Mapping, x: NDArray, x_label: str, path: Path
     ax.set_yticks(range(len(names)), names, fontsize=8)
     ax.set_ylim(-0.5, len(names) - 0.5)
     ax.set_ylabel("state")
-    if numeric:
-        ax2 = axes[1, 0]
-        for c in numeric:
-            ax2.plot(x, np.asarray(est[c], float), lw=1, label=c.removeprefix("monitor_"))
-        ax2.grid(alpha=0.3)
-        ax2.legend(loc="best", fontsize=8)
-        ax2.set_ylabel("monitor value")
+    if stats:
+        ax = next(panels)
+        for c in stats:
+            ax.plot(x, np.asarray(est[c], float), lw=1,
+                    label=c.removeprefix("stat_").removeprefix("monitor_"))
+        if any(c.startswith("stat_") for c in stats):
+            ax.axhline(1.0, color="tab:red", lw=1, ls="--", label="alarm")
+        ax.set_ylabel("CUSUM / threshold")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper left", fontsize=8)
+    if devs:
+        ax = next(panels)
+        twin = None
+        for c in devs:
+            target = ax
+            if c.endswith("_m"):
+                twin = twin or ax.twinx()
+                target = twin
+            target.plot(x, np.asarray(est[c], float), lw=1,
+                        color="0.3" if target is twin else None,
+                        label=c.removeprefix("dev_"))
+        ax.axhline(0.0, color="0.5", lw=0.8)
+        ax.set_ylabel("deviation [deg]")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper left", fontsize=8)
+        if twin is not None:
+            twin.set_ylabel("height deviation [m]")
+            twin.legend(loc="upper right", fontsize=8)
+    for label, mount, new, lo, hi, unit in axes_new:
+        ax = next(panels)
+        if _finite(est, mount):
+            ax.plot(x, np.asarray(est[mount], float), color=EST_COLOR, lw=1,
+                    label="filter mount")
+        if _finite(est, new):
+            if _finite(est, lo) and _finite(est, hi):
+                ax.fill_between(x, np.asarray(est[lo], float), np.asarray(est[hi], float),
+                                color="tab:purple", alpha=0.25, lw=0, label="95 % interval")
+            ax.plot(x, np.asarray(est[new], float), ".", color="tab:purple", ms=3,
+                    label="new extrinsics")
+        ax.set_ylabel(f"{label} [{unit}]")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper left", fontsize=8)
     axes[-1, 0].set_xlabel(x_label)
     fig.suptitle(title)
     return _save(plt, fig, path)
+
+
+def _finite(table: Mapping, column: str) -> bool:
+    """Whether ``column`` exists and has a finite number somewhere."""
+    if column not in table:
+        return False
+    try:
+        return bool(np.isfinite(np.asarray(table[column], float)).any())
+    except (TypeError, ValueError):  # a text column
+        return False
 
 
 def _runs(values: NDArray) -> list[tuple[int, int, Any]]:
@@ -418,4 +475,14 @@ def _monitor_lines(est: Mapping) -> list[str]:
                      f"{x[start]:.3f}): {before or '(empty)'} → {after or '(empty)'}")
     if len(runs) > 31:
         lines.append(f"- … {len(runs) - 31} more")
+    new = [p for p in MONITOR_AXES if _finite(est, p[2])]
+    if new:
+        last = int(np.flatnonzero(np.isfinite(np.asarray(est[new[0][2]], float)))[-1])
+        lines += ["", f"New extrinsics at frame {int(est['frame'][last])} "
+                  f"({states[last] or '(empty)'}; 95 % interval):", ""]
+        for label, _, col, lo, hi, unit in new:
+            value = float(np.asarray(est[col], float)[last])
+            bounds = (f" [{_fmt(float(est[lo][last]))}, {_fmt(float(est[hi][last]))}]"
+                      if lo in est and hi in est else "")
+            lines.append(f"- {label}: {_fmt(value)}{bounds} {unit}")
     return lines
