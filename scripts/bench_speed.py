@@ -7,7 +7,14 @@ pairs per second, wall time per pair and the estimator's per-stage breakdown
 (``PairResult.timings``: POC, warps, LM), with the share of pairs ok and the median travel
 distance error against the rendered ground truth.
 
-    python scripts/bench_speed.py [--frames 8] [--repeats 1] [--results FILE.md]
+A second table gives the cost of ``--rerun`` logging (``vipm_track.sinks.rerun_sink``) in
+tracking mode with the estimator's default refinements: the same steps the runner yields,
+with their images (an ``ImageTap``, as the commands do), logged to an .rrd file with every
+image and with every 10th image; overhead = logging time (flush included) / estimator time,
+summed over the pairs (target ≤ 10 %).
+
+    python scripts/bench_speed.py [--frames 8] [--repeats 1] [--log-every 1,10]
+                                  [--results FILE.md]
 
 Timings on a shared machine are noisy: they are medians over all pairs of all repeats.
 """
@@ -19,6 +26,8 @@ import math
 import platform
 import sys
 import tempfile
+import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +38,7 @@ sys.path.insert(0, str(ROOT))
 from vipm_track.estimator import EstimatorConfig, TwoFrameEstimator  # noqa: E402
 from vipm_track.pipeline import config_with, run_sequence  # noqa: E402
 from vipm_track.sim import PRESETS, simulate_sequence  # noqa: E402
+from vipm_track.sinks.rerun_sink import ImageTap, RerunSink  # noqa: E402
 from vipm_track.sources import ArraySource, open_source  # noqa: E402
 from vipm_track.table import read_table  # noqa: E402
 
@@ -78,6 +88,50 @@ def bench_case(preset: str, source: ArraySource, truth: dict, refinements: int,
     }
 
 
+def bench_logging(preset: str, source: ArraySource, image_every: int, repeats: int,
+                  folder: Path) -> dict:
+    """Estimator and rerun-logging time of a tracking run (``EstimatorConfig`` defaults, IPM
+    images kept), logging every ``image_every``-th pair's images; sums over all pairs."""
+    p = PRESETS[preset]
+    camera = p.camera()
+    config = replace(config_with(EstimatorConfig(), initial_pitch_deg=p.pitch_deg),
+                     keep_images=True)
+    estimator = TwoFrameEstimator(camera, p.height_m, config)
+    est_s = log_s = 0.0
+    pairs = size = 0
+    for r in range(repeats):
+        path = folder / f"{preset}_{image_every}_{r}.rrd"
+        sink = RerunSink.to_file(path, image_every=image_every)
+        tap = ImageTap(source, camera)
+        for step in run_sequence(tap, camera, p.height_m, config, True, estimator):
+            start = time.perf_counter()
+            sink.log_step(step, tap.image(step.frame))
+            log_s += time.perf_counter() - start
+            est_s += step.seconds
+            pairs += step.result is not None
+        start = time.perf_counter()
+        sink.finish()
+        log_s += time.perf_counter() - start
+        size += path.stat().st_size
+    return {
+        "preset": preset, "logging": "every image" if image_every == 1
+        else f"every {image_every}th image" if image_every else "scalars only",
+        "pairs": pairs, "est_ms": 1e3 * est_s / max(pairs, 1),
+        "log_ms": 1e3 * log_s / max(pairs, 1),
+        "overhead_pct": 100.0 * log_s / est_s if est_s > 0 else float("nan"),
+        "kib_per_pair": size / 1024 / max(pairs, 1),
+    }
+
+
+def logging_table(rows: list[dict]) -> str:
+    lines = ["| preset | logging | pairs | estimator ms/pair | logging ms/pair | overhead % "
+             "| recording KiB/pair |", "| --- | --- | --- | --- | --- | --- | --- |"]
+    for r in rows:
+        lines.append(f"| {r['preset']} | {r['logging']} | {r['pairs']} | {r['est_ms']:.0f} | "
+                     f"{r['log_ms']:.1f} | {r['overhead_pct']:.1f} | {r['kib_per_pair']:.0f} |")
+    return "\n".join(lines)
+
+
 def table(rows: list[dict]) -> str:
     head = ("| preset | mode | refinements | pairs/s | ms/pair | POC ms | warp ms | LM ms | ok "
             "| median distance error % |")
@@ -97,10 +151,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=1, help="passes over the frames")
     parser.add_argument("--presets", default="cart,car")
     parser.add_argument("--refinements", default="0,1,2")
+    parser.add_argument("--log-every", default="1,10",
+                        help="rerun logging rows: image decimations to time ('' for none)")
     parser.add_argument("--results", type=Path,
                         default=ROOT / "scripts" / "results" / "bench_speed.md")
     args = parser.parse_args(argv)
-    rows = []
+    rows, log_rows = [], []
     with tempfile.TemporaryDirectory() as tmp:
         for preset in args.presets.split(","):
             source, truth = render(preset, args.frames, Path(tmp) / preset)
@@ -110,6 +166,11 @@ def main(argv: list[str] | None = None) -> int:
                     rows.append(row)
                     print(f"{preset} {row['mode']} r={refinements}: {row['fps']:.2f} pairs/s",
                           file=sys.stderr)
+            for every in (int(n) for n in args.log_every.split(",") if n.strip()):
+                row = bench_logging(preset, source, every, args.repeats, Path(tmp))
+                log_rows.append(row)
+                print(f"{preset} logging {row['logging']}: {row['overhead_pct']:.1f} %",
+                      file=sys.stderr)
     text = (
         "# Speed of `vipm-track estimate` (sequence runner + two-frame estimator)\n\n"
         + table(rows)
@@ -124,6 +185,17 @@ def main(argv: list[str] | None = None) -> int:
         f"Command: `python scripts/bench_speed.py --frames {args.frames} "
         f"--repeats {args.repeats}`\n"
     )
+    if log_rows:
+        text += (
+            "\n## Cost of `--rerun` logging\n\n" + logging_table(log_rows)
+            + "\n\nTracking mode, the estimator's default refinements, IPM images kept; the "
+            "runner's steps and their images logged with `RerunSink.log_step` to an .rrd file "
+            "(JPEG quality 75, longer side ≤ 800 px; camera image with patches and arrows, "
+            "both IPM images, series, timings). ms/pair: totals over all pairs and passes "
+            "divided by the pairs (logging includes the final flush); overhead = logging / "
+            "estimator time (target ≤ 10 %). Every 10th image over few pairs logs a larger "
+            "share of images than over a long run, so its row is an upper bound.\n"
+        )
     print(text)
     args.results.parent.mkdir(parents=True, exist_ok=True)
     args.results.write_text(text)

@@ -27,7 +27,8 @@ the frame index) and ``time`` (duration, the frame timestamp in seconds). Entity
 ``log``                                text: frames without estimate, monitor events
 =====================================  ==========================================================
 
-Cost: each logged image is JPEG-encoded (and downscaled to ``max_image_side``) once; scalars
+Cost: each logged image is shrunk by an integer factor to ``max_image_side`` and JPEG-encoded
+once (the IPM warps are ~1.5k px floats: shrinking them first keeps that cheap); scalars
 are single-row logs (``send_columns`` for whole tables). ``scripts/bench_speed.py`` measures
 the overhead against the estimator.
 """
@@ -96,7 +97,8 @@ class RerunSink:
     recording : the stream to log to (its sinks: file, viewer, ... are set by the caller).
     image_every : log the camera image and its patches every n-th pair (0: never).
     jpeg_quality : JPEG quality of logged images, 1-100.
-    max_image_side : images are downscaled so that their longer side is at most this, pixels.
+    max_image_side : images are shrunk by the smallest integer factor that brings their longer
+        side to at most this, pixels.
     arrow_scale : displacement arrows are drawn this many times their length.
     log_ipm : log the virtual IPM images (needs ``EstimatorConfig(keep_images=True)``).
     blueprint : send the default layout (:func:`default_blueprint`).
@@ -461,17 +463,19 @@ class RerunSink:
             [segment], colors=[KIND_COLORS[kind]], radii=[-1.5]))
 
     def _image(self, path: str, image: NDArray) -> float:
-        """Log an image as JPEG, downscaled to ``max_image_side``; returns the scale applied."""
-        img = _to_uint8(image)
-        scale = min(1.0, self.max_image_side / max(img.shape[:2]))
-        if scale < 1.0:
-            size = (max(1, round(img.shape[1] * scale)), max(1, round(img.shape[0] * scale)))
-            img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+        """Log an image as JPEG, shrunk by the smallest integer factor that brings its longer
+        side to at most ``max_image_side``; returns the scale applied (1 / factor)."""
+        img = np.asarray(image)
+        factor = max(1, math.ceil(max(img.shape[:2]) / self.max_image_side))
+        if factor > 1:  # an integer factor takes OpenCV's fast block-average path
+            img = cv2.resize(img, None, fx=1.0 / factor, fy=1.0 / factor,
+                             interpolation=cv2.INTER_AREA)
+        img = _to_uint8(img)  # after shrinking: float IPM warps are large
         ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
         if not ok:  # pragma: no cover - OpenCV encodes any uint8 image
-            return scale
+            return 1.0 / factor
         self.rec.log(path, self._rr.EncodedImage(contents=buf.tobytes(), media_type="image/jpeg"))
-        return scale
+        return 1.0 / factor
 
     def _patches(self, root: str, stage: Any, scale: float) -> None:
         """Boxes at the patch centres and arrows of their displacements, both × ``scale``."""
