@@ -643,29 +643,40 @@ def log_track_steps(sink: RerunSink | None, steps: Any) -> Any:
     return logged()
 
 
+def log_filter_run(sink: RerunSink | None, measurements: Sequence[Any],
+                   rows: Sequence[Mapping[str, Any]], kind: str = "smoothed") -> None:
+    """Log a finished filter/smoother run, batched: the measurements as ``per_frame`` (failed
+    ones as log lines) and its track-table rows (``filters.track.track_row``) as ``kind``,
+    their mount columns as ``mount``, all with ±2σ bands where the rows have std columns.
+    ``sink`` None: nothing. The sink stays open (see :meth:`RerunSink.finish`)."""
+    if sink is None:
+        return
+    from ..measurement import measurement_row
+
+    ok = [measurement_row(m) for m in measurements if m.ok]
+    if ok:
+        sink.log_table(table_columns(ok), "per_frame")
+    for m in measurements:
+        if not m.ok:
+            sink.log_text(m.frame, m.t, f"frame {m.frame}: {m.status}", "WARN")
+    if rows:
+        sink.log_table(table_columns(rows), kind)
+
+
 def log_monitor_run(sink: RerunSink | None, measurements: Sequence[Any], states: Sequence[Any],
                     outputs: Sequence[Any], progress: bool = False) -> None:
     """Log a whole monitor run (``filters.monitor_inputs.monitor_measurements``): the
-    measurements (``per_frame``), the EKF's frame pose and mount with ±2σ bands
-    (``filtered``, ``mount``; batched), and every monitor output (state, events, statistics,
-    deviation, new extrinsics). ``sink`` None: nothing. The sink is finished afterwards."""
+    measurements and the EKF's frame pose and mount (:func:`log_filter_run`, ``filtered``),
+    and every monitor output (state, events, statistics, deviation, new extrinsics).
+    ``sink`` None: nothing. The sink is finished afterwards."""
     if sink is None:
         return
     from filters.track import track_row
 
-    from ..measurement import measurement_row
-
     try:
-        ok = [measurement_row(m) for m in measurements if m.ok]
-        if ok:
-            sink.log_table(table_columns(ok), "per_frame")
-        for m in measurements:
-            if not m.ok:
-                sink.log_text(m.frame, m.t, f"frame {m.frame}: {m.status}", "WARN")
         rows = [track_row(s, m, None) for m, s in zip(measurements, states, strict=True)
                 if s is not None]
-        if rows:
-            sink.log_table(table_columns(rows), "filtered")
+        log_filter_run(sink, measurements, rows, "filtered")
         it: Any = outputs
         if progress:
             from tqdm import tqdm
@@ -819,6 +830,7 @@ __all__: Sequence[str] = [
     "RunLogging",
     "default_blueprint",
     "grpc_url",
+    "log_filter_run",
     "log_monitor_run",
     "log_steps",
     "log_track_steps",
