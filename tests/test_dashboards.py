@@ -513,3 +513,37 @@ def test_frame_errors_include_height(tmp_path: Path) -> None:
     np.testing.assert_allclose(errors["height_m"], 0.02, atol=1e-12)
     assert len(errors["height_m"]) == 19
     assert "| height | m | 19 | 0.0200 |" in error_table(errors, ("height_m",))
+
+
+def test_smooth_cli_writes_recording(tmp_path: Path, monitor_drive) -> None:
+    """``smooth --rerun``: measurements, smoothed frame pose and mount with ±2σ bands (one row
+    per frame with numbers; values equal the smoothed CSV's)."""
+    pytest.importorskip("filters.smoother")
+    from vipm_track.cli import COMMANDS
+
+    if "smooth" not in COMMANDS:
+        pytest.skip("the smooth command is not in this build")
+    est, speed, _ = monitor_drive
+    out, rrd = tmp_path / "smooth.csv", tmp_path / "smooth.rrd"
+    assert main(["smooth", "--estimates", str(est), "--speed-csv", str(speed), "--height",
+                 "1.5", "--out", str(out), "--quiet", "--lag", "3", "--rerun", str(rrd)]) == 0
+    tab = read_table(out)
+    rows = recording_entities(rrd)
+    for name, col in (("pitch", "pitch_deg"), ("roll", "roll_deg"), ("height", "height_m")):
+        n = int(np.isfinite(tab[col]).sum())
+        assert n > 0.8 * len(tab["frame"])
+        assert rows[f"/series/{name}/smoothed"] == n
+        std = tab[col.replace("_deg", "_std_deg").replace("_m", "_std_m")]
+        assert rows[f"/series/{name}/smoothed_band"] == int(np.isfinite(std).sum())
+    n_mount = int(np.isfinite(tab["mount_pitch_deg"]).sum())
+    assert rows["/series/pitch/mount"] == rows["/series/pitch/mount_band"] == n_mount
+    assert rows["/series/pitch/per_frame"] == int(np.sum(read_table(est)["status"] == "ok"))
+    assert rows["/trajectory/smoothed"] >= n_mount - 1
+    mount = entity_rows(rrd, "/series/pitch/mount", "Scalars:scalars")
+    ok = np.flatnonzero(np.isfinite(tab["mount_pitch_deg"]))
+    np.testing.assert_allclose([mount[int(tab["frame"][i])][0] for i in ok],
+                               tab["mount_pitch_deg"][ok], rtol=1e-9)
+    band = entity_rows(rrd, "/series/pitch/smoothed_band", "Scalars:scalars")
+    i = int(ok[len(ok) // 2])
+    mid = tab["pitch_deg"][i] + 2 * tab["pitch_std_deg"][i] * np.array([-1.0, 1.0])
+    np.testing.assert_allclose(band[int(tab["frame"][i])], mid, rtol=1e-9)
