@@ -25,7 +25,6 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from vipm_track.estimator import EstimatorConfig, PairGuess, TwoFrameEstimator  # noqa: E402
-
 from vipm_track.sim import (  # noqa: E402
     PRESETS,
     make_trajectory,
