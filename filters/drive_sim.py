@@ -329,9 +329,8 @@ def _measurements(
     # noise covariance: angles (pp, rp, pc, rc) with prev/curr correlation ρ
     sa = np.radians(cfg.angle_std_deg)
     rho = cfg.prev_curr_corr
-    c4 = sa**2 * np.array(
-        [[1, 0, rho, 0], [0, 1, 0, rho], [rho, 0, 1, 0], [0, rho, 0, 1]], dtype=float
-    )
+    corr = np.array([[1, 0, rho, 0], [0, 1, 0, rho], [rho, 0, 1, 0], [0, rho, 0, 1]], dtype=float)
+    c4 = sa**2 * corr
     travel = np.hypot(truth[:, 4], truth[:, 5])
     st = cfg.trans_std_rel * np.nan_to_num(travel) + cfg.trans_std_abs_m
     sy = np.radians(cfg.yaw_std_deg)
@@ -341,7 +340,7 @@ def _measurements(
     cov[:, 6, 6] = sy**2
     eps = rng.standard_normal((n, 7))
     noise = np.empty((n, 7))
-    noise[:, :4] = eps[:, :4] @ np.linalg.cholesky(c4).T
+    noise[:, :4] = sa * eps[:, :4] @ np.linalg.cholesky(corr).T
     noise[:, 4:6] = eps[:, 4:6] * st[:, None]
     noise[:, 6] = eps[:, 6] * sy
     z = truth + noise

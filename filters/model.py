@@ -76,7 +76,7 @@ class NoiseParams:
     mount_height_rw_m_per_sqrt_s: float = 0.0002
     mount_yaw_rw_deg_per_sqrt_s: float = 0.002
     #: body shaking: first-order Gauss–Markov
-    body_tau_s: float = 0.5
+    body_tau_s: float = 0.3
     body_std_deg: float = 0.2
     #: planar motion random walks (speed in m/s per √s, yaw rate in deg/s per √s): large
     #: enough that speed changes and turn entries rarely trip the motion gate

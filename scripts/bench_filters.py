@@ -13,7 +13,7 @@ each method, M Monte Carlo drives are filtered and scored against the truth:
 Methods are functions ``(run, use_speed) -> filters.metrics.Estimates`` registered in
 ``METHODS``; a smoother adds its own ("fixed-lag", "batch") and gets the same columns.
 
-    python scripts/bench_filters.py [--runs 10] [--duration 60] [--out scripts/results/bench_filters.md]
+    python scripts/bench_filters.py [--runs 10] [--duration 60] [--out FILE.md]
 
 Prints the table and writes it as Markdown.
 """
@@ -97,7 +97,8 @@ def bench(runs: int, duration_s: float, methods: dict[str, Method]) -> list[Row]
     rows: list[Row] = []
     clean_rms: dict[tuple[str, str], float] = {}
     for sc in scenarios(duration_s):
-        drives = [simulate_drive(DriveConfig.preset(sc.preset, **sc.overrides), seed) for seed in range(runs)]
+        cfg = DriveConfig.preset(sc.preset, **sc.overrides)
+        drives = [simulate_drive(cfg, seed) for seed in range(runs)]
         comps = [0, 1, 2, 3, 4] if sc.use_speed else [0, 1, 3, 4]
         for name, method in methods.items():
             t0 = time.perf_counter()
@@ -131,9 +132,10 @@ def table(rows: list[Row], runs: int, duration_s: float) -> str:
         "outlier RMS ratio | resets | ms / frame |"
     )
     lines = [
-        f"Filters on simulated measurement streams: {runs} Monte Carlo drives of {duration_s:.0f} s "
-        "per scenario (fixed seeds 0…); RMS after 5 s pooled over drives; the true height is 2 % "
-        "off the nominal one. Timings: wall time of one pass on a shared machine (noisy).",
+        f"Filters on simulated measurement streams: {runs} Monte Carlo drives of "
+        f"{duration_s:.0f} s per scenario (fixed seeds 0…); RMS after 5 s pooled over drives; "
+        "the true height is 2 % off the nominal one. Timings: wall time of one pass on a "
+        "shared machine (noisy).",
         "",
         head,
         "|" + " --- |" * (head.count("|") - 1),

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from .errors import InputError
 
 #: Subcommand modules under ``vipm_track.commands``, in the order ``--help`` lists them.
-COMMANDS: tuple[str, ...] = ()
+COMMANDS: tuple[str, ...] = ("simulate", "can_speed", "track")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -36,7 +36,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"vipm-track {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"vipm-track {args.command}: interrupted; rows written so far are kept", file=sys.stderr)
+        print(
+            f"vipm-track {args.command}: interrupted; rows written so far are kept", file=sys.stderr
+        )
         return 130
 
 

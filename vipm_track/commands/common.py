@@ -15,9 +15,11 @@ def add_input_options(parser: argparse.ArgumentParser, required: bool = True) ->
                         help="frame rate for timestamps when the input has none [Hz]")
 
 
-def add_camera_options(parser: argparse.ArgumentParser, height_required: bool = True) -> None:
+def add_camera_options(
+    parser: argparse.ArgumentParser, height_required: bool = True, camera_required: bool = True
+) -> None:
     """``--camera`` (intrinsics file) and ``--height`` (nominal camera height, metres)."""
-    parser.add_argument("--camera", metavar="CAMERA.yaml", required=True,
+    parser.add_argument("--camera", metavar="CAMERA.yaml", required=camera_required,
                         help="intrinsics: ROS camera_info YAML, OpenCV FileStorage YAML or "
                         "KITTI calib.txt")
     parser.add_argument("--height", type=float, required=height_required, metavar="H",
