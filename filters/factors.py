@@ -124,10 +124,14 @@ def pose_pair_factor(
 
 def motion_pair_factor(
     k: int, z3: FloatArray, cov3: FloatArray, height_assumed: float, loss: str = "huber",
-    loss_k: float = 3.0,
+    loss_k: float = 3.0, metric: bool = True,
 ) -> gtsam.CustomFactor:
     """Factor of the pair's motion (tx, tz at the assumed height, m; yaw, rad) on X_{k-1},
-    X_k, H_k, Y_k: ``model.pair_measurement`` rows 4–6."""
+    X_k, H_k, Y_k: ``model.pair_measurement`` rows 4–6.
+
+    ``metric=False`` (no wheel speed near this frame) drops the derivative w.r.t. the height,
+    as the EKF does: scale is then unobservable and the motion prior alone would shrink it
+    (smaller motion, smaller accelerations), so the pair must not move h."""
     z3 = np.asarray(z3, dtype=float).copy()
     noise = robust(_gaussian(cov3), loss, loss_k)
     keys = [key("X", k - 1), key("X", k), key("H", k), key("Y", k)]
@@ -153,7 +157,7 @@ def motion_pair_factor(
             a_prev[:, 2:3] += d_g
             jac[0] = a_prev @ tangent_jacobian(psi0)
             jac[1] = a @ tangent_jacobian(psi1)
-            jac[2] = np.array([[-tx / h], [-tz / h], [0.0]])
+            jac[2] = np.array([[-tx / h], [-tz / h], [0.0]]) if metric else np.zeros((3, 1))
             jac[3] = d_g
         return e
 

@@ -71,6 +71,9 @@ class SmootherConfig:
     marginals: bool = True
     #: fixed-lag: good pairs whose medians start the window (as the EKF's bootstrap)
     init_pairs: int = 5
+    #: a pair moves the height only with a wheel speed within this many seconds of it (the
+    #: EKF's rule: without a metric speed, scale is unobservable)
+    speed_timeout_s: float = 1.0
 
     def __post_init__(self) -> None:
         if self.height_m <= 0:
@@ -120,6 +123,15 @@ class SmoothedFrame:
     nis: float = float("nan")
     gated: str = ""
     reason: str = ""
+
+    @property
+    def initialised(self) -> bool:
+        return self.status != "skipped"
+
+    @property
+    def reset_reason(self) -> str:
+        """The EKF's note column: here why a frame has no pair or was skipped."""
+        return self.reason
 
     @property
     def mount_std(self) -> FloatArray:
@@ -255,10 +267,12 @@ def _prior_factors(
 
 
 def _frame_factors(
-    k: int, m: PairMeasurement, speed: float, dt: float, cfg: SmootherConfig, first: bool
+    k: int, m: PairMeasurement, speed: float, dt: float, cfg: SmootherConfig, first: bool,
+    metric: bool = True,
 ) -> list[gtsam.NonlinearFactor]:
     """Factors that frame k (key index) adds: process, body, mount walk (unless ``first``),
-    the pair (if usable and not ``first``) and the wheel speed (if finite)."""
+    the pair (if usable and not ``first``; ``metric``: see ``motion_pair_factor``) and the
+    wheel speed (if finite)."""
     nz = cfg.noise
     out: list[gtsam.NonlinearFactor] = []
     if not first:
@@ -269,11 +283,21 @@ def _frame_factors(
             cov = np.asarray(m.covariance, dtype=float)
             out.append(F.pose_pair_factor(k, m.z[:4], cov[:4, :4], cfg.loss, cfg.loss_k(4)))
             out.append(F.motion_pair_factor(
-                k, m.z[4:7], cov[4:7, 4:7], m.height_assumed, cfg.loss, cfg.loss_k(3)
+                k, m.z[4:7], cov[4:7, 4:7], m.height_assumed, cfg.loss, cfg.loss_k(3), metric
             ))
     if math.isfinite(speed):
         out.append(F.speed_factor(k, speed, nz, cfg.speed_loss, cfg.loss_k(1)))
     return out
+
+
+def _metric_frames(t: FloatArray, speeds: FloatArray, timeout_s: float) -> NDArray[np.bool_]:
+    """Frames with a wheel speed within ``timeout_s`` (either side): their pairs move h."""
+    ts = t[np.isfinite(speeds)]
+    if len(ts) == 0:
+        return np.zeros(len(t), dtype=bool)
+    j = np.clip(np.searchsorted(ts, t), 1, max(len(ts) - 1, 1))
+    near = np.minimum(np.abs(t - ts[j - 1]), np.abs(ts[np.minimum(j, len(ts) - 1)] - t))
+    return near <= timeout_s
 
 
 def _frame_keys(k: int) -> list[int]:
@@ -514,6 +538,7 @@ def smooth_batch(
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     guess = _initial_guess(ms, sp, dts, cfg.height_m)
+    metric = _metric_frames(t, sp, cfg.speed_timeout_s)
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     pairs: dict[int, tuple[gtsam.CustomFactor, gtsam.CustomFactor]] = {}
@@ -522,7 +547,7 @@ def smooth_batch(
         if k == 0:
             for f in _prior_factors(0, guess, cfg):
                 graph.add(f)
-        fs = _frame_factors(k, m, float(sp[k]), float(dts[k]), cfg, first=k == 0)
+        fs = _frame_factors(k, m, float(sp[k]), float(dts[k]), cfg, k == 0, bool(metric[k]))
         for f in fs:
             graph.add(f)
         if k > 0 and m.ok:
@@ -637,7 +662,7 @@ class FixedLagSmoother:
         self._k = -1
         self._t_last = -math.inf
         self._started = False
-        self._last = None  # (x, y, psi, v, w, body, mount, h, yaw_m) of the newest frame
+        self._last_speed_t = -math.inf
 
     def step(self, m: PairMeasurement, speed: float = float("nan")) -> list[SmoothedFrame]:
         """Add frame ``m`` (with the wheel speed at its time, m/s, NaN if none); return the
@@ -676,13 +701,16 @@ class FixedLagSmoother:
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         stamps: dict[int, float] = {}
+        metric = _metric_frames(t, sp, self._cfg.speed_timeout_s)
+        if np.any(np.isfinite(sp)):
+            self._last_speed_t = float(t[np.isfinite(sp)][-1])
         for i, (b, s) in enumerate(boot):
             k = self._k = self._k + 1
             _insert_guess(values, k, self._guess, i)
             if i == 0:
                 for f in _prior_factors(k, self._guess, self._cfg):
                     graph.add(f)
-            fs = _frame_factors(k, b, float(s), float(dts[i]), self._cfg, first=i == 0)
+            fs = _frame_factors(k, b, float(s), float(dts[i]), self._cfg, i == 0, bool(metric[i]))
             for f in fs:
                 graph.add(f)
             pair = (fs[5], fs[6]) if i > 0 and b.ok else None
@@ -712,7 +740,10 @@ class FixedLagSmoother:
         values.insert(F.key("Y", k), np.array([prev[M.MOUNT_YAW]]))
         values.insert(F.key("B", k), np.array(body, dtype=float))
         graph = gtsam.NonlinearFactorGraph()
-        fs = _frame_factors(k, m, float(speed), dt, self._cfg, first=False)
+        if math.isfinite(speed):
+            self._last_speed_t = m.t
+        metric = m.t - self._last_speed_t <= self._cfg.speed_timeout_s
+        fs = _frame_factors(k, m, float(speed), dt, self._cfg, False, metric)
         for f in fs:
             graph.add(f)
         self._window.append((k, m, (fs[5], fs[6]) if m.ok else None))
@@ -792,3 +823,63 @@ def smooth(
         out.extend(sm.step(m, float(v)))
     out.extend(sm.finish())
     return out
+
+
+# --- drive summary ----------------------------------------------------------------------------
+
+
+def summarize_mount(frames: Sequence[SmoothedFrame]) -> dict[str, object]:
+    """The drive's extrinsics in brief (degrees, metres, minutes): for mount pitch, roll and
+    height the mean with a 95 % interval, the mean 1-σ, the start and end values, the drift
+    (least-squares slope per minute and max − min), plus the frame counts by status.
+
+    The interval is mean ± 1.96 × the mean per-frame σ: the smoothed mount of neighbouring
+    frames is almost fully correlated, so the per-frame σ is what the mean is known to."""
+    good = [f for f in frames if f.initialised and np.all(np.isfinite(f.mount))]
+    counts: dict[str, int] = {}
+    for f in frames:
+        counts[f.status] = counts.get(f.status, 0) + 1
+    out: dict[str, object] = {"frames": len(frames), "status_counts": counts}
+    if not good:
+        out["note"] = "no frame has an estimate"
+        return out
+    t = np.array([f.t for f in good])
+    mount = np.array([f.mount for f in good])
+    std = np.array([f.mount_std for f in good])
+    out["duration_s"] = float(t[-1] - t[0])
+    for i, (name, unit, conv) in enumerate(
+        (("pitch", "deg", np.degrees), ("roll", "deg", np.degrees), ("height", "m", np.asarray))
+    ):
+        v = np.asarray(conv(mount[:, i]), dtype=float)
+        sd = np.asarray(conv(std[:, i]), dtype=float)
+        mean = float(np.mean(v))
+        sigma = float(np.nanmean(sd)) if np.any(np.isfinite(sd)) else float("nan")
+        slope = float(np.polyfit(t / 60.0, v, 1)[0]) if len(t) > 1 and t[-1] > t[0] else 0.0
+        out[name] = {
+            "unit": unit, "mean": mean, "ci95": [mean - 1.96 * sigma, mean + 1.96 * sigma],
+            "std": sigma, "start": float(v[0]), "end": float(v[-1]),
+            "drift_per_min": slope, "max_minus_min": float(np.max(v) - np.min(v)),
+        }
+    return out
+
+
+def summary_markdown(summary: dict[str, object]) -> str:
+    """A Markdown table of ``summarize_mount``'s result."""
+    lines = [
+        f"Frames: {summary['frames']} ({', '.join(f'{k} {v}' for k, v in sorted(summary['status_counts'].items()))})",  # type: ignore[union-attr]  # noqa: E501
+        "",
+        "| mount | mean | 95 % interval | 1-σ | start | end | drift / min | max − min |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for name in ("pitch", "roll", "height"):
+        d = summary.get(name)
+        if not isinstance(d, dict):
+            continue
+        fmt = "{:.4f}" if d["unit"] == "m" else "{:.3f}"
+        f = fmt.format
+        lines.append(
+            f"| {name} ({d['unit']}) | {f(d['mean'])} | [{f(d['ci95'][0])}, {f(d['ci95'][1])}] | "
+            f"{f(d['std'])} | {f(d['start'])} | {f(d['end'])} | {f(d['drift_per_min'])} | "
+            f"{f(d['max_minus_min'])} |"
+        )
+    return "\n".join(lines) + "\n"

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from .errors import InputError
 
 #: Subcommand modules under ``vipm_track.commands``, in the order ``--help`` lists them.
-COMMANDS: tuple[str, ...] = ("simulate", "can_speed", "track")
+COMMANDS: tuple[str, ...] = ("simulate", "can_speed", "track", "smooth")
 
 
 def build_parser() -> argparse.ArgumentParser:
