@@ -42,6 +42,7 @@ from .model import NoiseParams
 
 FloatArray = NDArray[np.float64]
 
+
 def symbols(k: int) -> dict[str, int]:
     """gtsam keys of frame ``k``'s variables by letter (see module doc)."""
     return {c: gtsam.symbol(c, k) for c in "XVWMHYB"}
@@ -73,6 +74,10 @@ def wrap(a: float) -> float:
     return float((a + math.pi) % (2.0 * math.pi) - math.pi)
 
 
+#: robust losses of the pair factors (gtsam M-estimators), 'none' for plain least squares
+LOSSES: tuple[str, ...] = ("huber", "cauchy", "geman-mcclure", "tukey", "none")
+
+
 def robust(base: gtsam.noiseModel.Base, kind: str, k: float) -> gtsam.noiseModel.Base:
     """``base`` wrapped in a Huber / Cauchy M-estimator of threshold ``k`` (whitened norm);
     ``kind='none'`` returns ``base``."""
@@ -82,8 +87,12 @@ def robust(base: gtsam.noiseModel.Base, kind: str, k: float) -> gtsam.noiseModel
         est = gtsam.noiseModel.mEstimator.Huber.Create(k)
     elif kind == "cauchy":
         est = gtsam.noiseModel.mEstimator.Cauchy.Create(k)
+    elif kind == "geman-mcclure":
+        est = gtsam.noiseModel.mEstimator.GemanMcClure.Create(k)
+    elif kind == "tukey":
+        est = gtsam.noiseModel.mEstimator.Tukey.Create(k)
     else:
-        raise ValueError(f"unknown robust loss {kind!r}; expected 'huber', 'cauchy' or 'none'")
+        raise ValueError(f"unknown robust loss {kind!r}; expected one of {', '.join(LOSSES)}")
     return gtsam.noiseModel.Robust.Create(est, base)
 
 
@@ -123,8 +132,13 @@ def pose_pair_factor(
 
 
 def motion_pair_factor(
-    k: int, z3: FloatArray, cov3: FloatArray, height_assumed: float, loss: str = "huber",
-    loss_k: float = 3.0, metric: bool = True,
+    k: int,
+    z3: FloatArray,
+    cov3: FloatArray,
+    height_assumed: float,
+    loss: str = "huber",
+    loss_k: float = 3.0,
+    metric: bool = True,
 ) -> gtsam.CustomFactor:
     """Factor of the pair's motion (tx, tz at the assumed height, m; yaw, rad) on X_{k-1},
     X_k, H_k, Y_k: ``model.pair_measurement`` rows 4–6.
@@ -262,18 +276,23 @@ def mount_walk_factors(k: int, dt: float, noise: NoiseParams) -> list[gtsam.Nonl
             key("M", k - 1), key("M", k), np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, ang)
         ),
         gtsam.BetweenFactorVector(
-            key("H", k - 1), key("H", k), np.zeros(1),
+            key("H", k - 1),
+            key("H", k),
+            np.zeros(1),
             gtsam.noiseModel.Isotropic.Sigma(1, math.sqrt(q[M.MOUNT_HEIGHT, M.MOUNT_HEIGHT])),
         ),
         gtsam.BetweenFactorVector(
-            key("Y", k - 1), key("Y", k), np.zeros(1),
+            key("Y", k - 1),
+            key("Y", k),
+            np.zeros(1),
             gtsam.noiseModel.Isotropic.Sigma(1, math.sqrt(q[M.MOUNT_YAW, M.MOUNT_YAW])),
         ),
     ]
 
 
-def speed_factor(k: int, speed_mps: float, noise: NoiseParams, loss: str = "none",
-                 loss_k: float = 3.0) -> gtsam.PriorFactorVector:
+def speed_factor(
+    k: int, speed_mps: float, noise: NoiseParams, loss: str = "none", loss_k: float = 3.0
+) -> gtsam.PriorFactorVector:
     """Wheel speed (m/s) at frame k's time on V_k, variance ``noise.speed_meas_var``."""
     sigma = math.sqrt(noise.speed_meas_var(speed_mps))
     noise_model = robust(gtsam.noiseModel.Isotropic.Sigma(1, sigma), loss, loss_k)

@@ -54,9 +54,10 @@ class SmootherConfig:
     noise: NoiseParams = field(default_factory=NoiseParams)
     #: sliding-window length; 0 smooths the whole drive in one batch
     lag_s: float = 0.0
-    #: robust loss of the pair factors ('huber', 'cauchy' or 'none'); its threshold on the
+    #: robust loss of the pair factors (``factors.LOSSES``; Cauchy: redescending, so a wrong
+    #: pair ends with almost no weight, like the EKF's gate); its threshold on the
     #: whitened norm of a block is √χ²(loss_probability, dof)
-    loss: str = "huber"
+    loss: str = "cauchy"
     loss_probability: float = 0.99
     #: robust loss of the wheel-speed factors
     speed_loss: str = "huber"
@@ -80,8 +81,8 @@ class SmootherConfig:
             raise ValueError(f"nominal height must be > 0, got {self.height_m}")
         if self.lag_s < 0:
             raise ValueError(f"lag must be >= 0 s, got {self.lag_s}")
-        if self.loss not in ("huber", "cauchy", "none"):
-            raise ValueError(f"loss must be 'huber', 'cauchy' or 'none', got {self.loss!r}")
+        if self.loss not in F.LOSSES:
+            raise ValueError(f"loss must be one of {F.LOSSES}, got {self.loss!r}")
 
     def loss_k(self, dof: int) -> float:
         """Robust-loss threshold on the whitened norm of a ``dof``-dimensional block."""
@@ -182,7 +183,10 @@ def _interp_missing(values: FloatArray, fallback: float = 0.0) -> FloatArray:
 
 
 def _initial_guess(
-    ms: Sequence[PairMeasurement], speeds: FloatArray, dts: FloatArray, h_nominal: float,
+    ms: Sequence[PairMeasurement],
+    speeds: FloatArray,
+    dts: FloatArray,
+    h_nominal: float,
     start: tuple[float, float, float] = (0.0, 0.0, 0.0),
 ) -> _Guess:
     """Initial values from the measurements: medians for the mount, dead reckoning for the
@@ -192,8 +196,9 @@ def _initial_guess(
     h0 = np.array([m.height_assumed for m in ms], dtype=float)
     ok = np.all(np.isfinite(z), axis=1)
     if np.any(ok):
-        mount = np.array([np.median(0.5 * (z[ok, 0] + z[ok, 2])),
-                          np.median(0.5 * (z[ok, 1] + z[ok, 3]))])
+        mount = np.array(
+            [np.median(0.5 * (z[ok, 0] + z[ok, 2])), np.median(0.5 * (z[ok, 1] + z[ok, 3]))]
+        )
     else:
         mount = np.zeros(2)
     travel = np.hypot(z[:, 4], z[:, 5]) / h0  # in heights
@@ -260,14 +265,20 @@ def _prior_factors(
             F.key("V", k), np.array([guess.speed[0]]), iso(1, nz.prior_speed_std_mps)
         ),
         gtsam.PriorFactorVector(
-            F.key("W", k), np.array([guess.yaw_rate[0]]),
+            F.key("W", k),
+            np.array([guess.yaw_rate[0]]),
             iso(1, math.radians(nz.prior_yaw_rate_std_dps)),
         ),
     ]
 
 
 def _frame_factors(
-    k: int, m: PairMeasurement, speed: float, dt: float, cfg: SmootherConfig, first: bool,
+    k: int,
+    m: PairMeasurement,
+    speed: float,
+    dt: float,
+    cfg: SmootherConfig,
+    first: bool,
     metric: bool = True,
 ) -> list[gtsam.NonlinearFactor]:
     """Factors that frame k (key index) adds: process, body, mount walk (unless ``first``),
@@ -282,9 +293,11 @@ def _frame_factors(
         if m.ok:
             cov = np.asarray(m.covariance, dtype=float)
             out.append(F.pose_pair_factor(k, m.z[:4], cov[:4, :4], cfg.loss, cfg.loss_k(4)))
-            out.append(F.motion_pair_factor(
-                k, m.z[4:7], cov[4:7, 4:7], m.height_assumed, cfg.loss, cfg.loss_k(3), metric
-            ))
+            out.append(
+                F.motion_pair_factor(
+                    k, m.z[4:7], cov[4:7, 4:7], m.height_assumed, cfg.loss, cfg.loss_k(3), metric
+                )
+            )
     if math.isfinite(speed):
         out.append(F.speed_factor(k, speed, nz, cfg.speed_loss, cfg.loss_k(1)))
     return out
@@ -360,14 +373,23 @@ _BLOCK = {c: (sum(_DIMS[d] for d in _LETTERS[: _LETTERS.index(c)]), _DIMS[c]) fo
 _BLOCK_DIM = sum(_DIMS.values())
 # state indices (model layout) of each block entry, for frame k and (prev slots) frame k-1
 _STATE_OF_BLOCK = np.array(
-    [M.POS_X, M.POS_Y, M.HEADING, M.SPEED, M.YAW_RATE, M.MOUNT_PITCH, M.MOUNT_ROLL,
-     M.MOUNT_HEIGHT, M.MOUNT_YAW, M.BODY_PITCH, M.BODY_ROLL]
+    [
+        M.POS_X,
+        M.POS_Y,
+        M.HEADING,
+        M.SPEED,
+        M.YAW_RATE,
+        M.MOUNT_PITCH,
+        M.MOUNT_ROLL,
+        M.MOUNT_HEIGHT,
+        M.MOUNT_YAW,
+        M.BODY_PITCH,
+        M.BODY_ROLL,
+    ]
 )
 
 
-def block_marginals(
-    lin: gtsam.GaussianFactorGraph, n: int
-) -> tuple[FloatArray, FloatArray]:
+def block_marginals(lin: gtsam.GaussianFactorGraph, n: int) -> tuple[FloatArray, FloatArray]:
     """Marginal covariances of every frame's variables from the linearised graph of ``n``
     frames whose factors only join consecutive frames: (n, D, D) blocks Σ_k and (n-1, D, D)
     cross blocks Σ_{k-1,k} in the tangent layout ``_BLOCK`` (D = 11).
@@ -382,7 +404,9 @@ def block_marginals(
     rows, cols, vals = ij[0].astype(np.int64) - 1, ij[1].astype(np.int64) - 1, ij[2]
     n_cols = n * d
     keep = cols < n_cols  # the last column holds b
-    a = sparse.csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=(int(rows.max()) + 1, n_cols))
+    a = sparse.csr_matrix(
+        (vals[keep], (rows[keep], cols[keep])), shape=(int(rows.max()) + 1, n_cols)
+    )
     # natural ordering = keys sorted: letters alphabetically, then frame index
     perm = np.empty(n_cols, dtype=np.int64)
     col = 0
@@ -390,7 +414,7 @@ def block_marginals(
         off, dim = _BLOCK[c]
         frames = np.repeat(np.arange(n), dim)
         comp = np.tile(np.arange(dim), n)
-        perm[col: col + n * dim] = frames * d + off + comp
+        perm[col : col + n * dim] = frames * d + off + comp
         col += n * dim
     info = (a.T @ a).tocoo()
     r, c_, v = perm[info.row], perm[info.col], info.data
@@ -421,7 +445,9 @@ def block_marginals(
 
 
 def _state_covariance_blocks(
-    state: FloatArray, sigma_k: FloatArray, sigma_prev: FloatArray | None,
+    state: FloatArray,
+    sigma_k: FloatArray,
+    sigma_prev: FloatArray | None,
     cross_prev: FloatArray | None,
 ) -> FloatArray:
     """16×16 model-layout covariance of a frame from its block marginals (and the previous
@@ -459,13 +485,29 @@ def _block_norms(
     out = {}
     for k, (fp, fm) in graph_factors.items():
         out[k] = tuple(  # type: ignore[assignment]
-            float(np.linalg.norm(f.noiseModel().whiten(f.unwhitenedError(values)))) for f in (fp, fm)
+            float(
+                np.sqrt(
+                    _gaussian_part(f.noiseModel()).squaredMahalanobisDistance(
+                        f.unwhitenedError(values)
+                    )
+                )
+            )
+            for f in (fp, fm)
         )
     return out
 
 
+def _gaussian_part(noise: gtsam.noiseModel.Base) -> gtsam.noiseModel.Base:
+    """The Gaussian model inside a robust one (its ``whiten`` would apply the M-estimator)."""
+    return noise.noise() if isinstance(noise, gtsam.noiseModel.Robust) else noise
+
+
 def _make_frame(
-    m: PairMeasurement, state: FloatArray, cov: FloatArray, status: str, gated: str = "",
+    m: PairMeasurement,
+    state: FloatArray,
+    cov: FloatArray,
+    status: str,
+    gated: str = "",
     reason: str = "",
 ) -> SmoothedFrame:
     pose, jp = M.frame_pose(np.nan_to_num(state))
@@ -478,12 +520,24 @@ def _make_frame(
         motion, motion_cov = np.full(3, np.nan), np.full((3, 3), np.nan)
     cov0 = np.nan_to_num(cov)
     return SmoothedFrame(
-        frame=m.frame, t=m.t, status=status, mount=state[M.MOUNT].copy(),
-        mount_cov=cov[M.MOUNT, M.MOUNT].copy(), mount_yaw=float(state[M.MOUNT_YAW]),
-        pose=pose, pose_cov=jp @ cov0 @ jp.T if np.all(np.isfinite(cov[:6, :6])) else np.full((3, 3), np.nan),
-        motion=motion, motion_cov=motion_cov, speed=float(state[M.SPEED]),
-        yaw_rate=float(state[M.YAW_RATE]), position=state[[M.POS_X, M.POS_Y]].copy(),
-        heading=float(state[M.HEADING]), state=state, covariance=cov, gated=gated, reason=reason,
+        frame=m.frame,
+        t=m.t,
+        status=status,
+        mount=state[M.MOUNT].copy(),
+        mount_cov=cov[M.MOUNT, M.MOUNT].copy(),
+        mount_yaw=float(state[M.MOUNT_YAW]),
+        pose=pose,
+        pose_cov=jp @ cov0 @ jp.T if np.all(np.isfinite(cov[:6, :6])) else np.full((3, 3), np.nan),
+        motion=motion,
+        motion_cov=motion_cov,
+        speed=float(state[M.SPEED]),
+        yaw_rate=float(state[M.YAW_RATE]),
+        position=state[[M.POS_X, M.POS_Y]].copy(),
+        heading=float(state[M.HEADING]),
+        state=state,
+        covariance=cov,
+        gated=gated,
+        reason=reason,
     )
 
 
@@ -492,12 +546,16 @@ def _skipped(m: PairMeasurement, why: str) -> SmoothedFrame:
     return _make_frame(m, nan, np.full((M.STATE_DIM, M.STATE_DIM), np.nan), "skipped", reason=why)
 
 
-def _status(m: PairMeasurement, norms: tuple[float, float] | None, cfg: SmootherConfig) -> tuple[str, str]:
+def _status(
+    m: PairMeasurement, norms: tuple[float, float] | None, cfg: SmootherConfig
+) -> tuple[str, str]:
     """(status, gated blocks) of a frame from its pair blocks' whitened norms."""
     if norms is None:
         return "predicted", ""
     gates = (chi_norm(cfg.report_probability, 4), chi_norm(cfg.report_probability, 3))
-    rejected = [name for name, nrm, g in zip(("pose", "motion"), norms, gates, strict=True) if nrm > g]
+    rejected = [
+        name for name, nrm, g in zip(("pose", "motion"), norms, gates, strict=True) if nrm > g
+    ]
     status = {0: "ok", 1: "partial", 2: "gated"}[len(rejected)]
     return status, "+".join(rejected)
 
@@ -578,7 +636,9 @@ def smooth_batch(
         state = _state_of(values, k, has_prev)
         if cfg.marginals:
             cov = _state_covariance_blocks(
-                state, sigma[k], sigma[k - 1] if has_prev else None,
+                state,
+                sigma[k],
+                sigma[k - 1] if has_prev else None,
                 cross[k - 1] if has_prev else None,
             )
         else:
@@ -600,8 +660,11 @@ def smooth_batch(
 
 
 def _gauss_newton(
-    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, ordering: gtsam.Ordering | None,
-    max_iterations: int, tolerance: float,
+    graph: gtsam.NonlinearFactorGraph,
+    values: gtsam.Values,
+    ordering: gtsam.Ordering | None,
+    max_iterations: int,
+    tolerance: float,
 ) -> tuple[gtsam.Values, int, float, float]:
     """Gauss–Newton until a step's predicted relative decrease of the error is below
     ``tolerance``.
@@ -734,8 +797,9 @@ class FixedLagSmoother:
         est = self._smoother.calculateEstimate()
         prev = _state_of(est, k_prev, False)
         values = gtsam.Values()
-        x, y, psi = M.propagate_pose(prev[M.POS_X], prev[M.POS_Y], prev[M.HEADING],
-                                     prev[M.SPEED], prev[M.YAW_RATE], dt)
+        x, y, psi = M.propagate_pose(
+            prev[M.POS_X], prev[M.POS_Y], prev[M.HEADING], prev[M.SPEED], prev[M.YAW_RATE], dt
+        )
         mount = prev[[M.MOUNT_PITCH, M.MOUNT_ROLL]]
         body = m.z[2:4] - mount if m.ok else prev[M.BODY] * 0.0
         v = speed if math.isfinite(speed) else prev[M.SPEED]
@@ -756,8 +820,9 @@ class FixedLagSmoother:
         self._window.append((k, m, (fs[5], fs[6]) if m.ok else None))
         self._update(graph, values, {kk: m.t for kk in _frame_keys(k)})
 
-    def _update(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-                stamps: dict[int, float]) -> None:
+    def _update(
+        self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, stamps: dict[int, float]
+    ) -> None:
         self._smoother.update(graph, values, stamps)
 
     def _emit(self, final: bool) -> list[SmoothedFrame]:
@@ -787,7 +852,7 @@ class FixedLagSmoother:
                 norms = _block_norms({k: pair}, est)[k]  # type: ignore[dict-item]
             status, gated = _status(m, norms, self._cfg)
             out.append(_make_frame(m, state, cov, status, gated, "" if norms else m.status))
-        self._window = self._window[len(ready):]
+        self._window = self._window[len(ready) :]
         return out
 
 
@@ -795,7 +860,8 @@ class FixedLagSmoother:
 
 
 def speeds_at_frames(
-    measurements: Sequence[PairMeasurement], speed_series: SpeedSource | None,
+    measurements: Sequence[PairMeasurement],
+    speed_series: SpeedSource | None,
     clock_offset_s: float = 0.0,
 ) -> FloatArray:
     """Wheel speed (m/s) at each measurement's time (NaN where none), as the EKF reads it."""
@@ -861,9 +927,14 @@ def summarize_mount(frames: Sequence[SmoothedFrame]) -> dict[str, object]:
         sigma = float(np.nanmean(sd)) if np.any(np.isfinite(sd)) else float("nan")
         slope = float(np.polyfit(t / 60.0, v, 1)[0]) if len(t) > 1 and t[-1] > t[0] else 0.0
         out[name] = {
-            "unit": unit, "mean": mean, "ci95": [mean - 1.96 * sigma, mean + 1.96 * sigma],
-            "std": sigma, "start": float(v[0]), "end": float(v[-1]),
-            "drift_per_min": slope, "max_minus_min": float(np.max(v) - np.min(v)),
+            "unit": unit,
+            "mean": mean,
+            "ci95": [mean - 1.96 * sigma, mean + 1.96 * sigma],
+            "std": sigma,
+            "start": float(v[0]),
+            "end": float(v[-1]),
+            "drift_per_min": slope,
+            "max_minus_min": float(np.max(v) - np.min(v)),
         }
     return out
 

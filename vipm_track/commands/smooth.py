@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from filters.factors import LOSSES
+
 from ..errors import InputError
 from ..measurement import PairMeasurement, read_measurements
 from .common import add_camera_options, add_input_options, add_output_options, add_speed_options
@@ -34,33 +36,73 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "extrinsics (mean, 95 %% interval, drift) as JSON and Markdown.",
     )
     add_input_options(parser, required=False)
-    parser.add_argument("--estimates", metavar="EST.csv",
-                        help="skip estimation: smooth this estimates table instead of images")
+    parser.add_argument(
+        "--estimates",
+        metavar="EST.csv",
+        help="skip estimation: smooth this estimates table instead of images",
+    )
     add_camera_options(parser, camera_required=False)
     add_speed_options(parser)
     add_output_options(parser, "per-frame smoothed CSV")
-    parser.add_argument("--summary", metavar="FILE.json",
-                        help="drive summary (JSON; a .md beside it); default OUT.summary.json")
+    parser.add_argument(
+        "--summary",
+        metavar="FILE.json",
+        help="drive summary (JSON; a .md beside it); default OUT.summary.json",
+    )
     group = parser.add_argument_group("smoother")
-    group.add_argument("--lag", type=float, default=0.0, metavar="SECONDS",
-                       help="sliding-window length; 0 = the whole drive at once (default)")
-    group.add_argument("--vehicle", choices=("car", "cart"), default="car",
-                       help="noise preset of filters/model.py (default: car)")
-    group.add_argument("--loss", choices=("huber", "cauchy", "none"), default="huber",
-                       help="robust loss of the pair factors (default: huber)")
-    group.add_argument("--loss-probability", type=float, default=0.99, metavar="P",
-                       help="the loss is quadratic up to the whitened norm √χ²(P, dof) of a "
-                       "pair block (default 0.99)")
-    group.add_argument("--mount-angle-rw", type=float, metavar="DEG_PER_SQRT_S",
-                       help="random-walk rate of the mount pitch/roll (preset: 0.002)")
-    group.add_argument("--mount-height-rw", type=float, metavar="M_PER_SQRT_S",
-                       help="random-walk rate of the mount height (preset: 0.0002)")
-    group.add_argument("--body-tau", type=float, metavar="S",
-                       help="time constant of the body shaking (Gauss–Markov; preset)")
-    group.add_argument("--body-std", type=float, metavar="DEG",
-                       help="stationary std of the body shaking (preset)")
-    group.add_argument("--no-std", action="store_true",
-                       help="skip the marginal covariances (std columns empty; faster)")
+    group.add_argument(
+        "--lag",
+        type=float,
+        default=0.0,
+        metavar="SECONDS",
+        help="sliding-window length; 0 = the whole drive at once (default)",
+    )
+    group.add_argument(
+        "--vehicle",
+        choices=("car", "cart"),
+        default="car",
+        help="noise preset of filters/model.py (default: car)",
+    )
+    group.add_argument(
+        "--loss",
+        choices=LOSSES,
+        default="cauchy",
+        help="robust loss of the pair factors (default: cauchy)",
+    )
+    group.add_argument(
+        "--loss-probability",
+        type=float,
+        default=0.99,
+        metavar="P",
+        help="the loss is quadratic up to the whitened norm √χ²(P, dof) of a "
+        "pair block (default 0.99)",
+    )
+    group.add_argument(
+        "--mount-angle-rw",
+        type=float,
+        metavar="DEG_PER_SQRT_S",
+        help="random-walk rate of the mount pitch/roll (preset: 0.002)",
+    )
+    group.add_argument(
+        "--mount-height-rw",
+        type=float,
+        metavar="M_PER_SQRT_S",
+        help="random-walk rate of the mount height (preset: 0.0002)",
+    )
+    group.add_argument(
+        "--body-tau",
+        type=float,
+        metavar="S",
+        help="time constant of the body shaking (Gauss–Markov; preset)",
+    )
+    group.add_argument(
+        "--body-std", type=float, metavar="DEG", help="stationary std of the body shaking (preset)"
+    )
+    group.add_argument(
+        "--no-std",
+        action="store_true",
+        help="skip the marginal covariances (std columns empty; faster)",
+    )
     group.add_argument("--quiet", action="store_true", help="no progress bar, no summary print")
     if add_estimator_options is not None:
         add_estimator_options(parser)
@@ -90,8 +132,14 @@ def build_config(args: argparse.Namespace):
         if value is not None and not (math.isfinite(value) and value > 0):
             raise InputError(f"--{name} must be a positive number, got {value}")
     noise = replace(noise, **{k: v for k, v in overrides.items() if v is not None})
-    return SmootherConfig(height_m=height, noise=noise, lag_s=args.lag, loss=args.loss,
-                          loss_probability=args.loss_probability, marginals=not args.no_std)
+    return SmootherConfig(
+        height_m=height,
+        noise=noise,
+        lag_s=args.lag,
+        loss=args.loss,
+        loss_probability=args.loss_probability,
+        marginals=not args.no_std,
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -120,8 +168,12 @@ def run(args: argparse.Namespace) -> int:
             writer.write(row)
 
     summary = summarize_mount(frames)
-    summary["smoother"] = {"lag_s": config.lag_s, "loss": config.loss,
-                           "wheel_speed": speed is not None, "source": _source_name(args)}
+    summary["smoother"] = {
+        "lag_s": config.lag_s,
+        "loss": config.loss,
+        "wheel_speed": speed is not None,
+        "source": _source_name(args),
+    }
     path = Path(args.summary) if args.summary else out.with_suffix(".summary.json")
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(summary, indent=2) + "\n")
@@ -129,8 +181,7 @@ def run(args: argparse.Namespace) -> int:
     path.with_suffix(".md").write_text("# Drive summary\n\n" + text)
     if not args.quiet:
         print(text, file=sys.stderr)
-        print(f"vipm-track smooth: {len(frames)} frames → {out}; summary → {path}",
-              file=sys.stderr)
+        print(f"vipm-track smooth: {len(frames)} frames → {out}; summary → {path}", file=sys.stderr)
     return 0
 
 
