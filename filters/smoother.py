@@ -102,7 +102,8 @@ class SmoothedFrame:
 
     ``status``: ``ok`` (pair used), ``partial`` / ``gated`` (one / both pair blocks
     rejected as outliers by the robust loss), ``predicted`` (no usable pair: ``reason`` gives
-    the input status; the estimate comes from the neighbours), ``skipped`` (not smoothed,
+    the input status; the estimate comes from the neighbours), ``reset`` (fixed lag: the
+    window was restarted at this frame, ``reason`` says why), ``skipped`` (not smoothed,
     e.g. a time not after the previous frame; numbers NaN)."""
 
     frame: int
@@ -250,7 +251,7 @@ def _prior_factors(
     nz = cfg.noise
     iso = gtsam.noiseModel.Isotropic.Sigma
     return [
-        gtsam.PriorFactorPose2(F.key("X", k), F.pose2_from_model(*pose), iso(3, 1e-6)),
+        gtsam.PriorFactorPose2(F.key("X", k), F.pose2_from_model(*pose), iso(3, 1e-3)),
         gtsam.PriorFactorVector(
             F.key("M", k), np.array(guess.mount), iso(2, math.radians(nz.prior_mount_angle_std_deg))
         ),
@@ -726,7 +727,10 @@ class FixedLagSmoother:
         # settings cost twice the time for no measurable gain on simulated drives
         # the window keeps a margin over the lag so a frame is read before it is marginalised
         self._inner_lag = cfg.lag_s + max(0.25 * cfg.lag_s, 0.2)
+        self._params = params
         self._smoother = gtsam.IncrementalFixedLagSmoother(self._inner_lag, params)
+        self._start_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self._reset: tuple[int, str] | None = None  # (frame, why) of the last restart
         self._boot: list[tuple[PairMeasurement, float]] = []
         self._window: list[tuple[int, PairMeasurement, tuple[gtsam.CustomFactor, ...] | None]] = []
         self._k = -1
@@ -747,7 +751,10 @@ class FixedLagSmoother:
             boot, self._boot = self._boot, []
             self._started = True
             return self._start(boot)
-        self._add(m, speed)
+        try:
+            self._add(m, speed)
+        except RuntimeError as exc:  # iSAM2 could not solve: report, restart from here
+            return self._restart(m, speed, exc)
         return self._emit(final=False)
 
     def finish(self) -> list[SmoothedFrame]:
@@ -762,12 +769,33 @@ class FixedLagSmoother:
 
     # --- internals ---------------------------------------------------------------------------
 
+    def _restart(self, m: PairMeasurement, speed: float, exc: Exception) -> list[SmoothedFrame]:
+        """Emit the window from the last good solution, then start a new window at ``m``
+        (bootstrapped again, continuing the trajectory), as the EKF resets."""
+        lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+        why = f"smoother restarted: {lines[0] if lines else type(exc).__name__}"
+        self._window = [w for w in self._window if w[1] is not m]
+        try:
+            out = self._emit(final=True)
+        except (RuntimeError, IndexError):
+            out = [_skipped(w[1], why) for w in self._window]
+            self._window = []
+        good = [f for f in out if np.all(np.isfinite(f.position))]
+        if good:
+            last = good[-1]
+            self._start_pose = (float(last.position[0]), float(last.position[1]), last.heading)
+        self._smoother = gtsam.IncrementalFixedLagSmoother(self._inner_lag, self._params)
+        self._reset = (m.frame, why)
+        self._started = False
+        self._boot = [(m, speed)]
+        return out
+
     def _start(self, boot: list[tuple[PairMeasurement, float]]) -> list[SmoothedFrame]:
         ms = [b for b, _ in boot]
         sp = np.array([s for _, s in boot], dtype=float)
         t = np.array([b.t for b in ms])
         dts = np.concatenate([[0.0], np.diff(t)])
-        self._guess = _initial_guess(ms, sp, dts, self._cfg.height_m)
+        self._guess = _initial_guess(ms, sp, dts, self._cfg.height_m, self._start_pose)
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         stamps: dict[int, float] = {}
@@ -778,7 +806,7 @@ class FixedLagSmoother:
             k = self._k = self._k + 1
             _insert_guess(values, k, self._guess, i)
             if i == 0:
-                for f in _prior_factors(k, self._guess, self._cfg):
+                for f in _prior_factors(k, self._guess, self._cfg, self._start_pose):
                     graph.add(f)
             fs = _frame_factors(k, b, float(s), float(dts[i]), self._cfg, i == 0, bool(metric[i]))
             for f in fs:
@@ -843,7 +871,7 @@ class FixedLagSmoother:
                 try:
                     joint = isam.jointMarginalCovariance(_marginal_keys(k, has_prev))
                     cov = _state_covariance(joint, state, k, has_prev)
-                except RuntimeError:
+                except (RuntimeError, IndexError):  # e.g. after a failed iSAM2 update
                     cov = np.full((M.STATE_DIM, M.STATE_DIM), np.nan)
             else:
                 cov = np.full((M.STATE_DIM, M.STATE_DIM), np.nan)
@@ -851,7 +879,10 @@ class FixedLagSmoother:
             if pair is not None:
                 norms = _block_norms({k: pair}, est)[k]  # type: ignore[dict-item]
             status, gated = _status(m, norms, self._cfg)
-            out.append(_make_frame(m, state, cov, status, gated, "" if norms else m.status))
+            reason = "" if norms else m.status
+            if self._reset is not None and self._reset[0] == m.frame:
+                status, reason = "reset", self._reset[1]
+            out.append(_make_frame(m, state, cov, status, gated, reason))
         self._window = self._window[len(ready) :]
         return out
 

@@ -392,3 +392,25 @@ def test_cli_smooths_an_estimates_table(tmp_path, capsys):
         ]
     )
     assert rc == 2
+
+
+def test_fixed_lag_restarts_after_a_failed_update(monkeypatch):
+    run = _drive(6, duration=4.0)
+    calls = {"n": 0}
+    original = FixedLagSmoother._update
+
+    def flaky(self, graph, values, stamps):
+        calls["n"] += 1
+        if calls["n"] == 30:
+            raise RuntimeError("\nIndeterminate linear system detected (test)")
+        return original(self, graph, values, stamps)
+
+    monkeypatch.setattr(FixedLagSmoother, "_update", flaky)
+    cfg = SmootherConfig(height_m=H0, noise=run.config.noise, lag_s=0.5)
+    frames = smooth(run.measurements, None, cfg)
+    assert [f.frame for f in frames] == [m.frame for m in run.measurements]
+    resets = [f for f in frames if f.status == "reset"]
+    assert len(resets) == 1 and "restarted" in resets[0].reason
+    # the trajectory continues where it was
+    i = frames.index(resets[0])
+    assert np.hypot(*(frames[i].position - frames[i - 1].position)) < 2.0
