@@ -38,6 +38,8 @@ class Estimates:
     covariances: FloatArray
     nis: FloatArray
     resets: int = 0
+    #: (n, 3) vehicle pose (x, y, heading) in the world of ``filters.model``, where known
+    poses: FloatArray | None = None
 
 
 def truth_states(truth: DriveTruth) -> FloatArray:
@@ -160,4 +162,7 @@ def from_filter_states(states: Sequence[object]) -> Estimates:
     p = np.stack([s.covariance[np.ix_(idx, idx)] for s in states])  # type: ignore[attr-defined]
     nis = np.array([s.nis if s.status == "ok" else np.nan for s in states])  # type: ignore[attr-defined]
     resets = sum(1 for s in states if s.status == "reset")  # type: ignore[attr-defined]
-    return Estimates(states=x, covariances=p, nis=nis, resets=resets)
+    poses = None
+    if all(hasattr(s, "position") and hasattr(s, "heading") for s in states):
+        poses = np.array([[*s.position, s.heading] for s in states])  # type: ignore[attr-defined]
+    return Estimates(states=x, covariances=p, nis=nis, resets=resets, poses=poses)

@@ -12,7 +12,7 @@ from .errors import InputError
 
 #: Subcommand modules under ``vipm_track.commands``, in the order ``--help`` lists them.
 COMMANDS: tuple[str, ...] = (
-    "simulate", "estimate", "track", "monitor", "can_speed", "report", "demo",
+    "simulate", "estimate", "track", "smooth", "monitor", "can_speed", "report", "demo",
 )
 
 
