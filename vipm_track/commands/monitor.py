@@ -15,15 +15,12 @@ import argparse
 import math
 import sys
 from collections import Counter
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from ..camera import load_camera
 from ..errors import InputError
-from ..measurement import PairMeasurement, read_measurements
+from ..measurement import PairMeasurement
 from ..table import TableWriter
 from .common import (
     add_camera_options,
@@ -32,6 +29,8 @@ from .common import (
     add_rerun_options,
     add_speed_options,
 )
+from .estimate import add_estimator_options
+from .inputs import estimator_config, load_speed, measurements_from_args
 
 MONITOR_COLUMNS: tuple[str, ...] = (
     "monitor_state", "reason", "stat_pitch", "stat_roll", "stat_height",
@@ -66,6 +65,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--false-alarms-per-hour", type=float, default=0.1, metavar="RATE",
                         help="false-alarm rate the test is set for (default 0.1)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars or summary")
+    add_estimator_options(parser)
     add_rerun_options(parser)
     parser.set_defaults(handler=run)
 
@@ -83,26 +83,16 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.is_dir():
         raise InputError(f"--out {args.out}: is a folder; give a CSV file name")
-    given = [x for x in (args.estimates, args.images, args.video) if x]
-    if len(given) != 1:
-        raise InputError("give exactly one of --estimates, --images, --video")
     camera = load_camera(args.camera)
-    speed = _speed(args)
+    speed = load_speed(args)
     progress = not args.quiet
     from ..sinks.rerun_sink import log_monitor_run, sink_from_args
 
     sink = sink_from_args(args, "vipm-track monitor")
-    if args.estimates:
-        try:
-            measurements = read_measurements(args.estimates)
-        except ValueError as exc:  # TableError is an InputError; a missing column is not
-            if isinstance(exc, InputError):
-                raise
-            raise InputError(str(exc)) from exc
-        if not measurements:
-            raise InputError(f"{args.estimates}: no rows")
-    else:
-        measurements = estimate_measurements(args, camera, height, nominal, progress, sink)
+    # the cold start of the estimator is seeded with the nominal calibration
+    config = None if args.estimates else estimator_config(
+        args, camera, pitch_deg=nominal.pitch_deg, roll_deg=nominal.roll_deg)
+    measurements = measurements_from_args(args, height, config, sink, camera, progress)
 
     from filters.ekf import EkfConfig
 
@@ -160,67 +150,3 @@ def monitor_row(m: PairMeasurement, state: Any, out: Any) -> dict[str, Any]:
         )
     return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
             for k, v in row.items()}
-
-
-def estimate_measurements(
-    args: argparse.Namespace, camera: Any, height: float, nominal: Any, progress: bool,
-    sink: Any = None,
-) -> list[PairMeasurement]:
-    """Run the sequence runner over ``--images``/``--video``: one measurement per frame
-    (failed frames carry their status and NaNs); with a rerun ``sink`` each pair's image,
-    patches and IPM views are logged as they come."""
-    try:
-        from ..pipeline import run_sequence
-        from ..sources import open_source
-    except ImportError as exc:  # the runner lands on main separately
-        raise InputError(f"--images/--video need the sequence runner ({exc}); "
-                         "use --estimates EST.csv from 'vipm-track estimate'") from exc
-    config = None
-    try:
-        from ..estimator import EstimatorConfig
-        from ..pipeline import config_with
-
-        config = config_with(EstimatorConfig(), initial_pitch_deg=nominal.pitch_deg,
-                             initial_roll_deg=nominal.roll_deg)
-    except (ImportError, TypeError):
-        config = None
-    source = open_source(images=args.images, video=args.video, fps=args.fps)
-    if sink is not None:
-        from dataclasses import replace
-
-        from ..estimator import EstimatorConfig
-        from ..sinks.rerun_sink import ImageTap
-
-        source = ImageTap(source, camera)
-        config = replace(config or EstimatorConfig(), keep_images=True)
-    steps: Sequence[Any] = run_sequence(source, camera, height, config)
-    if progress:
-        from tqdm import tqdm
-
-        steps = tqdm(steps, desc="estimate", unit="frame")
-    out = []
-    for step in steps:
-        if sink is not None and step.result is not None:
-            sink.log_pair_views(step.frame, step.t, step.result, source.image(step.frame))
-        m = step.result.to_measurement(step.frame, step.t) if step.result is not None else None
-        if m is None or step.status != "ok":
-            m = PairMeasurement(frame=step.frame, t=step.t, z=np.full(7, np.nan),
-                                covariance=np.full((7, 7), np.nan), height_assumed=height,
-                                status=step.status if step.status != "ok" else "no estimate")
-        out.append(m)
-    if not out:
-        raise InputError(f"{args.images or args.video}: no frames")
-    return out
-
-
-def _speed(args: argparse.Namespace) -> Any:
-    if not (args.speed_csv or args.can):
-        return None
-    from filters.wheel_speed import speed_from_args
-
-    try:
-        return speed_from_args(args, progress=not args.quiet)
-    except ValueError as exc:
-        if isinstance(exc, InputError):
-            raise
-        raise InputError(str(exc)) from exc

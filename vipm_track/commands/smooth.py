@@ -15,7 +15,6 @@ import numpy as np
 from filters.factors import LOSSES
 
 from ..errors import InputError
-from ..measurement import PairMeasurement, read_measurements
 from .common import (
     add_camera_options,
     add_input_options,
@@ -23,11 +22,8 @@ from .common import (
     add_rerun_options,
     add_speed_options,
 )
-
-try:  # the estimator's options, where the sequence runner has landed
-    from .estimate import add_estimator_options
-except ImportError:  # pragma: no cover - depends on which branches are merged
-    add_estimator_options = None  # type: ignore[assignment]
+from .estimate import add_estimator_options
+from .inputs import load_speed, measurements_from_args
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -110,8 +106,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="skip the marginal covariances (std columns empty; faster)",
     )
     group.add_argument("--quiet", action="store_true", help="no progress bar, no summary print")
-    if add_estimator_options is not None:
-        add_estimator_options(parser)
+    add_estimator_options(parser)
     add_rerun_options(parser)
     parser.set_defaults(handler=run)
 
@@ -154,16 +149,13 @@ def run(args: argparse.Namespace) -> int:
     from filters.track import TRACK_COLUMNS, track_row
     from vipm_track.table import TableWriter
 
-    from .track import load_speed
-
     config = build_config(args)
     speed = load_speed(args)
     from ..sinks.rerun_sink import log_filter_run, sink_from_args
 
     sink = sink_from_args(args, "vipm-track smooth")
-    measurements = _measurements(args, sink)
-    if not measurements:
-        raise InputError("no frames to smooth")
+    measurements = measurements_from_args(args, config.height_m, sink=sink,
+                                          progress=not args.quiet)
     frames = smooth(measurements, speed, config, progress=not args.quiet)
     speeds = speeds_at_frames(measurements, speed)
     by_frame = {m.frame: (m, v) for m, v in zip(measurements, speeds, strict=True)}
@@ -202,27 +194,3 @@ def run(args: argparse.Namespace) -> int:
 
 def _source_name(args: argparse.Namespace) -> str:
     return str(args.estimates or args.images or args.video)
-
-
-def _measurements(args: argparse.Namespace, sink=None) -> list[PairMeasurement]:
-    """All measurements of the drive: from ``--estimates`` or through the sequence runner
-    (each pair's image, patches and IPM views logged to the rerun ``sink`` where given)."""
-    from .track import _estimate_stream
-
-    if args.estimates:
-        if args.images or args.video:
-            raise InputError("give --estimates or --images/--video, not both")
-        try:
-            return read_measurements(args.estimates)
-        except ValueError as exc:
-            raise InputError(str(exc)) from exc
-    if args.images or args.video:
-        if not args.camera:
-            raise InputError("--images/--video need --camera CAMERA.yaml")
-        stream = _estimate_stream(args, args.height, sink)
-        if not args.quiet:
-            from tqdm import tqdm
-
-            stream = tqdm(stream, desc="estimate", unit="frame", file=sys.stderr)
-        return list(stream)
-    raise InputError("give --images DIR, --video FILE or --estimates EST.csv")

@@ -7,12 +7,9 @@ import argparse
 import math
 import sys
 from collections.abc import Iterator
-from pathlib import Path
-
-import numpy as np
 
 from ..errors import InputError
-from ..measurement import PairMeasurement, read_measurements
+from ..measurement import PairMeasurement
 from .common import (
     add_camera_options,
     add_input_options,
@@ -20,11 +17,8 @@ from .common import (
     add_rerun_options,
     add_speed_options,
 )
-
-try:  # the estimator's options, where the sequence runner has landed
-    from .estimate import add_estimator_options, build_config
-except ImportError:  # pragma: no cover - depends on which branches are merged
-    add_estimator_options = build_config = None  # type: ignore[assignment]
+from .estimate import add_estimator_options
+from .inputs import estimate_stream, load_speed, read_estimates
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -48,8 +42,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     group.add_argument("--gate", type=float, default=0.999, metavar="P",
                        help="chi-square probability of the innovation gate (default 0.999)")
     group.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
-    if add_estimator_options is not None:
-        add_estimator_options(parser)
+    add_estimator_options(parser)
     add_rerun_options(parser)
     parser.set_defaults(handler=run)
 
@@ -73,16 +66,11 @@ def run(args: argparse.Namespace) -> int:
     if args.estimates:
         if args.images or args.video:
             raise InputError("give --estimates or --images/--video, not both")
-        try:
-            measurements = read_measurements(args.estimates)
-        except ValueError as exc:
-            raise InputError(str(exc)) from exc
+        measurements = read_estimates(args.estimates)
         stream: Iterator[PairMeasurement] = iter(measurements)
         total: int | None = len(measurements)
     elif args.images or args.video:
-        if not args.camera:
-            raise InputError("--images/--video need --camera CAMERA.yaml")
-        stream, total = _estimate_stream(args, height, sink), None
+        stream, total = estimate_stream(args, height, sink=sink), None
     else:
         raise InputError("give --images DIR, --video FILE or --estimates EST.csv")
 
@@ -97,78 +85,3 @@ def run(args: argparse.Namespace) -> int:
         print(f"vipm-track track: {sum(counts.values())} frames ({summary}) → {args.out}",
               file=sys.stderr)
     return 0
-
-
-def load_speed(args: argparse.Namespace):
-    """Wheel speed on the camera clock from ``--speed-csv`` / ``--can`` (None: no speed)."""
-    try:
-        from filters.wheel_speed import speed_from_args
-    except ImportError:
-        speed_from_args = None
-    if speed_from_args is not None:
-        return speed_from_args(args, progress=not getattr(args, "quiet", False))
-    if args.can:
-        raise InputError("--can needs the CAN wheel-speed module (filters/wheel_speed.py), "
-                         "absent from this build; give --speed-csv t,speed_mps instead")
-    if not args.speed_csv:
-        return None
-    return read_speed_csv(args.speed_csv, args.speed_scale, args.clock_offset)
-
-
-class _Speed:
-    def __init__(self, t: np.ndarray, v: np.ndarray) -> None:
-        self.t, self.speed_mps = t, v
-
-
-def read_speed_csv(path: str | Path, scale: float = 1.0, clock_offset: float = 0.0) -> _Speed:
-    """Speed samples from a CSV with columns ``t`` (s) and ``speed_mps`` (m/s); rows with
-    empty or non-finite values are dropped; times must increase. Returns camera-clock times
-    (``t + clock_offset``) and speeds times ``scale``."""
-    from ..table import read_table
-
-    if not (math.isfinite(scale) and scale > 0):
-        raise InputError(f"--speed-scale {scale!r} must be a positive number")
-    cols = read_table(path, required=("t", "speed_mps"))
-    t, v = cols["t"], cols["speed_mps"]
-    good = np.isfinite(t) & np.isfinite(v)
-    t, v = t[good], v[good]
-    if len(t) < 2:
-        raise InputError(f"{path}: fewer than two usable speed rows")
-    bad = np.flatnonzero(np.diff(t) <= 0)
-    if len(bad):
-        raise InputError(f"{path}: column 't' does not increase at data row {int(bad[0]) + 2}")
-    return _Speed(t + clock_offset, v * scale)
-
-
-def _estimate_stream(
-    args: argparse.Namespace, height: float, sink=None
-) -> Iterator[PairMeasurement]:
-    """Measurements of the images/video through the sequence runner (their images, patches
-    and IPM views logged to the rerun ``sink`` where given)."""
-    try:
-        from ..pipeline import run_sequence
-        from ..sources import open_source
-    except ImportError as exc:
-        raise InputError("image input needs the sequence runner (vipm_track/pipeline.py), "
-                         "absent from this build; give --estimates EST.csv") from exc
-    from ..camera import load_camera
-
-    camera = load_camera(args.camera)
-    est_config = build_config(args, camera) if build_config is not None else None
-    source = open_source(images=args.images, video=args.video, fps=args.fps)
-    if sink is not None:
-        from dataclasses import replace
-
-        from ..estimator import EstimatorConfig
-        from ..sinks.rerun_sink import ImageTap
-
-        source = ImageTap(source, camera)
-        est_config = replace(est_config or EstimatorConfig(), keep_images=True)
-    nan7, nan77 = np.full(7, np.nan), np.full((7, 7), np.nan)
-    for step in run_sequence(source, camera, height, est_config):
-        if sink is not None and step.result is not None:
-            sink.log_pair_views(step.frame, step.t, step.result, source.image(step.frame))
-        if step.result is not None and step.status == "ok":
-            yield step.result.to_measurement(step.frame, step.t)
-        else:
-            yield PairMeasurement(step.frame, step.t, nan7, nan77, height, step.status)
