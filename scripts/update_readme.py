@@ -16,7 +16,11 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "scripts" / "results"
-BLOCK = re.compile(r"(<!-- results:(?P<name>[\w.-]+)(?:#(?P<k>\d+))? -->\n)(.*?)(<!-- /results:(?P=name)(?:#\d+)? -->)", re.S)
+BLOCK = re.compile(
+    r"(<!-- results:(?P<name>[\w.-]+)(?:#(?P<k>\d+))? -->\n)(.*?)"
+    r"(<!-- /results:(?P=name)(?:#\d+)? -->)",
+    re.S,
+)
 
 
 def tables(markdown: str) -> list[str]:
