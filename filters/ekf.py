@@ -27,6 +27,7 @@ or ``run_filter(measurements, speed_series, config)`` for a whole sequence.
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -58,6 +59,15 @@ class EkfConfig:
     default_dt_s: float = 0.05  # frame interval assumed before the first frame time is known
     init_pairs: int = 5  # good pairs whose medians start (and restart) the filter
     speed_timeout_s: float = 1.0  # h is estimated only while wheel speeds are this recent
+    #: adaptive body shaking: the body's stationary std per axis is the larger of the model's
+    #: ``body_std_deg`` and a robust scale (1.4826 · MAD) of the measured body (pair pitch/roll
+    #: minus the filtered mount) over this many seconds; 0 keeps the model's std
+    body_window_s: float = 3.0
+    body_window_min_pairs: int = 10
+    #: pose gate: a pose block beyond the χ² gate but within ``pose_soft_gate_factor`` times it
+    #: is applied with its covariance inflated by NIS / gate (down-weighted, not dropped);
+    #: beyond that it is rejected
+    pose_soft_gate_factor: float = 4.0
 
 
 @dataclass(frozen=True)
@@ -123,9 +133,20 @@ class _ClonedEKF(ExtendedKalmanFilter):
         self.x = np.zeros(M.STATE_DIM)
         self._noise = noise
         self._dt = 0.0
+        #: stationary body std (pitch, roll), rad: the model's unless adapted to the data
+        self.body_std = np.full(2, np.radians(noise.body_std_deg))
 
     def predict_dt(self, dt: float) -> None:
         x_new, self.F, self.Q = M.transition(self.x, dt, self._noise)
+        std0 = np.radians(self._noise.body_std_deg)
+        for i, std in zip((M.BODY_PITCH, M.BODY_ROLL), self.body_std, strict=True):
+            # shaking beyond the model's is fast: keep the body's low-frequency power 2σ²τ
+            # (what competes with the mount) by shortening τ as σ grows
+            tau = self._noise.body_tau_s * (std0 / std) ** 2
+            decay = M.body_decay(dt, tau)
+            x_new[i] = decay * self.x[i]
+            self.F[i, i] = decay
+            self.Q[i, i] = M.body_process_var(dt, tau, float(std))
         self._x_new = x_new
         self.predict()
 
@@ -151,6 +172,8 @@ class ExtrinsicsEKF:
         self._pending_reset = ""
         self._boot: list[tuple[PairMeasurement | None, float | None, float]] = []
         self._last_speed_t: float | None = None
+        #: measured body (pair pitch, roll minus the filtered mount, rad) of recent ok pairs
+        self._body_seen: deque[tuple[float, float, float]] = deque()
         h0 = self._cfg.height_m
         self._height = (h0, (self._cfg.noise.prior_height_std_rel * h0) ** 2)
 
@@ -271,6 +294,7 @@ class ExtrinsicsEKF:
         p[M.YAW_RATE, M.YAW_RATE] = np.radians(nz.prior_yaw_rate_std_dps) ** 2
         kf = _ClonedEKF(nz)
         kf.x, kf.P = x, p
+        kf.body_std = self._body_std()
         self._kf = kf
         self._pose_gated_run = self._motion_gated_run = 0
 
@@ -295,9 +319,17 @@ class ExtrinsicsEKF:
         s = h @ kf.P @ h.T + r
         nis = _mahalanobis(y, s)
         keep = []
+        r = r.copy()
         for block, gate in ((_POSE_ROWS, self._gate_pose), (_MOTION_ROWS, self._gate_motion)):
-            if _mahalanobis(y[block], s[np.ix_(block, block)]) <= gate:
+            d2 = _mahalanobis(y[block], s[np.ix_(block, block)])
+            if d2 <= gate:
                 keep.extend(block)
+            elif block is _POSE_ROWS and d2 <= self._cfg.pose_soft_gate_factor * gate:
+                # shaking (or an optimistic covariance) beyond the model, not an outlier:
+                # down-weight rather than drop, or the frame pose falls back on the prediction
+                r[np.ix_(block, block)] *= d2 / gate
+                keep.extend(block)
+        self._observe_body(m)
         self._pose_gated_run = 0 if 0 in keep else self._pose_gated_run + 1
         self._motion_gated_run = 0 if 4 in keep else self._motion_gated_run + 1
         if keep:
@@ -312,6 +344,26 @@ class ExtrinsicsEKF:
             self._restart_motion(m, dt)
         rejected = [name for name, rows in (("pose", 0), ("motion", 4)) if rows not in keep]
         return nis, "+".join(rejected)
+
+    def _observe_body(self, m: PairMeasurement) -> None:
+        """Add the pair's measured body to the window and re-adapt the body std."""
+        kf = self._kf
+        assert kf is not None and self._t is not None
+        b = m.z[2:4] - kf.x[[M.MOUNT_PITCH, M.MOUNT_ROLL]]
+        self._body_seen.append((self._t, float(b[0]), float(b[1])))
+        while self._body_seen and self._body_seen[0][0] < self._t - self._cfg.body_window_s:
+            self._body_seen.popleft()
+        kf.body_std = self._body_std()
+
+    def _body_std(self) -> FloatArray:
+        """Stationary body std (pitch, roll), rad: the model's, or the robust scale of the
+        measured body over the window where that is larger (covariance matching)."""
+        floor = np.full(2, np.radians(self._cfg.noise.body_std_deg))
+        if self._cfg.body_window_s <= 0 or len(self._body_seen) < self._cfg.body_window_min_pairs:
+            return floor
+        b = np.array(self._body_seen)[:, 1:]
+        mad = np.median(np.abs(b - np.median(b, axis=0)), axis=0)
+        return np.maximum(floor, 1.4826 * mad)
 
     def _restart_motion(self, m: PairMeasurement, dt: float) -> None:
         """Re-initialise speed and yaw rate from this pair after the motion model lost track."""
