@@ -62,7 +62,7 @@ class EkfConfig:
     #: adaptive body shaking: the body's stationary std per axis is the larger of the model's
     #: ``body_std_deg`` and a robust scale (1.4826 · MAD) of the measured body (pair pitch/roll
     #: minus the filtered mount) over this many seconds; 0 keeps the model's std
-    body_window_s: float = 3.0
+    body_window_s: float = 6.0
     body_window_min_pairs: int = 10
     #: pose gate: a pose block beyond the χ² gate but within ``pose_soft_gate_factor`` times it
     #: is applied with its covariance inflated by NIS / gate (down-weighted, not dropped);
@@ -172,8 +172,9 @@ class ExtrinsicsEKF:
         self._pending_reset = ""
         self._boot: list[tuple[PairMeasurement | None, float | None, float]] = []
         self._last_speed_t: float | None = None
-        #: measured body (pair pitch, roll minus the filtered mount, rad) of recent ok pairs
-        self._body_seen: deque[tuple[float, float, float]] = deque()
+        #: (t, measured body pitch, roll (pair minus filtered mount), their variances) of recent
+        #: ok pairs, rad / rad²
+        self._body_seen: deque[tuple[float, ...]] = deque()
         h0 = self._cfg.height_m
         self._height = (h0, (self._cfg.noise.prior_height_std_rel * h0) ** 2)
 
@@ -350,7 +351,8 @@ class ExtrinsicsEKF:
         kf = self._kf
         assert kf is not None and self._t is not None
         b = m.z[2:4] - kf.x[[M.MOUNT_PITCH, M.MOUNT_ROLL]]
-        self._body_seen.append((self._t, float(b[0]), float(b[1])))
+        r = np.diag(np.asarray(m.covariance, dtype=float))[2:4]
+        self._body_seen.append((self._t, float(b[0]), float(b[1]), float(r[0]), float(r[1])))
         while self._body_seen and self._body_seen[0][0] < self._t - self._cfg.body_window_s:
             self._body_seen.popleft()
         kf.body_std = self._body_std()
@@ -361,9 +363,12 @@ class ExtrinsicsEKF:
         floor = np.full(2, np.radians(self._cfg.noise.body_std_deg))
         if self._cfg.body_window_s <= 0 or len(self._body_seen) < self._cfg.body_window_min_pairs:
             return floor
-        b = np.array(self._body_seen)[:, 1:]
+        seen = np.array(self._body_seen)
+        b, r = seen[:, 1:3], seen[:, 3:5]
         mad = np.median(np.abs(b - np.median(b, axis=0)), axis=0)
-        return np.maximum(floor, 1.4826 * mad)
+        # the measured body carries the measurement noise too: remove its variance
+        var = (1.4826 * mad) ** 2 - np.median(r, axis=0)
+        return np.sqrt(np.maximum(floor**2, var))
 
     def _restart_motion(self, m: PairMeasurement, dt: float) -> None:
         """Re-initialise speed and yaw rate from this pair after the motion model lost track."""
