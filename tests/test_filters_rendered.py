@@ -88,6 +88,14 @@ def test_track_images_with_wheel_speed_finds_the_mount_and_height(seq, gt, tmp_p
         ok = np.isfinite(raw[axis])
         assert _rms(filt[axis]) < 0.08, axis
         assert _rms(filt[axis]) < 0.5 * _rms(raw[axis][ok]), axis
+    # the filtered frame pose (mount + body) follows the 1–3 Hz shaking: not worse than raw
+    rows = table["frame"].astype(int)
+    keep = (rows >= SETTLE) & np.isfinite(table["meas_pitch_deg"])
+    for axis in ("pitch", "roll"):
+        truth = gt[f"{axis}_deg"][rows[keep]]
+        pose = _rms(table[f"{axis}_deg"][keep] - truth)
+        raw = _rms(table[f"meas_{axis}_deg"][keep] - truth)
+        assert pose <= raw, (axis, pose, raw)
     # 2 % wrong nominal height; the wheel speed pulls it to the truth
     h_err = table["mount_height_m"][-5:] / gt["mount_height_m"][-5:] - 1.0
     assert np.all(np.abs(h_err) < 0.005)
