@@ -446,9 +446,9 @@ def rendered_table(rows: list[RenderedRow]) -> str:
         "rate: the preset's 0.002 °/√s models a calibration that barely moves within a "
         "drive, so a 0.01 °/s drift is followed with a lag; 0.05 °/√s is matched to the "
         "drift (0.01 °/s · √25 s). *frame pose*: the filtered pose of each frame (mount + "
-        "body); where the EKF's is worse than the raw estimate, its Gauss–Markov body model "
-        "(τ 0.3 s, 0.2°) does not follow the 1–3 Hz shaking and it gates some pairs' pose "
-        "blocks; the smoothers, which also see the following pairs, do not suffer from it.",
+        "body). The EKF adapts its body model to the shaking it measures (6 s window) and "
+        "soft-gates pose blocks, so its frame pose stays at the raw estimate's level; the "
+        "smoothers also see the following pairs and do better.",
     ]
     return "\n".join(lines) + "\n"
 
