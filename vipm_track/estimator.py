@@ -18,6 +18,7 @@ Frames follow CONVENTIONS.md; parameters are ordered as ``measurement.PARAMETER_
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -35,6 +36,7 @@ from .geometry import (
     PlanarMotion,
     apply_homography,
     back_project,
+    horizon_row,
     image_from_ipm_homography,
     ipm_from_image_homography,
     predict_pixels,
@@ -88,7 +90,9 @@ class EstimatorConfig:
     ipm_max_side : largest IPM image side, pixels.
     vertical_motion : also estimate the camera's vertical motion within the pair (an eighth
         parameter; the paper neglects it, which costs ~0.25° of pitch per millimetre on a
-        bouncing 0.7 m cart camera). Frame k's pose then has height ``height + dh``.
+        bouncing 0.7 m cart camera). Frame k's pose then has height ``height + dh``. None
+        (default): on for steep cameras (the whole image below the horizon at the nominal
+        pose), off for forward-looking ones, where it is poorly separable from pitch.
     seed : seed of the subset sampler (runs are deterministic).
     keep_images : keep the last refinement's IPM images in the result.
     """
@@ -96,7 +100,7 @@ class EstimatorConfig:
     grid: tuple[int, int] = (11, 9)
     roi: RoiSpec = None
     roi_max_range_h: float = 15.0
-    roi_max_lateral_h: float = 3.0
+    roi_max_lateral_h: float = 2.0
     horizon_margin_deg: float = 2.0
     patch_image: int = 128
     patch_ipm: int = 256
@@ -121,7 +125,7 @@ class EstimatorConfig:
     min_motion_px: float = 0.5
     ipm_resolution_scale: float = 1.0
     ipm_max_side: int = 3000
-    vertical_motion: bool = True
+    vertical_motion: bool | None = None
     seed: int = 0
     keep_images: bool = False
 
@@ -293,6 +297,9 @@ class TwoFrameEstimator:
                 f"region of interest holds {len(self.centres)} usable interest points, fewer "
                 f"than min_inliers={self.config.min_inliers}; enlarge the ROI or the grid"
             )
+        if self.config.vertical_motion is None:
+            steep = horizon_row(camera.k, self.nominal, camera.cx) < 0
+            self.config = dataclasses.replace(self.config, vertical_motion=bool(steep))
         self._maps = camera.undistortion_maps() if camera.has_distortion else None
         self._cache: tuple[int, NDArray] | None = None
 
@@ -313,9 +320,21 @@ class TwoFrameEstimator:
         curr = self._prepare(curr_img, "current frame")
         rng = np.random.default_rng(self.config.seed)
         try:
-            x = self._initial(prev, curr, guess, rng, result)
-            for _ in range(self.config.refinements):
-                x = self._refine(prev, curr, x, rng, result)
+            refinements = self.config.refinements
+            loose = False
+            try:
+                x = self._initial(prev, curr, guess, rng, result)
+            except _StageFailure as failure:
+                if guess is None or failure.status == STATUS_NO_MOTION:
+                    raise
+                # Tracking: the guess is a better start than a failed image-plane stage
+                # (fast forward motion distorts image patches most); the virtual IPM
+                # removes that distortion, given a wider outlier gate and one more pass.
+                x = self._guess_vector(guess)
+                result.reason = f"image stage skipped ({failure.reason}); refined from the guess"
+                refinements, loose = max(refinements, 1) + 1, True
+            for i in range(refinements):
+                x = self._refine(prev, curr, x, rng, result, loose=loose and i == 0)
         except _StageFailure as failure:
             result.status, result.reason = failure.status, failure.reason
             result.pose_prev = result.pose_curr = result.motion = None
@@ -335,13 +354,7 @@ class TwoFrameEstimator:
     ) -> FloatArray:
         cfg = self.config
         if guess is not None:
-            x0 = pack(
-                GroundPose(guess.pose_prev.pitch, guess.pose_prev.roll, self.height),
-                GroundPose(guess.pose_curr.pitch, guess.pose_curr.roll, self.height),
-                guess.motion,
-            )
-            if cfg.vertical_motion:
-                x0 = np.append(x0, 0.0)
+            x0 = self._guess_vector(guess)
             offsets = self._predicted_displacements(x0)
         else:
             pitch0, roll0 = cfg.initial_pose
@@ -431,9 +444,10 @@ class TwoFrameEstimator:
 
     def _refine(
         self, prev: NDArray, curr: NDArray, x: FloatArray, rng: np.random.Generator,
-        result: PairResult,
+        result: PairResult, loose: bool = False,
     ) -> FloatArray:
-        """One virtual-IPM refinement from the estimate ``x``."""
+        """One virtual-IPM refinement from the estimate ``x``; ``loose`` widens the outlier
+        gate (×3) and fits random subsets, for a start that is only a guess."""
         cfg = self.config
         pose_p, pose_c, motion = unpack(x, self.height)
         t0 = time.perf_counter()
@@ -461,7 +475,7 @@ class TwoFrameEstimator:
 
         usable = (sizes > 0) & (peaks >= cfg.min_peak)
         dev = np.linalg.norm(disp - pred, axis=1)
-        usable &= dev <= cfg.refine_outlier_px
+        usable &= dev <= cfg.refine_outlier_px * (3.0 if loose else 1.0)
         pixels_prev = apply_homography(image_from_ipm_homography(self.k, pose_p, grid), q_p)
         model = DisplacementModel(
             self.k, self.height, pixels_prev, q_p + disp,
@@ -473,7 +487,9 @@ class TwoFrameEstimator:
                 f"refinement {len(result.stages)}: {int(usable.sum())} IPM patches agree with "
                 f"the previous estimate (need {cfg.min_inliers})",
             )
-        fit = self._fit(model, x, usable, cfg.refine_subsets, cfg.inlier_px_ipm, rng, result)
+        n_subsets = max(cfg.refine_subsets, 20) if loose else cfg.refine_subsets
+        inlier_px = cfg.inlier_px_ipm * (2.0 if loose else 1.0)
+        fit = self._fit(model, x, usable, n_subsets, inlier_px, rng, result)
         result.stages.append(PatchField("ipm", q_p, disp, peaks, fit.inliers, sizes))
         if cfg.keep_images:
             result.ipm_images = (ipm_p, ipm_c)
@@ -531,6 +547,15 @@ class TwoFrameEstimator:
         result.n_inliers = n_in
         result.residual_px = fit.rms
         result.stage_estimates.append(StageEstimate(pose_p, pose_c, motion))
+
+    def _guess_vector(self, guess: PairGuess) -> FloatArray:
+        """Parameter vector of a guess at the assumed height (no vertical motion)."""
+        x0 = pack(
+            GroundPose(guess.pose_prev.pitch, guess.pose_prev.roll, self.height),
+            GroundPose(guess.pose_curr.pitch, guess.pose_curr.roll, self.height),
+            guess.motion,
+        )
+        return np.append(x0, 0.0) if self.config.vertical_motion else x0
 
     def _predicted_displacements(self, x: FloatArray) -> FloatArray:
         """Image displacements (N, 2) the parameters predict at the interest points (0 where
