@@ -212,6 +212,8 @@ class PairResult:
     "too few inliers", "did not converge", "degenerate"); ``reason`` explains it. Poses and
     motion are None unless ``ok``. ``covariance`` is 7×7 in ``measurement`` order (radians,
     metres); ``residual_px`` is the final stage's inlier RMS residual in that stage's pixels.
+    ``stages`` holds every stage's patch field (the image stage even when it failed and
+    tracking fell back to the guess); ``stage_estimates`` the estimate of each accepted stage.
     ``height`` is the assumed height of frame k-1 [m]; ``height_change`` the estimated
     vertical motion within the pair [m] (0 unless ``config.vertical_motion``).
     """
