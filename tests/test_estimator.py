@@ -327,7 +327,13 @@ def test_failed_image_stage_falls_back_to_the_guess():
     tp, tc, tm = traj.pose(0), traj.pose(1), traj.motion(1)
     config = EstimatorConfig(initial_pitch_deg=3.0, inlier_px_image=1e-4)
     est = TwoFrameEstimator(cam, float(traj.height[0]), config)
-    assert est.estimate(imgs[0], imgs[1]).status == "too few inliers"  # cold start fails
+    # Cold start of a forward camera: the nominal-pose IPM translation is the start.
+    cold = est.estimate(imgs[0], imgs[1])
+    assert cold.ok and "nominal-pose IPM" in cold.reason, cold.reason
+    err = _errors(traj, 1, cold.pose_prev, cold.pose_curr, cold.motion)
+    assert err["pitch"] < 0.25 and err["roll"] < 0.25, err
+    steep = TwoFrameEstimator(*_sequence()[2:], 0.7, EstimatorConfig(inlier_px_image=1e-4))
+    assert steep.estimate(*_sequence()[1]).status == "too few inliers"  # no start to fall to
     off = np.radians(0.3)
     guess = PairGuess(geometry.GroundPose(tp.pitch + off, tp.roll, tp.height),
                       geometry.GroundPose(tc.pitch + off, tc.roll, tc.height),
