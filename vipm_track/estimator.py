@@ -105,7 +105,7 @@ class EstimatorConfig:
     grid: tuple[int, int] = (11, 9)
     roi: RoiSpec = None
     roi_max_range_h: float = 15.0
-    roi_max_lateral_h: float = 2.0
+    roi_max_lateral_h: float = 2.5
     horizon_margin_deg: float = 2.0
     patch_image: int = 128
     patch_ipm: int = 256
