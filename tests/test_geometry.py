@@ -52,7 +52,9 @@ def test_motion_inverse_composes_to_identity(motion):
 @given(motions, motions)
 def test_composition_matches_matrix_product(a, b):
     ab = g.compose_motion(a, b)
-    np.testing.assert_allclose(g.motion_matrix(ab), g.motion_matrix(b) @ g.motion_matrix(a), atol=1e-12)
+    np.testing.assert_allclose(
+        g.motion_matrix(ab), g.motion_matrix(b) @ g.motion_matrix(a), atol=1e-12
+    )
 
 
 @settings(max_examples=200, deadline=None)
@@ -61,10 +63,16 @@ def test_homographies_agree_with_pointwise_maps(pose, motion):
     px = _ground_pixels(pose)
     ground = g.back_project(K, pose, px)
     np.testing.assert_allclose(
-        g.apply_homography(g.ground_from_image_homography(K, pose), px), ground, rtol=1e-9, atol=1e-9
+        g.apply_homography(g.ground_from_image_homography(K, pose), px),
+        ground,
+        rtol=1e-9,
+        atol=1e-9,
     )
     np.testing.assert_allclose(
-        g.apply_homography(g.image_from_ground_homography(K, pose), ground), px, rtol=1e-9, atol=1e-9
+        g.apply_homography(g.image_from_ground_homography(K, pose), ground),
+        px,
+        rtol=1e-9,
+        atol=1e-9,
     )
     pose2 = g.GroundPose(pose.pitch * 0.98, pose.roll * 0.9, pose.height)
     expected = g.predict_pixels(K, pose, pose2, motion, px)
@@ -74,7 +82,10 @@ def test_homographies_agree_with_pointwise_maps(pose, motion):
     grid = g.IpmGrid.from_extent(-2, 2, 0.5, 6, 0.01)
     ipm_px = grid.pixel_from_ground(ground)
     np.testing.assert_allclose(
-        g.apply_homography(g.image_from_ipm_homography(K, pose, grid), ipm_px), px, rtol=1e-9, atol=1e-9
+        g.apply_homography(g.image_from_ipm_homography(K, pose, grid), ipm_px),
+        px,
+        rtol=1e-9,
+        atol=1e-9,
     )
 
 
@@ -99,7 +110,9 @@ def test_signs_follow_conventions():
     ahead = g.transform_ground(g.PlanarMotion(0, 0, np.radians(10)), [[0.0, 10.0]])
     assert ahead[0, 0] < 0
     # Forward motion: ground ahead comes closer by tz.
-    np.testing.assert_allclose(g.transform_ground(g.PlanarMotion(0, 1.0, 0), [[0.0, 5.0]]), [[0.0, 4.0]])
+    np.testing.assert_allclose(
+        g.transform_ground(g.PlanarMotion(0, 1.0, 0), [[0.0, 5.0]]), [[0.0, 4.0]]
+    )
 
 
 def test_pose_from_rotation_round_trip():

@@ -98,11 +98,20 @@ class CameraModel:
         p = np.asarray(pixels, dtype=np.float64)
         if not self.has_distortion:
             return p.copy()
-        flat = p.reshape(-1, 1, 2)
+        flat = np.ascontiguousarray(p.reshape(-1, 1, 2))
+        # OpenCV's default is 5 fixed-point iterations (~mpx errors at the corners of a
+        # strongly distorted lens); iterate to convergence instead.
+        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
         if self.is_fisheye:
-            out = cv2.fisheye.undistortPoints(flat, self.k, self.distortion[:4], P=self.k)
+            out = cv2.fisheye.undistortPoints(
+                flat, self.k, self.distortion[:4], P=self.k, criteria=criteria
+            )
+        elif hasattr(cv2, "undistortPointsIter"):  # OpenCV 4.x spells the criteria variant so
+            out = cv2.undistortPointsIter(
+                flat, self.k, self.distortion, np.eye(3), self.k, criteria
+            )
         else:
-            out = cv2.undistortPoints(flat, self.k, self.distortion, P=self.k)
+            out = cv2.undistortPoints(flat, self.k, self.distortion, P=self.k, criteria=criteria)
         return out.reshape(p.shape)
 
     def distort_points(self, pixels: ArrayLike) -> NDArray[np.float64]:
@@ -112,7 +121,8 @@ class CameraModel:
             return p.copy()
         kinv = np.linalg.inv(self.k)
         norm = np.concatenate([p.reshape(-1, 2), np.ones((p[..., 0].size, 1))], axis=1) @ kinv.T
-        pts = norm[:, :2].reshape(-1, 1, 2)
+        # Contiguous copy: OpenCV's bindings misread the strided view of norm[:, :2].
+        pts = np.ascontiguousarray(norm[:, :2]).reshape(-1, 1, 2)
         if self.is_fisheye:
             out = cv2.fisheye.distortPoints(pts, self.k, self.distortion[:4])
         else:
@@ -254,7 +264,9 @@ def _matrix(doc: dict, name: str, path: Path, shape: tuple[int, int] | None) -> 
         raise CameraFileError(path, f"data must be numbers ({exc})", name) from exc
     if shape is not None:
         if arr.size != shape[0] * shape[1]:
-            raise CameraFileError(path, f"needs {shape[0] * shape[1]} numbers, got {arr.size}", name)
+            raise CameraFileError(
+                path, f"needs {shape[0] * shape[1]} numbers, got {arr.size}", name
+            )
         arr = arr.reshape(shape)
     if not np.all(np.isfinite(arr)):
         raise CameraFileError(path, "contains non-finite values", name)
@@ -265,17 +277,31 @@ def _build(
     path: Path, k: NDArray, width: int, height: int, model: str, dist: NDArray, k_field: str
 ) -> CameraModel:
     if not (k[0, 0] > 0 and k[1, 1] > 0):
-        raise CameraFileError(path, f"focal lengths must be > 0, got fx={k[0, 0]}, fy={k[1, 1]}", k_field)
+        raise CameraFileError(
+            path, f"focal lengths must be > 0, got fx={k[0, 0]}, fy={k[1, 1]}", k_field
+        )
     if width <= 0 or height <= 0:
-        raise CameraFileError(path, f"image size must be positive, got {width}×{height}", "image_width")
-    model = {"equidistant": "equidistant", "fisheye": "equidistant", "": "plumb_bob"}.get(model, model)
+        raise CameraFileError(
+            path, f"image size must be positive, got {width}×{height}", "image_width"
+        )
+    model = {"equidistant": "equidistant", "fisheye": "equidistant", "": "plumb_bob"}.get(
+        model, model
+    )
     if model not in PINHOLE_MODELS + FISHEYE_MODELS:
         raise CameraFileError(path, f"unknown model '{model}'", "distortion_model")
     if model == "equidistant" and dist.size not in (0, 4):
-        raise CameraFileError(path, f"equidistant needs 4 coefficients, got {dist.size}", "distortion_coefficients")
+        raise CameraFileError(
+            path, f"equidistant needs 4 coefficients, got {dist.size}", "distortion_coefficients"
+        )
     if model in ("plumb_bob", "rational_polynomial") and dist.size not in (0, 4, 5, 8, 12, 14):
-        raise CameraFileError(path, f"OpenCV distortion needs 4, 5, 8, 12 or 14 coefficients, got {dist.size}", "distortion_coefficients")
-    return CameraModel(k=k, width=int(width), height=int(height), distortion_model=model, distortion=dist)
+        raise CameraFileError(
+            path,
+            f"OpenCV distortion needs 4, 5, 8, 12 or 14 coefficients, got {dist.size}",
+            "distortion_coefficients",
+        )
+    return CameraModel(
+        k=k, width=int(width), height=int(height), distortion_model=model, distortion=dist
+    )
 
 
 # --- writer --------------------------------------------------------------------------------
@@ -291,9 +317,19 @@ def write_ros_yaml(camera: CameraModel, path: str | Path, name: str = "camera") 
         "image_height": camera.height,
         "camera_name": name,
         "camera_matrix": {"rows": 3, "cols": 3, "data": [float(v) for v in k.ravel()]},
-        "distortion_model": "plumb_bob" if camera.distortion_model == "none" else camera.distortion_model,
-        "distortion_coefficients": {"rows": 1, "cols": int(dist.size), "data": [float(v) for v in dist]},
-        "rectification_matrix": {"rows": 3, "cols": 3, "data": [float(v) for v in np.eye(3).ravel()]},
+        "distortion_model": "plumb_bob"
+        if camera.distortion_model == "none"
+        else camera.distortion_model,
+        "distortion_coefficients": {
+            "rows": 1,
+            "cols": int(dist.size),
+            "data": [float(v) for v in dist],
+        },
+        "rectification_matrix": {
+            "rows": 3,
+            "cols": 3,
+            "data": [float(v) for v in np.eye(3).ravel()],
+        },
         "projection_matrix": {"rows": 3, "cols": 4, "data": [float(v) for v in p.ravel()]},
     }
     Path(path).write_text(yaml.safe_dump(doc, sort_keys=False))

@@ -11,7 +11,9 @@ from collections.abc import Sequence
 from .errors import InputError
 
 #: Subcommand modules under ``vipm_track.commands``, in the order ``--help`` lists them.
-COMMANDS: tuple[str, ...] = ("simulate",)
+COMMANDS: tuple[str, ...] = (
+    "simulate", "estimate", "track", "smooth", "monitor", "can_speed", "report", "demo",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -36,7 +38,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"vipm-track {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"vipm-track {args.command}: interrupted; rows written so far are kept", file=sys.stderr)
+        print(
+            f"vipm-track {args.command}: interrupted; rows written so far are kept", file=sys.stderr
+        )
         return 130
 
 

@@ -191,7 +191,9 @@ def back_project(k: ArrayLike, pose: GroundPose, pixels: ArrayLike) -> FloatArra
     return out
 
 
-def below_horizon(k: ArrayLike, pose: GroundPose, pixels: ArrayLike, margin: float = 0.0) -> NDArray[np.bool_]:
+def below_horizon(
+    k: ArrayLike, pose: GroundPose, pixels: ArrayLike, margin: float = 0.0
+) -> NDArray[np.bool_]:
     """True where a pixel's ray meets the ground; ``margin`` demands a ray elevation of at
     least that many radians below the horizon."""
     rays = _rays_in_ground(k, pose, pixels)

@@ -45,15 +45,29 @@ class PairMeasurement:
         return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
 
 
-def measurements_from_table(columns: dict[str, NDArray], source: str = "table") -> list[PairMeasurement]:
+def measurements_from_table(
+    columns: dict[str, NDArray], source: str = "table"
+) -> list[PairMeasurement]:
     """Measurements from the columns of an estimates table (``read_table``).
 
     Needs the base columns plus ``prev_pitch_deg``/``prev_roll_deg`` and the ``*_std``
     columns; a missing std column is a :class:`ValueError` naming ``source``."""
     needed = (
-        "pitch_deg", "roll_deg", "height_m", "tx_m", "tz_m", "yaw_deg", "prev_pitch_deg",
-        "prev_roll_deg", "pitch_std_deg", "roll_std_deg", "prev_pitch_std_deg",
-        "prev_roll_std_deg", "tx_std_m", "tz_std_m", "yaw_std_deg",
+        "pitch_deg",
+        "roll_deg",
+        "height_m",
+        "tx_m",
+        "tz_m",
+        "yaw_deg",
+        "prev_pitch_deg",
+        "prev_roll_deg",
+        "pitch_std_deg",
+        "roll_std_deg",
+        "prev_pitch_std_deg",
+        "prev_roll_std_deg",
+        "tx_std_m",
+        "tz_std_m",
+        "yaw_std_deg",
     )
     missing = [c for c in needed if c not in columns]
     if missing:
@@ -62,17 +76,25 @@ def measurements_from_table(columns: dict[str, NDArray], source: str = "table") 
     status = columns.get("status", np.array(["ok"] * n, dtype=object))
     z_all = np.stack(
         [
-            np.radians(columns["prev_pitch_deg"]), np.radians(columns["prev_roll_deg"]),
-            np.radians(columns["pitch_deg"]), np.radians(columns["roll_deg"]),
-            columns["tx_m"], columns["tz_m"], np.radians(columns["yaw_deg"]),
+            np.radians(columns["prev_pitch_deg"]),
+            np.radians(columns["prev_roll_deg"]),
+            np.radians(columns["pitch_deg"]),
+            np.radians(columns["roll_deg"]),
+            columns["tx_m"],
+            columns["tz_m"],
+            np.radians(columns["yaw_deg"]),
         ],
         axis=1,
     )
     std_all = np.stack(
         [
-            np.radians(columns["prev_pitch_std_deg"]), np.radians(columns["prev_roll_std_deg"]),
-            np.radians(columns["pitch_std_deg"]), np.radians(columns["roll_std_deg"]),
-            columns["tx_std_m"], columns["tz_std_m"], np.radians(columns["yaw_std_deg"]),
+            np.radians(columns["prev_pitch_std_deg"]),
+            np.radians(columns["prev_roll_std_deg"]),
+            np.radians(columns["pitch_std_deg"]),
+            np.radians(columns["roll_std_deg"]),
+            columns["tx_std_m"],
+            columns["tz_std_m"],
+            np.radians(columns["yaw_std_deg"]),
         ],
         axis=1,
     )

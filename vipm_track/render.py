@@ -17,6 +17,7 @@ radians (> 0 turned right). That is the planar motion W → G, so geometry's
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -33,7 +34,7 @@ from .geometry import (
     pair_homography,
     rotation_ground_from_camera,
 )
-from .texture import GroundTexture, load_texture
+from .texture import TEXTURES, GroundTexture
 
 
 @dataclass(frozen=True)
@@ -185,10 +186,15 @@ def _render_ground(
     vs = (np.arange(height * ss, dtype=np.float32) + 0.5) / ss - 0.5
     # Ray elevation is linear in (u, v): the horizon is in view if a top corner sees sky.
     horizon_visible = min(n[0] * u + n[1] * vs[0] + n[2] for u in (us[0], us[-1])) <= 1e-9
+    # Rows that see any ground (the ray elevation is linear along a row: test both ends,
+    # one output row of margin for the supersamples); rows of pure sky are not warped.
+    v_out = np.arange(height, dtype=np.float64)
+    sees_ground = np.maximum(n[0] * 0 + n[1] * (v_out + 0.5) + n[2],
+                             n[0] * (width - 1) + n[1] * (v_out + 0.5) + n[2]) > 0
     out = np.zeros((height, width), np.float32)
     for lev in range(texture.n_levels):
         weight = np.clip(1.0 - np.abs(level - lev), 0.0, 1.0)
-        used = np.flatnonzero(weight.max(axis=1) > 0)
+        used = np.flatnonzero((weight.max(axis=1) > 0) & sees_ground)
         if used.size == 0:
             continue
         r0, r1 = int(used[0]), int(used[-1]) + 1
@@ -272,34 +278,51 @@ def _motion_blur(
 def _draw_obstacle(img: NDArray[np.float32], seed: int) -> NDArray[np.float32]:
     """Fill the obstacle polygon with a fixed brick texture (a wall that does not move like
     the ground), with an anti-aliased edge."""
-    height, width = img.shape
+    alpha, wall = _obstacle_layer(img.shape[1], img.shape[0], seed)
+    return (1 - alpha) * img + alpha * wall
+
+
+@functools.lru_cache(maxsize=4)
+def _obstacle_layer(width: int, height: int, seed: int) -> tuple[NDArray, NDArray]:
     ss = 4
     poly = np.round(OBSTACLE_POLYGON * [width * ss, height * ss]).astype(np.int32)
     mask = np.zeros((height * ss, width * ss), np.uint8)
     cv2.fillPoly(mask, [poly], 255)
     alpha = cv2.resize(mask, (width, height), interpolation=cv2.INTER_AREA).astype(np.float32) / 255
-    wall = load_texture("brick", 1.0, seed=seed, tiles=4).levels[1]
+    wall = GroundTexture.from_photo(TEXTURES["brick"].photo, 1.0, tiles=4, seed=seed,
+                                    recipe=TEXTURES["brick"]).levels[1]
     reps = (int(np.ceil(height / wall.shape[0])), int(np.ceil(width / wall.shape[1])))
     wall = np.tile(wall, reps)[:height, :width].astype(np.float32) * 0.8 + 20
-    return (1 - alpha) * img + alpha * wall
+    return alpha, wall
 
 
+@functools.lru_cache(maxsize=4)
 def _highlight_layer(width: int, height: int, n: int, seed: int) -> NDArray[np.float32]:
     """Additive specular blobs (grey levels) at seeded positions in the lower image half."""
     rng = np.random.default_rng([seed, 104729])
-    v, u = np.mgrid[0:height, 0:width].astype(np.float32)
+    u = np.arange(width, dtype=np.float32)
+    v = np.arange(height, dtype=np.float32)
     layer = np.zeros((height, width), np.float32)
     for _ in range(n):
         cx, cy = rng.uniform(0.1, 0.9) * width, rng.uniform(0.5, 0.95) * height
         sx, sy = rng.uniform(0.02, 0.05) * width, rng.uniform(0.01, 0.03) * height
-        layer += 140.0 * np.exp(-0.5 * (((u - cx) / sx) ** 2 + ((v - cy) / sy) ** 2))
+        # Separable Gaussian: an outer product of two 1-D profiles.
+        layer += 140.0 * np.outer(np.exp(-0.5 * ((v - cy) / sy) ** 2),
+                                  np.exp(-0.5 * ((u - cx) / sx) ** 2))
     return layer
 
 
 def _vignetting(camera: CameraModel, strength: float) -> NDArray[np.float32]:
-    v, u = np.mgrid[0:camera.height, 0:camera.width].astype(np.float32)
-    r2 = ((u - camera.cx) / camera.fx) ** 2 + ((v - camera.cy) / camera.fy) ** 2
-    cos4 = 1.0 / (1.0 + r2) ** 2
+    return _vignetting_map(camera.width, camera.height, camera.fx, camera.fy, camera.cx,
+                           camera.cy, strength)
+
+
+@functools.lru_cache(maxsize=4)
+def _vignetting_map(width: int, height: int, fx: float, fy: float, cx: float, cy: float,
+                    strength: float) -> NDArray[np.float32]:
+    u = (np.arange(width, dtype=np.float32) - cx) / fx
+    v = (np.arange(height, dtype=np.float32) - cy) / fy
+    cos4 = 1.0 / (1.0 + v[:, None] ** 2 + u[None, :] ** 2) ** 2
     return (1.0 - strength * (1.0 - cos4)).astype(np.float32)
 
 

@@ -5,12 +5,18 @@ of the frame's ground frame G and (derived from consecutive world poses with geo
 ``compose_motion``) the planar motion k-1 → k in the sense of CONVENTIONS.md.
 :func:`simulate_sequence` renders one (``render.render_frame``) and writes
 ``DIR/images/000000.png …``, ``DIR/camera.yaml`` (ROS camera_info), ``DIR/gt.csv`` and
-``DIR/times.txt``.
+``DIR/times.txt`` and ``DIR/speed.csv`` (a simulated wheel speed, :func:`wheel_speed_samples`:
+50 Hz, 0.5 % noise, 0.01 km/h resolution).
 
 Profiles follow the paper's experiments: ``static`` (constant pose), ``gradual`` (slow
 pitch/roll changes of a few degrees over seconds), ``shaking`` (1–3 Hz pitch/roll
 oscillations of ~1–2° plus a little height change), ``height`` (height variation),
-``turn`` (constant yaw rate).
+``turn`` (constant yaw rate), ``drift`` (a slow linear mount pitch/roll drift, the
+calibration changing, under 1–3 Hz body shaking of ~0.3°: the filters' mount + body model).
+
+Where a profile separates the slow mount (the calibration) from the body motion, the
+trajectory's ``mount_*`` arrays hold the mount part and ``gt.csv`` has ``mount_*`` columns
+(empty for ``gradual`` and ``height``, whose pose changes are neither).
 """
 
 from __future__ import annotations
@@ -29,11 +35,16 @@ from .render import Effects, render_frame, world_pose_motion
 from .table import TableWriter
 from .texture import TEXTURES, GroundTexture, load_texture
 
-PROFILES: tuple[str, ...] = ("static", "gradual", "shaking", "height", "turn")
+PROFILES: tuple[str, ...] = ("static", "gradual", "shaking", "height", "turn", "drift")
 GT_EXTRA_COLUMNS: tuple[str, ...] = (
     "prev_pitch_deg", "prev_roll_deg", "prev_height_m", "speed_mps",
     "world_x_m", "world_z_m", "world_heading_deg",
+    "mount_pitch_deg", "mount_roll_deg", "mount_height_m",
 )
+#: mount drift of the ``drift`` profile per unit amplitude, degrees per second (pitch, roll)
+DRIFT_RATE_DPS: tuple[float, float] = (0.01, -0.006)
+#: amplitude of each of the three body-shaking sinusoids of ``drift``, degrees (pitch, roll)
+DRIFT_SHAKE_DEG: tuple[float, float] = (0.2, 0.15)
 
 
 @dataclass(frozen=True)
@@ -69,7 +80,7 @@ PRESETS: dict[str, Preset] = {
     # The paper's cart: 800×600, f ≈ 729 px, h ≈ 0.7 m, looking 45° down, walking speed.
     "cart": Preset("cart", 800, 600, 729.0, 45.0, 0.7, 10.0, 1.2, 15.0, "gravel", 0.0015, 24),
     # Forward-looking dashcam: 1280×720, f ≈ 900 px, h ≈ 1.5 m, pitch 3°, 5–20 m/s.
-    "car": Preset("car", 1280, 720, 900.0, 3.0, 1.5, 20.0, 12.0, 8.0, "gravel", 0.008, 32),
+    "car": Preset("car", 1280, 720, 900.0, 3.0, 1.5, 20.0, 12.0, 8.0, "gravel", 0.008, 24),
 }
 
 
@@ -79,7 +90,8 @@ class Trajectory:
 
     Attributes: ``t`` [s] (N,), ``pitch``/``roll`` [rad] (N,), ``height`` [m] (N,),
     ``world_xz`` [m] (N, 2) and ``world_heading`` [rad] (N,) of each frame's G in the world,
-    ``speed`` [m/s] (N,).
+    ``speed`` [m/s] (N,); ``mount_pitch``/``mount_roll`` [rad], ``mount_height`` [m] (N,): the
+    slow mount part of the pose where the profile defines one (else ``None``).
     """
 
     t: NDArray[np.float64]
@@ -89,6 +101,9 @@ class Trajectory:
     world_xz: NDArray[np.float64]
     world_heading: NDArray[np.float64]
     speed: NDArray[np.float64]
+    mount_pitch: NDArray[np.float64] | None = None
+    mount_roll: NDArray[np.float64] | None = None
+    mount_height: NDArray[np.float64] | None = None
 
     def __len__(self) -> int:
         return len(self.t)
@@ -147,6 +162,7 @@ def make_trajectory(
     rng = np.random.default_rng(seed)
     t = np.arange(n_frames) / fps
     pitch, roll, height = _PROFILE_FUNCS[profile](t, p, rng, amplitude)
+    mount = _MOUNT_FUNCS[profile](t, p, amplitude) if profile in _MOUNT_FUNCS else (None,) * 3
     # Speed with a slow seeded variation; heading from the yaw rate; position integrated on
     # a fine clock (the motion is then read off the world poses exactly).
     sub = 16
@@ -161,7 +177,7 @@ def make_trajectory(
     step_xz = np.stack([np.sin(mid_heading), np.cos(mid_heading)], axis=1) * (mid_v * dt)[:, None]
     xz_f = np.vstack([np.zeros((1, 2)), np.cumsum(step_xz, axis=0)])
     return Trajectory(t, pitch, roll, height, xz_f[::sub].copy(), heading_f[::sub].copy(),
-                      vf[::sub].copy())
+                      vf[::sub].copy(), *mount)
 
 
 def _static(t, p, rng, a):
@@ -198,8 +214,32 @@ def _turn(t, p, rng, a):
     return _static(t, p, rng, a)
 
 
+def _drift_mount(t, p, a):
+    """Mount of ``drift``: the nominal pose plus a linear pitch/roll drift."""
+    pitch, roll, height = _static(t, p, None, a)
+    return (pitch + a * np.radians(DRIFT_RATE_DPS[0]) * t,
+            roll + a * np.radians(DRIFT_RATE_DPS[1]) * t, height)
+
+
+def _drift(t, p, rng, a):
+    pitch, roll, height = _drift_mount(t, p, a)
+    for _ in range(3):
+        f, ph = rng.uniform(1.0, 3.0, 2), rng.uniform(0, 2 * np.pi, 2)
+        pitch = pitch + a * np.radians(DRIFT_SHAKE_DEG[0]) * np.sin(2 * np.pi * f[0] * t + ph[0])
+        roll = roll + a * np.radians(DRIFT_SHAKE_DEG[1]) * np.sin(2 * np.pi * f[1] * t + ph[1])
+    return pitch, roll, height
+
+
 _PROFILE_FUNCS: dict[str, Callable] = {
     "static": _static, "gradual": _gradual, "shaking": _shaking, "height": _height, "turn": _turn,
+    "drift": _drift,
+}
+#: mount part (slow calibration) of the profiles that separate it from the body motion
+_MOUNT_FUNCS: dict[str, Callable] = {
+    "static": lambda t, p, a: _static(t, p, None, a),
+    "turn": lambda t, p, a: _static(t, p, None, a),
+    "shaking": lambda t, p, a: _static(t, p, None, a),
+    "drift": _drift_mount,
 }
 
 
@@ -235,6 +275,10 @@ def gt_rows(traj: Trajectory) -> list[dict]:
                "height_m": h, "speed_mps": float(traj.speed[k]),
                "world_x_m": float(traj.world_xz[k, 0]), "world_z_m": float(traj.world_xz[k, 1]),
                "world_heading_deg": float(np.degrees(traj.world_heading[k]))}
+        if traj.mount_pitch is not None:
+            row.update(mount_pitch_deg=float(np.degrees(traj.mount_pitch[k])),
+                       mount_roll_deg=float(np.degrees(traj.mount_roll[k])),
+                       mount_height_m=float(traj.mount_height[k]))
         if k == 0:
             row["status"] = "first"
         else:
@@ -244,6 +288,41 @@ def gt_rows(traj: Trajectory) -> list[dict]:
                        prev_pitch_deg=pp, prev_roll_deg=pr, prev_height_m=ph)
         rows.append(row)
     return rows
+
+
+def wheel_speed_samples(
+    traj: Trajectory,
+    rate_hz: float = 50.0,
+    noise_rel: float = 0.005,
+    quantum_kmh: float = 0.01,
+    seed: int = 0,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """A wheel-speed sensor on the trajectory: times [s, camera clock] at ``rate_hz`` over the
+    drive and speeds [m/s] with relative Gaussian noise ``noise_rel`` and quantised to
+    ``quantum_kmh`` km/h (a CAN speed signal's resolution). Deterministic from ``seed``."""
+    if rate_hz <= 0 or noise_rel < 0 or quantum_kmh < 0:
+        raise ValueError("rate_hz must be > 0, noise_rel and quantum_kmh >= 0")
+    t = np.arange(0.0, float(traj.t[-1]) + 0.5 / rate_hz, 1.0 / rate_hz)
+    v = np.interp(t, traj.t, traj.speed)
+    v = v * (1.0 + noise_rel * np.random.default_rng([seed, 7]).standard_normal(len(t)))
+    if quantum_kmh > 0:
+        q = quantum_kmh / 3.6
+        v = np.round(v / q) * q
+    return t, np.maximum(v, 0.0)
+
+
+def write_wheel_speed_csv(
+    traj: Trajectory, path: str | Path, seed: int = 0, **sensor: float
+) -> Path:
+    """Write :func:`wheel_speed_samples` of ``traj`` as a ``t,speed_mps`` CSV (the format of
+    ``--speed-csv``); ``sensor``: its rate/noise/quantum keywords. Returns the path."""
+    t, v = wheel_speed_samples(traj, seed=seed, **sensor)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as fh:
+        fh.write("t,speed_mps\n")
+        np.savetxt(fh, np.column_stack([t, v]), fmt=["%.6f", "%.6f"], delimiter=",")
+    return path
 
 
 def simulate_sequence(
@@ -271,6 +350,7 @@ def simulate_sequence(
     camera = p.camera()
     write_ros_yaml(camera, out / "camera.yaml", name=f"vipm_sim_{p.name}")
     (out / "times.txt").write_text("".join(f"{t:.6e}\n" for t in traj.t))
+    write_wheel_speed_csv(traj, out / "speed.csv", seed=seed)
     iterator = range(frames)
     if progress:
         from tqdm import tqdm

@@ -47,7 +47,9 @@ ESTIMATE_COLUMNS: tuple[str, ...] = (
     "residual_px",
 )
 
-TEXT_COLUMNS = frozenset({"status", "monitor_state", "reason"})
+TEXT_COLUMNS = frozenset(
+    {"status", "monitor_state", "reason", "filter_status", "meas_status", "gated", "reset_reason"}
+)
 
 
 class TableError(InputError):
@@ -129,7 +131,9 @@ def write_table(
             writer.write(row)
 
 
-def write_parquet(rows: Sequence[Mapping[str, Any]], columns: Sequence[str], path: str | Path) -> None:
+def write_parquet(
+    rows: Sequence[Mapping[str, Any]], columns: Sequence[str], path: str | Path
+) -> None:
     """Write rows as Parquet with the given column order (text columns as strings)."""
     pa = _require_pyarrow()
     import pyarrow.parquet as pq
@@ -183,8 +187,12 @@ def read_table(path: str | Path, required: Sequence[str] = BASE_COLUMNS[:2]) -> 
             try:
                 values[i] = _to_float(v)
             except ValueError as exc:
-                raise TableError(f"{path}: row {i + 2}, column '{name}': not a number: {v!r}") from exc
-        out[name] = values.astype(np.int64) if name == "frame" and np.all(np.isfinite(values)) else values
+                raise TableError(
+                    f"{path}: row {i + 2}, column '{name}': not a number: {v!r}"
+                ) from exc
+        out[name] = (
+            values.astype(np.int64) if name == "frame" and np.all(np.isfinite(values)) else values
+        )
     return out
 
 
@@ -201,5 +209,7 @@ def _require_pyarrow():
     try:
         import pyarrow
     except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise RuntimeError("Parquet output needs pyarrow: pip install 'vipm-track[parquet]'") from exc
+        raise RuntimeError(
+            "Parquet output needs pyarrow: pip install 'vipm-track[parquet]'"
+        ) from exc
     return pyarrow

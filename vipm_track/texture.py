@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-TEXTURE_DIR = Path(__file__).resolve().parents[1] / "data" / "textures"
+from .resources import data_path
 
 
 @dataclass(frozen=True)
@@ -116,38 +116,40 @@ class GroundTexture:
         mean = float(img.mean())
         centred = (img - mean).astype(np.float32)
         size = tiles * step
-        num = np.zeros((size + tile_size, size + tile_size), np.float32)
-        den = np.zeros_like(num)
         ramp = np.clip((np.minimum(np.arange(tile_size), tile_size - 1 - np.arange(tile_size))
                         + 0.5) / overlap, 0.0, 1.0).astype(np.float32)
         weight = np.outer(ramp, ramp)
+        # Σ weight² over the wrapped tiles is separable and periodic with the step.
+        den_1d = np.zeros(size, np.float32)
+        for i in range(tiles):
+            np.add.at(den_1d, (i * step + np.arange(tile_size)) % size, ramp * ramp)
+        num = np.zeros((size, size), np.float32)
         rng = np.random.default_rng(seed)
         n_orient = 8 if recipe.rotations else 4
         for i in range(tiles):
+            rows = (i * step + np.arange(tile_size)) % size
+            strip = np.zeros((tile_size, size), np.float32)
             for j in range(tiles):
                 oy = rng.integers(0, img.shape[0] - tile_size + 1)
                 ox = rng.integers(0, img.shape[1] - tile_size + 1)
                 crop = centred[oy:oy + tile_size, ox:ox + tile_size]
-                tile = _orient(crop, int(rng.integers(n_orient)), recipe.rotations)
-                num[i * step:i * step + tile_size, j * step:j * step + tile_size] += weight * tile
-                den[i * step:i * step + tile_size, j * step:j * step + tile_size] += weight * weight
-        num, den = _fold(num, size), _fold(den, size)
+                tile = weight * _orient(crop, int(rng.integers(n_orient)), recipe.rotations)
+                x0 = j * step
+                if x0 + tile_size <= size:
+                    strip[:, x0:x0 + tile_size] += tile
+                else:
+                    strip[:, x0:] += tile[:, :size - x0]
+                    strip[:, :x0 + tile_size - size] += tile[:, size - x0:]
+            num[rows] += strip
         # Variance-preserving blend: uncorrelated tiles keep the photo's contrast in overlaps.
-        canvas = num / np.sqrt(np.maximum(den, 1e-6))
-        # Shift so the canvas starts mid-tile rather than at a feather.
-        canvas = np.roll(canvas, (-overlap // 2, -overlap // 2), axis=(0, 1))
-        out_mean = recipe.mean if recipe.mean is not None else mean
-        return cls(out_mean + recipe.contrast * canvas, metres_per_texel, name or recipe.photo)
-
-
-def _fold(a: NDArray, size: int) -> NDArray:
-    """Wrap the overflow of a padded accumulator back onto a size×size torus."""
-    out = a[:size, :size].copy()
-    pad = a.shape[0] - size
-    out[:pad, :] += a[size:, :size]
-    out[:, :pad] += a[:size, size:]
-    out[:pad, :pad] += a[size:, size:]
-    return out
+        inv = (1.0 / np.sqrt(den_1d)).astype(np.float32)
+        num *= inv[:, None]
+        num *= inv[None, :] * np.float32(recipe.contrast)
+        num += np.float32(recipe.mean if recipe.mean is not None else mean)
+        # Start the canvas mid-tile rather than at a feather.
+        canvas = np.roll(np.clip(num, 0, 255).astype(np.uint8), (-overlap // 2, -overlap // 2),
+                         axis=(0, 1))
+        return cls(canvas, metres_per_texel, name or recipe.photo)
 
 
 def _orient(tile: NDArray, k: int, rotations: bool) -> NDArray:
@@ -170,11 +172,10 @@ def _pyramid(level0: NDArray[np.uint8]) -> list[NDArray[np.uint8]]:
 def _load_photo(photo: str | Path) -> NDArray:
     path = Path(photo)
     if not path.is_file():
-        path = TEXTURE_DIR / str(photo)
+        path = data_path("textures", str(photo))
     img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     if img is None:
-        raise FileNotFoundError(f"texture photo not found or unreadable: {photo} "
-                                f"(looked in {TEXTURE_DIR})")
+        raise FileNotFoundError(f"texture photo unreadable: {path}")
     return img.astype(np.float64)
 
 

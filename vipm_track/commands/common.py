@@ -15,9 +15,11 @@ def add_input_options(parser: argparse.ArgumentParser, required: bool = True) ->
                         help="frame rate for timestamps when the input has none [Hz]")
 
 
-def add_camera_options(parser: argparse.ArgumentParser, height_required: bool = True) -> None:
+def add_camera_options(
+    parser: argparse.ArgumentParser, height_required: bool = True, camera_required: bool = True
+) -> None:
     """``--camera`` (intrinsics file) and ``--height`` (nominal camera height, metres)."""
-    parser.add_argument("--camera", metavar="CAMERA.yaml", required=True,
+    parser.add_argument("--camera", metavar="CAMERA.yaml", required=camera_required,
                         help="intrinsics: ROS camera_info YAML, OpenCV FileStorage YAML or "
                         "KITTI calib.txt")
     parser.add_argument("--height", type=float, required=height_required, metavar="H",
@@ -50,8 +52,13 @@ def add_speed_options(parser: argparse.ArgumentParser) -> None:
 
 
 def add_rerun_options(parser: argparse.ArgumentParser) -> None:
-    """``--rerun OUT.rrd``, ``--rerun-spawn``, ``--rerun-connect ADDR``."""
+    """``--rerun OUT.rrd``, ``--rerun-spawn``, ``--rerun-connect ADDR`` (any combination) and
+    the image decimation/quality of the recording (``vipm_track.sinks.rerun_sink``)."""
     group = parser.add_argument_group("rerun dashboard")
     group.add_argument("--rerun", metavar="OUT.rrd", help="write a rerun recording")
     group.add_argument("--rerun-spawn", action="store_true", help="spawn a rerun viewer")
     group.add_argument("--rerun-connect", metavar="ADDR", help="stream to a running viewer")
+    group.add_argument("--rerun-image-every", type=int, default=1, metavar="N",
+                       help="log the camera/IPM images of every N-th pair (0: none; default 1)")
+    group.add_argument("--rerun-jpeg-quality", type=int, default=75, metavar="Q",
+                       help="JPEG quality of logged images, 1-100 (default 75)")

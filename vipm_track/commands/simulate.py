@@ -17,7 +17,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="render a synthetic ground sequence (images, camera.yaml, gt.csv, times.txt)",
         description="Render a camera looking at a flat ground textured with real photographs "
         "along a trajectory with exact ground truth. Writes OUT/images/000000.png…, "
-        "OUT/camera.yaml (ROS camera_info), OUT/gt.csv and OUT/times.txt.",
+        "OUT/camera.yaml (ROS camera_info), OUT/gt.csv, OUT/times.txt and OUT/speed.csv "
+        "(simulated wheel speed: 50 Hz, 0.5 % noise, 0.01 km/h steps).",
     )
     p.add_argument("--preset", choices=sorted(PRESETS), default="cart",
                    help="rig: cart (800×600, h 0.7 m, pitch 45°, 10 fps) or car (1280×720, "
@@ -68,6 +69,6 @@ def run(args: argparse.Namespace) -> int:
         effects=effects, texture=args.texture, fps=args.fps, speed=args.speed,
         amplitude=args.amplitude, progress=True,
     )
-    print(f"wrote {len(traj)} frames to {args.out} (images/, camera.yaml, gt.csv, times.txt)",
-          file=sys.stderr)
+    print(f"wrote {len(traj)} frames to {args.out} "
+          "(images/, camera.yaml, gt.csv, times.txt, speed.csv)", file=sys.stderr)
     return 0

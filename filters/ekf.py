@@ -1,0 +1,481 @@
+"""Extended Kalman filter over the two-frame measurements: mount extrinsics, body shaking and
+planar motion (the model of ``filters.model``), on ``filterpy.kalman.ExtendedKalmanFilter``.
+
+Feed it one frame at a time, read estimates back::
+
+    ekf = ExtrinsicsEKF(EkfConfig(height_m=1.5))
+    for m, v in zip(measurements, speeds):
+        state = ekf.step(m, speed=v)      # FilterState: mount, frame pose, motion, NIS, ...
+
+or ``run_filter(measurements, speed_series, config)`` for a whole sequence.
+
+- Every call predicts to the frame time (stochastic cloning keeps frame k-1 for the pair).
+- A wheel speed (m/s, already on the camera clock) updates the speed: h becomes observable.
+- A pair whose status is not ``ok`` is skipped (the filter predicts through the gap).
+- Mahalanobis gating, as robot_localization's rejection thresholds: the pose block (4 angles)
+  and the motion block (tx, tz, yaw) of a pair are each rejected when their normalised
+  innovation squared exceeds the chi-square quantile ``gate_probability`` (4 / 3 dof), so an
+  unexpected manoeuvre costs the motion only; the same for a speed reading (1 dof). ``nis``
+  reports the whole pair's 7-dof value.
+- It never diverges silently: after each step the covariance must be finite, symmetric,
+  positive semi-definite and its mount angle std below ``max_mount_angle_std_deg``; after
+  ``max_consecutive_gated`` pairs in a row gated on pitch/roll the filter no longer agrees with
+  the data. Either way it re-initialises from the next good pair (keeping the height estimate)
+  and says why in ``reset_reason``. The same count of motion-gated pairs restarts only the speed
+  and yaw rate.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+from filterpy.kalman import ExtendedKalmanFilter
+from numpy.typing import NDArray
+from scipy.stats import chi2
+
+from vipm_track.measurement import PairMeasurement
+
+from . import model as M
+from .model import NoiseParams
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class EkfConfig:
+    """EKF settings: the model's noise, the nominal height (prior mean, metres), gating and
+    divergence checks."""
+
+    height_m: float = 1.5
+    noise: NoiseParams = field(default_factory=NoiseParams)
+    gate_probability: float = 0.999
+    speed_gate_probability: float = 0.999
+    max_consecutive_gated: int = 15
+    max_mount_angle_std_deg: float = 10.0
+    default_dt_s: float = 0.05  # frame interval assumed before the first frame time is known
+    init_pairs: int = 5  # good pairs whose medians start (and restart) the filter
+    speed_timeout_s: float = 1.0  # h is estimated only while wheel speeds are this recent
+
+
+@dataclass(frozen=True)
+class FilterState:
+    """Filtered estimate after one frame (radians, metres, seconds; frames of filters.model).
+
+    ``status``: ``ok`` (pair applied), ``partial`` (pose or motion block gated), ``gated``
+    (pair rejected by the gate), ``predicted``
+    (no usable pair: the input status says why), ``waiting`` (not initialised yet),
+    ``reset`` (re-initialised on this frame; ``reset_reason`` says why)."""
+
+    frame: int
+    t: float
+    status: str
+    mount: FloatArray  # (pitch_m, roll_m, h_m)
+    mount_cov: FloatArray  # 3×3
+    mount_yaw: float
+    pose: FloatArray  # frame pose (pitch, roll, h) = mount + body
+    pose_cov: FloatArray
+    motion: FloatArray  # (tx, tz, yaw) frame k-1 → k, metric (true scale), G_{k-1}
+    motion_cov: FloatArray
+    speed: float
+    yaw_rate: float
+    position: FloatArray  # (x, y) world, metres
+    heading: float
+    state: FloatArray  # full 16-vector (``filters.model`` layout)
+    covariance: FloatArray  # 16×16
+    nis: float = float("nan")
+    gated: str = ""  # rejected blocks: '', 'pose', 'motion' or 'pose+motion'
+    speed_nis: float = float("nan")
+    speed_gated: bool = False
+    reset_reason: str = ""
+
+    @property
+    def initialised(self) -> bool:
+        return self.status != "waiting"
+
+    @property
+    def mount_std(self) -> FloatArray:
+        return np.sqrt(np.clip(np.diag(self.mount_cov), 0.0, None))
+
+    @property
+    def pose_std(self) -> FloatArray:
+        return np.sqrt(np.clip(np.diag(self.pose_cov), 0.0, None))
+
+    @property
+    def motion_std(self) -> FloatArray:
+        return np.sqrt(np.clip(np.diag(self.motion_cov), 0.0, None))
+
+
+class SpeedSource(Protocol):
+    """Anything with sample times ``t`` (s) and ``speed_mps`` arrays."""
+
+    t: FloatArray
+    speed_mps: FloatArray
+
+
+class _ClonedEKF(ExtendedKalmanFilter):
+    """filterpy's EKF with the nonlinear, cloning transition of ``filters.model``."""
+
+    def __init__(self, noise: NoiseParams) -> None:
+        super().__init__(dim_x=M.STATE_DIM, dim_z=7)
+        self.x = np.zeros(M.STATE_DIM)
+        self._noise = noise
+        self._dt = 0.0
+
+    def predict_dt(self, dt: float) -> None:
+        x_new, self.F, self.Q = M.transition(self.x, dt, self._noise)
+        self._x_new = x_new
+        self.predict()
+
+    def predict_x(self, u: object = 0) -> None:
+        self.x = self._x_new
+
+
+class ExtrinsicsEKF:
+    """Recursive estimate of mount extrinsics, body shaking and planar motion (module doc)."""
+
+    def __init__(self, config: EkfConfig | None = None) -> None:
+        self._cfg = config or EkfConfig()
+        if self._cfg.height_m <= 0:
+            raise ValueError(f"nominal height must be > 0, got {self._cfg.height_m}")
+        self._gate_pose = float(chi2.ppf(self._cfg.gate_probability, 4))
+        self._gate_motion = float(chi2.ppf(self._cfg.gate_probability, 3))
+        self._speed_gate = float(chi2.ppf(self._cfg.speed_gate_probability, 1))
+        self._kf: _ClonedEKF | None = None
+        self._t: float | None = None
+        self._pose_gated_run = 0
+        self._motion_gated_run = 0
+        self._motion_note = ""
+        self._pending_reset = ""
+        self._boot: list[tuple[PairMeasurement | None, float | None, float]] = []
+        self._last_speed_t: float | None = None
+        h0 = self._cfg.height_m
+        self._height = (h0, (self._cfg.noise.prior_height_std_rel * h0) ** 2)
+
+    @property
+    def config(self) -> EkfConfig:
+        return self._cfg
+
+    @property
+    def initialised(self) -> bool:
+        return self._kf is not None
+
+    def step(
+        self,
+        measurement: PairMeasurement | None,
+        t: float | None = None,
+        speed: float | None = None,
+        frame: int | None = None,
+    ) -> FilterState:
+        """Advance to frame time ``t`` (default: the measurement's) and apply the pair
+        ``measurement`` (skipped unless ok) and the wheel ``speed`` (m/s; None/NaN: none)."""
+        if t is None:
+            if measurement is None:
+                raise ValueError("step needs a time t when there is no measurement")
+            t = measurement.t
+        frame = measurement.frame if frame is None and measurement is not None else frame
+        frame = -1 if frame is None else frame
+        t = float(t)
+        usable = measurement is not None and measurement.ok
+        if self._t is not None and t <= self._t:
+            # a frame out of order: report it, change nothing
+            return self._state(frame, t, "predicted" if self._kf else "waiting",
+                               reset_reason="", note=f"time {t} not after {self._t}")
+        dt = t - self._t if self._t is not None else self._cfg.default_dt_s
+        self._t = t
+
+        reason = ""
+        if self._kf is None:
+            # bootstrap: collect init_pairs good pairs, start from their medians (robust to an
+            # outlier among them), then run them through the filter like any other frame
+            if not usable and not self._boot:
+                return self._state(frame, t, "waiting")
+            self._boot.append((measurement if usable else None, speed, dt))
+            if sum(m is not None for m, _, _ in self._boot) < self._cfg.init_pairs:
+                return self._state(frame, t, "waiting")
+            if self._pending_reset:
+                reason = f"re-initialised after {self._pending_reset}"
+            self._pending_reset = ""
+            boot, self._boot = self._boot, []
+            self._initialise(boot)
+            for m, v, d in boot[:-1]:
+                self._advance(m, v, d)
+            if self._pending_reset:  # the start itself failed: try again on the next pairs
+                problem = self._pending_reset
+                self._reset(problem)
+                return self._state(frame, t, "waiting", reset_reason=problem)
+        status, nis, gated, speed_nis, speed_gated = self._advance(
+            measurement if usable else None, speed, dt
+        )
+        if self._motion_note:
+            reason = "; ".join(r for r in (reason, self._motion_note) if r)
+            self._motion_note = ""
+
+        problem = self._check()
+        if problem:
+            state = self._state(frame, t, "reset", nis=nis, gated=gated, speed_nis=speed_nis,
+                                speed_gated=speed_gated, reset_reason=problem)
+            self._reset(problem)
+            return state
+        return self._state(frame, t, status, nis=nis, gated=gated, speed_nis=speed_nis,
+                           speed_gated=speed_gated, reset_reason=reason)
+
+    def _advance(
+        self, m: PairMeasurement | None, speed: float | None, dt: float
+    ) -> tuple[str, float, str, float, bool]:
+        """Predict over ``dt`` and apply the speed and the pair: (status, nis, gated blocks,
+        speed NIS, speed gated)."""
+        assert self._kf is not None
+        self._kf.predict_dt(dt)
+        speed_nis, speed_gated = float("nan"), False
+        if speed is not None and np.isfinite(speed):
+            speed_nis, speed_gated = self._update_speed(float(speed))
+        if m is None:
+            return "predicted", float("nan"), "", speed_nis, speed_gated
+        nis, gated = self._update_pair(m, dt)
+        status = {"": "ok", "pose+motion": "gated"}.get(gated, "partial")
+        return status, nis, gated, speed_nis, speed_gated
+
+    # --- internals --------------------------------------------------------------------------
+
+    def _initialise(
+        self, boot: list[tuple[PairMeasurement | None, float | None, float]]
+    ) -> None:
+        """Start, at the frame before the first of ``boot`` (pairs, speeds, intervals), from
+        the prior and the medians of the pairs' angles, speed and yaw rate."""
+        nz = self._cfg.noise
+        h_mean, h_var = self._height
+        pairs = [(m, d) for m, _, d in boot if m is not None]
+        zs = np.array([m.z for m, _ in pairs])
+        dts = np.array([d for _, d in pairs])
+        h0s = np.array([m.height_assumed for m, _ in pairs])
+        travel = np.hypot(zs[:, 4], zs[:, 5]) * h_mean / h0s
+        speeds = np.array([v for _, v, _ in boot if v is not None and np.isfinite(v)])
+        x = np.zeros(M.STATE_DIM)
+        x[M.MOUNT_PITCH] = float(np.median(0.5 * (zs[:, 0] + zs[:, 2])))
+        x[M.MOUNT_ROLL] = float(np.median(0.5 * (zs[:, 1] + zs[:, 3])))
+        x[M.MOUNT_HEIGHT] = h_mean
+        x[M.SPEED] = float(np.median(speeds)) if len(speeds) else float(np.median(travel / dts))
+        x[M.YAW_RATE] = float(np.median(zs[:, 6] / dts))
+        p = np.zeros((M.STATE_DIM, M.STATE_DIM))
+        ang = np.radians(nz.prior_mount_angle_std_deg) ** 2
+        p[M.MOUNT_PITCH, M.MOUNT_PITCH] = p[M.MOUNT_ROLL, M.MOUNT_ROLL] = ang
+        p[M.MOUNT_HEIGHT, M.MOUNT_HEIGHT] = h_var
+        p[M.MOUNT_YAW, M.MOUNT_YAW] = np.radians(nz.prior_mount_yaw_std_deg) ** 2
+        body = np.radians(nz.body_std_deg) ** 2
+        for i in (M.BODY_PITCH, M.BODY_ROLL, M.PREV_BODY_PITCH, M.PREV_BODY_ROLL):
+            p[i, i] = body
+        p[M.SPEED, M.SPEED] = nz.prior_speed_std_mps**2
+        p[M.YAW_RATE, M.YAW_RATE] = np.radians(nz.prior_yaw_rate_std_dps) ** 2
+        kf = _ClonedEKF(nz)
+        kf.x, kf.P = x, p
+        self._kf = kf
+        self._pose_gated_run = self._motion_gated_run = 0
+
+    def _update_pair(self, m: PairMeasurement, dt: float) -> tuple[float, str]:
+        """Gate and apply a pair; returns its 7-dof NIS and the rejected blocks
+        ('' / 'pose' / 'motion' / 'pose+motion').
+
+        The pose block (4 angles) and the motion block (tx, tz, yaw) are gated separately, so a
+        manoeuvre the motion model did not expect costs the motion only, not the calibration.
+        """
+        kf = self._kf
+        assert kf is not None
+        zp, h = M.pair_measurement(kf.x, m.height_assumed)
+        if not self._metric():
+            # no metric speed lately: scale (h with v and the poses) is unobservable, and an
+            # EKF would invent information along it from its moving linearisation point;
+            # hold h where it is (its prior) instead
+            h[:, M.MOUNT_HEIGHT] = 0.0
+        r = np.asarray(m.covariance, dtype=float)
+        y = m.z - zp
+        y[6] = _wrap(y[6])
+        s = h @ kf.P @ h.T + r
+        nis = _mahalanobis(y, s)
+        keep = []
+        for block, gate in ((_POSE_ROWS, self._gate_pose), (_MOTION_ROWS, self._gate_motion)):
+            if _mahalanobis(y[block], s[np.ix_(block, block)]) <= gate:
+                keep.extend(block)
+        self._pose_gated_run = 0 if 0 in keep else self._pose_gated_run + 1
+        self._motion_gated_run = 0 if 4 in keep else self._motion_gated_run + 1
+        if keep:
+            rows = np.array(keep)
+            hk, zk, rk = h[rows], zp[rows], r[np.ix_(rows, rows)]
+            residual = _pair_residual if 6 in keep else np.subtract
+            kf.update(m.z[rows], lambda _x: hk, lambda _x: zk, R=rk, residual=residual)
+        n = self._cfg.max_consecutive_gated
+        if self._pose_gated_run >= n:
+            self._pending_reset = f"{self._pose_gated_run} pairs in a row gated on pitch/roll"
+        elif self._motion_gated_run >= n:
+            self._restart_motion(m, dt)
+        rejected = [name for name, rows in (("pose", 0), ("motion", 4)) if rows not in keep]
+        return nis, "+".join(rejected)
+
+    def _restart_motion(self, m: PairMeasurement, dt: float) -> None:
+        """Re-initialise speed and yaw rate from this pair after the motion model lost track."""
+        kf = self._kf
+        assert kf is not None
+        nz = self._cfg.noise
+        x, p = kf.x.copy(), kf.P.copy()
+        x[M.SPEED] = float(np.hypot(m.z[4], m.z[5])) * x[M.MOUNT_HEIGHT] / m.height_assumed / dt
+        x[M.YAW_RATE] = m.z[6] / dt
+        h_prior = (nz.prior_height_std_rel * self._cfg.height_m) ** 2
+        # a wrong height also makes every translation disagree: let the next pairs move it
+        for i, var in ((M.SPEED, nz.prior_speed_std_mps**2),
+                       (M.YAW_RATE, np.radians(nz.prior_yaw_rate_std_dps) ** 2),
+                       (M.MOUNT_HEIGHT, max(h_prior, float(p[M.MOUNT_HEIGHT, M.MOUNT_HEIGHT])))):
+            p[i, :] = p[:, i] = 0.0
+            p[i, i] = var
+        kf.x, kf.P = x, p
+        self._motion_note = (
+            f"speed/yaw rate/height re-opened after {self._motion_gated_run} pairs gated on motion"
+        )
+        self._motion_gated_run = 0
+
+    def _update_speed(self, speed: float) -> tuple[float, bool]:
+        kf = self._kf
+        assert kf is not None
+        zp, h = M.speed_measurement(kf.x)
+        r = np.array([[self._cfg.noise.speed_meas_var(speed)]])
+        s = (h @ kf.P @ h.T + r).item()
+        nis = float((speed - zp[0]) ** 2 / s)
+        if nis > self._speed_gate:
+            return nis, True
+        kf.update(np.array([speed]), lambda _x: h, lambda _x: zp, R=r)
+        self._last_speed_t = self._t
+        return nis, False
+
+    def _metric(self) -> bool:
+        """Whether a wheel speed was applied within ``speed_timeout_s``."""
+        return (
+            self._last_speed_t is not None and self._t is not None
+            and self._t - self._last_speed_t <= self._cfg.speed_timeout_s
+        )
+
+    def _check(self) -> str:
+        """Why the filter can no longer be trusted, or ''."""
+        if self._pending_reset:
+            return self._pending_reset
+        kf = self._kf
+        if kf is None:
+            return ""
+        p = kf.P
+        if not (np.all(np.isfinite(kf.x)) and np.all(np.isfinite(p))):
+            return "state or covariance not finite"
+        kf.P = p = 0.5 * (p + p.T)
+        scale = max(float(np.max(np.abs(np.diag(p)))), 1e-300)
+        if float(np.linalg.eigvalsh(p)[0]) < -1e-9 * scale:
+            return "covariance not positive semi-definite"
+        lim = np.radians(self._cfg.max_mount_angle_std_deg) ** 2
+        if p[M.MOUNT_PITCH, M.MOUNT_PITCH] > lim or p[M.MOUNT_ROLL, M.MOUNT_ROLL] > lim:
+            return f"mount angle std above {self._cfg.max_mount_angle_std_deg}°"
+        if not kf.x[M.MOUNT_HEIGHT] > 0:
+            return "height estimate not positive"
+        return ""
+
+    def _reset(self, reason: str) -> None:
+        """Drop the state (keeping a sane height estimate) until the next good pair."""
+        kf = self._kf
+        if kf is not None and np.isfinite(kf.x[M.MOUNT_HEIGHT]) and kf.x[M.MOUNT_HEIGHT] > 0:
+            var = float(kf.P[M.MOUNT_HEIGHT, M.MOUNT_HEIGHT])
+            prior = (self._cfg.noise.prior_height_std_rel * self._cfg.height_m) ** 2
+            self._height = (float(kf.x[M.MOUNT_HEIGHT]), var if 0 < var < prior else prior)
+        self._kf = None
+        self._pose_gated_run = self._motion_gated_run = 0
+        self._pending_reset = reason
+
+    def _state(
+        self, frame: int, t: float, status: str, nis: float = float("nan"), gated: str = "",
+        speed_nis: float = float("nan"), speed_gated: bool = False, reset_reason: str = "",
+        note: str = "",
+    ) -> FilterState:
+        kf = self._kf
+        if kf is None:
+            nan3, nan33 = np.full(3, np.nan), np.full((3, 3), np.nan)
+            return FilterState(
+                frame, t, "waiting", nan3, nan33, float("nan"), nan3, nan33, nan3, nan33,
+                float("nan"), float("nan"), np.full(2, np.nan), float("nan"),
+                np.full(M.STATE_DIM, np.nan), np.full((M.STATE_DIM, M.STATE_DIM), np.nan),
+                reset_reason=reset_reason or note,
+            )
+        x, p = kf.x.copy(), kf.P.copy()
+        pose, jp = M.frame_pose(x)
+        motion, jm = M.metric_motion(x)
+        return FilterState(
+            frame=frame, t=t, status=status, mount=x[M.MOUNT].copy(),
+            mount_cov=p[M.MOUNT, M.MOUNT].copy(), mount_yaw=float(x[M.MOUNT_YAW]),
+            pose=pose, pose_cov=jp @ p @ jp.T, motion=motion, motion_cov=jm @ p @ jm.T,
+            speed=float(x[M.SPEED]), yaw_rate=float(x[M.YAW_RATE]),
+            position=x[[M.POS_X, M.POS_Y]].copy(), heading=float(x[M.HEADING]), state=x,
+            covariance=p, nis=nis, gated=gated, speed_nis=speed_nis, speed_gated=speed_gated,
+            reset_reason=reset_reason or note,
+        )
+
+
+_POSE_ROWS = [0, 1, 2, 3]
+_MOTION_ROWS = [4, 5, 6]
+
+
+def _mahalanobis(y: FloatArray, s: FloatArray) -> float:
+    """yᵀ S⁻¹ y, inf where S is singular or the result not finite."""
+    try:
+        d = float(y @ np.linalg.solve(s, y))
+    except np.linalg.LinAlgError:
+        return float("inf")
+    return d if np.isfinite(d) else float("inf")
+
+
+def _wrap(a: float) -> float:
+    return float((a + np.pi) % (2 * np.pi) - np.pi)
+
+
+def _pair_residual(z: FloatArray, zp: FloatArray) -> FloatArray:
+    """z - zp with the yaw (always the last row when present) wrapped to (-π, π]."""
+    y = np.asarray(z, dtype=float) - zp
+    y[-1] = _wrap(y[-1])
+    return y
+
+
+def speed_at(series: SpeedSource, times: FloatArray, clock_offset_s: float = 0.0) -> FloatArray:
+    """Wheel speed (m/s) at camera ``times``: linear interpolation of ``series`` whose clock
+    is the camera's minus ``clock_offset_s``; NaN outside the samples or across gaps > 0.5 s."""
+    ts = np.asarray(series.t, dtype=float)
+    vs = np.asarray(series.speed_mps, dtype=float)
+    tt = np.asarray(times, dtype=float) - clock_offset_s
+    out = np.full(tt.shape, np.nan)
+    if len(ts) < 2:
+        return out
+    j = np.searchsorted(ts, tt)
+    inside = (j > 0) & (j < len(ts))
+    jj = np.clip(j, 1, len(ts) - 1)
+    close = (ts[jj] - ts[jj - 1]) <= 0.5
+    out[inside & close] = np.interp(tt, ts, vs)[inside & close]
+    exact = np.isin(tt, ts)
+    out[exact] = np.interp(tt[exact], ts, vs)
+    return out
+
+
+def run_filter(
+    measurements: Sequence[PairMeasurement],
+    speed_series: SpeedSource | None = None,
+    config: EkfConfig | None = None,
+    clock_offset_s: float = 0.0,
+    progress: bool = False,
+) -> list[FilterState]:
+    """Filter a whole sequence (one measurement per frame, failed ones included); with
+    ``speed_series`` the wheel speed at each frame time is applied too. Returns one
+    ``FilterState`` per measurement."""
+    ekf = ExtrinsicsEKF(config)
+    times = np.array([m.t for m in measurements], dtype=float)
+    speeds = (
+        speed_at(speed_series, times, clock_offset_s) if speed_series is not None
+        else np.full(len(times), np.nan)
+    )
+    it = zip(measurements, speeds, strict=True)
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(it, total=len(measurements), desc="ekf", unit="frame")
+    return [ekf.step(m, m.t, float(v), m.frame) for m, v in it]

@@ -1,0 +1,276 @@
+"""State and measurement model shared by the EKF (``filters/ekf.py``) and the smoother.
+
+The camera pose of frame k against the ground is split into a **slow mount** part (what a
+calibration means) and a **fast body** part (suspension, shaking):
+
+    pitch_k = pitch_m + b_pitch_k        roll_k = roll_m + b_roll_k        h_k = h_m
+
+- mount (pitch_m, roll_m, h_m, yaw_m): random walks with tiny rates (``NoiseParams``);
+  ``yaw_m`` is the heading of the camera's ground frame G to the right of the direction of
+  travel (a camera turned right sees the vehicle move left: tx < 0);
+- body (b_pitch, b_roll): zero-mean first-order Gauss–Markov, time constant ``body_tau_s``,
+  stationary std ``body_std_deg``;
+- planar motion: speed v (m/s, along the direction of travel), yaw rate ω (rad/s, > 0 turning
+  right), both random walks; vehicle pose (x, y, ψ) in a world frame = the planar frame of the
+  first frame: x to its right (G's x), y forward (G's z), heading ψ > 0 turning right
+  (CONVENTIONS.md signs). The camera's G origin moves with the vehicle (no lever arm).
+
+A pair measurement relates frames k-1 and k, so the state carries a *clone* of the previous
+frame's body and planar pose (stochastic cloning): ``transition`` copies the current part into
+the clone before propagating. The state vector (indices below, radians / metres / seconds):
+
+    0 pitch_m  1 roll_m  2 h_m  3 yaw_m | 4 b_pitch  5 b_roll | 6 b_pitch_prev  7 b_roll_prev
+    8 v  9 ω | 10 x  11 y  12 ψ | 13 x_prev  14 y_prev  15 ψ_prev
+
+The 7-vector of ``vipm_track.measurement`` is predicted as
+
+    (pitch_m + b_pitch_prev, roll_m + b_roll_prev, pitch_m + b_pitch, roll_m + b_roll,
+     tx, tz, yaw)
+
+where (tx, tz) is the displacement (x − x_prev, y − y_prev) rotated into G_{k-1} (heading
+ψ_prev + yaw_m) and *scaled by h0 / h_m* (h0 = ``PairMeasurement.height_assumed``: two frames
+fix translation in units of the height, CONVENTIONS.md Scale), and yaw = ψ − ψ_prev. A wheel
+speed measures v in m/s, which makes h_m observable; without it h_m stays at its prior.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+# --- state layout ---------------------------------------------------------------------------
+MOUNT_PITCH, MOUNT_ROLL, MOUNT_HEIGHT, MOUNT_YAW = 0, 1, 2, 3
+BODY_PITCH, BODY_ROLL = 4, 5
+PREV_BODY_PITCH, PREV_BODY_ROLL = 6, 7
+SPEED, YAW_RATE = 8, 9
+POS_X, POS_Y, HEADING = 10, 11, 12
+PREV_POS_X, PREV_POS_Y, PREV_HEADING = 13, 14, 15
+STATE_DIM = 16
+
+MOUNT = slice(0, 3)  # (pitch_m, roll_m, h_m): "the calibration"
+BODY = slice(4, 6)
+PREV_BODY = slice(6, 8)
+POSE = slice(10, 13)
+PREV_POSE = slice(13, 16)
+
+STATE_NAMES: tuple[str, ...] = (
+    "pitch_m", "roll_m", "h_m", "yaw_m", "b_pitch", "b_roll", "b_pitch_prev", "b_roll_prev",
+    "v", "omega", "x", "y", "psi", "x_prev", "y_prev", "psi_prev",
+)
+
+
+@dataclass(frozen=True)
+class NoiseParams:
+    """Process noise and priors of the model (units in the names; angles in degrees here,
+    radians through the ``*_rad`` helpers).
+
+    Defaults suit a car-mounted camera at 10–30 fps; ``for_preset('cart')`` gives a walking cart.
+    """
+
+    #: mount random-walk rates (per √s): calibration drifts slowly
+    mount_angle_rw_deg_per_sqrt_s: float = 0.002
+    mount_height_rw_m_per_sqrt_s: float = 0.0002
+    mount_yaw_rw_deg_per_sqrt_s: float = 0.002
+    #: body shaking: first-order Gauss–Markov
+    body_tau_s: float = 0.3
+    body_std_deg: float = 0.2
+    #: planar motion random walks (speed in m/s per √s, yaw rate in deg/s per √s): large
+    #: enough that speed changes and turn entries rarely trip the motion gate
+    speed_rw_mps_per_sqrt_s: float = 0.5
+    yaw_rate_rw_dps_per_sqrt_s: float = 2.0
+    #: priors (standard deviations) at initialisation
+    prior_mount_angle_std_deg: float = 3.0
+    prior_height_std_rel: float = 0.05
+    prior_mount_yaw_std_deg: float = 2.0
+    prior_speed_std_mps: float = 5.0
+    prior_yaw_rate_std_dps: float = 10.0
+    #: wheel speed noise: relative std and absolute floor (quantisation 0.01 km/h ≈ 0.0028 m/s
+    #: uniform → 0.0008 m/s std)
+    speed_meas_std_rel: float = 0.005
+    speed_meas_std_abs_mps: float = 0.002
+
+    @classmethod
+    def for_preset(cls, preset: str) -> NoiseParams:
+        """Defaults for ``car`` (road vehicle) or ``cart`` (walking-speed cart)."""
+        if preset == "car":
+            return cls()
+        if preset == "cart":
+            return cls(speed_rw_mps_per_sqrt_s=0.1, yaw_rate_rw_dps_per_sqrt_s=5.0)
+        raise ValueError(f"unknown preset {preset!r}; expected 'car' or 'cart'")
+
+    def speed_meas_var(self, speed_mps: float) -> float:
+        """Variance of one wheel-speed reading at ``speed_mps``, (m/s)²."""
+        return (self.speed_meas_std_rel * abs(speed_mps)) ** 2 + self.speed_meas_std_abs_mps**2
+
+
+# --- process model --------------------------------------------------------------------------
+
+
+def body_decay(dt: float, tau: float) -> float:
+    """Gauss–Markov factor exp(-dt/τ) over ``dt`` seconds."""
+    return float(np.exp(-dt / tau))
+
+
+def body_process_var(dt: float, tau: float, std: float) -> float:
+    """Variance added to a Gauss–Markov state of stationary ``std`` over ``dt`` seconds."""
+    return float(std**2 * (1.0 - np.exp(-2.0 * dt / tau)))
+
+
+def propagate_pose(
+    x: float, y: float, psi: float, v: float, omega: float, dt: float
+) -> tuple[float, float, float]:
+    """Vehicle pose after ``dt`` s at speed v (m/s) and yaw rate ω (rad/s): midpoint heading."""
+    a = psi + 0.5 * omega * dt
+    return x + v * dt * np.sin(a), y + v * dt * np.cos(a), psi + omega * dt
+
+
+def transition(
+    state: FloatArray, dt: float, noise: NoiseParams
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """State after ``dt`` seconds (clone, then propagate), its Jacobian F and process noise Q.
+
+    The clone slots receive the current body and pose *before* propagation, so after this call
+    they hold frame k-1 and the current slots frame k.
+    """
+    n = STATE_DIM
+    s = np.array(state, dtype=float)
+    # cloning: a linear copy
+    c = np.eye(n)
+    c[PREV_BODY, :] = 0.0
+    c[PREV_POSE, :] = 0.0
+    c[PREV_BODY, BODY] = np.eye(2)
+    c[PREV_POSE, POSE] = np.eye(3)
+    s = c @ s
+
+    v, om, psi = s[SPEED], s[YAW_RATE], s[HEADING]
+    a = psi + 0.5 * om * dt
+    sa, ca = np.sin(a), np.cos(a)
+    decay = body_decay(dt, noise.body_tau_s)
+    out = s.copy()
+    out[BODY] *= decay
+    out[POS_X], out[POS_Y], out[HEADING] = propagate_pose(s[POS_X], s[POS_Y], psi, v, om, dt)
+
+    f = np.eye(n)
+    f[BODY, BODY] = np.eye(2) * decay
+    f[POS_X, SPEED] = dt * sa
+    f[POS_Y, SPEED] = dt * ca
+    f[POS_X, HEADING] = v * dt * ca
+    f[POS_Y, HEADING] = -v * dt * sa
+    f[POS_X, YAW_RATE] = v * dt * ca * 0.5 * dt
+    f[POS_Y, YAW_RATE] = -v * dt * sa * 0.5 * dt
+    f[HEADING, YAW_RATE] = dt
+    jac = f @ c
+
+    q = np.zeros((n, n))
+    ang = np.radians(noise.mount_angle_rw_deg_per_sqrt_s) ** 2 * dt
+    q[MOUNT_PITCH, MOUNT_PITCH] = q[MOUNT_ROLL, MOUNT_ROLL] = ang
+    q[MOUNT_HEIGHT, MOUNT_HEIGHT] = noise.mount_height_rw_m_per_sqrt_s**2 * dt
+    q[MOUNT_YAW, MOUNT_YAW] = np.radians(noise.mount_yaw_rw_deg_per_sqrt_s) ** 2 * dt
+    bvar = body_process_var(dt, noise.body_tau_s, np.radians(noise.body_std_deg))
+    q[BODY_PITCH, BODY_PITCH] = q[BODY_ROLL, BODY_ROLL] = bvar
+    # white acceleration (speed random walk) integrated into the along-track position
+    qa = noise.speed_rw_mps_per_sqrt_s**2
+    u = np.array([sa, ca])
+    pos = [POS_X, POS_Y]
+    q[np.ix_(pos, pos)] += qa * dt**3 / 3.0 * np.outer(u, u)
+    q[pos, SPEED] += qa * dt**2 / 2.0 * u
+    q[SPEED, pos] += qa * dt**2 / 2.0 * u
+    q[SPEED, SPEED] += qa * dt
+    # white yaw acceleration integrated into the heading
+    qw = np.radians(noise.yaw_rate_rw_dps_per_sqrt_s) ** 2
+    q[HEADING, HEADING] += qw * dt**3 / 3.0
+    q[HEADING, YAW_RATE] += qw * dt**2 / 2.0
+    q[YAW_RATE, HEADING] += qw * dt**2 / 2.0
+    q[YAW_RATE, YAW_RATE] += qw * dt
+    return out, jac, q
+
+
+# --- measurement model ----------------------------------------------------------------------
+
+
+def expected_pair(
+    mount: tuple[float, float, float, float],
+    body_prev: tuple[float, float],
+    body_curr: tuple[float, float],
+    pose_prev: tuple[float, float, float],
+    pose_curr: tuple[float, float, float],
+    height_assumed: float,
+) -> FloatArray:
+    """Expected pair 7-vector (pitch_prev, roll_prev, pitch, roll, tx, tz, yaw), rad / m.
+
+    ``mount`` = (pitch_m, roll_m, h_m, yaw_m); bodies are (b_pitch, b_roll); poses are the
+    vehicle's world (x, y, ψ). tx, tz are in metres *at* ``height_assumed`` (h0): the true
+    displacement in G_{k-1} times h0 / h_m. The smoother's pair factor uses this function.
+    """
+    pitch_m, roll_m, h_m, yaw_m = mount
+    dx, dy = pose_curr[0] - pose_prev[0], pose_curr[1] - pose_prev[1]
+    g = pose_prev[2] + yaw_m
+    c, s = np.cos(g), np.sin(g)
+    k = height_assumed / h_m
+    return np.array([
+        pitch_m + body_prev[0], roll_m + body_prev[1],
+        pitch_m + body_curr[0], roll_m + body_curr[1],
+        k * (c * dx - s * dy), k * (s * dx + c * dy),
+        pose_curr[2] - pose_prev[2],
+    ])
+
+
+def pair_measurement(state: FloatArray, height_assumed: float) -> tuple[FloatArray, FloatArray]:
+    """Expected pair 7-vector of ``state`` (see ``expected_pair``) and its 7×16 Jacobian."""
+    s = state
+    z = expected_pair(
+        (s[MOUNT_PITCH], s[MOUNT_ROLL], s[MOUNT_HEIGHT], s[MOUNT_YAW]),
+        (s[PREV_BODY_PITCH], s[PREV_BODY_ROLL]), (s[BODY_PITCH], s[BODY_ROLL]),
+        (s[PREV_POS_X], s[PREV_POS_Y], s[PREV_HEADING]), (s[POS_X], s[POS_Y], s[HEADING]),
+        height_assumed,
+    )
+    h = np.zeros((7, STATE_DIM))
+    h[0, MOUNT_PITCH] = h[2, MOUNT_PITCH] = 1.0
+    h[1, MOUNT_ROLL] = h[3, MOUNT_ROLL] = 1.0
+    h[0, PREV_BODY_PITCH] = h[1, PREV_BODY_ROLL] = 1.0
+    h[2, BODY_PITCH] = h[3, BODY_ROLL] = 1.0
+    dx, dy = s[POS_X] - s[PREV_POS_X], s[POS_Y] - s[PREV_POS_Y]
+    g = s[PREV_HEADING] + s[MOUNT_YAW]
+    c, sn = np.cos(g), np.sin(g)
+    k = height_assumed / s[MOUNT_HEIGHT]
+    # tx = k (c dx - s dy), tz = k (s dx + c dy)
+    h[4, POS_X], h[4, POS_Y] = k * c, -k * sn
+    h[4, PREV_POS_X], h[4, PREV_POS_Y] = -k * c, k * sn
+    h[5, POS_X], h[5, POS_Y] = k * sn, k * c
+    h[5, PREV_POS_X], h[5, PREV_POS_Y] = -k * sn, -k * c
+    dtx_dg, dtz_dg = k * (-sn * dx - c * dy), k * (c * dx - sn * dy)
+    h[4, PREV_HEADING] = h[4, MOUNT_YAW] = dtx_dg
+    h[5, PREV_HEADING] = h[5, MOUNT_YAW] = dtz_dg
+    h[4, MOUNT_HEIGHT] = -z[4] / s[MOUNT_HEIGHT]
+    h[5, MOUNT_HEIGHT] = -z[5] / s[MOUNT_HEIGHT]
+    h[6, HEADING], h[6, PREV_HEADING] = 1.0, -1.0
+    return z, h
+
+
+def speed_measurement(state: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Expected wheel speed (1-vector, m/s) and its 1×16 Jacobian."""
+    h = np.zeros((1, STATE_DIM))
+    h[0, SPEED] = 1.0
+    return np.array([state[SPEED]]), h
+
+
+def metric_motion(state: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Filtered motion (tx, tz, yaw) from frame k-1 to k in metres (true scale) / rad, in
+    G_{k-1}, and its 3×16 Jacobian (the pair model with h0 = h_m)."""
+    z, h = pair_measurement(state, float(state[MOUNT_HEIGHT]))
+    jac = h[4:7].copy()
+    jac[:, MOUNT_HEIGHT] = 0.0  # h0 = h_m cancels
+    return z[4:7], jac
+
+
+def frame_pose(state: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Current frame pose (pitch, roll, h) = mount + body, rad / m, and its 3×16 Jacobian."""
+    jac = np.zeros((3, STATE_DIM))
+    jac[0, MOUNT_PITCH] = jac[0, BODY_PITCH] = 1.0
+    jac[1, MOUNT_ROLL] = jac[1, BODY_ROLL] = 1.0
+    jac[2, MOUNT_HEIGHT] = 1.0
+    return jac @ state, jac

@@ -1,0 +1,494 @@
+"""Benchmark the filters on long simulated measurement streams (``filters.drive_sim``).
+
+For each scenario (car / cart preset; clean, with wheel speed, with 10 % outlier pairs) and
+each method, M Monte Carlo drives are filtered and scored against the truth:
+
+- mount pitch/roll RMS after 5 s (pooled over runs) vs the raw per-frame estimates;
+- largest height error after 10 s (wheel-speed scenarios; the true height is 2 % off the
+  nominal one, so without speed the error stays 2 %);
+- ANEES of (pitch_m, roll_m, [h_m,] b_pitch, b_roll) and ANIS of the pairs with their 95 %
+  chi-square bounds for an M-run average, and the share of times inside them;
+- outlier runs: RMS ratio to the clean runs of the same seeds, resets.
+
+Methods are functions ``(run, use_speed) -> filters.metrics.Estimates`` registered in
+``METHODS``; a smoother adds its own ("fixed-lag", "batch") and gets the same columns.
+
+    python scripts/bench_filters.py [--runs 10] [--duration 60] [--out FILE.md]
+
+Prints the table and writes it as Markdown.
+
+``--rendered`` runs the same methods on *rendered* sequences instead (``vipm_track.sim``,
+profile ``drift``: a slow linear mount drift under 1–3 Hz body shaking; cart and car presets):
+images → sequence runner (two-frame estimator, tracking) → filters, with the sim's wheel speed
+(0.5 % noise, 0.01 km/h steps) and a nominal height 2 % below the true one; mount pitch/roll
+RMS against the true mount vs the raw per-frame estimates, and the height. Rendered sequences
+and their estimates are cached under ``--cache`` so reruns only re-filter.
+
+    python scripts/bench_filters.py --rendered [--cache DIR] [--out FILE.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from filters.drive_sim import DriveConfig, DriveRun, simulate_drive  # noqa: E402
+from filters.ekf import EkfConfig, run_filter  # noqa: E402
+from filters.metrics import (  # noqa: E402
+    Estimates,
+    consistency,
+    from_filter_states,
+    rms_after,
+    score_run,
+)
+from filters.smoother import SmootherConfig, smooth  # noqa: E402
+
+Method = Callable[[DriveRun, bool], Estimates]
+
+
+def ekf_method(run: DriveRun, use_speed: bool) -> Estimates:
+    """The EKF with the preset's noise model and the nominal height as prior."""
+    cfg = EkfConfig(height_m=run.config.h0, noise=run.config.noise)
+    states = run_filter(run.measurements, run.speed if use_speed else None, cfg)
+    return from_filter_states(states)
+
+
+def smoother_method(lag_s: float) -> Method:
+    """The factor-graph smoother (``filters/smoother.py``) with the EKF's noise model and
+    prior: ``lag_s`` = 0 smooths the whole drive, else a sliding window of ``lag_s``."""
+
+    def method(run: DriveRun, use_speed: bool) -> Estimates:
+        cfg = SmootherConfig(height_m=run.config.h0, noise=run.config.noise, lag_s=lag_s)
+        return from_filter_states(smooth(run.measurements, run.speed if use_speed else None, cfg))
+
+    return method
+
+
+#: method name → estimates of one drive; the smoother registers "fixed-lag" and "batch" here
+METHODS: dict[str, Method] = {
+    "ekf": ekf_method,
+    "fixed-lag 2 s": smoother_method(2.0),
+    "batch": smoother_method(0.0),
+}
+
+
+def height_rms_mm(run: DriveRun, est: Estimates, settle_s: float = 10.0) -> float:
+    """RMS of the mount-height error after ``settle_s``, millimetres."""
+    tr = run.truth
+    return 1000.0 * rms_after(tr.t, est.states[:, 2] - tr.mount_height, settle_s)
+
+
+def trajectory_rms_m(run: DriveRun, est: Estimates) -> float:
+    """RMS of the vehicle position error over the drive (both start at the origin), metres."""
+    if est.poses is None:
+        return float("nan")
+    tr = run.truth
+    err = np.hypot(est.poses[:, 0] - tr.x, est.poses[:, 1] - tr.y)
+    return rms_after(tr.t, err, 0.0)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    preset: str
+    use_speed: bool
+    overrides: dict = field(default_factory=dict)
+    clean: str | None = None  # scenario of the same seeds without outliers
+
+
+def scenarios(duration_s: float) -> list[Scenario]:
+    out = []
+    for preset, h0 in (("car", 1.5), ("cart", 0.7)):
+        base = {"duration_s": duration_s, "height_m": 1.02 * h0, "height_assumed_m": h0}
+        out += [
+            Scenario(f"{preset} clean", preset, False, base),
+            Scenario(f"{preset} + wheel speed", preset, True, base),
+            Scenario(f"{preset} + speed, 10 % outliers", preset, True,
+                     {**base, "outlier_fraction": 0.10}, clean=f"{preset} + wheel speed"),
+        ]
+    return out
+
+
+@dataclass
+class Row:
+    scenario: str
+    method: str
+    pitch: float
+    roll: float
+    raw_pitch: float
+    raw_roll: float
+    h_err: float
+    anees: float
+    anees_b: tuple[float, float]
+    anees_in: float
+    anis: float
+    anis_b: tuple[float, float]
+    anis_in: float
+    nis_pooled: float
+    resets: int
+    ms_per_frame: float
+    ratio: float = float("nan")
+    h_rms_mm: float = float("nan")
+    traj_rms_m: float = float("nan")
+
+
+def bench(runs: int, duration_s: float, methods: dict[str, Method]) -> list[Row]:
+    rows: list[Row] = []
+    clean_rms: dict[tuple[str, str], float] = {}
+    for sc in scenarios(duration_s):
+        cfg = DriveConfig.preset(sc.preset, **sc.overrides)
+        drives = [simulate_drive(cfg, seed) for seed in range(runs)]
+        comps = [0, 1, 2, 3, 4] if sc.use_speed else [0, 1, 3, 4]
+        for name, method in methods.items():
+            t0 = time.perf_counter()
+            ests = [method(d, sc.use_speed) for d in drives]
+            ms = 1000 * (time.perf_counter() - t0) / sum(len(d.truth.t) for d in drives)
+            scores = [score_run(d, e) for d, e in zip(drives, ests, strict=True)]
+            pooled = {
+                k: float(np.sqrt(np.mean([getattr(s, k) ** 2 for s in scores])))
+                for k in ("pitch_rms_deg", "roll_rms_deg", "raw_pitch_rms_deg", "raw_roll_rms_deg")
+            }
+            con = consistency(drives, ests, comps)
+            row = Row(
+                sc.name, name, pooled["pitch_rms_deg"], pooled["roll_rms_deg"],
+                pooled["raw_pitch_rms_deg"], pooled["raw_roll_rms_deg"],
+                max(s.height_err_max_pct for s in scores), con.anees, con.anees_bounds,
+                con.anees_inside, con.anis, con.anis_bounds, con.anis_inside, con.nis_pooled,
+                sum(s.resets for s in scores), ms,
+            )
+            row.h_rms_mm = float(np.sqrt(np.mean(
+                [height_rms_mm(d, e) ** 2 for d, e in zip(drives, ests, strict=True)])))
+            row.traj_rms_m = float(np.sqrt(np.mean(
+                [trajectory_rms_m(d, e) ** 2 for d, e in zip(drives, ests, strict=True)])))
+            both = float(np.hypot(row.pitch, row.roll))
+            clean_rms[(sc.name, name)] = both
+            if sc.clean is not None:
+                row.ratio = both / clean_rms[(sc.clean, name)]
+            rows.append(row)
+    return rows
+
+
+def table(rows: list[Row], runs: int, duration_s: float) -> str:
+    head = (
+        "| scenario | method | pitch RMS ° | roll RMS ° | raw pitch / roll RMS ° | raw / filter | "
+        "h err max % (>10 s) | ANEES [95 % bounds] (in) | ANIS [95 % bounds] (in) | pooled NIS | "
+        "outlier RMS ratio | resets | ms / frame |"
+    )
+    lines = [
+        f"Filters on simulated measurement streams: {runs} Monte Carlo drives of "
+        f"{duration_s:.0f} s per scenario (fixed seeds 0…); RMS after 5 s pooled over drives; "
+        "the true height is 2 % off the nominal one. Timings: wall time of one pass on a "
+        "shared machine (noisy).",
+        "",
+        head,
+        "|" + " --- |" * (head.count("|") - 1),
+    ]
+    for r in rows:
+        ratio_raw = min(r.raw_pitch / r.pitch, r.raw_roll / r.roll)
+        lines.append(
+            f"| {r.scenario} | {r.method} | {r.pitch:.4f} | {r.roll:.4f} | "
+            f"{r.raw_pitch:.3f} / {r.raw_roll:.3f} | {ratio_raw:.1f}× | {r.h_err:.2f} | "
+            f"{r.anees:.2f} [{r.anees_b[0]:.2f}, {r.anees_b[1]:.2f}] ({100 * r.anees_in:.0f} %) | "
+            f"{r.anis:.2f} [{r.anis_b[0]:.2f}, {r.anis_b[1]:.2f}] ({100 * r.anis_in:.0f} %) | "
+            f"{r.nis_pooled:.2f} | "
+            f"{'' if np.isnan(r.ratio) else f'{r.ratio:.2f}'} | {r.resets} | {r.ms_per_frame:.2f} |"
+        )
+    lines += [
+        "",
+        "Targets: pitch/roll RMS ≤ 0.05° and ≥ 2× below raw; height within 1 % after 10 s with "
+        "wheel speed; ANEES/ANIS inside their bounds; outlier RMS ratio ≤ 1.5 without divergence. "
+        "ANEES dof: 5 with wheel speed (pitch_m, roll_m, h_m, b_pitch, b_roll), 4 without (h_m "
+        "unobservable, held at its prior). 'in' = share of time steps whose M-run average lies "
+        "inside the bounds (≈ 95 % expected). Pooled NIS: mean over all applied pairs (7 for a "
+        "perfectly matched model; the drive's speed/turn profiles are not the filter's random "
+        "walks, so the motion part sits slightly below).",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def smoother_ratios(rows: list[Row]) -> str:
+    """Smoother vs EKF: RMS ratios of mount pitch, roll, height and trajectory, and speed."""
+    head = (
+        "| scenario | method | pitch RMS ° | roll RMS ° | h RMS mm (>10 s) | trajectory RMS m | "
+        "pitch / EKF | roll / EKF | h / EKF | trajectory / EKF | frames / s |"
+    )
+    lines = [
+        "## Smoother vs EKF",
+        "",
+        "Ratios of each method's RMS to the EKF's on the same drives (targets: batch ≤ 0.7, "
+        "fixed-lag 2 s ≤ 0.85; smoother ≥ 500 frames/s). Height RMS only with wheel speed (without "
+        "it h is unobservable and every method holds the prior). Trajectory: RMS of the vehicle "
+        "position error over the drive, both starting at the origin.",
+        "",
+        head,
+        "|" + " --- |" * (head.count("|") - 1),
+    ]
+    ekf = {r.scenario: r for r in rows if r.method == "ekf"}
+
+    def ratio(a: float, b: float) -> str:
+        return f"{a / b:.2f}" if np.isfinite(a) and np.isfinite(b) and b > 0 else ""
+
+    for r in rows:
+        e = ekf.get(r.scenario)
+        if e is None:
+            continue
+        speed = "+ speed" in r.scenario or "wheel speed" in r.scenario
+        h = r.h_rms_mm if speed else float("nan")
+        he = e.h_rms_mm if speed else float("nan")
+        lines.append(
+            f"| {r.scenario} | {r.method} | {r.pitch:.4f} | {r.roll:.4f} | "
+            f"{'' if not np.isfinite(h) else f'{h:.2f}'} | {r.traj_rms_m:.3f} | "
+            f"{ratio(r.pitch, e.pitch)} | {ratio(r.roll, e.roll)} | {ratio(h, he)} | "
+            f"{ratio(r.traj_rms_m, e.traj_rms_m)} | {1000.0 / r.ms_per_frame:.0f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+# --- rendered sequences ---------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RenderedCase:
+    """A rendered drive: sim preset, frames, seed; the nominal height is the preset's / 1.02
+    (the truth 2 % above it), the cold start seeded with the preset's pitch."""
+
+    preset: str
+    frames: int
+    seed: int = 0
+    profile: str = "drift"
+
+    @property
+    def name(self) -> str:
+        return f"{self.preset}-{self.profile}-{self.frames}-s{self.seed}"
+
+
+#: mount random-walk rates (deg/√s) the rendered drives are filtered with: the preset's (None)
+#: and one matched to the ``drift`` profile's 0.01 °/s over 20–30 s (0.01·√25 ≈ 0.05)
+RENDERED_MOUNT_RW: tuple[float | None, ...] = (None, 0.05)
+
+RENDERED_CASES: tuple[RenderedCase, ...] = (
+    RenderedCase("cart", 300, seed=1),  # 30 s at 10 fps, ~1.2 m/s
+    RenderedCase("car", 400, seed=1),  # 20 s at 20 fps, ~12 m/s
+)
+
+
+@dataclass
+class RenderedDrive:
+    """A rendered drive's truth (gt.csv columns), measurements, wheel speed and the estimator's
+    cost; duck-types what ``METHODS`` read of a ``DriveRun`` (``config.h0``,
+    ``config.noise``, ``measurements``, ``speed``)."""
+
+    case: RenderedCase
+    gt: dict
+    measurements: list
+    speed: object
+    config: object
+    est_seconds_per_pair: float
+
+
+def rendered_drive(case: RenderedCase, cache: Path) -> RenderedDrive:
+    """Render ``case`` (cached in ``cache/<name>``), estimate it once (cached ``est.csv``) and
+    read truth, measurements and the sim's wheel speed back."""
+    from types import SimpleNamespace
+
+    from filters.model import NoiseParams
+    from filters.wheel_speed import read_speed_csv
+    from vipm_track.camera import load_camera
+    from vipm_track.estimator import EstimatorConfig
+    from vipm_track.measurement import read_measurements
+    from vipm_track.pipeline import config_with, estimate_sequence
+    from vipm_track.sim import PRESETS, simulate_sequence
+    from vipm_track.sources import open_source
+    from vipm_track.table import read_table
+
+    preset = PRESETS[case.preset]
+    h0 = preset.height_m / 1.02
+    folder = cache / case.name
+    if not (folder / "speed.csv").is_file():
+        simulate_sequence(case.preset, case.frames, folder, seed=case.seed, profile=case.profile,
+                          progress=True)
+    est = folder / "est.csv"
+    timing = folder / "est_seconds_per_pair.txt"
+    if not (est.is_file() and timing.is_file()):
+        config = config_with(EstimatorConfig(), initial_pitch_deg=preset.pitch_deg)
+        summary = estimate_sequence(open_source(images=folder / "images"),
+                                    load_camera(folder / "camera.yaml"), h0, est, config,
+                                    progress=True)
+        timing.write_text(f"{summary.wall_seconds / max(summary.frames - 1, 1):.4f}\n")
+    config = SimpleNamespace(h0=h0, noise=NoiseParams.for_preset(case.preset))
+    return RenderedDrive(case, read_table(folder / "gt.csv"), read_measurements(est),
+                         read_speed_csv(folder / "speed.csv"), config,
+                         float(timing.read_text()))
+
+
+@dataclass
+class RenderedRow:
+    case: str
+    speed: bool
+    method: str
+    mount_rw: float
+    pitch: float
+    roll: float
+    raw_pitch: float
+    raw_roll: float
+    pose_pitch: float
+    pose_roll: float
+    raw_pose_pitch: float
+    raw_pose_roll: float
+    h_err_max: float
+    h_err_end: float
+    ok_pairs: str
+    est_ms: float
+    ms_per_frame: float
+
+
+def score_rendered(drive: RenderedDrive, est: Estimates, method: str, use_speed: bool,
+                   ms: float, settle_s: float = 5.0, h_settle_s: float = 10.0) -> RenderedRow:
+    """Errors of one method's estimates against the rendered truth (degrees, %)."""
+    gt = drive.gt
+    frames = np.array([m.frame for m in drive.measurements])
+    t = gt["t"][frames]
+    z = np.array([m.z for m in drive.measurements])
+    deg = np.degrees
+    mount = [gt["mount_pitch_deg"][frames], gt["mount_roll_deg"][frames]]
+    pose = [gt["pitch_deg"][frames], gt["roll_deg"][frames]]
+    filt_mount = [deg(est.states[:, 0]), deg(est.states[:, 1])]
+    filt_pose = [deg(est.states[:, 0] + est.states[:, 3]), deg(est.states[:, 1] + est.states[:, 4])]
+    raw = [deg(z[:, 2]), deg(z[:, 3])]
+    h_rel = 100.0 * (est.states[:, 2] / gt["mount_height_m"][frames] - 1.0)
+    late = (t >= h_settle_s) & np.isfinite(h_rel)
+    n_ok = sum(m.ok for m in drive.measurements)
+    return RenderedRow(
+        drive.case.name, use_speed, method, drive.config.noise.mount_angle_rw_deg_per_sqrt_s,
+        *(rms_after(t, f - m, settle_s) for f, m in zip(filt_mount, mount, strict=True)),
+        *(rms_after(t, r - m, settle_s) for r, m in zip(raw, mount, strict=True)),
+        *(rms_after(t, f - p, settle_s) for f, p in zip(filt_pose, pose, strict=True)),
+        *(rms_after(t, r - p, settle_s) for r, p in zip(raw, pose, strict=True)),
+        float(np.max(np.abs(h_rel[late]))) if late.any() else float("nan"),
+        float(h_rel[np.flatnonzero(np.isfinite(h_rel))[-1]]),
+        f"{n_ok}/{len(drive.measurements)}", 1000.0 * drive.est_seconds_per_pair, ms,
+    )
+
+
+def bench_rendered(cases: tuple[RenderedCase, ...], cache: Path,
+                   methods: dict[str, Method]) -> list[RenderedRow]:
+    """Each case with and without wheel speed at the preset's mount random walk, and with
+    wheel speed at the other rates of :data:`RENDERED_MOUNT_RW`."""
+    from dataclasses import replace
+
+    rows = []
+    for case in cases:
+        drive = rendered_drive(case, cache)
+        preset_noise = drive.config.noise  # type: ignore[attr-defined]
+        variants = [(None, False), (None, True)]
+        variants += [(rw, True) for rw in RENDERED_MOUNT_RW if rw is not None]
+        for rw, use_speed in variants:
+            drive.config.noise = (  # type: ignore[attr-defined]
+                preset_noise if rw is None
+                else replace(preset_noise, mount_angle_rw_deg_per_sqrt_s=rw))
+            for name, method in methods.items():
+                t0 = time.perf_counter()
+                est = method(drive, use_speed)  # type: ignore[arg-type]
+                ms = 1000.0 * (time.perf_counter() - t0) / len(drive.measurements)
+                rows.append(score_rendered(drive, est, name, use_speed, ms))
+    return rows
+
+
+def rendered_table(rows: list[RenderedRow]) -> str:
+    head = (
+        "| sequence | wheel speed | mount rw °/√s | method | mount pitch RMS ° | "
+        "mount roll RMS ° | raw vs mount pitch / roll RMS ° | raw / filter | "
+        "frame pose pitch / roll RMS ° | "
+        "raw vs pose pitch / roll RMS ° | h err max % (>10 s) | h err end % | pairs ok | "
+        "estimator ms / pair | filter ms / frame |"
+    )
+    lines = [
+        "Filters on rendered sequences (`vipm_track.sim`, profile `drift`: mount pitch +0.01 °/s, "
+        "roll −0.006 °/s, under three 1–3 Hz body-shaking sinusoids of 0.2° pitch / 0.15° roll "
+        "each; cart: 800×600, 45° down, 0.7 m, 10 fps, ~1.2 m/s; car: 1280×720, 3° down, "
+        "1.5 m, 20 fps, ~12 m/s; gravel texture, no photometric effects). Images → sequence "
+        "runner (two-frame estimator, tracking mode, cold start at the preset's pitch) at a "
+        "nominal height 2 % below the true one → filters with the preset's noise model; wheel "
+        "speed: the sim's, 50 Hz, 0.5 % noise, 0.01 km/h steps. One seed per preset. RMS after "
+        "5 s. *raw vs mount*: the per-frame estimate of the frame's pitch/roll against the true "
+        "mount (what one would get without a filter); *raw vs pose*: the same against the "
+        "frame's true pose (the estimator's own error). Timings: wall time on a shared 2-core "
+        "machine (noisy).",
+        "",
+        head,
+        "|" + " --- |" * (head.count("|") - 1),
+    ]
+    for r in rows:
+        ratio = min(r.raw_pitch / r.pitch, r.raw_roll / r.roll)
+        lines.append(
+            f"| {r.case} | {'yes' if r.speed else 'no'} | {r.mount_rw:g} | {r.method} | "
+            f"{r.pitch:.4f} | "
+            f"{r.roll:.4f} | {r.raw_pitch:.3f} / {r.raw_roll:.3f} | {ratio:.1f}× | "
+            f"{r.pose_pitch:.3f} / {r.pose_roll:.3f} | {r.raw_pose_pitch:.3f} / "
+            f"{r.raw_pose_roll:.3f} | {r.h_err_max:.2f} | {r.h_err_end:+.2f} | {r.ok_pairs} | "
+            f"{r.est_ms:.0f} | {r.ms_per_frame:.2f} |"
+        )
+    lines += [
+        "",
+        "Targets (as for the simulated streams): mount pitch/roll RMS ≤ 0.05° and ≥ 2× below "
+        "raw; height within 1 % after 10 s with wheel speed (without it the height stays at "
+        "the nominal one, 2 % off). *mount rw*: the filters' mount pitch/roll random-walk "
+        "rate: the preset's 0.002 °/√s models a calibration that barely moves within a "
+        "drive, so a 0.01 °/s drift is followed with a lag; 0.05 °/√s is matched to the "
+        "drift (0.01 °/s · √25 s). *frame pose*: the filtered pose of each frame (mount + "
+        "body); where the EKF's is worse than the raw estimate, its Gauss–Markov body model "
+        "(τ 0.3 s, 0.2°) does not follow the 1–3 Hz shaking and it gates some pairs' pose "
+        "blocks; the smoothers, which also see the following pairs, do not suffer from it.",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=int, default=10, help="Monte Carlo drives per scenario")
+    ap.add_argument("--duration", type=float, default=60.0, help="seconds per drive")
+    ap.add_argument("--out", default=None, help="Markdown table to write (default: "
+                    "scripts/results/bench_filters.md, with --rendered bench_filters_rendered.md)")
+    ap.add_argument("--methods", default=",".join(METHODS),
+                    help=f"comma-separated subset of {', '.join(METHODS)}")
+    ap.add_argument("--rendered", action="store_true",
+                    help="rendered sequences (images → estimator → filters) instead of streams")
+    ap.add_argument("--cache", default=str(Path(tempfile.gettempdir()) / "vipm_bench_rendered"),
+                    help="folder caching the rendered sequences and their estimates")
+    args = ap.parse_args(argv)
+    chosen = [m.strip() for m in args.methods.split(",") if m.strip()]
+    unknown = [m for m in chosen if m not in METHODS]
+    if unknown:
+        ap.error(f"unknown method(s) {unknown}; choose from {list(METHODS)}")
+    results = ROOT / "scripts" / "results"
+    if args.rendered:
+        rows_r = bench_rendered(RENDERED_CASES, Path(args.cache), {m: METHODS[m] for m in chosen})
+        text = rendered_table(rows_r)
+        out = Path(args.out or results / "bench_filters_rendered.md")
+        title = "# Filter benchmark on rendered sequences\n\n"
+        text += ("\nCommand: `python scripts/bench_filters.py --rendered` (sequences and "
+                 "estimates cached under `--cache`).\n")
+    else:
+        rows = bench(args.runs, args.duration, {m: METHODS[m] for m in chosen})
+        text = table(rows, args.runs, args.duration) + "\n" + smoother_ratios(rows)
+        out = Path(args.out or results / "bench_filters.md")
+        title = "# Filter benchmark\n\n"
+    print(text)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(title + text)
+    print(f"written {out}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

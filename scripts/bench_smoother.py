@@ -1,0 +1,113 @@
+"""Speed of the factor-graph smoother (estimation excluded) on a long simulated drive.
+
+Times ``filters.smoother.smooth_batch`` (graph build, Gauss–Newton, marginals + output) and
+the fixed-lag smoother on ``drive_sim`` car drives, median of ``--repeats`` runs, and the EKF
+on the same measurements for reference. Prints a table and writes it as Markdown.
+
+    python scripts/bench_smoother.py [--minutes 10] [--repeats 3] [--out FILE.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from filters.drive_sim import DriveConfig, simulate_drive  # noqa: E402
+from filters.ekf import EkfConfig, run_filter  # noqa: E402
+from filters.smoother import (  # noqa: E402
+    FixedLagSmoother,
+    SmootherConfig,
+    smooth_batch,
+    speeds_at_frames,
+)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, default=10.0, help="drive length for the batch")
+    ap.add_argument("--lag-minutes", type=float, default=1.0, help="drive length, fixed lag")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--out", default=str(ROOT / "scripts" / "results" / "bench_smoother.md"))
+    args = ap.parse_args(argv)
+
+    run = simulate_drive(
+        DriveConfig.preset(
+            "car", duration_s=60 * args.minutes, height_m=1.53, height_assumed_m=1.5
+        ),
+        0,
+    )
+    ms = run.measurements
+    sp = speeds_at_frames(ms, run.speed)
+    n = len(ms)
+    rows = []
+    for marg in (True, False):
+        cfg = SmootherConfig(height_m=1.5, noise=run.config.noise, marginals=marg)
+        stages: dict[str, list[float]] = {}
+        totals, iters = [], []
+        for _ in range(args.repeats):
+            t0 = time.perf_counter()
+            _, info = smooth_batch(ms, sp, cfg)
+            totals.append(time.perf_counter() - t0)
+            iters.append(info.iterations)
+            for k, v in info.timings.items():
+                stages.setdefault(k, []).append(v)
+        med = float(np.median(totals))
+        detail = ", ".join(f"{k} {1e3 * np.median(v) / n:.3f}" for k, v in stages.items())
+        rows.append(
+            (
+                f"batch{'' if marg else ' (no marginals)'}",
+                n,
+                med,
+                n / med,
+                f"GN iterations {int(np.median(iters))}; ms/frame: {detail}",
+            )
+        )
+
+    n_lag = round(60 * args.lag_minutes * run.config.fps) + 1
+    lag_ms = ms[:n_lag]
+    totals = []
+    for _ in range(args.repeats):
+        t0 = time.perf_counter()
+        sm = FixedLagSmoother(SmootherConfig(height_m=1.5, noise=run.config.noise, lag_s=2.0))
+        for m, v in zip(lag_ms, sp[:n_lag], strict=True):
+            sm.step(m, float(v))
+        sm.finish()
+        totals.append(time.perf_counter() - t0)
+    med = float(np.median(totals))
+    rows.append(("fixed-lag 2 s (iSAM2)", n_lag, med, n_lag / med, "marginals per frame"))
+
+    totals = []
+    for _ in range(args.repeats):
+        t0 = time.perf_counter()
+        run_filter(ms, run.speed, EkfConfig(height_m=1.5, noise=run.config.noise))
+        totals.append(time.perf_counter() - t0)
+    med = float(np.median(totals))
+    rows.append(("EKF (reference)", n, med, n / med, ""))
+
+    lines = [
+        f"Smoother speed on a simulated car drive (20 fps, wheel speed), median of "
+        f"{args.repeats} runs on a shared 2-core machine (noisy). Target: ≥ 500 frames/s.",
+        "",
+        "| method | frames | seconds | frames / s | notes |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    for name, frames, sec, fps, note in rows:
+        lines.append(f"| {name} | {frames} | {sec:.2f} | {fps:.0f} | {note} |")
+    text = "\n".join(lines) + "\n"
+    print(text)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text("# Smoother speed\n\n" + text)
+    print(f"written {out}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,166 @@
+"""Accuracy of ``vipm-track estimate`` on real data: KITTI odometry sequence 07, frames 0-159.
+
+Runs the CLI exactly as a user would (the command is recorded in the results), converts
+KITTI's ``poses.txt`` into the conventions' per-frame planar motion (``vipm_track.kitti``)
+and reports per-frame travel-distance error (% of the true distance), yaw-change error,
+pitch/roll-change error within each pair and the share of frames with status ok.
+Targets (issue 5): >= 95 % ok, median distance error <= 3 %, median yaw-change error <= 0.1°.
+
+    python scripts/eval_kitti.py [--data ../shared/data/kitti07] [--out out/kitti]
+                                 [--results scripts/results/kitti.md] [-- extra CLI options]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import shlex
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from vipm_track.cli import main as cli_main  # noqa: E402
+from vipm_track.evaluate import error_stats, error_table, frame_errors  # noqa: E402
+from vipm_track.kitti import planar_motion, read_poses  # noqa: E402
+from vipm_track.table import read_table  # noqa: E402
+
+#: KITTI set-up: camera 1.65 m above the road, nearly level (pitch ~1°, looking down).
+KITTI_HEIGHT = 1.65
+KITTI_PITCH_DEG = 1.0
+
+TARGETS = {"ok_share_pct": 95.0, "distance_pct_median": 3.0, "yaw_deg_median": 0.1}
+
+
+def kitti_command(data: Path, out_csv: Path, extra: list[str]) -> list[str]:
+    """The ``vipm-track estimate`` argument list used on KITTI 07 (the region of interest is
+    the estimator's automatic one unless ``extra`` holds ``--roi``)."""
+    return [
+        "estimate", "--images", str(data / "image_0"), "--camera", str(data / "calib.txt"),
+        "--height", str(KITTI_HEIGHT), "--pitch", str(KITTI_PITCH_DEG), "--no-vertical-motion",
+        "--out", str(out_csv), *extra,
+    ]
+
+
+def truth_table(data: Path, pitch_deg: float = KITTI_PITCH_DEG) -> dict[str, np.ndarray]:
+    """Ground truth of frames 1..N-1 as estimate-table columns (see ``vipm_track.kitti``)."""
+    gt = planar_motion(read_poses(data / "poses.txt"), math.radians(pitch_deg))
+    n = gt.tx.size
+    return {
+        "frame": np.arange(1, n + 1),
+        "tx_m": gt.tx, "tz_m": gt.tz, "yaw_deg": np.degrees(gt.yaw),
+        "pitch_deg": np.degrees(gt.pitch), "roll_deg": np.degrees(gt.roll),
+        "prev_pitch_deg": np.full(n, pitch_deg), "prev_roll_deg": np.zeros(n),
+    }
+
+
+def evaluate(est_csv: Path, data: Path) -> tuple[dict, dict]:
+    """Per-frame errors and headline numbers of an estimates CSV against KITTI truth."""
+    est = read_table(est_csv)
+    errors = frame_errors(est, truth_table(data))
+    pairs = int(np.sum(est["frame"] > est["frame"].min()))
+    ok = int(np.sum(est["status"] == "ok"))
+    dist, yaw = error_stats(errors["distance_pct"]), error_stats(errors["yaw_deg"])
+    headline = {
+        "pairs": pairs, "ok": ok, "ok_share_pct": 100.0 * ok / max(pairs, 1),
+        "distance_pct_mean": dist.mean, "distance_pct_median": dist.median,
+        "distance_pct_p95": dist.p95, "yaw_deg_mean": yaw.mean, "yaw_deg_median": yaw.median,
+        "yaw_deg_p95": yaw.p95,
+        "distance_bias_pct": float(np.nanmedian(errors["distance_pct"])),
+    }
+    return errors, headline
+
+
+def report(headline: dict, errors: dict, command: str, seconds: float, est: dict) -> str:
+    """Markdown report: headline vs targets, error table, status counts, the command."""
+    def verdict(key: str, value: float, lower_is_better: bool = True) -> str:
+        target = TARGETS[key]
+        met = value <= target if lower_is_better else value >= target
+        return "met" if met else "**not met**"
+
+    statuses: dict[str, int] = {}
+    for s in est["status"]:
+        statuses[str(s)] = statuses.get(str(s), 0) + 1
+    lines = [
+        "# KITTI odometry 07 (frames 0-159): per-frame motion against poses.txt",
+        "",
+        "| metric | value | target | |",
+        "| --- | --- | --- | --- |",
+        f"| frames with status ok | {headline['ok']}/{headline['pairs']} "
+        f"({headline['ok_share_pct']:.1f} %) | >= 95 % | "
+        f"{verdict('ok_share_pct', headline['ok_share_pct'], False)} |",
+        f"| distance error, median | {headline['distance_pct_median']:.2f} % | <= 3 % | "
+        f"{verdict('distance_pct_median', headline['distance_pct_median'])} |",
+        f"| distance error, mean / p95 | {headline['distance_pct_mean']:.2f} % / "
+        f"{headline['distance_pct_p95']:.2f} % | | |",
+        f"| distance error, signed median (bias) | {headline['distance_bias_pct']:+.2f} % | | |",
+        f"| yaw-change error, median | {headline['yaw_deg_median']:.3f}° | <= 0.1° | "
+        f"{verdict('yaw_deg_median', headline['yaw_deg_median'])} |",
+        f"| yaw-change error, mean / p95 | {headline['yaw_deg_mean']:.3f}° / "
+        f"{headline['yaw_deg_p95']:.3f}° | | |",
+        "",
+        "All error statistics are of |estimate − truth| over the frames with status ok.",
+        "",
+        error_table(errors, ("distance_pct", "distance_m", "yaw_deg", "pitch_change_deg",
+                             "roll_change_deg")),
+        "",
+        "Statuses: " + ", ".join(f"{n}× {s}" for s, n in sorted(statuses.items(),
+                                                               key=lambda x: -x[1])),
+        "",
+        f"Run time {seconds:.1f} s for {len(est['frame'])} frames on this machine "
+        "(2 shared CPU cores; see scripts/results/bench_speed.md for speed).",
+        "",
+        "Ground truth: `poses.txt` relative poses converted into the conventions' ground-frame "
+        f"motion with a nominal camera pitch of {KITTI_PITCH_DEG}° (see `vipm_track/kitti.py`). "
+        "Pitch/roll *changes* within a pair are checked, not absolute pitch/roll (KITTI does "
+        "not record the pose against the road).",
+        "",
+        "Command:",
+        "",
+        f"    vipm-track {command}",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data" / "kitti07")
+    parser.add_argument("--out", type=Path, default=ROOT / "out" / "kitti")
+    parser.add_argument("--results", type=Path, default=ROOT / "scripts" / "results" / "kitti.md")
+    parser.add_argument("extra", nargs=argparse.REMAINDER,
+                        help="extra options for vipm-track estimate (after --)")
+    args = parser.parse_args(argv)
+    args.extra = [a for a in args.extra if a != "--"]
+    if not (args.data / "poses.txt").is_file():
+        print(f"KITTI data not found at {args.data}", file=sys.stderr)
+        return 2
+    est_csv = args.out / "estimates.csv"
+    cli_args = kitti_command(args.data, est_csv, args.extra)
+    start = time.perf_counter()
+    rc = cli_main(cli_args)
+    seconds = time.perf_counter() - start
+    if rc:
+        return rc
+    errors, headline = evaluate(est_csv, args.data)
+    shown = [shlex.quote(_relative(a)) for a in cli_args]
+    text = report(headline, errors, " ".join(shown), seconds, read_table(est_csv))
+    print(text)
+    args.results.parent.mkdir(parents=True, exist_ok=True)
+    args.results.write_text(text)
+    return 0
+
+
+def _relative(arg: str) -> str:
+    """Paths as seen from the repository root (what the README's commands assume)."""
+    if arg.startswith("/") and Path(arg).is_absolute():
+        return os.path.relpath(arg, ROOT)
+    return arg
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,185 @@
+"""Camera files (ROS, OpenCV FileStorage, KITTI), their errors, and lens distortion."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from tests.conftest import shared_data
+from vipm_track.camera import CameraFileError, CameraModel, load_camera, write_ros_yaml
+
+K = np.array([[729.0, 0.0, 401.5], [0.0, 731.0, 298.0], [0.0, 0.0, 1.0]])
+DISTORTIONS = {
+    "plumb_bob": np.array([-0.28, 0.09, 0.0012, -0.0007, -0.012]),
+    "rational_polynomial": np.array([-0.3, 0.11, 0.001, -0.0005, 0.02, 0.05, -0.01, 0.004]),
+    "equidistant": np.array([-0.05, 0.012, -0.004, 0.0007]),
+}
+
+
+def _ros_doc(**changes) -> dict:
+    doc = {
+        "image_width": 800, "image_height": 600, "camera_name": "test",
+        "camera_matrix": {"rows": 3, "cols": 3, "data": K.ravel().tolist()},
+        "distortion_model": "plumb_bob",
+        "distortion_coefficients": {"rows": 1, "cols": 5,
+                                    "data": DISTORTIONS["plumb_bob"].tolist()},
+    }
+    doc.update(changes)
+    return {k: v for k, v in doc.items() if v is not None}
+
+
+def _write(tmp_path, doc: dict, name: str = "cam.yaml"):
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+@pytest.mark.parametrize("model", sorted(DISTORTIONS))
+def test_ros_yaml_round_trip(tmp_path, model):
+    cam = CameraModel(K, 800, 600, model, DISTORTIONS[model])
+    write_ros_yaml(cam, tmp_path / "c.yaml")
+    back = load_camera(tmp_path / "c.yaml")
+    assert np.allclose(back.k, K) and (back.width, back.height) == (800, 600)
+    assert back.distortion_model == model and np.allclose(back.distortion, DISTORTIONS[model])
+
+
+def test_ros_yaml_as_written_by_camera_calibration(tmp_path):
+    cam = load_camera(_write(tmp_path, _ros_doc()))
+    assert np.isclose(cam.fx, 729.0) and np.isclose(cam.fy, 731.0)
+    assert (cam.cx, cam.cy) == (401.5, 298.0) and cam.distortion_model == "plumb_bob"
+
+
+@pytest.mark.parametrize("model", sorted(DISTORTIONS))
+def test_opencv_filestorage_yaml(tmp_path, model):
+    path = tmp_path / "cv.yaml"
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", 800)
+    fs.write("image_height", 600)
+    fs.write("camera_matrix", K)
+    fs.write("distortion_coefficients", DISTORTIONS[model].reshape(1, -1))
+    if model == "equidistant":
+        fs.write("distortion_model", "equidistant")
+    fs.release()
+    cam = load_camera(path)
+    assert np.allclose(cam.k, K) and (cam.width, cam.height) == (800, 600)
+    assert cam.distortion_model == model and np.allclose(cam.distortion, DISTORTIONS[model])
+
+
+def test_kitti_calib():
+    path = shared_data("kitti07", "calib.txt")
+    cam = load_camera(path)
+    assert np.isclose(cam.fx, 707.0912) and np.isclose(cam.fy, 707.0912)
+    assert np.isclose(cam.cx, 601.8873) and np.isclose(cam.cy, 183.1104)
+    assert (cam.width, cam.height) == (1226, 370)
+    assert not cam.has_distortion
+
+
+@pytest.mark.parametrize(("changes", "field"), [
+    ({"image_width": None}, "image_width"),
+    ({"image_height": "tall"}, "image_height"),
+    ({"camera_matrix": None}, "camera_matrix"),
+    ({"camera_matrix": {"rows": 3, "cols": 3, "data": [729.0, 0, 400, 0, 729, 300, 0, 0]}},
+     "camera_matrix"),
+    ({"camera_matrix": {"data": [729.0, 0, 400, 0, "x", 300, 0, 0, 1]}}, "camera_matrix"),
+    ({"camera_matrix": {"data": [0.0, 0, 400, 0, 729, 300, 0, 0, 1]}}, "camera_matrix"),
+    ({"camera_matrix": {"data": [729.0, 0, 400, 0, -729, 300, 0, 0, 1]}}, "camera_matrix"),
+    ({"image_width": 0}, "image_width"),
+    ({"distortion_model": "fancy"}, "distortion_model"),
+    ({"distortion_coefficients": {"data": [0.1, 0.2, 0.3]}}, "distortion_coefficients"),
+    ({"distortion_model": "equidistant"}, "distortion_coefficients"),
+])
+def test_ros_yaml_errors_name_file_and_field(tmp_path, changes, field):
+    path = _write(tmp_path, _ros_doc(**changes))
+    with pytest.raises(CameraFileError) as info:
+        load_camera(path)
+    assert str(path) in str(info.value) and f"'{field}'" in str(info.value)
+    assert info.value.field_name == field
+
+
+def test_other_file_errors(tmp_path):
+    with pytest.raises(CameraFileError, match="file not found"):
+        load_camera(tmp_path / "nope.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("image_width: [1, 2\n")
+    with pytest.raises(CameraFileError, match=r"bad\.yaml"):
+        load_camera(bad)
+    listing = tmp_path / "list.yaml"
+    listing.write_text("- 1\n- 2\n")
+    with pytest.raises(CameraFileError, match="mapping"):
+        load_camera(listing)
+    kitti = tmp_path / "calib.txt"
+    kitti.write_text("P1: 1 0 0 0 0 1 0 0 0 0 1 0\n")
+    with pytest.raises(CameraFileError, match="'P0'"):
+        load_camera(kitti)
+    kitti.write_text("P0: 1 0 0 0 0 1\n")
+    with pytest.raises(CameraFileError, match="'P0'"):
+        load_camera(kitti)
+    cvfile = tmp_path / "cv.yaml"
+    fs = cv2.FileStorage(str(cvfile), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", 800)
+    fs.write("distortion_coefficients", np.zeros((1, 5)))
+    fs.release()
+    with pytest.raises(CameraFileError, match="'camera_matrix'"):
+        load_camera(cvfile)
+
+
+def test_check_image_size_mismatch():
+    cam = CameraModel(K, 800, 600)
+    cam.check_image((600, 800), "frame 3")
+    cam.check_image((600, 800, 3), "frame 3")
+    with pytest.raises(ValueError, match=r"frame 7.*640×480.*800×600"):
+        cam.check_image((480, 640), "frame 7")
+
+
+def test_model_validation():
+    with pytest.raises(ValueError, match="focal"):
+        CameraModel(np.diag([-1.0, 1.0, 1.0]), 10, 10)
+    with pytest.raises(ValueError, match="3×3"):
+        CameraModel(np.eye(2), 10, 10)
+    with pytest.raises(ValueError, match="unknown distortion model"):
+        CameraModel(K, 800, 600, "kannala")
+
+
+@pytest.mark.parametrize("model", sorted(DISTORTIONS))
+def test_distort_undistort_points_round_trip(model):
+    cam = CameraModel(K, 800, 600, model, DISTORTIONS[model])
+    rng = np.random.default_rng(0)
+    ideal = rng.uniform([40, 30], [760, 570], size=(200, 2))
+    distorted = cam.distort_points(ideal)
+    # Real distortion: barrel moves the corners by many pixels.
+    assert np.max(np.hypot(*(distorted - ideal).T)) > 5
+    assert np.allclose(cam.undistort_points(distorted), ideal, atol=1e-3)
+    assert cam.distort_points(ideal.reshape(10, 20, 2)).shape == (10, 20, 2)
+    # Against OpenCV's own projection of the normalised rays.
+    rays = np.column_stack([(ideal - K[:2, 2]) / [K[0, 0], K[1, 1]], np.ones(len(ideal))])
+    if model == "equidistant":
+        ref = cv2.fisheye.distortPoints(rays[:, None, :2], K, DISTORTIONS[model]).reshape(-1, 2)
+    else:
+        ref, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, DISTORTIONS[model])
+        ref = ref.reshape(-1, 2)
+    assert np.allclose(distorted, ref, atol=1e-6)
+
+
+@pytest.mark.parametrize("model", sorted(DISTORTIONS))
+def test_undistort_image_agrees_with_undistort_points(model):
+    cam = CameraModel(K, 800, 600, model, DISTORTIONS[model])
+    # Small bright spots drawn directly at distorted positions.
+    distorted_pts = np.array([[120.0, 90.0], [690.0, 110.0], [400.0, 300.0], [150.0, 520.0],
+                              [660.0, 500.0], [300.5, 200.25]])
+    v, u = np.mgrid[0:600, 0:800].astype(float)
+    img = np.zeros((600, 800))
+    for x, y in distorted_pts:
+        img += 250 * np.exp(-((u - x) ** 2 + (v - y) ** 2) / (2 * 1.5**2))
+    out = cam.undistort_image(np.clip(img, 0, 255).astype(np.float32)).astype(float)
+    expected = cam.undistort_points(distorted_pts)
+    for ex, ey in expected:
+        x0, y0 = round(float(ex)), round(float(ey))
+        patch = out[y0 - 12:y0 + 13, x0 - 12:x0 + 13]
+        yy, xx = np.mgrid[y0 - 12:y0 + 13, x0 - 12:x0 + 13]
+        centroid = np.array([(xx * patch).sum(), (yy * patch).sum()]) / patch.sum()
+        assert np.hypot(*(centroid - (ex, ey))) < 0.15
+    assert cam.undistort_image(img) is not img
+    plain = CameraModel(K, 800, 600)
+    assert plain.undistort_image(img) is img

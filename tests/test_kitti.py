@@ -1,0 +1,58 @@
+"""Real data: a few KITTI 07 frames through ``vipm-track estimate``, checked against poses.txt."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.conftest import shared_data
+from vipm_track.cli import main
+from vipm_track.evaluate import frame_errors
+from vipm_track.kitti import planar_motion, read_poses
+from vipm_track.table import read_table
+
+
+def test_kitti_ground_truth_motion_is_planar_and_forward() -> None:
+    poses = read_poses(shared_data("kitti07", "poses.txt"))
+    gt = planar_motion(poses, math.radians(1.0))
+    assert poses.shape == (160, 4, 4) and gt.tz.size == 159
+    # The README: 0.1-0.85 m per frame, driving forward.
+    assert 0.08 < gt.distance.min() and gt.distance.max() < 0.9 and np.all(gt.tz > 0)
+    # Frame 1 from the file: t = (-0.0046, -0.0020, 0.0915) in camera 0 (level, 1° pitch).
+    assert gt.tz[0] == pytest.approx(0.0915, abs=1e-3)
+    assert gt.tx[0] == pytest.approx(-0.0046, abs=1e-4)
+    assert abs(np.degrees(gt.yaw)).max() < 4.0
+    # Pitch changes between frames are small (< 0.8°; braking near frame 137).
+    np.testing.assert_allclose(np.degrees(gt.pitch), 1.0, atol=0.8)
+    assert abs(np.median(np.degrees(gt.pitch)) - 1.0) < 0.1
+
+
+#: Same options as scripts/eval_kitti.py (the documented KITTI command).
+KITTI_OPTIONS = ["--height", "1.65", "--pitch", "1.0", "--no-vertical-motion"]
+START, FRAMES = 60, 6
+
+
+def test_kitti_frames_through_the_cli(tmp_path: Path) -> None:
+    data = shared_data("kitti07")
+    out = tmp_path / "est.csv"
+    rc = main(["estimate", "--images", str(data / "image_0"), "--camera", str(data / "calib.txt"),
+               *KITTI_OPTIONS, "--start", str(START), "--max-frames", str(FRAMES),
+               "--out", str(out), "--quiet"])
+    assert rc == 0
+    est = read_table(out)
+    assert list(est["frame"]) == list(range(START, START + FRAMES))
+    assert est["status"][0] == "first frame"
+    assert list(est["status"][1:]) == ["ok"] * (FRAMES - 1)
+    gt = planar_motion(read_poses(data / "poses.txt"), math.radians(1.0))
+    truth = {"frame": np.arange(1, gt.tx.size + 1), "tx_m": gt.tx, "tz_m": gt.tz,
+             "yaw_deg": np.degrees(gt.yaw)}
+    errors = frame_errors(est, truth)
+    assert errors["frame"].size == FRAMES - 1
+    # Issue target over the whole sequence: median <= 3 %. Five pairs after a cold start are
+    # held to "a few %" (scripts/results/kitti.md has the full-sequence numbers and why).
+    assert np.median(np.abs(errors["distance_pct"])) < 5.0
+    assert np.max(np.abs(errors["distance_pct"])) < 15.0
+    assert np.median(np.abs(errors["yaw_deg"])) < 0.1

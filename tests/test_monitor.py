@@ -1,0 +1,384 @@
+"""Calibration drift monitor: thresholds, nominal files, detection against simulated truth,
+HOLD / INVALID / hysteresis, events, and batched vs streaming agreement."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from filters.drive_sim import DriveConfig, MountChange, simulate_drive
+from filters.monitor import (
+    CALIBRATED,
+    RECALIBRATE,
+    DriftMonitor,
+    MonitorConfig,
+    MonitorCore,
+    MonitorInput,
+    NominalCalibration,
+    cusum_log_arl,
+    cusum_threshold,
+    load_nominal,
+    run_monitor,
+    write_events,
+    write_nominal,
+)
+from filters.monitor_inputs import input_arrays, inputs_from_measurements, mount_from_state
+from vipm_track.errors import InputError
+
+NOMINAL = NominalCalibration(pitch_deg=3.0, roll_deg=0.0, height_m=1.5)
+FPS = 10.0
+
+
+def drive(duration_s: float, seed: int, changes=(), **overrides):
+    cfg = DriveConfig.preset(
+        "car", fps=FPS, duration_s=duration_s, mount_changes=tuple(changes),
+        mount_random_walk=False, **overrides,
+    )
+    return simulate_drive(cfg, seed=seed)
+
+
+def monitor_run(run, nominal=NOMINAL, speed=True, config=None):
+    inputs = inputs_from_measurements(run.measurements, run.speed if speed else None)
+    return inputs, run_monitor(inputs, nominal, config or MonitorConfig(fps=FPS))
+
+
+def first_time(outputs, state, after=-math.inf):
+    for o in outputs:
+        if o.t >= after and o.state == state:
+            return o.t
+    return None
+
+
+# --- thresholds -----------------------------------------------------------------------------
+
+
+def test_threshold_inverts_siegmund():
+    for drift in (-0.2, -0.5, -1.0):
+        b = cusum_threshold(1e5, drift)
+        assert math.exp(cusum_log_arl(b, drift)) == pytest.approx(1e5, rel=1e-6)
+
+
+def test_threshold_gives_the_simulated_run_length():
+    """A CUSUM of N(drift, 1) increments at the computed threshold reaches it after about the
+    requested ARL (Siegmund's approximation is good to a few percent)."""
+    drift, arl = -0.5, 400.0
+    b = cusum_threshold(arl, drift)
+    rng = np.random.default_rng(3)
+    runs, steps = 4000, 8000
+    s = np.zeros(runs)
+    hit = np.full(runs, np.nan)
+    for k in range(steps):
+        s = np.maximum(0.0, s + rng.standard_normal(runs) + drift)
+        new = np.isnan(hit) & (s >= b)
+        hit[new] = k + 1
+        s[new] = -np.inf  # stop
+    assert np.isfinite(hit).mean() > 0.99
+    assert np.nanmean(hit) == pytest.approx(arl, rel=0.1)
+
+
+# --- nominal file ---------------------------------------------------------------------------
+
+
+def test_nominal_round_trip(tmp_path):
+    nom = NominalCalibration(2.5, -0.3, 1.42, pitch_tol_deg=0.2, height_tol_m=0.01,
+                             max_angle_dev_deg=8.0)
+    write_nominal(nom, tmp_path / "n.yaml")
+    assert load_nominal(tmp_path / "n.yaml") == nom
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("pitch_deg: 3\nroll_deg: 0\n", "height_m"),
+        ("pitch_deg: 3\nroll_deg: zero\nheight_m: 1.5\n", "roll_deg"),
+        ("pitch_deg: 3\nroll_deg: 0\nheight_m: -1\n", "height_m must be > 0"),
+        ("pitch_deg: 3\nroll_deg: 0\nheight_m: 1.5\ntolerances: {pitch: 1}\n", "pitch"),
+        ("[1, 2]\n", "mapping"),
+        ("pitch_deg: [3\n", "YAML"),
+    ],
+)
+def test_nominal_errors_name_file_and_key(tmp_path, text, message):
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(InputError, match=message) as info:
+        load_nominal(path)
+    assert "bad.yaml" in str(info.value)
+
+
+def test_shipped_nominal_examples_load():
+    from pathlib import Path
+
+    files = sorted((Path(__file__).resolve().parents[1] / "data").glob("nominal_*.yaml"))
+    assert files, "data/nominal_*.yaml examples missing"
+    for f in files:
+        load_nominal(f)
+
+
+# --- detection on simulated drives ----------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "change",
+    [MountChange(20.0, pitch_deg=1.0), MountChange(20.0, roll_deg=-1.0),
+     MountChange(20.0, height_m=0.02)],
+    ids=["pitch+1deg", "roll-1deg", "height+2cm"],
+)
+def test_step_flagged_after_and_never_before(change):
+    run = drive(50.0, seed=11, changes=[change], stop_probability=0.0)
+    _, out = monitor_run(run)
+    assert first_time(out, "RECALIBRATE") is not None
+    t_flag = first_time(out, "RECALIBRATE")
+    assert 20.0 <= t_flag <= 20.0 + (10.0 if change.height_m else 5.0)
+    assert first_time(out, "CALIBRATED") < 20.0
+    # the reported new extrinsics: the truth inside the 95 % interval by the end
+    last = [o for o in out if o.state != "HOLD"][-1]
+    assert last.state == "RECALIBRATE"
+    truth = np.array([math.radians(3.0 + change.pitch_deg), math.radians(change.roll_deg),
+                      1.5 + change.height_m])
+    assert np.all(last.interval95[:, 0] <= truth) and np.all(truth <= last.interval95[:, 1])
+    j = int(np.argmax(np.abs([change.pitch_deg, change.roll_deg, change.height_m * 100])))
+    assert "pitch roll height".split()[j] in last.reason
+
+
+def test_height_is_untested_without_wheel_speed():
+    run = drive(40.0, seed=12, changes=[MountChange(15.0, height_m=0.03)], stop_probability=0.0)
+    inputs, out = monitor_run(run, speed=False)
+    assert all(np.isnan(i.pose[2]) for i in inputs)
+    assert first_time(out, "RECALIBRATE") is None
+
+
+def test_nominal_drive_with_outliers_and_stops_has_no_alarm():
+    run = drive(600.0, seed=13, outlier_fraction=0.1, stop_probability=0.3)
+    _, out = monitor_run(run)
+    states = {o.state for o in out}
+    assert "RECALIBRATE" not in states and "INVALID" not in states
+    assert "HOLD" in states  # stops and failed frames
+    assert sum(o.state == "CALIBRATED" for o in out) > 0.8 * sum(o.state != "HOLD" for o in out)
+
+
+def test_deviation_inside_tolerance_is_calibrated():
+    """0.3° off nominal: flagged at 0.1° tolerance, calibrated at 0.5° tolerance."""
+    run = drive(120.0, seed=14, changes=[MountChange(0.0, pitch_deg=0.3)], stop_probability=0.0)
+    _, tight = monitor_run(run, NOMINAL)
+    loose_nom = NominalCalibration(3.0, 0.0, 1.5, pitch_tol_deg=0.5, roll_tol_deg=0.5)
+    _, loose = monitor_run(run, loose_nom)
+    assert first_time(tight, "RECALIBRATE") is not None
+    assert first_time(loose, "RECALIBRATE") is None
+    judged = [o.state for o in loose if o.state not in ("HOLD", "UNCALIBRATED")]
+    assert judged.count("CALIBRATED") > 0.9 * len(judged)
+
+
+def test_recalibrate_is_held_until_sustained_return():
+    """Bumped by 1° at 15 s and back at 30 s: RECALIBRATE until about clear_after_s of calm
+    frames after the return, then CALIBRATED."""
+    run = drive(70.0, seed=15, stop_probability=0.0,
+                changes=[MountChange(15.0, pitch_deg=1.0), MountChange(30.0, pitch_deg=-1.0)])
+    cfg = MonitorConfig(fps=FPS, clear_after_s=10.0)
+    _, out = monitor_run(run, config=cfg)
+    t_flag = first_time(out, "RECALIBRATE")
+    assert 15.0 <= t_flag <= 20.0
+    t_clear = first_time(out, "CALIBRATED", after=t_flag)
+    # calm frames may start a little before the return (the statistics restart after each
+    # alarm), so allow a second or two of slack
+    assert t_clear is not None and 30.0 + 8.0 <= t_clear <= 30.0 + 20.0
+    assert all(o.state in ("RECALIBRATE", "HOLD") for o in out if t_flag <= o.t < t_clear)
+
+
+def test_invalid_outside_physical_limits_then_uncalibrated():
+    run = drive(60.0, seed=16, stop_probability=0.0,
+                changes=[MountChange(10.0, pitch_deg=15.0), MountChange(25.0, pitch_deg=-15.0)])
+    _, out = monitor_run(run, config=MonitorConfig(fps=FPS, clear_after_s=5.0))
+    t_inv = first_time(out, "INVALID")
+    assert t_inv is not None and 10.0 <= t_inv <= 12.0
+    inv = [o for o in out if o.state == "INVALID"]
+    assert "pitch" in inv[0].reason and "limit" in inv[0].reason
+    assert first_time(out, "UNCALIBRATED", after=25.0) is not None
+    assert out[-1].state in ("CALIBRATED", "HOLD")
+
+
+# --- HOLD, gating, events -------------------------------------------------------------------
+
+
+def test_hold_reasons_and_frozen_statistics():
+    run = drive(20.0, seed=17, stop_probability=0.0)
+    inputs = inputs_from_measurements(run.measurements, run.speed)
+    mon = DriftMonitor(NOMINAL, MonitorConfig(fps=FPS))
+    outs = [mon.update(i) for i in inputs[:100]]
+    assert outs[0].state == "HOLD" and outs[0].reason == "first frame"
+    before = mon.core.s.cusum.copy()
+    bad = MonitorInput(frame=100, t=10.0, pose=np.array([0.5, 0.5, 3.0]),
+                       pose_var=np.full(3, 1e-6), usable=False, hold_reason="too few inliers")
+    o = mon.update(bad)
+    assert o.state == "HOLD" and o.reason == "too few inliers"
+    np.testing.assert_array_equal(mon.core.s.cusum, before)
+
+
+def test_standstill_is_hold():
+    run = drive(120.0, seed=18, stop_probability=1.0, segment_mean_s=4.0)
+    arr = input_arrays(np.arange(len(run.z)), run.truth.t, run.z, run.covariance, 1.5,
+                       run.status, None, run.speed)
+    still = run.truth.speed < 0.3
+    assert still.any()
+    moving_ok = (run.truth.speed > 1.0) & (run.status == "ok")
+    assert np.all(arr.reason[still] != "")
+    assert np.all(arr.reason[moving_ok] == "")
+
+
+def test_gated_frames_hold_only_briefly():
+    cfg = MonitorConfig(fps=FPS, max_gated_run_s=0.3)
+    mon = DriftMonitor(NOMINAL, cfg)
+    states = []
+    for k in range(40):
+        pose = NOMINAL.values + np.array([math.radians(2.0), 0.0, 0.0]) * (k >= 20)
+        inp = MonitorInput(frame=k, t=k / FPS, pose=pose, pose_var=np.array([3e-6, 3e-6, np.nan]),
+                           gated=k >= 20)
+        states.append(mon.update(inp).state)
+    assert states[20:23] == ["HOLD"] * 3
+    assert "RECALIBRATE" in states[23:]
+
+
+def test_events_are_json_lines_on_state_changes(tmp_path):
+    run = drive(40.0, seed=19, changes=[MountChange(20.0, pitch_deg=1.0)], stop_probability=0.0)
+    _, out = monitor_run(run)
+    n = write_events(out, tmp_path / "ev.jsonl")
+    lines = [json.loads(x) for x in (tmp_path / "ev.jsonl").read_text().splitlines()]
+    assert n == len(lines) >= 3
+    changes = [o for i, o in enumerate(out) if i == 0 or o.state != out[i - 1].state]
+    assert [e["state"] for e in lines] == [o.state for o in changes]
+    recal = next(e for e in lines if e["state"] == "RECALIBRATE")
+    assert set(recal) >= {"t", "frame", "state", "estimate", "interval95", "reason"}
+    lo, hi = recal["interval95"]["pitch_deg"]
+    assert lo <= recal["estimate"]["pitch_deg"] <= hi
+    assert recal["estimate"]["pitch_deg"] > 3.5
+
+
+def test_batched_core_matches_streams():
+    runs = [drive(30.0, seed=20 + i, changes=[MountChange(10.0, roll_deg=0.8 * i)])
+            for i in range(3)]
+    arrs = [input_arrays(np.arange(len(r.z)), r.truth.t, r.z, r.covariance, 1.5, r.status,
+                         None, r.speed) for r in runs]
+    core = MonitorCore(NOMINAL, MonitorConfig(fps=FPS), batch=3)
+    codes = np.array([
+        core.step(np.array([a.t[k] for a in arrs]), np.stack([a.pose[k] for a in arrs]),
+                  np.stack([a.pose_var[k] for a in arrs]),
+                  np.array([a.usable[k] for a in arrs]))
+        for k in range(len(arrs[0].t))
+    ])
+    for i, r in enumerate(runs):
+        _, out = monitor_run(r)
+        from filters.monitor import STATES
+
+        assert [STATES[c] for c in codes[:, i]] == [o.state for o in out]
+    assert (codes[:, 0] == CALIBRATED).any() and (codes[:, 2] == RECALIBRATE).any()
+
+
+def test_mount_from_ekf_like_state():
+    class S:
+        status = "ok"
+        mount = np.array([0.05, 0.0, 1.5])
+        mount_cov = np.eye(3) * 1e-6
+        gated = "motion"
+
+    m, c, g = mount_from_state(S())
+    assert m is not None and c.shape == (3, 3) and g is False
+    S.gated = "pose+motion"
+    assert mount_from_state(S())[2] is True
+
+
+# --- command line ---------------------------------------------------------------------------
+
+
+@pytest.fixture
+def cli_inputs(tmp_path):
+    """An estimates CSV and a wheel-speed CSV of a drive bumped by 1° pitch at 30 s, a
+    camera file and the shipped car nominal calibration."""
+    from pathlib import Path
+
+    from filters.wheel_speed import SpeedSeries, write_speed_csv
+    from vipm_track.measurement import measurement_row
+    from vipm_track.table import ESTIMATE_COLUMNS, write_table
+
+    run = drive(50.0, seed=21, changes=[MountChange(30.0, pitch_deg=1.0)], stop_probability=0.0)
+    write_table(tmp_path / "est.csv", [measurement_row(m) for m in run.measurements],
+                ESTIMATE_COLUMNS)
+    write_speed_csv(SpeedSeries(run.speed.t, run.speed.speed_mps), tmp_path / "speed.csv")
+    (tmp_path / "cam.yaml").write_text(
+        "image_width: 1280\nimage_height: 720\ncamera_matrix: {rows: 3, cols: 3, data: "
+        "[900, 0, 640, 0, 900, 360, 0, 0, 1]}\ndistortion_model: plumb_bob\n"
+        "distortion_coefficients: {rows: 1, cols: 5, data: [0, 0, 0, 0, 0]}\n")
+    nominal = Path(__file__).resolve().parents[1] / "data" / "nominal_car.yaml"
+    return tmp_path, nominal
+
+
+def test_cli_monitor_from_estimates(cli_inputs):
+    from vipm_track.cli import main
+    from vipm_track.table import read_table
+
+    d, nominal = cli_inputs
+    rc = main(["monitor", "--estimates", str(d / "est.csv"), "--camera", str(d / "cam.yaml"),
+               "--speed-csv", str(d / "speed.csv"), "--nominal", str(nominal),
+               "--out", str(d / "mon.csv"), "--events", str(d / "ev.jsonl"), "--quiet"])
+    assert rc == 0
+    table = read_table(d / "mon.csv")
+    states, t = table["monitor_state"], table["t"]
+    assert not np.any(states[t < 30.0] == "RECALIBRATE")
+    flagged = t[states == "RECALIBRATE"]
+    assert len(flagged) and 30.0 <= flagged.min() <= 33.0
+    last = np.flatnonzero(states == "RECALIBRATE")[-1]
+    assert table["new_pitch_lo_deg"][last] <= 4.0 <= table["new_pitch_hi_deg"][last]
+    assert np.nanmax(np.abs(table["mount_height_m"] - 1.5)) < 0.05  # EKF ran with speed
+    events = [json.loads(x) for x in (d / "ev.jsonl").read_text().splitlines()]
+    assert any(e["state"] == "RECALIBRATE" and "filter_mount" in e for e in events)
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--nominal", "missing.yaml"], "missing.yaml"),
+        (["--images", "somewhere"], "exactly one of"),
+        (["--false-alarms-per-hour", "0"], "false-alarms-per-hour"),
+    ],
+)
+def test_cli_monitor_errors_exit_2(cli_inputs, capsys, extra, message):
+    from vipm_track.cli import main
+
+    d, nominal = cli_inputs
+    args = ["monitor", "--estimates", str(d / "est.csv"), "--camera", str(d / "cam.yaml"),
+            "--nominal", str(nominal), "--out", str(d / "mon.csv"), "--quiet"]
+    for i in range(0, len(extra), 2):
+        if extra[i] in args:
+            args[args.index(extra[i]) + 1] = extra[i + 1]
+        else:
+            args += extra[i:i + 2]
+    assert main(args) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_cli_monitor_estimates_without_std_columns(cli_inputs, capsys):
+    from vipm_track.cli import main
+
+    d, nominal = cli_inputs
+    (d / "bad.csv").write_text("frame,t,pitch_deg,roll_deg,height_m,tx_m,tz_m,yaw_deg,status\n"
+                               "0,0.0,3,0,1.5,0,1,0,ok\n")
+    assert main(["monitor", "--estimates", str(d / "bad.csv"), "--camera", str(d / "cam.yaml"),
+                 "--nominal", str(nominal), "--out", str(d / "mon.csv"), "--quiet"]) == 2
+    assert "bad.csv" in capsys.readouterr().err
+
+
+def test_height_needs_speed_without_gaps():
+    from filters.drive_sim import SpeedSamples
+
+    run = drive(30.0, seed=22, stop_probability=0.0)
+    keep = (run.speed.t < 10.0) | (run.speed.t > 12.0)  # a 2 s hole in the wheel speed
+    holed = SpeedSamples(run.speed.t[keep], run.speed.speed_mps[keep])
+    arr = input_arrays(np.arange(len(run.z)), run.truth.t, run.z, run.covariance, 1.5,
+                       run.status, None, holed)
+    t = run.truth.t
+    ok = arr.usable
+    assert np.all(np.isnan(arr.pose[(t > 10.05) & (t < 11.95), 2]))
+    good = ok & ((t < 9.9) | (t > 12.2)) & (t > 0.2) & (t < 29.8)
+    assert np.all(np.isfinite(arr.pose[good, 2]))
+    assert np.nanmedian(np.abs(arr.pose[good, 2] - 1.5)) < 0.01

@@ -1,0 +1,263 @@
+"""Sequence runner plumbing: statuses, rows, flushing, tracking seeds; then the real estimator
+end to end on a rendered sequence (checked against its ground truth)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from vipm_track.camera import CameraModel
+from vipm_track.errors import InputError
+from vipm_track.geometry import GroundPose, PlanarMotion
+from vipm_track.measurement import PairMeasurement, read_measurements
+from vipm_track.pipeline import (
+    FIRST_FRAME,
+    NO_PREVIOUS,
+    WRONG_SIZE,
+    RunSummary,
+    estimate_sequence,
+    run_sequence,
+    step_row,
+)
+from vipm_track.sources import open_source
+from vipm_track.table import read_table
+
+CAMERA = CameraModel(k=np.array([[50.0, 0, 20], [0, 50.0, 15], [0, 0, 1]]), width=40, height=30)
+
+
+@dataclass
+class _Result:
+    """Minimal stand-in for ``PairResult`` (status, poses, motion, to_measurement)."""
+
+    status: str
+    motion: PlanarMotion
+    pose_curr: GroundPose
+    stages: list = field(default_factory=list)
+    residual_px: float = 0.1
+
+    def to_measurement(self, frame: int, t: float) -> PairMeasurement:
+        ok = self.status == "ok"
+        z = np.array([0.5, 0.0, 0.5, 0.0, self.motion.tx, self.motion.tz, self.motion.yaw])
+        return PairMeasurement(frame, t, z if ok else np.full(7, np.nan), np.eye(7) * 1e-4,
+                               1.0, self.status, 42)
+
+
+class _FakeEstimator:
+    """Reports the mean-brightness change as tz; fails where the images are equal."""
+
+    def __init__(self) -> None:
+        self.guesses: list = []
+
+    def estimate(self, prev, curr, guess=None):
+        self.guesses.append(guess)
+        d = float(curr.mean()) - float(prev.mean())
+        status = "ok" if d != 0 else "too few inliers"
+        return _Result(status, PlanarMotion(0.0, d / 100.0, 0.0), GroundPose(0.5, 0.0, 1.0))
+
+
+def _folder(tmp_path: Path, values: list[int | None], size=(40, 30)) -> Path:
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    for i, v in enumerate(values):
+        path = tmp_path / f"{i:06d}.png"
+        if v is None:
+            path.write_bytes(b"broken")
+        else:
+            cv2.imwrite(str(path), np.full((size[1], size[0]), v, np.uint8))
+    (tmp_path / "times.txt").write_text("".join(f"{0.1 * i:.3f}\n" for i in range(len(values))))
+    return tmp_path
+
+
+def test_statuses_of_first_unreadable_and_failed_frames(tmp_path: Path) -> None:
+    folder = _folder(tmp_path, [10, 20, None, 30, 40, 40, 50])
+    steps = list(run_sequence(open_source(images=folder), CAMERA, 1.0,
+                              tracking=False, estimator=_FakeEstimator()))
+    assert [s.frame for s in steps] == list(range(7))
+    assert [s.status for s in steps] == [
+        FIRST_FRAME, "ok", f"unreadable frame: {folder / '000002.png'}", NO_PREVIOUS, "ok",
+        "too few inliers", "ok",
+    ]
+    np.testing.assert_allclose([s.t for s in steps], 0.1 * np.arange(7))
+    assert steps[1].result.motion.tz == pytest.approx(0.1)
+
+
+def test_rows_are_written_and_read_back_as_measurements(tmp_path: Path) -> None:
+    folder = _folder(tmp_path / "img", [10, 20, 20, 35])
+    out = tmp_path / "est.csv"
+    summary = estimate_sequence(open_source(images=folder), CAMERA, 1.0, out, tracking=False,
+                                parquet=True, progress=False, estimator=_FakeEstimator())
+    assert (summary.frames, summary.ok, summary.pairs) == (4, 2, 3)
+    assert "2/4 frames ok" in summary.line() and "1× too few inliers" in summary.line()
+    table = read_table(out)
+    assert list(table["status"]) == [FIRST_FRAME, "ok", "too few inliers", "ok"]
+    np.testing.assert_allclose(table["tz_m"], [np.nan, 0.1, np.nan, 0.15], equal_nan=True)
+    assert np.isnan(table["pitch_deg"][0]) and table["pitch_deg"][1] == pytest.approx(
+        np.degrees(0.5))
+    parquet = read_table(out.with_suffix(".parquet"))
+    np.testing.assert_allclose(parquet["tz_m"], table["tz_m"], equal_nan=True)
+    ms = read_measurements(out)
+    assert [m.ok for m in ms] == [False, True, False, True]
+
+
+def test_wrong_size_first_frame_fails_fast_later_frames_get_a_row(tmp_path: Path) -> None:
+    folder = _folder(tmp_path / "a", [10, 20], size=(41, 30))
+    with pytest.raises(InputError, match=r"41×30 px but the camera model is 40×30"):
+        list(run_sequence(open_source(images=folder), CAMERA, 1.0, estimator=_FakeEstimator()))
+    folder = _folder(tmp_path / "b", [10, 20, 30])
+    cv2.imwrite(str(folder / "000001.png"), np.zeros((30, 41), np.uint8))
+    steps = list(run_sequence(open_source(images=folder), CAMERA, 1.0, tracking=False,
+                              estimator=_FakeEstimator()))
+    assert [s.status for s in steps] == [FIRST_FRAME, WRONG_SIZE, NO_PREVIOUS]
+
+
+def test_bad_height_is_an_input_error(tmp_path: Path) -> None:
+    folder = _folder(tmp_path, [10, 20])
+    with pytest.raises(InputError, match="--height must be a positive"):
+        list(run_sequence(open_source(images=folder), CAMERA, -1.0, estimator=_FakeEstimator()))
+
+
+def test_row_of_a_step_without_result_has_empty_numbers() -> None:
+    from vipm_track.pipeline import SequenceStep
+
+    row = step_row(SequenceStep(3, 0.3, None, FIRST_FRAME), 1.5)
+    assert row == {"frame": 3, "t": 0.3, "height_m": 1.5, "status": FIRST_FRAME}
+    summary = RunSummary()
+    summary.add(SequenceStep(3, 0.3, None, FIRST_FRAME))
+    assert summary.frames == 1 and summary.ok == 0
+
+
+# --- estimate CLI option parsing ---------------------------------------------------------------
+
+
+def test_parse_grid_and_roi(tmp_path: Path) -> None:
+    from vipm_track.commands.estimate import parse_grid, parse_roi
+
+    assert parse_grid("11x9") == (11, 9) and parse_grid("5×4") == (5, 4)
+    for bad in ("11", "ax9", "1x9"):
+        with pytest.raises(InputError, match="--grid"):
+            parse_grid(bad)
+    mask = parse_roi("10,5,30,25", CAMERA)
+    assert mask.shape == (30, 40) and mask.sum() == 20 * 20 and mask[5, 10] and not mask[4, 10]
+    with pytest.raises(InputError, match=r"need 0 <= x0 < x1 <= 40"):
+        parse_roi("10,5,50,25", CAMERA)
+    with pytest.raises(InputError, match="neither a file nor a rectangle"):
+        parse_roi("10,5,30", CAMERA)
+    polygon = tmp_path / "road.txt"
+    polygon.write_text("# x y\n0 29\n39 29\n20 10\n")
+    tri = parse_roi(str(polygon), CAMERA)
+    assert tri[28, 20] and not tri[5, 20] and not tri[12, 2]
+    polygon.write_text("0 29\n39 29\n")
+    with pytest.raises(InputError, match="at least 3 vertices"):
+        parse_roi(str(polygon), CAMERA)
+    image = np.zeros((30, 40), np.uint8)
+    image[15:, :] = 255
+    cv2.imwrite(str(tmp_path / "mask.png"), image)
+    assert parse_roi(str(tmp_path / "mask.png"), CAMERA).sum() == 15 * 40
+    cv2.imwrite(str(tmp_path / "small.png"), image[:20])
+    with pytest.raises(InputError, match="mask is 40×20 px but the camera image is 40×30"):
+        parse_roi(str(tmp_path / "small.png"), CAMERA)
+
+
+# --- the real estimator on a rendered sequence -------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def cart_sequence(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from vipm_track.sim import simulate_sequence
+
+    folder = tmp_path_factory.mktemp("cart")
+    simulate_sequence("cart", 5, folder, seed=3, profile="static")
+    return folder
+
+
+def test_estimate_cli_on_rendered_cart_matches_ground_truth(cart_sequence: Path,
+                                                            tmp_path: Path) -> None:
+    from vipm_track.cli import main
+    from vipm_track.evaluate import frame_errors
+
+    out = tmp_path / "est.csv"
+    rc = main(["estimate", "--images", str(cart_sequence / "images"), "--camera",
+               str(cart_sequence / "camera.yaml"), "--height", "0.7", "--out", str(out),
+               "--parquet", "--quiet"])
+    assert rc == 0
+    est, truth = read_table(out), read_table(cart_sequence / "gt.csv")
+    assert list(est["status"]) == [FIRST_FRAME] + ["ok"] * 4
+    np.testing.assert_allclose(est["t"], truth["t"])
+    errors = frame_errors(est, truth)
+    assert errors["frame"].size == 4
+    assert np.max(np.abs(errors["pitch_deg"])) < 1.0
+    assert np.max(np.abs(errors["roll_deg"])) < 1.0
+    assert np.max(np.abs(errors["distance_pct"])) < 2.0
+    assert np.max(np.abs(errors["yaw_deg"])) < 0.2
+    assert np.all(est["inliers"][1:] >= 12) and np.all(est["patches"][1:] >= est["inliers"][1:])
+    assert read_table(out.with_suffix(".parquet"))["status"][1] == "ok"
+
+
+def test_tracking_seeds_each_pair_from_the_previous_result(cart_sequence: Path) -> None:
+    from vipm_track.camera import load_camera
+
+    camera = load_camera(cart_sequence / "camera.yaml")
+    steps = list(run_sequence(open_source(images=cart_sequence / "images", max_frames=4),
+                              camera, 0.7))
+    assert [s.tracked for s in steps] == [False, False, True, True]
+    assert all(s.ok for s in steps[1:])
+    # The seed of pair 3 was pair 2's motion: the estimate moved only a little from it.
+    assert abs(steps[3].result.motion.tz - steps[2].result.motion.tz) < 0.01
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--grid", "11"], "--grid must look like 11x9"),
+        (["--refinements", "-1"], "--refinements must be between 0 and 10"),
+        (["--pitch", "95"], r"--pitch must be in \[-10.0, 90.0\] degrees"),
+        (["--patch-size", "100"], "--patch-size must be a multiple of 16"),
+        (["--roi", "0,0,9000,10"], "--roi '0,0,9000,10': need 0 <= x0 < x1 <= 800"),
+        (["--height", "-2"], "--height must be a positive"),
+        (["--start", "50"], "--start 50 but the folder has 5 images"),
+    ],
+)
+def test_estimate_cli_bad_options_exit_2_with_a_message(
+    cart_sequence: Path, tmp_path: Path, capsys: pytest.CaptureFixture, extra: list[str],
+    message: str,
+) -> None:
+    from vipm_track.cli import main
+
+    argv = ["estimate", "--images", str(cart_sequence / "images"), "--camera",
+            str(cart_sequence / "camera.yaml"), "--height", "0.7",
+            "--out", str(tmp_path / "e.csv"), "--quiet", *extra]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "vipm-track estimate: error:" in err
+    assert __import__("re").search(message, err), err
+
+
+def test_estimate_cli_bad_camera_file(cart_sequence: Path, tmp_path: Path,
+                                      capsys: pytest.CaptureFixture) -> None:
+    from vipm_track.cli import main
+
+    bad = tmp_path / "camera.yaml"
+    bad.write_text("image_width: 800\nimage_height: 600\n")
+    assert main(["estimate", "--images", str(cart_sequence / "images"), "--camera", str(bad),
+                 "--height", "0.7", "--out", str(tmp_path / "e.csv")]) == 2
+    assert "field 'camera_matrix': missing" in capsys.readouterr().err
+
+
+def test_interrupted_run_keeps_the_rows_written(tmp_path: Path) -> None:
+    folder = _folder(tmp_path / "img", [10, 20, 30, 40, 50])
+    out = tmp_path / "est.csv"
+
+    def interrupt_at_frame_2(step) -> None:
+        if step.frame == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        estimate_sequence(open_source(images=folder), CAMERA, 1.0, out, tracking=False,
+                          progress=False, on_step=interrupt_at_frame_2,
+                          estimator=_FakeEstimator())
+    table = read_table(out)
+    assert list(table["frame"]) == [0, 1, 2]
+    np.testing.assert_allclose(table["tz_m"][1:], [0.1, 0.1])

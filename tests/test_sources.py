@@ -1,0 +1,143 @@
+"""Frame sources: image folders, times.txt, videos, and their error messages."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from tests.conftest import shared_data
+from vipm_track.errors import InputError
+from vipm_track.sources import SourceError, open_source, read_times
+
+
+def _write_images(
+    folder: Path, n: int, size: tuple[int, int] = (40, 30), colour: bool = False
+) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    for i in range(n):
+        value = 10 * i + 5
+        image = np.full((size[1], size[0], 3) if colour else (size[1], size[0]), value, np.uint8)
+        cv2.imwrite(str(folder / f"{i:06d}.png"), image)
+
+
+def test_folder_with_times_in_parent_kitti_style(tmp_path: Path) -> None:
+    _write_images(tmp_path / "image_0", 4, colour=True)
+    (tmp_path / "times.txt").write_text("0.0\n0.1\n0.25\n0.3\n")
+    frames = list(open_source(images=tmp_path / "image_0"))
+    assert [f.index for f in frames] == [0, 1, 2, 3]
+    assert [f.t for f in frames] == [0.0, 0.1, 0.25, 0.3]
+    assert all(f.image.ndim == 2 and f.image.dtype == np.uint8 for f in frames)
+    assert int(frames[2].image[0, 0]) == 25  # colour converted to grey, pixel value kept
+
+
+def test_folder_sorted_by_name_and_fps_fallback(tmp_path: Path) -> None:
+    _write_images(tmp_path, 3)
+    (tmp_path / "notes.txt").write_text("not an image")
+    source = open_source(images=tmp_path, fps=20.0)
+    frames = list(source)
+    assert len(source) == 3
+    np.testing.assert_allclose([f.t for f in frames], [0.0, 0.05, 0.1])
+    assert [int(f.image[0, 0]) for f in frames] == [5, 15, 25]
+
+
+def test_start_and_max_frames_keep_recording_indices(tmp_path: Path) -> None:
+    _write_images(tmp_path, 6)
+    source = open_source(images=tmp_path, fps=10.0, start=2, max_frames=3)
+    frames = list(source)
+    assert len(source) == 3
+    assert [f.index for f in frames] == [2, 3, 4]
+    np.testing.assert_allclose([f.t for f in frames], [0.2, 0.3, 0.4])
+
+
+def test_unreadable_image_is_reported_and_the_run_goes_on(tmp_path: Path) -> None:
+    _write_images(tmp_path, 3)
+    (tmp_path / "000001.png").write_bytes(b"this is not a png")
+    frames = list(open_source(images=tmp_path, fps=10.0))
+    assert [f.ok for f in frames] == [True, False, True]
+    assert "unreadable frame" in frames[1].error and "000001.png" in frames[1].error
+
+
+def test_times_count_mismatch_names_the_file(tmp_path: Path) -> None:
+    _write_images(tmp_path, 3)
+    (tmp_path / "times.txt").write_text("0.0\n0.1\n")
+    with pytest.raises(SourceError, match=r"times\.txt: 2 timestamps but 3 images"):
+        open_source(images=tmp_path)
+
+
+def test_bad_times_lines(tmp_path: Path) -> None:
+    path = tmp_path / "times.txt"
+    path.write_text("0.0\nabc\n")
+    with pytest.raises(SourceError, match="line 2: not a timestamp"):
+        read_times(path)
+    path.write_text("0.0\n0.2\n0.1\n")
+    with pytest.raises(SourceError, match=r"line 3: timestamp 0\.1 does not increase"):
+        read_times(path)
+    path.write_text("# comment\n1.5e-1\n\n2.0e-1 extra\n")
+    np.testing.assert_allclose(read_times(path), [0.15, 0.2])
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({}, "exactly one input"),
+        ({"images": "/no/such/folder"}, "image folder not found"),
+        ({"video": "/no/such/video.mp4"}, "video file not found"),
+        ({"images": ".", "fps": -1.0}, "--fps must be a positive"),
+        ({"images": ".", "start": -1}, "--start must be >= 0"),
+        ({"images": ".", "max_frames": 0}, "--max-frames must be >= 1"),
+    ],
+)
+def test_bad_options_fail_fast(kwargs: dict, message: str) -> None:
+    with pytest.raises(InputError, match=message):
+        open_source(**kwargs)
+
+
+def test_folder_problems(tmp_path: Path) -> None:
+    with pytest.raises(SourceError, match="no images in the folder"):
+        open_source(images=tmp_path, fps=10.0)
+    _write_images(tmp_path, 2)
+    with pytest.raises(SourceError, match=r"no times\.txt.*pass --fps"):
+        open_source(images=tmp_path)
+    with pytest.raises(SourceError, match="--start 5 but the folder has 2 images"):
+        open_source(images=tmp_path, fps=10.0, start=5)
+
+
+def _write_video(path: Path, n: int, fps: float) -> None:
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (64, 48))
+    assert writer.isOpened()
+    for i in range(n):
+        writer.write(np.full((48, 64, 3), 20 * i, np.uint8))
+    writer.release()
+
+
+def test_video_timestamps_grey_frames_and_fps_override(tmp_path: Path) -> None:
+    path = tmp_path / "clip.avi"
+    _write_video(path, 6, 12.5)
+    source = open_source(video=path)
+    frames = list(source)
+    assert len(source) == 6 and len(frames) == 6
+    np.testing.assert_allclose([f.t for f in frames], np.arange(6) / 12.5, atol=1e-6)
+    assert frames[0].image.shape == (48, 64) and frames[0].image.dtype == np.uint8
+    assert abs(int(frames[3].image[10, 10]) - 60) <= 3  # MJPG is lossy
+    frames = list(open_source(video=path, fps=5.0, start=2, max_frames=2))
+    assert [f.index for f in frames] == [2, 3]
+    np.testing.assert_allclose([f.t for f in frames], [0.4, 0.6])
+
+
+def test_unreadable_video_fails_fast(tmp_path: Path) -> None:
+    path = tmp_path / "junk.mp4"
+    path.write_bytes(b"definitely not a video")
+    with pytest.raises(SourceError, match=r"junk\.mp4: OpenCV cannot open this video"):
+        open_source(video=path)
+
+
+def test_kitti_folder_reads_times_from_parent() -> None:
+    folder = shared_data("kitti07", "image_0")
+    source = open_source(images=folder, max_frames=3)
+    frames = list(source)
+    assert source.times_file.name == "times.txt"
+    assert frames[0].image.shape == (370, 1226)
+    np.testing.assert_allclose(frames[1].t, 0.1038752)

@@ -1,0 +1,101 @@
+"""``vipm-track can-speed``: decode a vehicle speed from a CAN log (or a live bus) with a DBC
+and write ``t,speed_mps``; optionally resample it at camera frame times."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import numpy as np
+
+from ..errors import InputError
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "can-speed", help="decode wheel speed from a CAN log or bus to t,speed_mps CSV",
+        description="Decode a vehicle speed from a CAN log (candump .log, Vector .asc/.blf, "
+        "PCAN .trc, .csv, .mf4) or a live python-can bus with a DBC, and write t,speed_mps. "
+        "Bad frames are counted in the printed summary and skipped.")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("log", nargs="?", metavar="LOG", help="CAN log file")
+    src.add_argument("--bus", metavar="INTERFACE:CHANNEL",
+                     help="live python-can bus instead of a log, e.g. socketcan:can0")
+    p.add_argument("--duration", type=float, default=10.0,
+                   help="with --bus: seconds to listen (default 10)")
+    p.add_argument("--dbc", required=True, metavar="DBC", help="DBC file decoding the frames")
+    p.add_argument("--signals", metavar="MSG.SIG[:UNIT][,MSG.SIG...]",
+                   help="speed signal(s) (default: the DBC's rear wheel speeds); :UNIT "
+                   "overrides the DBC's unit (km/h, m/s, mph)")
+    p.add_argument("--combine", default="mean", choices=("mean", "median", "min", "max"),
+                   help="rule combining several speed signals (default: mean)")
+    p.add_argument("--can-channel", metavar="CH", default=None,
+                   help="only use frames from this CAN channel (can0 also matches index 0)")
+    p.add_argument("--speed-scale", type=float, default=1.0,
+                   help="scale factor on the speed (tyre-radius correction)")
+    p.add_argument("--clock-offset", type=float, default=0.0,
+                   help="seconds added to the CAN timestamps to reach the camera clock")
+    p.add_argument("--frame-times", metavar="times.txt",
+                   help="write the speed at these camera frame times (one per line) instead "
+                   "of at the CAN frames; frames without a valid speed are left out")
+    p.add_argument("--max-gap", type=float, default=0.5,
+                   help="longest spacing of speed samples interpolated across [s] (default 0.5)")
+    p.add_argument("--out", required=True, metavar="SPEED.csv", help="t,speed_mps CSV to write")
+    p.set_defaults(handler=run)
+
+
+def _read_times(path: str) -> np.ndarray:
+    try:
+        times = np.loadtxt(path, dtype=np.float64, ndmin=1)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read frame times: {exc}") from exc
+    except ValueError as exc:
+        raise InputError(f"{path}: frame times must be one number per line: {exc}") from exc
+    return times.reshape(-1)
+
+
+def run(args: argparse.Namespace) -> int:
+    from filters.wheel_speed import (
+        SpeedSeries,
+        align_to_frames,
+        decode_bus,
+        decode_can_log,
+        write_speed_csv,
+    )
+
+    if args.log is not None:
+        series, summary = decode_can_log(args.log, args.dbc, args.signals, combine=args.combine,
+                                         channel=args.can_channel, scale=args.speed_scale,
+                                         progress=True)
+    else:
+        import can
+
+        interface, _, channel = args.bus.partition(":")
+        if not interface or not channel:
+            raise InputError(f"--bus {args.bus!r}: expected INTERFACE:CHANNEL")
+        try:
+            bus = can.Bus(interface=interface, channel=channel)
+        except Exception as exc:
+            raise InputError(f"--bus {args.bus}: cannot open: {exc}") from exc
+        with bus:
+            series, summary = decode_bus(bus, args.dbc, args.signals, combine=args.combine,
+                                         channel=args.can_channel, scale=args.speed_scale,
+                                         duration=args.duration)
+    for line in summary.lines():
+        print(line, file=sys.stderr)
+    if len(series) == 0:
+        raise InputError(f"{summary.source}: no speed samples decoded")
+    series = series.shifted(args.clock_offset) if args.clock_offset else series
+    gaps = series.gaps(args.max_gap)
+    for a, b in gaps:
+        print(f"  speed gap {a:.3f} .. {b:.3f} s ({b - a:.3f} s)", file=sys.stderr)
+    if args.frame_times:
+        aligned = align_to_frames(series, _read_times(args.frame_times), max_gap=args.max_gap)
+        for line in aligned.lines():
+            print(line, file=sys.stderr)
+        series = SpeedSeries(aligned.frame_times[aligned.valid], aligned.speed_mps[aligned.valid],
+                             source=series.source, signals=series.signals, scale=series.scale,
+                             clock_offset=series.clock_offset)
+    path = write_speed_csv(series, args.out)
+    print(f"wrote {len(series)} speed samples to {path}", file=sys.stderr)
+    return 0

@@ -1,0 +1,220 @@
+"""``vipm-track estimate``: per-frame pitch, roll and planar motion of a recording."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from ..camera import CameraModel, load_camera
+from ..errors import InputError
+from .common import (
+    add_camera_options,
+    add_input_options,
+    add_output_options,
+    add_rerun_options,
+)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "estimate",
+        help="pitch, roll and planar motion for every consecutive frame pair",
+        description="Run the two-frame estimator on every consecutive pair of a video or an "
+        "image folder and write one row per frame (CONVENTIONS.md columns + std, inliers).",
+    )
+    add_input_options(parser)
+    add_camera_options(parser)
+    add_output_options(parser, "per-frame estimates CSV")
+    add_estimator_options(parser)
+    add_run_options(parser)
+    add_rerun_options(parser)
+    parser.set_defaults(handler=run)
+
+
+def add_estimator_options(parser: argparse.ArgumentParser) -> None:
+    """Estimator options shared by ``estimate``, ``demo`` and the benchmarks."""
+    group = parser.add_argument_group("estimator")
+    group.add_argument("--roi", metavar="x0,y0,x1,y1|FILE",
+                       help="where the ground is: a pixel rectangle x0,y0,x1,y1, a polygon "
+                       "file (x y per line) or a mask image (non-zero = ground); "
+                       "default: the estimator's")
+    group.add_argument("--refinements", type=int, default=None, metavar="N",
+                       help="virtual-IPM refinement passes (default: the estimator's, 1)")
+    group.add_argument("--grid", default=None, metavar="COLSxROWS",
+                       help="patch grid, e.g. 11x9 (default: the estimator's)")
+    group.add_argument("--patch-size", type=int, default=None, metavar="PX",
+                       help="largest image-plane patch size in pixels, a multiple of 16 "
+                       "(default: the estimator's, 128)")
+    group.add_argument("--pitch", type=float, default=None, metavar="DEG",
+                       help="nominal pitch for the cold start, degrees, > 0 looking down "
+                       "(default: the estimator's, 60; give ~0-5 for forward cameras)")
+    group.add_argument("--roll", type=float, default=None, metavar="DEG",
+                       help="nominal roll for the cold start, degrees (default 0)")
+    group.add_argument("--no-vertical-motion", action="store_true",
+                       help="do not estimate the camera's vertical motion within a pair "
+                       "(steadier on level, forward-looking cameras such as KITTI's)")
+
+
+def add_run_options(parser: argparse.ArgumentParser) -> None:
+    """``--no-tracking``, ``--start``, ``--max-frames``, ``--quiet``."""
+    group = parser.add_argument_group("run")
+    group.add_argument("--no-tracking", action="store_true",
+                       help="cold-start every pair instead of seeding it from the previous one")
+    group.add_argument("--start", type=int, default=0, metavar="K",
+                       help="first frame index to process (default 0)")
+    group.add_argument("--max-frames", type=int, default=None, metavar="N",
+                       help="process at most N frames")
+    group.add_argument("--quiet", action="store_true",
+                       help="no progress bar and no summary line")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..pipeline import estimate_sequence
+    from ..sources import open_source
+
+    camera = load_camera(args.camera)
+    height = check_height(args.height)
+    config = build_config(args, camera)
+    out = check_output(args.out)
+    source = open_source(images=args.images, video=args.video, fps=args.fps,
+                         start=args.start, max_frames=args.max_frames)
+    from ..sinks.rerun_sink import run_logging
+
+    logging = run_logging(args, "vipm-track estimate", source, camera, config)
+    try:
+        summary = estimate_sequence(
+            logging.source, camera, height, out, logging.config, tracking=not args.no_tracking,
+            parquet=args.parquet, progress=None if not args.quiet else False,
+            on_step=logging.on_step,
+        )
+    finally:
+        logging.finish()
+    if not args.quiet:
+        print(f"{out}: {summary.line()}", file=sys.stderr)
+    return 0
+
+
+# --- option parsing (each raises InputError naming the option) --------------------------------
+
+
+def build_config(args: argparse.Namespace, camera: CameraModel):
+    """The estimator configuration from the estimator options of ``args``."""
+    from ..estimator import EstimatorConfig
+    from ..pipeline import config_with
+
+    grid = parse_grid(args.grid) if args.grid else None
+    if args.refinements is not None and not 0 <= args.refinements <= 10:
+        raise InputError(f"--refinements must be between 0 and 10, got {args.refinements}")
+    if args.patch_size is not None and (args.patch_size < 32 or args.patch_size % 16):
+        raise InputError(f"--patch-size must be a multiple of 16, >= 32, got {args.patch_size}")
+    pitch = _angle(args.pitch, "--pitch", -10.0, 90.0)
+    roll = _angle(args.roll, "--roll", -45.0, 45.0)
+    roi = parse_roi(args.roi, camera) if args.roi else None
+    return config_with(
+        EstimatorConfig(),
+        grid=grid,
+        refinements=args.refinements,
+        patch_image=args.patch_size,
+        initial_pitch_deg=pitch,
+        initial_roll_deg=roll,
+        roi=roi,
+        vertical_motion=False if args.no_vertical_motion else None,
+    )
+
+
+def check_height(height: float) -> float:
+    if height is None or not (math.isfinite(height) and height > 0):
+        raise InputError(f"--height must be a positive number of metres, got {height}")
+    return float(height)
+
+
+def check_output(out: str) -> Path:
+    path = Path(out)
+    if path.is_dir():
+        raise InputError(f"--out {out}: is a folder; give a CSV file name")
+    if path.suffix.lower() == ".parquet":
+        raise InputError(f"--out {out}: give a .csv name; --parquet writes the Parquet beside it")
+    return path
+
+
+def _angle(value: float | None, option: str, low: float, high: float) -> float | None:
+    if value is None:
+        return None
+    if not (math.isfinite(value) and low <= value <= high):
+        raise InputError(f"{option} must be in [{low}, {high}] degrees, got {value}")
+    return float(value)
+
+
+def parse_grid(text: str) -> tuple[int, int]:
+    """``"11x9"`` → (11, 9) (columns, rows)."""
+    parts = text.lower().replace("×", "x").split("x")
+    try:
+        cols, rows = (int(p) for p in parts)
+    except ValueError as exc:
+        raise InputError(f"--grid must look like 11x9 (columns x rows), got {text!r}") from exc
+    if cols < 2 or rows < 2:
+        raise InputError(f"--grid needs at least 2x2 patches, got {text!r}")
+    return cols, rows
+
+
+def parse_roi(text: str, camera: CameraModel) -> NDArray[np.bool_]:
+    """Ground mask (H, W) of the camera's image from ``--roi``: a rectangle ``x0,y0,x1,y1``
+    in pixels, a polygon file (one ``x y`` or ``x,y`` vertex per line, pixels) or a mask
+    image of the camera's size (non-zero = ground)."""
+    shape = (camera.height, camera.width)
+    path = Path(text)
+    if not path.exists():
+        parts = text.split(",")
+        if len(parts) != 4:
+            raise InputError(
+                f"--roi {text!r}: neither a file nor a rectangle x0,y0,x1,y1 in pixels"
+            )
+        try:
+            x0, y0, x1, y1 = (float(p) for p in parts)
+        except ValueError as exc:
+            raise InputError(f"--roi {text!r}: rectangle values must be numbers") from exc
+        if not (0 <= x0 < x1 <= camera.width and 0 <= y0 < y1 <= camera.height):
+            raise InputError(
+                f"--roi {text!r}: need 0 <= x0 < x1 <= {camera.width} and "
+                f"0 <= y0 < y1 <= {camera.height} (the camera image)"
+            )
+        mask = np.zeros(shape, bool)
+        mask[round(y0):round(y1), round(x0):round(x1)] = True
+        return mask
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) if path.suffix.lower() in {
+        ".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm"} else None
+    if image is not None:
+        if image.shape != shape:
+            raise InputError(
+                f"--roi {path}: mask is {image.shape[1]}×{image.shape[0]} px but the camera "
+                f"image is {camera.width}×{camera.height} px"
+            )
+        mask = image > 0
+    else:
+        mask = _polygon_mask(path, shape)
+    if mask.sum() < 0.01 * mask.size:
+        raise InputError(f"--roi {path}: the region covers less than 1 % of the image")
+    return mask
+
+
+def _polygon_mask(path: Path, shape: tuple[int, int]) -> NDArray[np.bool_]:
+    vertices = []
+    for lineno, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
+        text = line.split("#", 1)[0].replace(",", " ").split()
+        if not text:
+            continue
+        try:
+            vertices.append([float(text[0]), float(text[1])])
+        except (ValueError, IndexError) as exc:
+            raise InputError(f"--roi {path}: line {lineno}: expected 'x y' in pixels") from exc
+    if len(vertices) < 3:
+        raise InputError(f"--roi {path}: a polygon needs at least 3 vertices, got {len(vertices)}")
+    mask = np.zeros(shape, np.uint8)
+    cv2.fillPoly(mask, [np.round(np.asarray(vertices)).astype(np.int32)], 1)
+    return mask.astype(bool)

@@ -1,0 +1,134 @@
+"""Inputs shared by the filter commands (``track``, ``smooth``, ``monitor``): the per-frame
+pair measurements, from an estimates table or through the sequence runner, and the wheel
+speed, from the shared command-line options. One implementation each, so the three commands
+read the same files the same way."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Iterator
+from dataclasses import replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..camera import CameraModel, load_camera
+from ..errors import InputError
+from ..measurement import PairMeasurement, read_measurements
+
+if TYPE_CHECKING:
+    from filters.wheel_speed import SpeedSeries
+
+    from ..estimator import EstimatorConfig
+
+
+def load_speed(args: argparse.Namespace) -> SpeedSeries | None:
+    """Wheel speed [t on the camera clock in s, m/s] from ``--speed-csv`` or ``--can``
+    (``filters.wheel_speed.speed_from_args``); None when neither is given."""
+    from filters.wheel_speed import speed_from_args
+
+    try:
+        return speed_from_args(args, progress=not getattr(args, "quiet", False))
+    except ValueError as exc:  # InputError is a ValueError; anything else becomes one
+        if isinstance(exc, InputError):
+            raise
+        raise InputError(str(exc)) from exc
+
+
+def read_estimates(path: str) -> list[PairMeasurement]:
+    """The pair measurements of an estimates table (``vipm-track estimate``); InputError
+    naming the file when it is missing, empty or lacks a column."""
+    try:
+        measurements = read_measurements(path)
+    except ValueError as exc:  # TableError is an InputError; a missing column is not
+        if isinstance(exc, InputError):
+            raise
+        raise InputError(f"{path}: {exc}") from exc
+    if not measurements:
+        raise InputError(f"{path}: no rows")
+    return measurements
+
+
+def estimator_config(
+    args: argparse.Namespace,
+    camera: CameraModel,
+    pitch_deg: float | None = None,
+    roll_deg: float | None = None,
+) -> EstimatorConfig:
+    """The estimator configuration of the estimator options in ``args`` (where the command
+    has them); ``pitch_deg``/``roll_deg`` seed the cold start unless ``--pitch``/``--roll``
+    are given (e.g. the monitor's nominal calibration)."""
+    from ..estimator import EstimatorConfig
+    from ..pipeline import config_with
+    from .estimate import build_config
+
+    config = build_config(args, camera) if hasattr(args, "grid") else EstimatorConfig()
+    return config_with(
+        config,
+        initial_pitch_deg=pitch_deg if getattr(args, "pitch", None) is None else None,
+        initial_roll_deg=roll_deg if getattr(args, "roll", None) is None else None,
+    )
+
+
+def estimate_stream(
+    args: argparse.Namespace,
+    height: float,
+    config: EstimatorConfig | None = None,
+    sink: Any = None,
+    camera: CameraModel | None = None,
+) -> Iterator[PairMeasurement]:
+    """One pair measurement per frame of ``--images``/``--video`` through the sequence runner
+    (tracking mode) at the assumed ``height`` [m]; frames without an estimate carry their
+    status and NaNs. With a rerun ``sink`` each pair's images, patches and IPM views are
+    logged as they come. ``config`` defaults to :func:`estimator_config` of ``args``."""
+    from ..pipeline import run_sequence
+    from ..sources import open_source
+
+    if not args.camera:
+        raise InputError("--images/--video need --camera CAMERA.yaml")
+    camera = camera or load_camera(args.camera)
+    config = config or estimator_config(args, camera)
+    source = open_source(images=args.images, video=args.video, fps=args.fps)
+    if sink is not None:
+        from ..sinks.rerun_sink import ImageTap
+
+        source = ImageTap(source, camera)
+        config = replace(config, keep_images=True)
+    nan7, nan77 = np.full(7, np.nan), np.full((7, 7), np.nan)
+    for step in run_sequence(source, camera, height, config):
+        if sink is not None and step.result is not None:
+            sink.log_pair_views(step.frame, step.t, step.result, source.image(step.frame))
+        m = step.result.to_measurement(step.frame, step.t) if step.ok else None
+        if m is None:
+            status = step.status if step.status != "ok" else "no estimate"
+            m = PairMeasurement(step.frame, step.t, nan7, nan77, height, status)
+        yield m
+
+
+def measurements_from_args(
+    args: argparse.Namespace,
+    height: float,
+    config: EstimatorConfig | None = None,
+    sink: Any = None,
+    camera: CameraModel | None = None,
+    progress: bool = False,
+) -> list[PairMeasurement]:
+    """All pair measurements of the input: ``--estimates`` read, or ``--images``/``--video``
+    estimated (:func:`estimate_stream`, with a progress bar on stderr where asked). Exactly
+    one input must be given."""
+    given = [o for o in ("estimates", "images", "video") if getattr(args, o, None)]
+    if len(given) != 1:
+        raise InputError("give exactly one of --estimates EST.csv, --images DIR, --video FILE"
+                         + (f" (got --{' --'.join(given)})" if given else ""))
+    if args.estimates:
+        return read_estimates(args.estimates)
+    stream = estimate_stream(args, height, config, sink, camera)
+    if progress:
+        from tqdm import tqdm
+
+        stream = tqdm(stream, desc="estimate", unit="frame", file=sys.stderr)
+    out = list(stream)
+    if not out:
+        raise InputError(f"{args.images or args.video}: no frames")
+    return out

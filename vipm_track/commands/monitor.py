@@ -1,0 +1,152 @@
+"""``vipm-track monitor``: per-frame calibration verdict (``filters.monitor``) of a recording
+or of an estimates table, with the EKF in between; CSV (+ Parquet) and JSON-lines events.
+
+Output columns: the conventions' columns with the EKF's filtered frame pose and motion
+(height = the filter's mount height), the measurement's ``status``; then ``monitor_state``,
+``reason``, ``stat_pitch``/``stat_roll``/``stat_height`` (largest CUSUM over its threshold,
+1 = alarm), ``dev_*`` (1 s average of the measured pose − nominal), ``mount_*`` (the EKF's
+mount estimate), and while DRIFTING / RECALIBRATE ``new_*`` with ``new_*_lo``/``new_*_hi``
+(the new extrinsics and their 95 % interval).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+from ..camera import load_camera
+from ..errors import InputError
+from ..measurement import PairMeasurement
+from ..table import TableWriter
+from .common import (
+    add_camera_options,
+    add_input_options,
+    add_output_options,
+    add_rerun_options,
+    add_speed_options,
+)
+from .estimate import add_estimator_options
+from .inputs import estimator_config, load_speed, measurements_from_args
+
+MONITOR_COLUMNS: tuple[str, ...] = (
+    "monitor_state", "reason", "stat_pitch", "stat_roll", "stat_height",
+    "dev_pitch_deg", "dev_roll_deg", "dev_height_m",
+    "mount_pitch_deg", "mount_roll_deg", "mount_height_m",
+    "new_pitch_deg", "new_roll_deg", "new_height_m",
+    "new_pitch_lo_deg", "new_pitch_hi_deg", "new_roll_lo_deg", "new_roll_hi_deg",
+    "new_height_lo_m", "new_height_hi_m",
+)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "monitor",
+        help="is the camera still calibrated? per-frame state and recalibration events",
+        description="Estimate (or read) the per-frame pose, filter it, and judge every frame "
+        "against a nominal calibration: UNCALIBRATED, CALIBRATED, DRIFTING, RECALIBRATE (with "
+        "the new extrinsics and their 95 % interval), INVALID, HOLD.",
+    )
+    add_input_options(parser, required=False)
+    parser.add_argument("--estimates", metavar="EST.csv",
+                        help="per-frame estimates written by 'vipm-track estimate' (instead of "
+                        "--images/--video)")
+    add_camera_options(parser, height_required=False)
+    parser.add_argument("--nominal", required=True, metavar="CALIB.yaml",
+                        help="nominal calibration: pitch_deg, roll_deg, height_m, tolerances, "
+                        "limits (see data/nominal_car.yaml)")
+    add_speed_options(parser)
+    add_output_options(parser, "per-frame monitor CSV")
+    parser.add_argument("--events", metavar="EVENTS.jsonl",
+                        help="write one JSON line per state change")
+    parser.add_argument("--false-alarms-per-hour", type=float, default=0.1, metavar="RATE",
+                        help="false-alarm rate the test is set for (default 0.1)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars or summary")
+    add_estimator_options(parser)
+    add_rerun_options(parser)
+    parser.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from filters.monitor import MonitorConfig, load_nominal, write_events
+    from filters.monitor_inputs import frame_rate, monitor_measurements
+
+    nominal = load_nominal(args.nominal)
+    height = nominal.height_m if args.height is None else float(args.height)
+    if not (math.isfinite(height) and height > 0):
+        raise InputError(f"--height must be a positive number of metres, got {args.height}")
+    if not (math.isfinite(args.false_alarms_per_hour) and args.false_alarms_per_hour > 0):
+        raise InputError(f"--false-alarms-per-hour must be > 0, got {args.false_alarms_per_hour}")
+    out = Path(args.out)
+    if out.is_dir():
+        raise InputError(f"--out {args.out}: is a folder; give a CSV file name")
+    camera = load_camera(args.camera)
+    speed = load_speed(args)
+    progress = not args.quiet
+    from ..sinks.rerun_sink import log_monitor_run, sink_from_args
+
+    sink = sink_from_args(args, "vipm-track monitor")
+    # the cold start of the estimator is seeded with the nominal calibration
+    config = None if args.estimates else estimator_config(
+        args, camera, pitch_deg=nominal.pitch_deg, roll_deg=nominal.roll_deg)
+    measurements = measurements_from_args(args, height, config, sink, camera, progress)
+
+    from filters.ekf import EkfConfig
+
+    ekf_config = EkfConfig(height_m=height)
+    config = MonitorConfig.from_noise(
+        ekf_config.noise, fps=frame_rate(measurements),
+        false_alarms_per_hour=args.false_alarms_per_hour,
+    )
+    states, outputs = monitor_measurements(
+        measurements, nominal, speed, config, ekf_config, progress=progress
+    )
+    parquet = out.with_suffix(".parquet") if args.parquet else None
+    with TableWriter(out, MONITOR_COLUMNS, parquet) as writer:
+        for m, s, o in zip(measurements, states, outputs, strict=True):
+            writer.write(monitor_row(m, s, o))
+    n_events = write_events(outputs, args.events) if args.events else 0
+    log_monitor_run(sink, measurements, states, outputs, progress)
+    if progress:
+        counts = Counter(o.state for o in outputs)
+        summary = ", ".join(f"{k} {v}" for k, v in counts.most_common())
+        flagged = next((o for o in outputs if o.state == "RECALIBRATE"), None)
+        print(f"{out}: {len(outputs)} frames ({summary})"
+              + (f"; {n_events} events -> {args.events}" if args.events else ""),
+              file=sys.stderr)
+        if flagged is not None:
+            print(f"first RECALIBRATE at t={flagged.t:.2f} s (frame {flagged.frame}): "
+                  f"{flagged.reason}", file=sys.stderr)
+    return 0
+
+
+def monitor_row(m: PairMeasurement, state: Any, out: Any) -> dict[str, Any]:
+    """One output row (module doc) from a measurement, its filter state and monitor output."""
+    deg = math.degrees
+    row: dict[str, Any] = {"frame": m.frame, "t": m.t, "status": m.status}
+    if state is not None and getattr(state, "status", "waiting") != "waiting":
+        row.update(pitch_deg=deg(state.pose[0]), roll_deg=deg(state.pose[1]),
+                   height_m=float(state.mount[2]), tx_m=float(state.motion[0]),
+                   tz_m=float(state.motion[1]), yaw_deg=deg(state.motion[2]),
+                   mount_pitch_deg=deg(state.mount[0]), mount_roll_deg=deg(state.mount[1]),
+                   mount_height_m=float(state.mount[2]))
+    row.update(
+        monitor_state=out.state, reason=out.reason,
+        stat_pitch=float(out.statistic[0]), stat_roll=float(out.statistic[1]),
+        stat_height=float(out.statistic[2]),
+        dev_pitch_deg=deg(out.deviation[0]), dev_roll_deg=deg(out.deviation[1]),
+        dev_height_m=float(out.deviation[2]),
+    )
+    if out.estimate is not None:
+        e, iv = out.estimate, out.interval95
+        row.update(
+            new_pitch_deg=deg(e[0]), new_roll_deg=deg(e[1]), new_height_m=float(e[2]),
+            new_pitch_lo_deg=deg(iv[0, 0]), new_pitch_hi_deg=deg(iv[0, 1]),
+            new_roll_lo_deg=deg(iv[1, 0]), new_roll_hi_deg=deg(iv[1, 1]),
+            new_height_lo_m=float(iv[2, 0]), new_height_hi_m=float(iv[2, 1]),
+        )
+    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+            for k, v in row.items()}

@@ -1,0 +1,196 @@
+"""``vipm-track smooth``: factor-graph smoothing (gtsam) of a recording or of an estimates table,
+offline (whole drive) or with a sliding window; same columns as ``vipm-track track``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from filters.factors import LOSSES
+
+from ..errors import InputError
+from .common import (
+    add_camera_options,
+    add_input_options,
+    add_output_options,
+    add_rerun_options,
+    add_speed_options,
+)
+from .estimate import add_estimator_options
+from .inputs import load_speed, measurements_from_args
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "smooth",
+        help="smooth the two-frame estimates with a factor graph (gtsam): best calibration",
+        description="Smooth the two-frame estimates of a recording (or of an estimates CSV from "
+        "'vipm-track estimate', so a drive is estimated once and smoothed many times) with the "
+        "factor graph of filters/smoother.py: the EKF's model (mount calibration, body "
+        "shaking, planar motion) with every measurement of the drive (--lag 0, default) or "
+        "of a sliding window. Writes the track table, and a summary of the drive's mount "
+        "extrinsics (mean, 95 %% interval, drift) as JSON and Markdown.",
+    )
+    add_input_options(parser, required=False)
+    parser.add_argument(
+        "--estimates",
+        metavar="EST.csv",
+        help="skip estimation: smooth this estimates table instead of images",
+    )
+    add_camera_options(parser, camera_required=False)
+    add_speed_options(parser)
+    add_output_options(parser, "per-frame smoothed CSV")
+    parser.add_argument(
+        "--summary",
+        metavar="FILE.json",
+        help="drive summary (JSON; a .md beside it); default OUT.summary.json",
+    )
+    group = parser.add_argument_group("smoother")
+    group.add_argument(
+        "--lag",
+        type=float,
+        default=0.0,
+        metavar="SECONDS",
+        help="sliding-window length; 0 = the whole drive at once (default)",
+    )
+    group.add_argument(
+        "--vehicle",
+        choices=("car", "cart"),
+        default="car",
+        help="noise preset of filters/model.py (default: car)",
+    )
+    group.add_argument(
+        "--loss",
+        choices=LOSSES,
+        default="cauchy",
+        help="robust loss of the pair factors (default: cauchy)",
+    )
+    group.add_argument(
+        "--loss-probability",
+        type=float,
+        default=0.99,
+        metavar="P",
+        help="the loss is quadratic up to the whitened norm √χ²(P, dof) of a "
+        "pair block (default 0.99)",
+    )
+    group.add_argument(
+        "--mount-angle-rw",
+        type=float,
+        metavar="DEG_PER_SQRT_S",
+        help="random-walk rate of the mount pitch/roll (preset: 0.002)",
+    )
+    group.add_argument(
+        "--mount-height-rw",
+        type=float,
+        metavar="M_PER_SQRT_S",
+        help="random-walk rate of the mount height (preset: 0.0002)",
+    )
+    group.add_argument(
+        "--body-tau",
+        type=float,
+        metavar="S",
+        help="time constant of the body shaking (Gauss–Markov; preset)",
+    )
+    group.add_argument(
+        "--body-std", type=float, metavar="DEG", help="stationary std of the body shaking (preset)"
+    )
+    group.add_argument(
+        "--no-std",
+        action="store_true",
+        help="skip the marginal covariances (std columns empty; faster)",
+    )
+    group.add_argument("--quiet", action="store_true", help="no progress bar, no summary print")
+    add_estimator_options(parser)
+    add_rerun_options(parser)
+    parser.set_defaults(handler=run)
+
+
+def build_config(args: argparse.Namespace):
+    """``SmootherConfig`` of the command-line options (InputError on a bad value)."""
+    from filters.model import NoiseParams
+    from filters.smoother import SmootherConfig
+
+    height = args.height
+    if height is None or not (math.isfinite(height) and height > 0):
+        raise InputError(f"--height must be a positive number of metres, got {height}")
+    if not (math.isfinite(args.lag) and args.lag >= 0):
+        raise InputError(f"--lag must be >= 0 seconds, got {args.lag}")
+    if not 0.5 < args.loss_probability < 1.0:
+        raise InputError(f"--loss-probability must be in (0.5, 1), got {args.loss_probability}")
+    noise = NoiseParams.for_preset(args.vehicle)
+    overrides = {
+        "mount_angle_rw_deg_per_sqrt_s": args.mount_angle_rw,
+        "mount_height_rw_m_per_sqrt_s": args.mount_height_rw,
+        "body_tau_s": args.body_tau,
+        "body_std_deg": args.body_std,
+    }
+    for name, value in overrides.items():
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise InputError(f"--{name} must be a positive number, got {value}")
+    noise = replace(noise, **{k: v for k, v in overrides.items() if v is not None})
+    return SmootherConfig(
+        height_m=height,
+        noise=noise,
+        lag_s=args.lag,
+        loss=args.loss,
+        loss_probability=args.loss_probability,
+        marginals=not args.no_std,
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    from filters.smoother import smooth, speeds_at_frames, summarize_mount, summary_markdown
+    from filters.track import TRACK_COLUMNS, track_row
+    from vipm_track.table import TableWriter
+
+    config = build_config(args)
+    speed = load_speed(args)
+    from ..sinks.rerun_sink import log_filter_run, sink_from_args
+
+    sink = sink_from_args(args, "vipm-track smooth")
+    measurements = measurements_from_args(args, config.height_m, sink=sink,
+                                          progress=not args.quiet)
+    frames = smooth(measurements, speed, config, progress=not args.quiet)
+    speeds = speeds_at_frames(measurements, speed)
+    by_frame = {m.frame: (m, v) for m, v in zip(measurements, speeds, strict=True)}
+    out = Path(args.out)
+    pq = out.with_suffix(".parquet") if args.parquet else None
+    rows = []
+    with TableWriter(out, TRACK_COLUMNS, parquet_path=pq) as writer:
+        for f in frames:
+            m, v = by_frame.get(f.frame, (None, float("nan")))
+            row = track_row(f, m, float(v) if np.isfinite(v) else None)  # type: ignore[arg-type]
+            if not f.initialised:
+                row["status"] = f.reason or "skipped"
+            writer.write(row)
+            rows.append(row)
+    if sink is not None:
+        log_filter_run(sink, measurements, rows, "smoothed")
+        sink.finish()
+
+    summary = summarize_mount(frames)
+    summary["smoother"] = {
+        "lag_s": config.lag_s,
+        "loss": config.loss,
+        "wheel_speed": speed is not None,
+        "source": _source_name(args),
+    }
+    path = Path(args.summary) if args.summary else out.with_suffix(".summary.json")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(summary, indent=2) + "\n")
+    text = summary_markdown(summary)
+    path.with_suffix(".md").write_text("# Drive summary\n\n" + text)
+    if not args.quiet:
+        print(text, file=sys.stderr)
+        print(f"vipm-track smooth: {len(frames)} frames → {out}; summary → {path}", file=sys.stderr)
+    return 0
+
+
+def _source_name(args: argparse.Namespace) -> str:
+    return str(args.estimates or args.images or args.video)

@@ -1,0 +1,87 @@
+"""``vipm-track track``: filtered pitch, roll, height and planar motion (EKF) of a recording,
+or of an estimates table; columns in ``filters/track.py``."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections.abc import Iterator
+
+from ..errors import InputError
+from ..measurement import PairMeasurement
+from .common import (
+    add_camera_options,
+    add_input_options,
+    add_output_options,
+    add_rerun_options,
+    add_speed_options,
+)
+from .estimate import add_estimator_options
+from .inputs import estimate_stream, load_speed, read_estimates
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "track",
+        help="EKF over the two-frame estimates: mount calibration, shaking, motion",
+        description="Filter the two-frame estimates of a recording (or of an estimates CSV "
+        "from 'vipm-track estimate') with the EKF of filters/ekf.py: the slow mount "
+        "(pitch, roll, height: the calibration), the body shaking and the planar motion. "
+        "A wheel speed makes the height observable; without one it stays at --height.",
+    )
+    add_input_options(parser, required=False)
+    parser.add_argument("--estimates", metavar="EST.csv",
+                        help="skip estimation: filter this estimates table instead of images")
+    add_camera_options(parser, camera_required=False)
+    add_speed_options(parser)
+    add_output_options(parser, "per-frame track CSV")
+    group = parser.add_argument_group("filter")
+    group.add_argument("--vehicle", choices=("car", "cart"), default="car",
+                       help="process-noise preset (default: car)")
+    group.add_argument("--gate", type=float, default=0.999, metavar="P",
+                       help="chi-square probability of the innovation gate (default 0.999)")
+    group.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
+    add_estimator_options(parser)
+    add_rerun_options(parser)
+    parser.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from filters.ekf import EkfConfig
+    from filters.model import NoiseParams
+    from filters.track import track, write_track
+
+    height = args.height
+    if not (math.isfinite(height) and height > 0):
+        raise InputError(f"--height must be a positive number of metres, got {height}")
+    if not 0.5 < args.gate < 1.0:
+        raise InputError(f"--gate must be a probability in (0.5, 1), got {args.gate}")
+    config = EkfConfig(height_m=height, noise=NoiseParams.for_preset(args.vehicle),
+                       gate_probability=args.gate, speed_gate_probability=args.gate)
+    speed = load_speed(args)
+    from ..sinks.rerun_sink import log_track_steps, sink_from_args
+
+    sink = sink_from_args(args, "vipm-track track")
+    if args.estimates:
+        if args.images or args.video:
+            raise InputError("give --estimates or --images/--video, not both")
+        measurements = read_estimates(args.estimates)
+        stream: Iterator[PairMeasurement] = iter(measurements)
+        total: int | None = len(measurements)
+    elif args.images or args.video:
+        stream, total = estimate_stream(args, height, sink=sink), None
+    else:
+        raise InputError("give --images DIR, --video FILE or --estimates EST.csv")
+
+    steps = log_track_steps(sink, track(stream, speed, config))
+    if not args.quiet:
+        from tqdm import tqdm
+
+        steps = tqdm(steps, total=total, desc="track", unit="frame", file=sys.stderr)
+    counts = write_track(steps, args.out, parquet=args.parquet)
+    if not args.quiet:
+        summary = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
+        print(f"vipm-track track: {sum(counts.values())} frames ({summary}) → {args.out}",
+              file=sys.stderr)
+    return 0

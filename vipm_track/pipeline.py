@@ -1,0 +1,272 @@
+"""Sequence runner: every consecutive pair of a frame source through the two-frame estimator.
+
+:func:`run_sequence` yields one :class:`SequenceStep` per frame (frame k's motion is from
+frame k-1); :func:`estimate_sequence` streams their rows into a per-frame table
+(``CONVENTIONS.md`` columns + ``ESTIMATE_COLUMNS``), flushing each row, with a progress bar.
+
+Tracking mode (the default) seeds each pair from the previous result: the previous frame's
+pose for the virtual IPM and the previous motion (scaled by the ratio of frame intervals) to
+predict displacements and offset the patch windows, which is what lets fast motion and
+forward-looking cameras work. The first pair, and the pair after any failure, start cold
+from the nominal guess of the estimator's configuration; a tracked pair that fails is tried
+once more cold before it is given up.
+
+A frame that cannot be read gets a row with status ``unreadable frame`` and the next frame,
+having no predecessor, a row with status ``no previous frame``; the run goes on.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections import Counter
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .camera import CameraModel
+from .errors import InputError
+from .geometry import PlanarMotion
+from .measurement import measurement_row
+from .sources import Frame, FrameSource
+from .table import ESTIMATE_COLUMNS, TableWriter
+
+if TYPE_CHECKING:
+    from .estimator import EstimatorConfig, PairGuess, PairResult, TwoFrameEstimator
+
+FIRST_FRAME = "first frame"
+NO_PREVIOUS = "no previous frame"
+UNREADABLE = "unreadable frame"
+WRONG_SIZE = "wrong image size"
+
+#: Bounds on the frame-interval ratio used to scale the previous motion into a prediction.
+_DT_RATIO_RANGE = (0.25, 4.0)
+
+
+@dataclass(frozen=True)
+class SequenceStep:
+    """Outcome for frame ``frame`` at time ``t`` [s]: the pair result (``None`` when no pair
+    was estimated), the row ``status``, whether the pair was seeded by tracking, and the
+    estimator's wall time [s] for it."""
+
+    frame: int
+    t: float
+    result: PairResult | None
+    status: str
+    tracked: bool = False
+    seconds: float = 0.0
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+
+def prepare_image(frame: Frame, camera: CameraModel) -> NDArray[np.uint8]:
+    """The grey image of a readable frame, as read (the estimator undistorts it);
+    ``ValueError`` if its size is not the camera's."""
+    assert frame.image is not None
+    camera.check_image(frame.image.shape, frame.name or f"frame {frame.index}")
+    return frame.image
+
+
+def predict_guess(previous: PairResult, dt_prev: float, dt: float) -> PairGuess:
+    """Seed for the next pair from an ok result: its current pose for both frames and its
+    motion scaled by ``dt / dt_prev`` (clipped to [0.25, 4])."""
+    from .estimator import PairGuess
+
+    ratio = dt / dt_prev if dt_prev > 0 and dt > 0 else 1.0
+    ratio = float(np.clip(ratio, *_DT_RATIO_RANGE))
+    m = previous.motion
+    motion = PlanarMotion(m.tx * ratio, m.tz * ratio, m.yaw * ratio)
+    return PairGuess(pose_prev=previous.pose_curr, pose_curr=previous.pose_curr, motion=motion)
+
+
+def run_sequence(
+    source: FrameSource,
+    camera: CameraModel,
+    height: float,
+    config: EstimatorConfig | None = None,
+    tracking: bool = True,
+    estimator: TwoFrameEstimator | None = None,
+    retry_cold: bool = True,
+) -> Iterator[SequenceStep]:
+    """Yield one :class:`SequenceStep` per frame of ``source`` (see module doc).
+
+    ``height`` is the assumed camera height [m] that makes the motion metric. Raises
+    :class:`InputError` when the first readable frame's size disagrees with ``camera``;
+    later frames of a wrong size get status ``wrong image size``.
+    """
+    if not (np.isfinite(height) and height > 0):
+        raise InputError(f"--height must be a positive number of metres, got {height}")
+    if estimator is None:
+        from .estimator import TwoFrameEstimator
+
+        estimator = TwoFrameEstimator(camera, height, config)
+    prev_image: NDArray | None = None
+    prev_t = prev_dt = float("nan")
+    previous_ok: PairResult | None = None
+    checked_size = False
+    for frame in source:
+        if frame.image is None:
+            prev_image, previous_ok = None, None
+            yield SequenceStep(frame.index, frame.t, None, frame.error or UNREADABLE)
+            continue
+        try:
+            image = prepare_image(frame, camera)
+        except ValueError as exc:
+            if not checked_size:
+                raise InputError(f"{source.description}: {exc}") from exc
+            prev_image, previous_ok = None, None
+            yield SequenceStep(frame.index, frame.t, None, WRONG_SIZE)
+            continue
+        checked_size = True
+        if prev_image is None:
+            status = FIRST_FRAME if np.isnan(prev_t) else NO_PREVIOUS
+            prev_image, prev_t, prev_dt, previous_ok = image, frame.t, float("nan"), None
+            yield SequenceStep(frame.index, frame.t, None, status)
+            continue
+        dt = frame.t - prev_t
+        guess = None
+        if tracking and previous_ok is not None:
+            guess = predict_guess(previous_ok, prev_dt, dt)
+        start = time.perf_counter()
+        result = _estimate(estimator, prev_image, image, guess)
+        if guess is not None and result.status != "ok" and retry_cold:
+            result = _estimate(estimator, prev_image, image, None)
+            guess = None
+        seconds = time.perf_counter() - start
+        previous_ok = result if result.status == "ok" else None
+        prev_image, prev_t, prev_dt = image, frame.t, dt
+        yield SequenceStep(frame.index, frame.t, result, result.status, guess is not None, seconds)
+
+
+def _estimate(
+    estimator: TwoFrameEstimator, prev: NDArray, curr: NDArray, guess: PairGuess | None
+) -> PairResult:
+    """One pair; an exception inside the estimator becomes a failed result, not a dead run."""
+    try:
+        return estimator.estimate(prev, curr, guess)
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        return _FailedResult(f"estimator error: {type(exc).__name__}: {exc}"[:200])
+
+
+@dataclass
+class _FailedResult:
+    """Stand-in for a ``PairResult`` when the estimator raised (only ``status`` is read)."""
+
+    status: str
+    reason: str = ""
+    timings: dict[str, float] = field(default_factory=dict)
+
+    def to_measurement(self, frame: int, t: float) -> Any:
+        return None
+
+
+# --- rows ------------------------------------------------------------------------------------
+
+ROW_COLUMNS: tuple[str, ...] = ESTIMATE_COLUMNS
+
+
+def step_row(step: SequenceStep, height: float) -> dict[str, Any]:
+    """The estimates-table row of a step: measurement columns, ``patches`` (patches matched in
+    the last stage) and ``residual_px``; numbers empty unless the status is ``ok``."""
+    result = step.result
+    measurement = result.to_measurement(step.frame, step.t) if result is not None else None
+    if measurement is None:
+        return {"frame": step.frame, "t": step.t, "height_m": height, "status": step.status}
+    row = measurement_row(measurement)
+    row["status"] = step.status
+    stages = getattr(result, "stages", None) or []
+    row["patches"] = len(stages[-1].centres) if stages else None
+    residual = getattr(result, "residual_px", None)
+    row["residual_px"] = float(residual) if residual is not None and step.ok else None
+    return row
+
+
+# --- whole runs ------------------------------------------------------------------------------
+
+
+@dataclass
+class RunSummary:
+    """Counts and timing of a run: frames seen, rows ok, statuses, estimator and wall time."""
+
+    frames: int = 0
+    ok: int = 0
+    pairs: int = 0
+    statuses: Counter = field(default_factory=Counter)
+    estimator_seconds: float = 0.0
+    wall_seconds: float = 0.0
+
+    def add(self, step: SequenceStep) -> None:
+        self.frames += 1
+        self.ok += step.ok
+        self.pairs += step.result is not None
+        self.statuses[step.status] += 1
+        self.estimator_seconds += step.seconds
+
+    @property
+    def pairs_per_second(self) -> float:
+        return self.pairs / self.wall_seconds if self.wall_seconds > 0 else float("nan")
+
+    def line(self) -> str:
+        """One-line summary: frames ok / total, pairs per second, other statuses."""
+        others = ", ".join(
+            f"{n}× {s}" for s, n in self.statuses.most_common() if s not in ("ok", FIRST_FRAME)
+        )
+        text = (
+            f"{self.ok}/{self.frames} frames ok ({100.0 * self.ok / max(self.frames, 1):.1f} %), "
+            f"{self.pairs_per_second:.2f} pairs/s"
+        )
+        return text + (f"; {others}" if others else "")
+
+
+def estimate_sequence(
+    source: FrameSource,
+    camera: CameraModel,
+    height: float,
+    out: str | Path,
+    config: EstimatorConfig | None = None,
+    tracking: bool = True,
+    parquet: bool = False,
+    progress: bool | None = None,
+    on_step: Callable[[SequenceStep], None] | None = None,
+    estimator: TwoFrameEstimator | None = None,
+) -> RunSummary:
+    """Run ``source`` and stream one row per frame into the CSV ``out`` (and Parquet beside it
+    with ``parquet``). Rows are flushed as they come, so an interrupted run keeps them.
+
+    ``progress``: show a tqdm bar on stderr (``None``: only when stderr is a terminal).
+    ``on_step`` is called with every step (e.g. a live display); ``estimator`` replaces the
+    one built from ``camera``, ``height`` and ``config``."""
+    from tqdm import tqdm
+
+    out = Path(out)
+    parquet_path = out.with_suffix(".parquet") if parquet else None
+    if progress is None:
+        progress = sys.stderr.isatty()
+    summary = RunSummary()
+    start = time.perf_counter()
+    steps = run_sequence(source, camera, height, config, tracking, estimator)
+    with (
+        TableWriter(out, ROW_COLUMNS, parquet_path) as writer,
+        tqdm(total=len(source), disable=not progress, file=sys.stderr, unit="frame") as bar,
+    ):
+        for step in steps:
+            writer.write(step_row(step, height))
+            summary.add(step)
+            summary.wall_seconds = time.perf_counter() - start
+            bar.update(1)
+            bar.set_postfix(ok=summary.ok, refresh=False)
+            if on_step is not None:
+                on_step(step)
+    summary.wall_seconds = time.perf_counter() - start
+    return summary
+
+
+def config_with(config: EstimatorConfig, **changes: Any) -> EstimatorConfig:
+    """A copy of ``config`` with the non-``None`` ``changes`` applied."""
+    return replace(config, **{k: v for k, v in changes.items() if v is not None})

@@ -1,0 +1,488 @@
+"""Plot report of a finished run: PNG plots and a Markdown summary of a per-frame table.
+
+:func:`write_report` reads a track / estimate / monitor table (``table.read_table``: CSV or
+Parquet, CONVENTIONS.md columns) and, optionally, a ground-truth table (``gt.csv`` of
+``vipm-track simulate``, same first columns), and writes into ``out``:
+
+- ``pitch_roll_height.png``: pose of every frame (degrees, metres) with its ±2σ band where
+  the table has ``*_std`` columns, ground truth where given;
+- ``errors.png`` (with ground truth): estimate − truth per frame for pitch, roll, height,
+  travel distance and yaw;
+- ``motion.png``: tx, tz, yaw per frame and the planar trajectory (motions chained);
+- ``monitor.png`` (when the table has a ``monitor_state`` column): the monitor's state over
+  time; where the table has them (``vipm-track monitor``'s columns) its CUSUM statistics
+  ``stat_*`` against the alarm level, the deviations ``dev_*`` from the nominal, and the
+  filter's mount ``mount_*`` with the new extrinsics ``new_*`` and their 95 % interval
+  ``new_*_lo``/``new_*_hi``; other numeric ``monitor_*`` columns join the statistics;
+- ``report.md``: summary numbers (mean, std, range, drift of each axis; error statistics
+  against ground truth; statuses; monitor states, transitions and the last new extrinsics)
+  and the plots.
+
+A row is plotted and scored where its numbers are finite (CONVENTIONS.md: rows without an
+estimate have empty numbers), whatever its status word (a filter's ``partial`` rows count).
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections import Counter
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import InputError
+from ..table import read_table
+from .trajectory import planar_path
+
+BAND_SIGMA = 2.0
+#: (column, std column, label, unit) of the pose panels.
+POSE_PANELS: tuple[tuple[str, str, str, str], ...] = (
+    ("pitch_deg", "pitch_std_deg", "pitch", "deg"),
+    ("roll_deg", "roll_std_deg", "roll", "deg"),
+    ("height_m", "height_std_m", "height", "m"),
+)
+MOTION_PANELS: tuple[tuple[str, str, str, str], ...] = (
+    ("tx_m", "tx_std_m", "tx (right)", "m"),
+    ("tz_m", "tz_std_m", "tz (forward)", "m"),
+    ("yaw_deg", "yaw_std_deg", "yaw (> 0 right)", "deg"),
+)
+#: Errors plotted against ground truth: name → (label, unit).
+ERROR_PANELS: dict[str, tuple[str, str]] = {
+    "pitch_deg": ("pitch", "deg"),
+    "roll_deg": ("roll", "deg"),
+    "height_m": ("height", "m"),
+    "distance_m": ("travel per frame", "m"),
+    "yaw_deg": ("yaw per frame", "deg"),
+}
+STATE_COLORS: dict[str, str] = {
+    "UNCALIBRATED": "#bdbdbd", "CALIBRATED": "#4caf50", "DRIFTING": "#ffb300",
+    "RECALIBRATE": "#e53935", "INVALID": "#8e24aa", "HOLD": "#90a4ae",
+}
+EST_COLOR, TRUTH_COLOR = "tab:blue", "0.25"
+#: Deviation columns of a monitor table (``vipm-track monitor``): 1 s mean pose − nominal.
+MONITOR_DEVIATIONS: tuple[str, ...] = ("dev_pitch_deg", "dev_roll_deg", "dev_height_m")
+#: (label, mount column, new-extrinsics column, its 95 % low / high columns, unit).
+MONITOR_AXES: tuple[tuple[str, str, str, str, str, str], ...] = (
+    ("pitch", "mount_pitch_deg", "new_pitch_deg", "new_pitch_lo_deg", "new_pitch_hi_deg", "deg"),
+    ("roll", "mount_roll_deg", "new_roll_deg", "new_roll_lo_deg", "new_roll_hi_deg", "deg"),
+    ("height", "mount_height_m", "new_height_m", "new_height_lo_m", "new_height_hi_m", "m"),
+)
+
+
+@dataclass(frozen=True)
+class Report:
+    """What :func:`write_report` wrote: the plots (name → path), the Markdown file and the
+    summary numbers it holds (axis → statistic → value, in the table's units)."""
+
+    out: Path
+    plots: dict[str, Path]
+    markdown: Path
+    summary: dict[str, dict[str, float]] = field(default_factory=dict)
+    errors: dict[str, dict[str, float]] = field(default_factory=dict)
+
+
+def write_report(
+    track: str | Path,
+    out: str | Path,
+    gt: str | Path | None = None,
+    title: str | None = None,
+) -> Report:
+    """Write the plots and ``report.md`` of the table ``track`` (optional ground truth ``gt``)
+    into the folder ``out`` (see module doc). Raises :class:`InputError` naming the file for
+    a missing/unreadable table or one without any pose column."""
+    track, out = Path(track), Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out}: exists and is not a folder")
+    est = read_table(track)
+    if not any(c in est for c, *_ in POSE_PANELS + MOTION_PANELS):
+        raise InputError(f"{track}: no pose or motion column (pitch_deg, roll_deg, height_m, "
+                         "tx_m, tz_m, yaw_deg); is this a per-frame table?")
+    if len(est["frame"]) == 0:
+        raise InputError(f"{track}: the table has no rows")
+    truth = read_table(gt) if gt is not None else None
+    title = title or track.name
+    out.mkdir(parents=True, exist_ok=True)
+    x, x_label = _time_axis(est)
+    x_truth = _time_axis(truth)[0] if truth is not None else None
+    if truth is not None and x_label == "frame":
+        x_truth = np.asarray(truth["frame"], float)
+
+    plt = _pyplot()
+    plots: dict[str, Path] = {}
+    plots["pitch_roll_height"] = _series_figure(
+        plt, est, truth, x, x_truth, x_label, POSE_PANELS, out / "pitch_roll_height.png",
+        f"{title}: pose against the ground")
+    errors: dict[str, NDArray] = {}
+    if truth is not None:
+        errors = frame_errors(est, truth)
+        if len(errors.get("frame", ())):
+            plots["errors"] = _errors_figure(plt, est, errors, x_label, out / "errors.png",
+                                             f"{title}: error against ground truth")
+    if any(c in est for c, *_ in MOTION_PANELS):
+        plots["motion"] = _motion_figure(plt, est, truth, x, x_truth, x_label,
+                                         out / "motion.png", f"{title}: planar motion")
+    if "monitor_state" in est:
+        plots["monitor"] = _monitor_figure(plt, est, x, x_label, out / "monitor.png",
+                                           f"{title}: calibration monitor")
+    summary = summarize(est)
+    error_summary = {name: _abs_stats(values) for name, values in errors.items()
+                     if name != "frame"}
+    markdown = out / "report.md"
+    markdown.write_text(_markdown(title, track, gt, est, summary, error_summary, plots, out))
+    return Report(out, plots, markdown, summary, error_summary)
+
+
+# --- numbers ---------------------------------------------------------------------------------
+
+
+def summarize(est: Mapping[str, NDArray]) -> dict[str, dict[str, float]]:
+    """Per column of pose and motion: n, mean, std, min, max over the finite rows, and the
+    drift: ``slope_per_min`` (least-squares slope against ``t``, per minute) and
+    ``end_minus_start`` (median of the last tenth of the rows minus that of the first)."""
+    x, _ = _time_axis(est)
+    out: dict[str, dict[str, float]] = {}
+    for col, *_ in POSE_PANELS + MOTION_PANELS:
+        if col not in est:
+            continue
+        v = np.asarray(est[col], float)
+        ok = np.isfinite(v) & np.isfinite(x)
+        if not ok.any():
+            continue
+        vals, xs = v[ok], x[ok]
+        stats = {"n": float(vals.size), "mean": float(vals.mean()), "std": float(vals.std()),
+                 "min": float(vals.min()), "max": float(vals.max())}
+        if vals.size >= 3 and np.ptp(xs) > 0:
+            slope = np.polyfit(xs, vals, 1)[0]
+            stats["slope_per_min"] = float(slope * (60.0 if _has_time(est) else 1.0))
+            tenth = max(1, vals.size // 10)
+            stats["end_minus_start"] = float(np.median(vals[-tenth:]) - np.median(vals[:tenth]))
+        out[col] = stats
+    return out
+
+
+def frame_errors(est: Mapping[str, NDArray], truth: Mapping[str, NDArray]) -> dict[str, NDArray]:
+    """Signed per-frame errors (estimate − truth, ``evaluate.frame_errors``: poses, height,
+    pose changes, distance, yaw) of the rows with numbers, matched by frame: a row counts
+    where its pitch is finite, whatever its status word (a filter's ``partial`` rows)."""
+    from ..evaluate import frame_errors as pose_errors
+
+    pitch = np.asarray(est.get("pitch_deg", np.full(len(est["frame"]), np.nan)), float)
+    scored = dict(est)
+    scored["status"] = np.where(np.isfinite(pitch), "ok", "no estimate").astype(object)
+    return pose_errors(scored, truth)
+
+
+def _abs_stats(values: NDArray) -> dict[str, float]:
+    """n, mean (signed: bias), std, RMS, median, p95 and max of |error| over finite entries."""
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return {"n": 0.0}
+    a = np.abs(v)
+    return {"n": float(v.size), "bias": float(v.mean()), "std": float(v.std()),
+            "rms": float(np.sqrt(np.mean(v**2))), "median_abs": float(np.median(a)),
+            "p95_abs": float(np.percentile(a, 95)), "max_abs": float(a.max())}
+
+
+def _has_time(table: Mapping[str, NDArray]) -> bool:
+    t = np.asarray(table.get("t", ()), float)
+    return t.size > 0 and bool(np.all(np.isfinite(t)))
+
+
+def _time_axis(table: Mapping[str, NDArray] | None) -> tuple[NDArray, str]:
+    """x values of a table's rows: ``t`` [s] when every row has one, else the frame index."""
+    if table is None:
+        return np.zeros(0), ""
+    if _has_time(table):
+        return np.asarray(table["t"], float), "time [s]"
+    return np.asarray(table["frame"], float), "frame"
+
+
+# --- figures ---------------------------------------------------------------------------------
+
+
+def _pyplot() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(plt: Any, fig: Any, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def _series_figure(plt: Any, est: Mapping, truth: Mapping | None, x: NDArray,
+                   x_truth: NDArray | None, x_label: str, panels: tuple, path: Path,
+                   title: str) -> Path:
+    present = [p for p in panels if p[0] in est]
+    fig, axes = plt.subplots(len(present), 1, figsize=(11, 2.6 * len(present) + 0.6),
+                             sharex=True, squeeze=False)
+    for ax, panel in zip(axes[:, 0], present, strict=True):
+        _series_panel(ax, est, truth, x, x_truth, panel)
+    axes[-1, 0].set_xlabel(x_label)
+    axes[0, 0].legend(loc="best", fontsize=8)
+    fig.suptitle(title)
+    return _save(plt, fig, path)
+
+
+def _series_panel(ax: Any, est: Mapping, truth: Mapping | None, x: NDArray,
+                  x_truth: NDArray | None, panel: tuple[str, str, str, str]) -> None:
+    col, std_col, label, unit = panel
+    v = np.asarray(est[col], float)
+    if std_col in est:
+        s = np.asarray(est[std_col], float)
+        ax.fill_between(x, v - BAND_SIGMA * s, v + BAND_SIGMA * s, color=EST_COLOR, alpha=0.2,
+                        lw=0, label=f"±{BAND_SIGMA:g}σ")
+    if truth is not None and col in truth and x_truth is not None:
+        ax.plot(x_truth, np.asarray(truth[col], float), "-", color=TRUTH_COLOR, lw=1.4,
+                label="ground truth")
+    ax.plot(x, v, ".-", color=EST_COLOR, ms=3, lw=0.8, label="estimate")
+    ax.set_ylabel(f"{label} [{unit}]")
+    ax.grid(alpha=0.3)
+
+
+def _errors_figure(plt: Any, est: Mapping, errors: Mapping[str, NDArray], x_label: str,
+                   path: Path, title: str) -> Path:
+    names = [n for n in ERROR_PANELS if n in errors]
+    frame_x = dict(zip(np.asarray(est["frame"]).tolist(), _time_axis(est)[0], strict=True))
+    x = np.array([frame_x[int(f)] for f in errors["frame"]], float)
+    fig, axes = plt.subplots(len(names), 1, figsize=(11, 2.2 * len(names) + 0.6), sharex=True,
+                             squeeze=False)
+    for ax, name in zip(axes[:, 0], names, strict=True):
+        label, unit = ERROR_PANELS[name]
+        e = np.asarray(errors[name], float)
+        ax.axhline(0.0, color="0.5", lw=0.8)
+        ax.plot(x, e, ".-", color="tab:red", ms=3, lw=0.8)
+        stats = _abs_stats(e)
+        if stats["n"]:
+            ax.set_title(f"{label}: bias {stats['bias']:+.4g}, RMS {stats['rms']:.4g} {unit}",
+                         fontsize=9, loc="left")
+        ax.set_ylabel(f"Δ {label} [{unit}]")
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel(x_label)
+    fig.suptitle(title)
+    return _save(plt, fig, path)
+
+
+def _motion_figure(plt: Any, est: Mapping, truth: Mapping | None, x: NDArray,
+                   x_truth: NDArray | None, x_label: str, path: Path, title: str) -> Path:
+    fig = plt.figure(figsize=(13, 7))
+    grid = fig.add_gridspec(3, 2, width_ratios=[3, 2])
+    first = None
+    for row, panel in enumerate(MOTION_PANELS):
+        ax = fig.add_subplot(grid[row, 0], sharex=first)
+        first = first or ax
+        if panel[0] in est:
+            _series_panel(ax, est, truth, x, x_truth, panel)
+        if row == 0:
+            ax.legend(loc="best", fontsize=8)
+    ax.set_xlabel(x_label)
+    ax = fig.add_subplot(grid[:, 1])
+    path_est = planar_path(est)
+    if truth is not None:
+        path_truth = planar_path(truth)
+        if path_truth is not None:
+            ax.plot(path_truth[:, 0], path_truth[:, 1], "-", color=TRUTH_COLOR, lw=1.5,
+                    label="ground truth")
+    if path_est is not None:
+        ax.plot(path_est[:, 0], path_est[:, 1], ".-", color=EST_COLOR, ms=2, lw=1,
+                label="estimate (chained)")
+    ax.set_xlabel("x, right of the first frame [m]")
+    ax.set_ylabel("z, ahead of the first frame [m]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title("planar trajectory", fontsize=10)
+    fig.suptitle(title)
+    return _save(plt, fig, path)
+
+
+def _monitor_figure(plt: Any, est: Mapping, x: NDArray, x_label: str, path: Path,
+                    title: str) -> Path:
+    """State over time, then (where the table has them) the CUSUM statistics ``stat_*``
+    against the alarm level 1, the 1 s deviations ``dev_*`` from the nominal, and per axis
+    the filter's mount ``mount_*`` with the monitor's new extrinsics ``new_*`` and their 95 %
+    interval (``filters/monitor.py`` via ``vipm-track monitor``)."""
+    states = np.asarray(est["monitor_state"], dtype=object)
+    stats = [c for c in est if (c.startswith("stat_") or (
+        c.startswith("monitor_") and c != "monitor_state")) and _finite(est, c)]
+    devs = [c for c in MONITOR_DEVIATIONS if _finite(est, c)]
+    axes_new = [p for p in MONITOR_AXES if _finite(est, p[1]) or _finite(est, p[2])]
+    ratios = [1.0] + [1.6] * bool(stats) + [1.6] * bool(devs) + [1.6] * len(axes_new)
+    fig, axes = plt.subplots(len(ratios), 1, figsize=(11, 1.0 + 1.7 * sum(ratios)),
+                             sharex=True, squeeze=False, gridspec_kw={"height_ratios": ratios})
+    panels = iter(axes[:, 0])
+    ax = next(panels)
+    names = [s for s in STATE_COLORS if s in set(states)]
+    names += sorted({s for s in states if s and s not in STATE_COLORS})
+    level = {s: i for i, s in enumerate(names)}
+    for start, stop, state in _runs(states):
+        if not state:
+            continue
+        x0 = x[start]
+        x1 = x[stop] if stop < len(x) else x[-1] + (x[-1] - x[-2] if len(x) > 1 else 1.0)
+        ax.axvspan(x0, x1, color=STATE_COLORS.get(state, "#607d8b"), alpha=0.35, lw=0)
+    y = np.array([level.get(s, np.nan) for s in states], float)
+    ax.step(x, y, where="post", color="k", lw=1)
+    ax.set_yticks(range(len(names)), names, fontsize=8)
+    ax.set_ylim(-0.5, len(names) - 0.5)
+    ax.set_ylabel("state")
+    if stats:
+        ax = next(panels)
+        for c in stats:
+            ax.plot(x, np.asarray(est[c], float), lw=1,
+                    label=c.removeprefix("stat_").removeprefix("monitor_"))
+        if any(c.startswith("stat_") for c in stats):
+            ax.axhline(1.0, color="tab:red", lw=1, ls="--", label="alarm")
+        ax.set_ylabel("CUSUM / threshold")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper left", fontsize=8)
+    if devs:
+        ax = next(panels)
+        twin = None
+        for c in devs:
+            target = ax
+            if c.endswith("_m"):
+                twin = twin or ax.twinx()
+                target = twin
+            target.plot(x, np.asarray(est[c], float), lw=1,
+                        color="0.3" if target is twin else None,
+                        label=c.removeprefix("dev_"))
+        ax.axhline(0.0, color="0.5", lw=0.8)
+        ax.set_ylabel("deviation [deg]")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper left", fontsize=8)
+        if twin is not None:
+            twin.set_ylabel("height deviation [m]")
+            twin.legend(loc="upper right", fontsize=8)
+    for label, mount, new, lo, hi, unit in axes_new:
+        ax = next(panels)
+        if _finite(est, mount):
+            ax.plot(x, np.asarray(est[mount], float), color=EST_COLOR, lw=1,
+                    label="filter mount")
+        if _finite(est, new):
+            if _finite(est, lo) and _finite(est, hi):
+                ax.fill_between(x, np.asarray(est[lo], float), np.asarray(est[hi], float),
+                                color="tab:purple", alpha=0.25, lw=0, label="95 % interval")
+            ax.plot(x, np.asarray(est[new], float), ".", color="tab:purple", ms=3,
+                    label="new extrinsics")
+        ax.set_ylabel(f"{label} [{unit}]")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper left", fontsize=8)
+    axes[-1, 0].set_xlabel(x_label)
+    fig.suptitle(title)
+    return _save(plt, fig, path)
+
+
+def _finite(table: Mapping, column: str) -> bool:
+    """Whether ``column`` exists and has a finite number somewhere."""
+    if column not in table:
+        return False
+    try:
+        return bool(np.isfinite(np.asarray(table[column], float)).any())
+    except (TypeError, ValueError):  # a text column
+        return False
+
+
+def _runs(values: NDArray) -> list[tuple[int, int, Any]]:
+    """(start, stop, value) of the runs of equal consecutive values."""
+    if len(values) == 0:
+        return []
+    change = np.flatnonzero(values[1:] != values[:-1]) + 1
+    starts = np.concatenate([[0], change])
+    stops = np.concatenate([change, [len(values)]])
+    return [(int(a), int(b), values[a]) for a, b in zip(starts, stops, strict=True)]
+
+
+# --- markdown --------------------------------------------------------------------------------
+
+
+def _fmt(v: float, digits: int = 4) -> str:
+    return "–" if v is None or not np.isfinite(v) else f"{v:.{digits}g}"
+
+
+def _markdown(title: str, track: Path, gt: str | Path | None, est: Mapping,
+              summary: dict, errors: dict, plots: dict[str, Path], out: Path) -> str:
+    n = len(est["frame"])
+    status = np.asarray(est.get("status", np.array(["ok"] * n, dtype=object)), dtype=object)
+    counts = Counter(str(s) for s in status)
+    has_pose = np.isfinite(np.asarray(est.get("pitch_deg", np.full(n, np.nan)), float))
+    lines = [f"# Report: {title}", "",
+             f"- table: `{track}` ({n} rows, frames {int(est['frame'][0])}–"
+             f"{int(est['frame'][-1])})"]
+    if _has_time(est):
+        t = np.asarray(est["t"], float)
+        lines.append(f"- time span: {t[0]:.3f}–{t[-1]:.3f} s ({t[-1] - t[0]:.2f} s)")
+    if gt is not None:
+        lines.append(f"- ground truth: `{gt}`")
+    lines.append(f"- rows with a pose: {int(has_pose.sum())} / {n} "
+                 f"({100.0 * has_pose.sum() / max(n, 1):.1f} %)")
+    lines.append("- statuses: " + ", ".join(f"{s or '(empty)'} × {c}"
+                                            for s, c in counts.most_common()))
+    lines += ["", "## Per-frame values", "",
+              "Drift: least-squares slope (per minute of `t`, or per frame without time) and "
+              "median of the last tenth of the rows minus that of the first tenth.", "",
+              "| column | n | mean | std | min | max | slope / min | end − start |",
+              "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for col, s in summary.items():
+        lines.append(f"| {col} | {int(s['n'])} | {_fmt(s['mean'])} | {_fmt(s['std'])} | "
+                     f"{_fmt(s['min'])} | {_fmt(s['max'])} | {_fmt(s.get('slope_per_min'))} | "
+                     f"{_fmt(s.get('end_minus_start'))} |")
+    if errors:
+        lines += ["", "## Error against ground truth", "",
+                  "Estimate − truth over the frames both tables have (bias = mean signed "
+                  "error).", "",
+                  "| error | n | bias | std | RMS | median abs | p95 abs | max abs |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        for name, s in errors.items():
+            if not s.get("n"):
+                continue
+            lines.append(f"| {name} | {int(s['n'])} | {_fmt(s['bias'])} | {_fmt(s['std'])} | "
+                         f"{_fmt(s['rms'])} | {_fmt(s['median_abs'])} | {_fmt(s['p95_abs'])} | "
+                         f"{_fmt(s['max_abs'])} |")
+    if "monitor_state" in est:
+        lines += ["", "## Monitor", "", *_monitor_lines(est)]
+    lines += ["", "## Plots", ""]
+    for name, path in plots.items():
+        rel = path.relative_to(out) if path.is_relative_to(out) else path
+        lines.append(f"![{name}]({rel})")
+    return "\n".join(lines) + "\n"
+
+
+def _monitor_lines(est: Mapping) -> list[str]:
+    states = np.asarray(est["monitor_state"], dtype=object)
+    x, x_label = _time_axis(est)
+    step = np.diff(x, append=x[-1] + (np.median(np.diff(x)) if len(x) > 1 else 1.0))
+    unit = "s" if x_label.startswith("time") else "frames"
+    lines = [f"| state | rows | {unit} |", "| --- | --- | --- |"]
+    for state in dict.fromkeys(states):
+        rows = states == state
+        lines.append(f"| {state or '(empty)'} | {int(rows.sum())} | {step[rows].sum():.2f} |")
+    runs = _runs(states)
+    lines += ["", f"Transitions ({max(len(runs) - 1, 0)}):", ""]
+    for (_, _, before), (start, _, after) in list(itertools.pairwise(runs))[:30]:
+        lines.append(f"- frame {int(est['frame'][start])} ({x_label.split()[0]} "
+                     f"{x[start]:.3f}): {before or '(empty)'} → {after or '(empty)'}")
+    if len(runs) > 31:
+        lines.append(f"- … {len(runs) - 31} more")
+    new = [p for p in MONITOR_AXES if _finite(est, p[2])]
+    if new:
+        last = int(np.flatnonzero(np.isfinite(np.asarray(est[new[0][2]], float)))[-1])
+        lines += ["", f"New extrinsics at frame {int(est['frame'][last])} "
+                  f"({states[last] or '(empty)'}; 95 % interval):", ""]
+        for label, _, col, lo, hi, unit in new:
+            value = float(np.asarray(est[col], float)[last])
+            bounds = (f" [{_fmt(float(est[lo][last]))}, {_fmt(float(est[hi][last]))}]"
+                      if lo in est and hi in est else "")
+            lines.append(f"- {label}: {_fmt(value)}{bounds} {unit}")
+    return lines
