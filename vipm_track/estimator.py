@@ -352,8 +352,17 @@ class TwoFrameEstimator:
                 x = start
                 result.reason = f"image stage skipped ({failure.reason}); refined from the {source}"
                 refinements, loose = max(refinements, 1) + 1, True
-            for i in range(refinements):
-                x = self._refine(prev, curr, x, rng, result, loose=loose and i == 0)
+            try:
+                x = self._refine_all(prev, curr, x, refinements, loose, rng, result)
+            except _StageFailure as failure:
+                if start is None or loose:
+                    raise
+                # An image stage that passed its own checks but misleads the refinement
+                # (a wrong minimum on the distorted image patches): refine from the start.
+                result.reason = (f"refinement from the image stage failed ({failure.reason}); "
+                                 f"refined from the {source}")
+                x = self._refine_all(prev, curr, start, max(refinements, 1) + 1, True, rng,
+                                     result)
         except _StageFailure as failure:
             result.status, result.reason = failure.status, failure.reason
             result.pose_prev = result.pose_curr = result.motion = None
@@ -413,6 +422,15 @@ class TwoFrameEstimator:
         result.stages.append(PatchField("image", self.centres, disp, peaks, fit.inliers, sizes))
         self._accept(fit, result, "initial estimate")
         return fit.x
+
+    def _refine_all(
+        self, prev: NDArray, curr: NDArray, x: FloatArray, n: int, loose: bool,
+        rng: np.random.Generator, result: PairResult,
+    ) -> FloatArray:
+        """``n`` refinements from ``x``, the first with the wide gate when ``loose``."""
+        for i in range(n):
+            x = self._refine(prev, curr, x, rng, result, loose=loose and i == 0)
+        return x
 
     def _cold_start_ipm(self, prev: NDArray, curr: NDArray, result: PairResult) -> FloatArray:
         """Cold start of a forward camera: both frames on the nominal pose's ground plane,
