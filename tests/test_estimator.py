@@ -144,11 +144,13 @@ def test_car_preset_with_guess_converges():
         geometry.PlanarMotion(tm.tx, tm.tz * 1.1, tm.yaw),
     )
     config = EstimatorConfig(initial_pitch_deg=PRESETS["car"].pitch_deg)
-    result = TwoFrameEstimator(cam, float(traj.height[1]), config).estimate(imgs[0], imgs[1], guess)
+    est = TwoFrameEstimator(cam, float(traj.height[0]), config)
+    result = est.estimate(imgs[0], imgs[1], guess)
     assert result.ok, result.reason
     err = _errors(traj, 1, result.pose_prev, result.pose_curr, result.motion)
-    assert err["pitch"] < 0.15 and err["roll"] < 0.15, err
-    assert err["dist_mm"] / (tm.distance * 1e3) < 0.01, err  # under 1 % of ~0.6 m
+    # A forward camera sees pitch far less well than the cart (0.5° off guess to start).
+    assert err["pitch"] < 0.25 and err["roll"] < 0.25, err
+    assert err["dist_mm"] / (tm.distance * 1e3) < 0.015, err  # under 1.5 % of ~0.6 m
 
 
 def test_obstacle_patches_are_outliers():
@@ -247,3 +249,98 @@ def _shrink(poly: np.ndarray, px: float) -> np.ndarray:
     c = poly.mean(axis=0)
     d = poly - c
     return c + d * np.clip(1 - px / np.linalg.norm(d, axis=1, keepdims=True), 0, None)
+
+
+# --- region of interest, tracking, baseline, real data --------------------------------------
+
+
+def test_auto_roi_of_a_forward_camera_keeps_the_near_road():
+    cam = PRESETS["car"].camera()
+    est = TwoFrameEstimator(cam, 1.5, EstimatorConfig(initial_pitch_deg=3.0))
+    nominal = geometry.GroundPose(np.radians(3.0), 0.0, 1.5)
+    ground = geometry.back_project(cam.k, nominal, est.centres)
+    assert np.all(np.isfinite(ground))
+    assert ground[:, 1].max() <= 15 * 1.5 + 1e-6 and np.abs(ground[:, 0]).max() <= 2.5 * 1.5
+    # Patches stay below the horizon.
+    horizon = geometry.horizon_row(cam.k, nominal, cam.cx)
+    assert np.all(est.centres[:, 1] - est.sizes / 2 > horizon)
+    assert est.config.vertical_motion is False
+    assert TwoFrameEstimator(PRESETS["cart"].camera(), 0.7).config.vertical_motion is True
+
+
+@pytest.mark.parametrize(
+    "roi", [(100, 300, 700, 580), np.array([[100, 300], [700, 300], [400, 590]])]
+)
+def test_user_roi_bounds_the_interest_points(roi):
+    cam = PRESETS["cart"].camera()
+    est = TwoFrameEstimator(cam, 0.7, EstimatorConfig(roi=roi))
+    assert len(est.centres) >= 12
+    assert np.all(est.roi[est.centres[:, 1].astype(int), est.centres[:, 0].astype(int)])
+    assert est.centres[:, 1].min() >= 300
+    with pytest.raises(InputError, match="ROI"):
+        TwoFrameEstimator(cam, 0.7, EstimatorConfig(roi=np.zeros((3, 3, 3))))
+
+
+def test_homography_baseline_decomposition_recovers_pose_and_motion():
+    from vipm_track.baseline import decompose
+
+    k = PRESETS["cart"].camera().k
+    pp, pc = geometry.GroundPose(0.8, 0.03, 0.7), geometry.GroundPose(0.82, 0.01, 0.7)
+    mo = geometry.PlanarMotion(0.01, 0.12, 0.02)
+    h = geometry.pair_homography(k, pp, pc, mo)
+    pix = np.stack(np.meshgrid(np.linspace(50, 750, 5), np.linspace(50, 550, 4)), -1).reshape(-1, 2)
+    out = decompose(h, k, 0.7, geometry.GroundPose(np.radians(60), 0.0, 0.7), pix)
+    assert out is not None
+    np.testing.assert_allclose(bundle.pack(*out), bundle.pack(pp, pc, mo), atol=1e-9)
+
+
+def test_kitti_tracking_pairs():
+    import cv2
+
+    from tests.conftest import shared_data
+    from vipm_track.camera import load_camera
+
+    root = shared_data("kitti07")
+    cam = load_camera(root / "calib.txt")
+    poses = np.loadtxt(root / "poses.txt").reshape(-1, 3, 4)
+    est = TwoFrameEstimator(cam, 1.65, EstimatorConfig(initial_pitch_deg=0.0))
+    frames = range(100, 105)
+    imgs = {i: cv2.imread(str(root / "image_0" / f"{i:06d}.png"), cv2.IMREAD_GRAYSCALE)
+            for i in frames}
+    guess, dist_err, yaw_err = None, [], []
+    for i in list(frames)[1:]:
+        r = est.estimate(imgs[i - 1], imgs[i], guess)
+        assert r.ok, (i, r.reason)
+        t0, t1 = np.vstack([poses[i - 1], [0, 0, 0, 1]]), np.vstack([poses[i], [0, 0, 0, 1]])
+        rel = np.linalg.inv(t0) @ t1
+        dist_err.append(abs(r.motion.distance / np.hypot(rel[0, 3], rel[2, 3]) - 1))
+        yaw_err.append(abs(np.degrees(r.motion.yaw - np.arctan2(rel[0, 2], rel[2, 2]))))
+        guess = PairGuess.from_previous(r)
+    assert np.median(dist_err) < 0.12, dist_err
+    assert np.median(yaw_err) < 0.1, yaw_err
+
+
+def test_failed_image_stage_falls_back_to_the_guess():
+    # An image stage that cannot pass (absurd inlier threshold): with a guess, the virtual-IPM
+    # refinement from the guess, with its wide gate, still lands near the truth.
+    traj, imgs, cam = _sequence("car", "static", 2)
+    tp, tc, tm = traj.pose(0), traj.pose(1), traj.motion(1)
+    config = EstimatorConfig(initial_pitch_deg=3.0, inlier_px_image=1e-4)
+    est = TwoFrameEstimator(cam, float(traj.height[0]), config)
+    # Cold start of a forward camera: the nominal-pose IPM translation is the start.
+    cold = est.estimate(imgs[0], imgs[1])
+    assert cold.ok and "nominal-pose IPM" in cold.reason, cold.reason
+    err = _errors(traj, 1, cold.pose_prev, cold.pose_curr, cold.motion)
+    assert err["pitch"] < 0.25 and err["roll"] < 0.25, err
+    steep = TwoFrameEstimator(*_sequence()[2:], 0.7, EstimatorConfig(inlier_px_image=1e-4))
+    assert steep.estimate(*_sequence()[1]).status == "too few inliers"  # no start to fall to
+    off = np.radians(0.3)
+    guess = PairGuess(geometry.GroundPose(tp.pitch + off, tp.roll, tp.height),
+                      geometry.GroundPose(tc.pitch + off, tc.roll, tc.height),
+                      geometry.PlanarMotion(tm.tx, tm.tz * 1.05, tm.yaw))
+    result = est.estimate(imgs[0], imgs[1], guess)
+    assert result.ok, result.reason
+    assert "refined from the guess" in result.reason
+    assert [s.plane for s in result.stages] == ["image", "ipm", "ipm"]
+    err = _errors(traj, 1, result.pose_prev, result.pose_curr, result.motion)
+    assert err["pitch"] < 0.25 and err["roll"] < 0.25, err

@@ -18,6 +18,7 @@ Frames follow CONVENTIONS.md; parameters are ordered as ``measurement.PARAMETER_
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -32,9 +33,11 @@ from .camera import CameraModel
 from .errors import InputError
 from .geometry import (
     GroundPose,
+    IpmGrid,
     PlanarMotion,
     apply_homography,
     back_project,
+    horizon_row,
     image_from_ipm_homography,
     ipm_from_image_homography,
     predict_pixels,
@@ -83,12 +86,18 @@ class EstimatorConfig:
         previous estimate are outliers, IPM pixels.
     min_inliers : fewer inliers than this fail the pair.
     min_motion_px : a median image displacement below this is "no motion", pixels.
+    cold_start_ipm : forward cameras start cold from the median translation on the nominal
+        pose's virtual IPM (else from the coarse image-plane pass, as steep cameras do).
+    max_deviation_deg : estimates whose pitch or roll differ from the initial (nominal) pose
+        by more than this are rejected ("did not converge").
     ipm_resolution_scale : IPM metres per pixel as a multiple of the interest points'
         median ground sampling distance.
     ipm_max_side : largest IPM image side, pixels.
     vertical_motion : also estimate the camera's vertical motion within the pair (an eighth
         parameter; the paper neglects it, which costs ~0.25° of pitch per millimetre on a
-        bouncing 0.7 m cart camera). Frame k's pose then has height ``height + dh``.
+        bouncing 0.7 m cart camera). Frame k's pose then has height ``height + dh``. None
+        (default): on for steep cameras (the whole image below the horizon at the nominal
+        pose), off for forward-looking ones, where it is poorly separable from pitch.
     seed : seed of the subset sampler (runs are deterministic).
     keep_images : keep the last refinement's IPM images in the result.
     """
@@ -96,7 +105,7 @@ class EstimatorConfig:
     grid: tuple[int, int] = (11, 9)
     roi: RoiSpec = None
     roi_max_range_h: float = 15.0
-    roi_max_lateral_h: float = 3.0
+    roi_max_lateral_h: float = 2.5
     horizon_margin_deg: float = 2.0
     patch_image: int = 128
     patch_ipm: int = 256
@@ -119,9 +128,11 @@ class EstimatorConfig:
     refine_outlier_px: float = 8.0
     min_inliers: int = 12
     min_motion_px: float = 0.5
+    max_deviation_deg: float = 25.0
+    cold_start_ipm: bool = True
     ipm_resolution_scale: float = 1.0
     ipm_max_side: int = 3000
-    vertical_motion: bool = True
+    vertical_motion: bool | None = None
     seed: int = 0
     keep_images: bool = False
 
@@ -144,6 +155,7 @@ class EstimatorConfig:
             "ipm_resolution_scale": self.ipm_resolution_scale > 0,
             "roi_max_range_h": self.roi_max_range_h > 0,
             "roi_max_lateral_h": self.roi_max_lateral_h > 0,
+            "max_deviation_deg": self.max_deviation_deg > 0,
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
@@ -181,7 +193,8 @@ class PatchField:
     ``centres`` (N, 2) are patch centres on the previous frame's plane (image or IPM
     pixels), ``displacements`` (N, 2) the POC displacement to the current frame (same
     pixels, NaN where not measured), ``peaks`` (N,) POC peaks, ``inliers`` (N,) flags,
-    ``sizes`` (N,) patch sides in pixels.
+    ``sizes`` (N,) patch sides in pixels (0: not measured); ``grid`` is the virtual IPM grid
+    of an "ipm" stage (its pixels ↔ ground metres of the estimated frames).
     """
 
     plane: str
@@ -190,6 +203,7 @@ class PatchField:
     peaks: FloatArray
     inliers: NDArray[np.bool_]
     sizes: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+    grid: IpmGrid | None = None
 
 
 class StageEstimate(NamedTuple):
@@ -208,6 +222,8 @@ class PairResult:
     "too few inliers", "did not converge", "degenerate"); ``reason`` explains it. Poses and
     motion are None unless ``ok``. ``covariance`` is 7×7 in ``measurement`` order (radians,
     metres); ``residual_px`` is the final stage's inlier RMS residual in that stage's pixels.
+    ``stages`` holds every stage's patch field (the image stage even when it failed and
+    tracking fell back to the guess); ``stage_estimates`` the estimate of each accepted stage.
     ``height`` is the assumed height of frame k-1 [m]; ``height_change`` the estimated
     vertical motion within the pair [m] (0 unless ``config.vertical_motion``).
     """
@@ -293,6 +309,11 @@ class TwoFrameEstimator:
                 f"region of interest holds {len(self.centres)} usable interest points, fewer "
                 f"than min_inliers={self.config.min_inliers}; enlarge the ROI or the grid"
             )
+        # Steep: the whole image sees the ground at the nominal pose (no horizon in view).
+        self.steep = bool(horizon_row(camera.k, self.nominal, camera.cx) < 0)
+        if self.config.vertical_motion is None:
+            steep = self.steep
+            self.config = dataclasses.replace(self.config, vertical_motion=bool(steep))
         self._maps = camera.undistortion_maps() if camera.has_distortion else None
         self._cache: tuple[int, NDArray] | None = None
 
@@ -313,9 +334,35 @@ class TwoFrameEstimator:
         curr = self._prepare(curr_img, "current frame")
         rng = np.random.default_rng(self.config.seed)
         try:
-            x = self._initial(prev, curr, guess, rng, result)
-            for _ in range(self.config.refinements):
-                x = self._refine(prev, curr, x, rng, result)
+            refinements = self.config.refinements
+            loose = False
+            start, source = None, "guess"
+            if guess is not None:
+                start = self._guess_vector(guess)
+            elif not self.steep and self.config.cold_start_ipm:
+                start, source = self._cold_start_ipm(prev, curr, result), "nominal-pose IPM"
+            try:
+                x = self._initial(prev, curr, start, rng, result)
+            except _StageFailure as failure:
+                if start is None or failure.status == STATUS_NO_MOTION:
+                    raise
+                # The start is better than a failed image-plane stage (fast forward motion
+                # distorts image patches most); the virtual IPM removes that distortion,
+                # given a wider outlier gate and one more pass.
+                x = start
+                result.reason = f"image stage skipped ({failure.reason}); refined from the {source}"
+                refinements, loose = max(refinements, 1) + 1, True
+            try:
+                x = self._refine_all(prev, curr, x, refinements, loose, rng, result)
+            except _StageFailure as failure:
+                if start is None or loose:
+                    raise
+                # An image stage that passed its own checks but misleads the refinement
+                # (a wrong minimum on the distorted image patches): refine from the start.
+                result.reason = (f"refinement from the image stage failed ({failure.reason}); "
+                                 f"refined from the {source}")
+                x = self._refine_all(prev, curr, start, max(refinements, 1) + 1, True, rng,
+                                     result)
         except _StageFailure as failure:
             result.status, result.reason = failure.status, failure.reason
             result.pose_prev = result.pose_curr = result.motion = None
@@ -329,19 +376,13 @@ class TwoFrameEstimator:
         self,
         prev: NDArray,
         curr: NDArray,
-        guess: PairGuess | None,
+        start: FloatArray | None,
         rng: np.random.Generator,
         result: PairResult,
     ) -> FloatArray:
         cfg = self.config
-        if guess is not None:
-            x0 = pack(
-                GroundPose(guess.pose_prev.pitch, guess.pose_prev.roll, self.height),
-                GroundPose(guess.pose_curr.pitch, guess.pose_curr.roll, self.height),
-                guess.motion,
-            )
-            if cfg.vertical_motion:
-                x0 = np.append(x0, 0.0)
+        if start is not None:
+            x0 = start
             offsets = self._predicted_displacements(x0)
         else:
             pitch0, roll0 = cfg.initial_pose
@@ -381,6 +422,53 @@ class TwoFrameEstimator:
         result.stages.append(PatchField("image", self.centres, disp, peaks, fit.inliers, sizes))
         self._accept(fit, result, "initial estimate")
         return fit.x
+
+    def _refine_all(
+        self, prev: NDArray, curr: NDArray, x: FloatArray, n: int, loose: bool,
+        rng: np.random.Generator, result: PairResult,
+    ) -> FloatArray:
+        """``n`` refinements from ``x``, the first with the wide gate when ``loose``."""
+        for i in range(n):
+            x = self._refine(prev, curr, x, rng, result, loose=loose and i == 0)
+        return x
+
+    def _cold_start_ipm(self, prev: NDArray, curr: NDArray, result: PairResult) -> FloatArray:
+        """Cold start of a forward camera: both frames on the nominal pose's ground plane,
+        where the motion is nearly one translation; its median over the patches (downsampled
+        POC, ``coarse_scale``) gives (tx, tz) at the nominal pose (yaw 0)."""
+        cfg = self.config
+        pitch0, roll0 = cfg.initial_pose
+        x0 = np.array([pitch0, roll0, pitch0, roll0, 0.0, 0.0, 0.0])
+        if cfg.vertical_motion:
+            x0 = np.append(x0, 0.0)
+        t0 = time.perf_counter()
+        grid = ipm.choose_grid(self.k, self.nominal, PlanarMotion(0.0, 0.0, 0.0), self.centres,
+                               cfg.patch_ipm, cfg.ipm_resolution_scale, cfg.ipm_max_side)
+        s = max(cfg.coarse_scale, 1)
+        size = (max(grid.width // s, 1), max(grid.height // s, 1))
+        small_p = cv2.resize(ipm.warp(prev, self.k, self.nominal, grid), size,
+                             interpolation=cv2.INTER_AREA)
+        small_c = cv2.resize(ipm.warp(curr, self.k, self.nominal, grid), size,
+                             interpolation=cv2.INTER_AREA)
+        result.timings["warp"] += time.perf_counter() - t0
+        q = grid.pixel_from_ground(back_project(self.k, self.nominal, self.centres))
+        q = q[np.all(np.isfinite(q), axis=1)]
+        patch = int(min(cfg.coarse_patch, (min(size) - 2) // 16 * 16))
+        if len(q) == 0 or patch < 16:
+            return x0
+        half = patch / 2
+        centres = np.round(np.clip((q - (s - 1) / 2) / s, [half, half],
+                                   [size[0] - 1 - half, size[1] - 1 - half]))
+        t0 = time.perf_counter()
+        disp, peaks = poc.match_patches(small_p, small_c, centres, patch)
+        result.timings["poc"] += time.perf_counter() - t0
+        good = peaks >= max(cfg.min_peak, cfg.coarse_peak_ratio * float(np.max(peaks)))
+        if not good.any():
+            return x0
+        du, dv = np.median(disp[good], axis=0) * s * grid.metres_per_pixel
+        # Ground content moves by -t in the new frame: IPM u grows with X, v shrinks with Z.
+        x0[4], x0[5] = -du, dv
+        return x0
 
     def _coarse(
         self, prev: NDArray, curr: NDArray, x0: FloatArray, rng: np.random.Generator,
@@ -431,9 +519,10 @@ class TwoFrameEstimator:
 
     def _refine(
         self, prev: NDArray, curr: NDArray, x: FloatArray, rng: np.random.Generator,
-        result: PairResult,
+        result: PairResult, loose: bool = False,
     ) -> FloatArray:
-        """One virtual-IPM refinement from the estimate ``x``."""
+        """One virtual-IPM refinement from the estimate ``x``; ``loose`` widens the outlier
+        gate (×3) and fits random subsets, for a start that is only a guess."""
         cfg = self.config
         pose_p, pose_c, motion = unpack(x, self.height)
         t0 = time.perf_counter()
@@ -461,7 +550,7 @@ class TwoFrameEstimator:
 
         usable = (sizes > 0) & (peaks >= cfg.min_peak)
         dev = np.linalg.norm(disp - pred, axis=1)
-        usable &= dev <= cfg.refine_outlier_px
+        usable &= dev <= cfg.refine_outlier_px * (3.0 if loose else 1.0)
         pixels_prev = apply_homography(image_from_ipm_homography(self.k, pose_p, grid), q_p)
         model = DisplacementModel(
             self.k, self.height, pixels_prev, q_p + disp,
@@ -473,8 +562,10 @@ class TwoFrameEstimator:
                 f"refinement {len(result.stages)}: {int(usable.sum())} IPM patches agree with "
                 f"the previous estimate (need {cfg.min_inliers})",
             )
-        fit = self._fit(model, x, usable, cfg.refine_subsets, cfg.inlier_px_ipm, rng, result)
-        result.stages.append(PatchField("ipm", q_p, disp, peaks, fit.inliers, sizes))
+        n_subsets = max(cfg.refine_subsets, 20) if loose else cfg.refine_subsets
+        inlier_px = cfg.inlier_px_ipm * (2.0 if loose else 1.0)
+        fit = self._fit(model, x, usable, n_subsets, inlier_px, rng, result)
+        result.stages.append(PatchField("ipm", q_p, disp, peaks, fit.inliers, sizes, grid))
         if cfg.keep_images:
             result.ipm_images = (ipm_p, ipm_c)
         self._accept(fit, result, f"refinement {len(result.stages) - 1}")
@@ -506,10 +597,13 @@ class TwoFrameEstimator:
                 STATUS_FEW_INLIERS, f"{stage}: {n_in} inliers (need {cfg.min_inliers})"
             )
         pose_p, pose_c, motion = unpack(fit.x, self.height)
+        dev = np.radians(cfg.max_deviation_deg)
         plausible = (
             np.all(np.isfinite(fit.x))
             and all(-np.pi / 4 < p.pitch < 3 * np.pi / 4 for p in (pose_p, pose_c))
             and all(abs(p.roll) < np.pi / 4 for p in (pose_p, pose_c))
+            and all(abs(p.pitch - self.nominal.pitch) < dev
+                    and abs(p.roll - self.nominal.roll) < dev for p in (pose_p, pose_c))
             and abs(motion.yaw) < np.pi / 4
         )
         if not (fit.converged and plausible):
@@ -531,6 +625,15 @@ class TwoFrameEstimator:
         result.n_inliers = n_in
         result.residual_px = fit.rms
         result.stage_estimates.append(StageEstimate(pose_p, pose_c, motion))
+
+    def _guess_vector(self, guess: PairGuess) -> FloatArray:
+        """Parameter vector of a guess at the assumed height (no vertical motion)."""
+        x0 = pack(
+            GroundPose(guess.pose_prev.pitch, guess.pose_prev.roll, self.height),
+            GroundPose(guess.pose_curr.pitch, guess.pose_curr.roll, self.height),
+            guess.motion,
+        )
+        return np.append(x0, 0.0) if self.config.vertical_motion else x0
 
     def _predicted_displacements(self, x: FloatArray) -> FloatArray:
         """Image displacements (N, 2) the parameters predict at the interest points (0 where

@@ -112,8 +112,10 @@ def interest_points(
     if xs.size == 0:
         return np.zeros((0, 2)), np.zeros(0, np.int64)
     x0, x1, y0, y1 = xs.min(), xs.max(), ys.min(), ys.max()
-    mx = min(patch / 2, (x1 - x0) / 4)
-    my = min(patch / 2, (y1 - y0) / 4)
+    # Inset by half a patch where the box has room for two; a thin box (the road band of a
+    # forward camera) is spread over, its patches shrinking at the image border instead.
+    mx = patch / 2 if x1 - x0 >= 2 * patch else (x1 - x0) / (2 * nx)
+    my = patch / 2 if y1 - y0 >= 2 * patch else (y1 - y0) / (2 * ny)
     gx = np.round(np.linspace(x0 + mx, x1 - mx, nx))
     gy = np.round(np.linspace(y0 + my, y1 - my, ny))
     uu, vv = np.meshgrid(gx, gy)
