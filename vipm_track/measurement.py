@@ -18,10 +18,14 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from .errors import InputError
 from .table import read_table
 
 PARAMETER_NAMES: tuple[str, ...] = ("pitch_prev", "roll_prev", "pitch", "roll", "tx", "tz", "yaw")
 _ANGLE = np.array([True, True, True, True, False, False, True])
+#: Estimates-table columns of ``z`` and of its standard deviations, in ``PARAMETER_NAMES`` order.
+_Z_COLUMNS = ("prev_pitch_deg", "prev_roll_deg", "pitch_deg", "roll_deg", "tx_m", "tz_m", "yaw_deg")
+_STD_COLUMNS = tuple(c.replace("_deg", "_std_deg").replace("_m", "_std_m") for c in _Z_COLUMNS)
 
 
 @dataclass(frozen=True)
@@ -51,53 +55,14 @@ def measurements_from_table(
     """Measurements from the columns of an estimates table (``read_table``).
 
     Needs the base columns plus ``prev_pitch_deg``/``prev_roll_deg`` and the ``*_std``
-    columns; a missing std column is a :class:`ValueError` naming ``source``."""
-    needed = (
-        "pitch_deg",
-        "roll_deg",
-        "height_m",
-        "tx_m",
-        "tz_m",
-        "yaw_deg",
-        "prev_pitch_deg",
-        "prev_roll_deg",
-        "pitch_std_deg",
-        "roll_std_deg",
-        "prev_pitch_std_deg",
-        "prev_roll_std_deg",
-        "tx_std_m",
-        "tz_std_m",
-        "yaw_std_deg",
-    )
-    missing = [c for c in needed if c not in columns]
+    columns; a missing column is an :class:`InputError` naming ``source``."""
+    missing = [c for c in (*_Z_COLUMNS, *_STD_COLUMNS, "height_m") if c not in columns]
     if missing:
-        raise ValueError(f"{source}: estimates table lacks column(s) {missing}")
+        raise InputError(f"{source}: estimates table lacks column(s) {missing}")
     n = len(columns["frame"])
     status = columns.get("status", np.array(["ok"] * n, dtype=object))
-    z_all = np.stack(
-        [
-            np.radians(columns["prev_pitch_deg"]),
-            np.radians(columns["prev_roll_deg"]),
-            np.radians(columns["pitch_deg"]),
-            np.radians(columns["roll_deg"]),
-            columns["tx_m"],
-            columns["tz_m"],
-            np.radians(columns["yaw_deg"]),
-        ],
-        axis=1,
-    )
-    std_all = np.stack(
-        [
-            np.radians(columns["prev_pitch_std_deg"]),
-            np.radians(columns["prev_roll_std_deg"]),
-            np.radians(columns["pitch_std_deg"]),
-            np.radians(columns["roll_std_deg"]),
-            columns["tx_std_m"],
-            columns["tz_std_m"],
-            np.radians(columns["yaw_std_deg"]),
-        ],
-        axis=1,
-    )
+    z_all = _stack_in_radians(columns, _Z_COLUMNS)
+    std_all = _stack_in_radians(columns, _STD_COLUMNS)
     inliers = columns.get("inliers", np.zeros(n))
     out = []
     for i in range(n):
@@ -114,6 +79,14 @@ def measurements_from_table(
             )
         )
     return out
+
+
+def _stack_in_radians(columns: dict[str, NDArray], names: tuple[str, ...]) -> NDArray:
+    """(n, 7) array of the named columns, degrees converted to radians."""
+    return np.stack(
+        [np.radians(columns[c]) if a else columns[c] for c, a in zip(names, _ANGLE, strict=True)],
+        axis=1,
+    )
 
 
 def read_measurements(path: str | Path) -> list[PairMeasurement]:
