@@ -26,6 +26,10 @@ Python ``CustomFactor`` callbacks are limited to the three nonlinear or robust p
 terms. They must be linearised with Python-owned ``gtsam.Values`` (see ``smoother``): gtsam's
 own nonlinear optimisers hand callbacks a copy of every value, which is quadratic in the
 drive length.
+
+``stacked_rows`` evaluates the same factors for many consecutive pairs at once in numpy
+(whitened, robustly weighted residuals and Jacobians in model coordinates): the sliding-window
+smoother (``filters.fixed_lag``) runs on it; a test holds it equal to the gtsam factors.
 """
 
 from __future__ import annotations
