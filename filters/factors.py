@@ -26,16 +26,23 @@ Python ``CustomFactor`` callbacks are limited to the three nonlinear or robust p
 terms. They must be linearised with Python-owned ``gtsam.Values`` (see ``smoother``): gtsam's
 own nonlinear optimisers hand callbacks a copy of every value, which is quadratic in the
 drive length.
+
+``stacked_rows`` evaluates the same factors for many consecutive pairs at once in numpy
+(whitened, robustly weighted residuals and Jacobians in model coordinates): the sliding-window
+smoother (``filters.fixed_lag``) runs on it; a test holds it equal to the gtsam factors.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from functools import lru_cache
 
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
+
+from vipm_track.measurement import PairMeasurement
 
 from . import model as M
 from .model import NoiseParams
@@ -297,3 +304,191 @@ def speed_factor(
     sigma = math.sqrt(noise.speed_meas_var(speed_mps))
     noise_model = robust(gtsam.noiseModel.Isotropic.Sigma(1, sigma), loss, loss_k)
     return gtsam.PriorFactorVector(key("V", k), np.array([float(speed_mps)]), noise_model)
+
+
+# --- stacked per-frame rows in numpy (the sliding-window smoother) -----------------------------
+
+#: variables of a frame in the stacked rows, model coordinates (additive, no Pose2 tangent):
+#: x, y (m), ψ (rad), v (m/s), ω (rad/s), pitch_m, roll_m (rad), h_m (m), yaw_m, b_pitch,
+#: b_roll (rad); the same order as ``smoother._BLOCK``
+FRAME_DIM = 11
+#: rows of one frame's stack: process 0–4, body 5–6, mount walk 7–10, pose pair 11–14,
+#: motion pair 15–17, wheel speed 18
+PAIR_ROWS = 19
+POSE_ROWS, MOTION_ROWS, SPEED_ROW = slice(11, 15), slice(15, 18), 18
+
+
+def robust_weight(norm: FloatArray, kind: str, k: float) -> FloatArray:
+    """IRLS weight of gtsam's M-estimator ``kind`` of threshold ``k`` at whitened block
+    norms ``norm`` (what ``noiseModel.Robust`` multiplies the squared rows by)."""
+    r = np.asarray(norm, dtype=float)
+    if kind == "none":
+        return np.ones_like(r)
+    if kind == "huber":
+        return np.where(r <= k, 1.0, k / np.maximum(r, 1e-300))
+    if kind == "cauchy":
+        return k * k / (k * k + r * r)
+    if kind == "geman-mcclure":
+        return k**4 / (k * k + r * r) ** 2
+    if kind == "tukey":
+        return np.where(r <= k, (1.0 - (r / k) ** 2) ** 2, 0.0)
+    raise ValueError(f"unknown robust loss {kind!r}; expected one of {', '.join(LOSSES)}")
+
+
+def whitener(cov: FloatArray) -> FloatArray:
+    """L⁻¹ of cov = L·Lᵀ (…, n, n): whitened residual = L⁻¹ · residual."""
+    return np.linalg.inv(np.linalg.cholesky(np.asarray(cov, dtype=float)))
+
+
+@lru_cache(maxsize=256)
+def _frame_whiteners(dt: float, noise: NoiseParams, cross_track_std_m: float) -> tuple:
+    q = process_noise(dt, noise)
+    idx = [M.POS_Y, M.POS_X, M.HEADING, M.SPEED, M.YAW_RATE]
+    cov = q[np.ix_(idx, idx)].copy()
+    cov[1, :] = cov[:, 1] = 0.0
+    cov[1, 1] = cross_track_std_m**2
+    f, _ = _transition_at_rest(dt, noise)
+    walk = 1.0 / np.sqrt(np.diag(q)[[M.MOUNT_PITCH, M.MOUNT_ROLL, M.MOUNT_HEIGHT, M.MOUNT_YAW]])
+    body_isig = 1.0 / math.sqrt(q[M.BODY_PITCH, M.BODY_PITCH])
+    return whitener(cov), float(f[M.BODY_PITCH, M.BODY_PITCH]), body_isig, walk
+
+
+@dataclass
+class StackedPairs:
+    """Constants of the factors that join frames k-1 and k, for n consecutive pairs (arrays
+    with a leading axis n). Missing pieces have zero whiteners (no pair / no speed)."""
+
+    dt: FloatArray  # (n,) s
+    z: FloatArray  # (n, 7) pair measurement, rad / m at h0
+    h0: FloatArray  # (n,) assumed height of the pair, m
+    w_pose: FloatArray  # (n, 4, 4) whitener of the pair angles (0 without a pair)
+    w_motion: FloatArray  # (n, 3, 3) whitener of the pair motion (0 without a pair)
+    metric: NDArray[np.bool_]  # (n,) the pair's motion moves h_m (wheel speed nearby)
+    w_process: FloatArray  # (n, 5, 5) whitener of (along, cross, heading, Δv, Δω)
+    body_a: FloatArray  # (n,) Gauss–Markov decay
+    body_isig: FloatArray  # (n,) 1 / σ of the body step
+    walk_isig: FloatArray  # (n, 4) 1 / σ of the mount walks (pitch, roll, h, yaw)
+    speed: FloatArray  # (n,) wheel speed m/s (0 where none)
+    speed_isig: FloatArray  # (n,) 1 / σ of the wheel speed (0 where none)
+
+
+def pair_constants(
+    m: PairMeasurement,
+    dt: float,
+    speed: float,
+    noise: NoiseParams,
+    cross_track_std_m: float,
+    metric: bool,
+) -> dict[str, object]:
+    """One pair's entries of :class:`StackedPairs` (a row of each field)."""
+    wq, a, bis, walk = _frame_whiteners(float(dt), noise, float(cross_track_std_m))
+    ok = bool(m.ok)
+    cov = np.asarray(m.covariance, dtype=float) if ok else None
+    has_speed = math.isfinite(speed)
+    return {
+        "dt": dt,
+        "z": np.asarray(m.z, dtype=float) if ok else np.zeros(7),
+        "h0": float(m.height_assumed) if ok else 1.0,
+        "w_pose": whitener(cov[:4, :4]) if ok else np.zeros((4, 4)),
+        "w_motion": whitener(cov[4:7, 4:7]) if ok else np.zeros((3, 3)),
+        "metric": metric,
+        "w_process": wq,
+        "body_a": a,
+        "body_isig": bis,
+        "walk_isig": walk,
+        "speed": speed if has_speed else 0.0,
+        "speed_isig": 1.0 / math.sqrt(noise.speed_meas_var(speed)) if has_speed else 0.0,
+    }
+
+
+def stacked_rows(
+    prev: FloatArray,
+    curr: FloatArray,
+    c: StackedPairs,
+    loss: tuple[str, float, float] = ("none", 1.0, 1.0),
+    speed_loss: tuple[str, float] = ("none", 1.0),
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Whitened, robustly weighted residuals (n, 19) and Jacobians (n, 19, 22) w.r.t.
+    (prev, curr) of every factor joining frames k-1 and k (``FRAME_DIM`` layout, rows as
+    ``PAIR_ROWS``), and the Gaussian whitened norms (n, 2) of the pose / motion pair blocks.
+
+    The same equations as ``process_factor``, ``body_factor``, ``mount_walk_factors``,
+    ``pose_pair_factor``, ``motion_pair_factor`` and ``speed_factor`` (a test holds them
+    equal), evaluated for all pairs at once. ``loss`` = (kind, threshold of the 4-dof pose
+    block, threshold of the 3-dof motion block); ``speed_loss`` = (kind, threshold)."""
+    n = len(prev)
+    d = FRAME_DIM
+    r = np.zeros((n, PAIR_ROWS))
+    jac = np.zeros((n, PAIR_ROWS, 2 * d))
+    x0, y0, psi0, v0, w0 = (prev[:, i] for i in range(5))
+    x1, y1, psi1, v1, w1 = (curr[:, i] for i in range(5))
+    dt = c.dt
+    # process: model.propagate_pose, residual along / across the mid-point heading
+    a = psi0 + 0.5 * w0 * dt
+    sa, ca = np.sin(a), np.cos(a)
+    dx = x1 - (x0 + v0 * dt * sa)
+    dy = y1 - (y0 + v0 * dt * ca)
+    along, cross = sa * dx + ca * dy, ca * dx - sa * dy
+    r[:, 0], r[:, 1] = along, cross
+    r[:, 2] = _wrap(psi1 - psi0 - w0 * dt)
+    r[:, 3], r[:, 4] = v1 - v0, w1 - w0
+    jac[:, 0, 0], jac[:, 0, 1], jac[:, 1, 0], jac[:, 1, 1] = -sa, -ca, -ca, sa
+    jac[:, 0, d], jac[:, 0, d + 1], jac[:, 1, d], jac[:, 1, d + 1] = sa, ca, ca, -sa
+    jac[:, 0, 2], jac[:, 1, 2] = cross, -along - v0 * dt
+    jac[:, 0, 4], jac[:, 1, 4] = 0.5 * dt * cross, 0.5 * dt * (-along - v0 * dt)
+    jac[:, 0, 3] = -dt
+    jac[:, 2, 2], jac[:, 2, 4], jac[:, 2, d + 2] = -1.0, -dt, 1.0
+    jac[:, 3, 3], jac[:, 3, d + 3], jac[:, 4, 4], jac[:, 4, d + 4] = -1.0, 1.0, -1.0, 1.0
+    r[:, 0:5] = np.matmul(c.w_process, r[:, 0:5, None])[..., 0]
+    jac[:, 0:5] = np.matmul(c.w_process, jac[:, 0:5])
+    # body (Gauss–Markov) and mount random walks: linear
+    for i, col in enumerate((9, 10)):
+        r[:, 5 + i] = c.body_isig * (curr[:, col] - c.body_a * prev[:, col])
+        jac[:, 5 + i, col], jac[:, 5 + i, d + col] = -c.body_isig * c.body_a, c.body_isig
+    for i, col in enumerate((5, 6, 7, 8)):
+        r[:, 7 + i] = c.walk_isig[:, i] * (curr[:, col] - prev[:, col])
+        jac[:, 7 + i, col], jac[:, 7 + i, d + col] = -c.walk_isig[:, i], c.walk_isig[:, i]
+    # pose pair: (m + b_{k-1}, m + b_k) on the current mount
+    e4 = np.stack(
+        [curr[:, 5] + prev[:, 9], curr[:, 6] + prev[:, 10], curr[:, 5] + curr[:, 9],
+         curr[:, 6] + curr[:, 10]], axis=1,
+    ) - c.z[:, :4]
+    j4 = np.zeros((n, 4, 2 * d))
+    j4[:, 0, d + 5] = j4[:, 2, d + 5] = j4[:, 1, d + 6] = j4[:, 3, d + 6] = 1.0
+    j4[:, 0, 9] = j4[:, 1, 10] = j4[:, 2, d + 9] = j4[:, 3, d + 10] = 1.0
+    # motion pair: displacement in G_{k-1} scaled by h0 / h_m
+    g = psi0 + curr[:, 8]
+    cg, sg = np.cos(g), np.sin(g)
+    sc = c.h0 / curr[:, 7]
+    ddx, ddy = x1 - x0, y1 - y0
+    tx, tz = sc * (cg * ddx - sg * ddy), sc * (sg * ddx + cg * ddy)
+    e3 = np.stack([tx - c.z[:, 4], tz - c.z[:, 5], _wrap(psi1 - psi0 - c.z[:, 6])], axis=1)
+    j3 = np.zeros((n, 3, 2 * d))
+    j3[:, 0, d], j3[:, 0, d + 1], j3[:, 1, d], j3[:, 1, d + 1] = sc * cg, -sc * sg, sc * sg, sc * cg
+    j3[:, 0:2, 0:2] = -j3[:, 0:2, d : d + 2]
+    tx_g, tz_g = sc * (-sg * ddx - cg * ddy), sc * (cg * ddx - sg * ddy)
+    j3[:, 0, 2] = j3[:, 0, d + 8] = tx_g
+    j3[:, 1, 2] = j3[:, 1, d + 8] = tz_g
+    j3[:, 0, d + 7] = np.where(c.metric, -tx / curr[:, 7], 0.0)
+    j3[:, 1, d + 7] = np.where(c.metric, -tz / curr[:, 7], 0.0)
+    j3[:, 2, 2], j3[:, 2, d + 2] = -1.0, 1.0
+    norms = np.zeros((n, 2))
+    kind, k4, k3 = loss
+    for rows, e, j, w, kk, col in (
+        (POSE_ROWS, e4, j4, c.w_pose, k4, 0), (MOTION_ROWS, e3, j3, c.w_motion, k3, 1)
+    ):
+        ew = np.matmul(w, e[..., None])[..., 0]
+        norms[:, col] = np.linalg.norm(ew, axis=1)
+        s = np.sqrt(robust_weight(norms[:, col], kind, kk))
+        r[:, rows] = s[:, None] * ew
+        jac[:, rows] = s[:, None, None] * np.matmul(w, j)
+    # wheel speed on the current frame
+    es = c.speed_isig * (v1 - c.speed)
+    s = np.sqrt(robust_weight(np.abs(es), *speed_loss))
+    r[:, SPEED_ROW] = s * es
+    jac[:, SPEED_ROW, d + 3] = s * c.speed_isig
+    return r, jac, norms
+
+
+def _wrap(a: FloatArray) -> FloatArray:
+    return (a + np.pi) % (2.0 * np.pi) - np.pi

@@ -10,9 +10,9 @@ outlier pair is down-weighted instead of pulling the estimate.
 - ``smooth_batch``: the whole drive at once (Gauss–Newton with step halving over gtsam's
   linearisation and multifrontal elimination in time order); marginal covariances from
   ``gtsam.Marginals``.
-- ``FixedLagSmoother``: a sliding window of ``lag_s`` seconds on
-  ``gtsam.IncrementalFixedLagSmoother`` (iSAM2); each frame is reported when it leaves the
-  window (so with at least ``lag_s`` of future data), covariances from the iSAM2 Bayes tree.
+- ``FixedLagSmoother`` (``filters.fixed_lag``): Gauss–Newton over a sliding window of
+  ``lag_s`` seconds of the same factors, the past folded into a Gaussian prior; each frame
+  is reported once ``lag_s`` of later data is in, with its marginal covariance.
 - ``smooth``: either, by ``SmootherConfig.lag_s`` (0 = batch).
 
 Every frame gets a :class:`SmoothedFrame` with the fields of ``filters.ekf.FilterState``
@@ -70,6 +70,11 @@ class SmootherConfig:
     #: Gauss–Newton stops when a step's predicted relative decrease of the error is below this
     tolerance: float = 1e-6
     marginals: bool = True
+    #: fixed lag: Gauss–Newton over the window stops when a step's predicted decrease of the
+    #: cost is below this (χ² units: half the step's squared Mahalanobis length), or after
+    #: ``lag_max_iterations`` steps (the solve is warm-started at the next frame)
+    lag_tolerance_chi2: float = 0.01
+    lag_max_iterations: int = 3
     #: fixed-lag: good pairs whose medians start the window (as the EKF's bootstrap)
     init_pairs: int = 5
     #: a pair moves the height only with a wheel speed within this many seconds of it (the
@@ -708,185 +713,6 @@ def _gauss_newton(
     return values, it, float(err0), float(err)
 
 
-# --- fixed lag --------------------------------------------------------------------------------
-
-
-class FixedLagSmoother:
-    """Sliding-window smoother over ``config.lag_s`` seconds (gtsam's
-    ``IncrementalFixedLagSmoother``). Feed frames with ``step``; it returns the frames that
-    left the window (each smoothed with ≥ ``lag_s`` of later data); ``finish`` returns the
-    rest."""
-
-    def __init__(self, config: SmootherConfig | None = None) -> None:
-        cfg = config or SmootherConfig(lag_s=2.0)
-        if cfg.lag_s <= 0:
-            raise ValueError("FixedLagSmoother needs lag_s > 0 (use smooth_batch for 0)")
-        self._cfg = cfg
-        params = gtsam.ISAM2Params()
-        # iSAM2 defaults (relinearise every 10 steps, variables moved by > 0.1): tighter
-        # settings cost twice the time for no measurable gain on simulated drives
-        # the window keeps a margin over the lag so a frame is read before it is marginalised
-        self._inner_lag = cfg.lag_s + max(0.25 * cfg.lag_s, 0.2)
-        self._params = params
-        self._smoother = gtsam.IncrementalFixedLagSmoother(self._inner_lag, params)
-        self._start_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
-        self._reset: tuple[int, str] | None = None  # (frame, why) of the last restart
-        self._boot: list[tuple[PairMeasurement, float]] = []
-        self._window: list[tuple[int, PairMeasurement, tuple[gtsam.CustomFactor, ...] | None]] = []
-        self._k = -1
-        self._t_last = -math.inf
-        self._started = False
-        self._last_speed_t = -math.inf
-
-    def step(self, m: PairMeasurement, speed: float = float("nan")) -> list[SmoothedFrame]:
-        """Add frame ``m`` (with the wheel speed at its time, m/s, NaN if none); return the
-        frames that are now final."""
-        if not (math.isfinite(m.t) and m.t > self._t_last):
-            return [_skipped(m, f"time {m.t} not after the previous frame's")]
-        self._t_last = m.t
-        if not self._started:
-            self._boot.append((m, speed))
-            if sum(b.ok for b, _ in self._boot[1:]) < self._cfg.init_pairs:
-                return []
-            boot, self._boot = self._boot, []
-            self._started = True
-            return self._start(boot)
-        try:
-            self._add(m, speed)
-        except RuntimeError as exc:  # iSAM2 could not solve: report, restart from here
-            return self._restart(m, speed, exc)
-        return self._emit(final=False)
-
-    def finish(self) -> list[SmoothedFrame]:
-        """Frames still in the window (and any never started), smoothed with the data there is."""
-        if not self._started:
-            if not self._boot:
-                return []
-            boot, self._boot = self._boot, []
-            self._started = True
-            self._start(boot)
-        return self._emit(final=True)
-
-    # --- internals ---------------------------------------------------------------------------
-
-    def _restart(self, m: PairMeasurement, speed: float, exc: Exception) -> list[SmoothedFrame]:
-        """Emit the window from the last good solution, then start a new window at ``m``
-        (bootstrapped again, continuing the trajectory), as the EKF resets."""
-        lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
-        why = f"smoother restarted: {lines[0] if lines else type(exc).__name__}"
-        self._window = [w for w in self._window if w[1] is not m]
-        try:
-            out = self._emit(final=True)
-        except (RuntimeError, IndexError):
-            out = [_skipped(w[1], why) for w in self._window]
-            self._window = []
-        good = [f for f in out if np.all(np.isfinite(f.position))]
-        if good:
-            last = good[-1]
-            self._start_pose = (float(last.position[0]), float(last.position[1]), last.heading)
-        self._smoother = gtsam.IncrementalFixedLagSmoother(self._inner_lag, self._params)
-        self._reset = (m.frame, why)
-        self._started = False
-        self._boot = [(m, speed)]
-        return out
-
-    def _start(self, boot: list[tuple[PairMeasurement, float]]) -> list[SmoothedFrame]:
-        ms = [b for b, _ in boot]
-        sp = np.array([s for _, s in boot], dtype=float)
-        t = np.array([b.t for b in ms])
-        dts = np.concatenate([[0.0], np.diff(t)])
-        self._guess = _initial_guess(ms, sp, dts, self._cfg.height_m, self._start_pose)
-        graph = gtsam.NonlinearFactorGraph()
-        values = gtsam.Values()
-        stamps: dict[int, float] = {}
-        metric = _metric_frames(t, sp, self._cfg.speed_timeout_s)
-        if np.any(np.isfinite(sp)):
-            self._last_speed_t = float(t[np.isfinite(sp)][-1])
-        for i, (b, s) in enumerate(boot):
-            k = self._k = self._k + 1
-            _insert_guess(values, k, self._guess, i)
-            if i == 0:
-                for f in _prior_factors(k, self._guess, self._cfg, self._start_pose):
-                    graph.add(f)
-            fs = _frame_factors(k, b, float(s), float(dts[i]), self._cfg, i == 0, bool(metric[i]))
-            for f in fs:
-                graph.add(f)
-            pair = (fs[5], fs[6]) if i > 0 and b.ok else None
-            self._window.append((k, b, pair))
-            for kk in _frame_keys(k):
-                stamps[kk] = b.t
-        self._update(graph, values, stamps)
-        return self._emit(final=False)
-
-    def _add(self, m: PairMeasurement, speed: float) -> None:
-        k_prev = self._k
-        k = self._k = self._k + 1
-        dt = m.t - self._window[-1][1].t
-        est = self._smoother.calculateEstimate()
-        prev = _state_of(est, k_prev, False)
-        values = gtsam.Values()
-        x, y, psi = M.propagate_pose(
-            prev[M.POS_X], prev[M.POS_Y], prev[M.HEADING], prev[M.SPEED], prev[M.YAW_RATE], dt
-        )
-        mount = prev[[M.MOUNT_PITCH, M.MOUNT_ROLL]]
-        body = m.z[2:4] - mount if m.ok else prev[M.BODY] * 0.0
-        v = speed if math.isfinite(speed) else prev[M.SPEED]
-        values.insert(F.key("X", k), F.pose2_from_model(x, y, psi))
-        values.insert(F.key("V", k), np.array([v], dtype=float))
-        values.insert(F.key("W", k), np.array([m.z[6] / dt if m.ok else prev[M.YAW_RATE]]))
-        values.insert(F.key("M", k), np.array(mount, dtype=float))
-        values.insert(F.key("H", k), np.array([prev[M.MOUNT_HEIGHT]]))
-        values.insert(F.key("Y", k), np.array([prev[M.MOUNT_YAW]]))
-        values.insert(F.key("B", k), np.array(body, dtype=float))
-        graph = gtsam.NonlinearFactorGraph()
-        if math.isfinite(speed):
-            self._last_speed_t = m.t
-        metric = m.t - self._last_speed_t <= self._cfg.speed_timeout_s
-        fs = _frame_factors(k, m, float(speed), dt, self._cfg, False, metric)
-        for f in fs:
-            graph.add(f)
-        self._window.append((k, m, (fs[5], fs[6]) if m.ok else None))
-        self._update(graph, values, {kk: m.t for kk in _frame_keys(k)})
-
-    def _update(
-        self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, stamps: dict[int, float]
-    ) -> None:
-        self._smoother.update(graph, values, stamps)
-
-    def _emit(self, final: bool) -> list[SmoothedFrame]:
-        """Frames that are at least ``lag_s`` old (all if ``final``), oldest first."""
-        if not self._window:
-            return []
-        t_new = self._window[-1][1].t
-        ready = [w for w in self._window if final or t_new - w[1].t >= self._cfg.lag_s]
-        if not ready:
-            return []
-        est = self._smoother.calculateEstimate()
-        isam = self._smoother.getISAM2()
-        out = []
-        for k, m, pair in ready:
-            has_prev = k > 0 and est.exists(F.key("X", k - 1))
-            state = _state_of(est, k, has_prev)
-            if self._cfg.marginals:
-                try:
-                    joint = isam.jointMarginalCovariance(_marginal_keys(k, has_prev))
-                    cov = _state_covariance(joint, state, k, has_prev)
-                except (RuntimeError, IndexError):  # e.g. after a failed iSAM2 update
-                    cov = np.full((M.STATE_DIM, M.STATE_DIM), np.nan)
-            else:
-                cov = np.full((M.STATE_DIM, M.STATE_DIM), np.nan)
-            norms = None
-            if pair is not None:
-                norms = _block_norms({k: pair}, est)[k]  # type: ignore[dict-item]
-            status, gated = _status(m, norms, self._cfg)
-            reason = "" if norms else m.status
-            if self._reset is not None and self._reset[0] == m.frame:
-                status, reason = "reset", self._reset[1]
-            out.append(_make_frame(m, state, cov, status, gated, reason))
-        self._window = self._window[len(ready) :]
-        return out
-
-
 # --- entry points -----------------------------------------------------------------------------
 
 
@@ -914,6 +740,8 @@ def smooth(
     speeds = speeds_at_frames(measurements, speed_series, clock_offset_s)
     if cfg.lag_s == 0:
         return smooth_batch(measurements, speeds, cfg, progress)[0]
+    from .fixed_lag import FixedLagSmoother
+
     sm = FixedLagSmoother(cfg)
     out: list[SmoothedFrame] = []
     it = zip(measurements, speeds, strict=True)
@@ -925,6 +753,15 @@ def smooth(
         out.extend(sm.step(m, float(v)))
     out.extend(sm.finish())
     return out
+
+
+def __getattr__(name: str) -> object:
+    # ``FixedLagSmoother`` lives in ``filters.fixed_lag`` (which imports this module)
+    if name == "FixedLagSmoother":
+        from .fixed_lag import FixedLagSmoother
+
+        return FixedLagSmoother
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 # --- drive summary ----------------------------------------------------------------------------

@@ -78,6 +78,8 @@ def smoother_method(lag_s: float) -> Method:
 METHODS: dict[str, Method] = {
     "ekf": ekf_method,
     "fixed-lag 2 s": smoother_method(2.0),
+    "fixed-lag 5 s": smoother_method(5.0),
+    "fixed-lag 10 s": smoother_method(10.0),
     "batch": smoother_method(0.0),
 }
 
