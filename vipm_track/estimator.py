@@ -98,6 +98,11 @@ class EstimatorConfig:
         bouncing 0.7 m cart camera). Frame k's pose then has height ``height + dh``. None
         (default): on for steep cameras (the whole image below the horizon at the nominal
         pose), off for forward-looking ones, where it is poorly separable from pitch.
+    pose_prior_deg : standard deviation of a prior on both frames' pitch and roll around the
+        initial (nominal) pose inside every fit, degrees; it resolves the pitch/translation
+        ambiguity of a near-level camera (a steeper pitch with a shorter travel explains
+        the flow of the near road almost as well). 0 turns it off; None (default): 2° for
+        forward-looking cameras, off for steep ones.
     seed : seed of the subset sampler (runs are deterministic).
     keep_images : keep the last refinement's IPM images in the result.
     """
@@ -133,6 +138,7 @@ class EstimatorConfig:
     ipm_resolution_scale: float = 1.0
     ipm_max_side: int = 3000
     vertical_motion: bool | None = None
+    pose_prior_deg: float | None = None
     seed: int = 0
     keep_images: bool = False
 
@@ -156,6 +162,7 @@ class EstimatorConfig:
             "roi_max_range_h": self.roi_max_range_h > 0,
             "roi_max_lateral_h": self.roi_max_lateral_h > 0,
             "max_deviation_deg": self.max_deviation_deg > 0,
+            "pose_prior_deg": self.pose_prior_deg is None or self.pose_prior_deg >= 0,
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
@@ -314,6 +321,9 @@ class TwoFrameEstimator:
         if self.config.vertical_motion is None:
             steep = self.steep
             self.config = dataclasses.replace(self.config, vertical_motion=bool(steep))
+        if self.config.pose_prior_deg is None:
+            self.config = dataclasses.replace(self.config,
+                                              pose_prior_deg=0.0 if self.steep else 2.0)
         self._maps = camera.undistortion_maps() if camera.has_distortion else None
         self._cache: tuple[int, NDArray] | None = None
 
@@ -417,7 +427,8 @@ class TwoFrameEstimator:
                 "motion the pose against the ground is unobservable",
             )
         usable &= mag <= cfg.max_displacement_factor * median_mag + cfg.patch_image / 8
-        model = DisplacementModel(self.k, self.height, self.centres, self.centres + disp)
+        model = DisplacementModel(self.k, self.height, self.centres, self.centres + disp,
+                                  **self._prior(cfg.inlier_px_image))
         fit = self._fit(model, x0, usable, cfg.n_subsets, cfg.inlier_px_image, rng, result)
         result.stages.append(PatchField("image", self.centres, disp, peaks, fit.inliers, sizes))
         self._accept(fit, result, "initial estimate")
@@ -507,7 +518,8 @@ class TwoFrameEstimator:
         usable = moving & (peaks >= max(cfg.min_peak, floor))
         if usable.sum() < cfg.min_inliers:
             return x0, np.zeros_like(self.centres)
-        model = SteadyPoseModel(self.k, self.height, pix, pix + disp * s)
+        model = SteadyPoseModel(self.k, self.height, pix, pix + disp * s,
+                                **self._prior(cfg.coarse_inlier_px))
         fit = self._fit(model, SteadyPoseModel.reduce(x0), usable, cfg.n_subsets,
                         cfg.coarse_inlier_px, rng, result)
         if fit.inliers.sum() < cfg.min_inliers or not fit.converged:
@@ -555,6 +567,7 @@ class TwoFrameEstimator:
         model = DisplacementModel(
             self.k, self.height, pixels_prev, q_p + disp,
             plane_from_image=ipm_from_image_homography(self.k, pose_c, grid),
+            **self._prior(cfg.inlier_px_ipm),
         )
         if usable.sum() < cfg.min_inliers:
             raise _StageFailure(
@@ -572,6 +585,16 @@ class TwoFrameEstimator:
         return fit.x
 
     # --- helpers ----------------------------------------------------------------------------
+
+    def _prior(self, inlier_px: float) -> dict:
+        """Pose-prior arguments of a residual model whose inlier threshold is ``inlier_px``
+        plane pixels (taken as 3 σ of a point's noise): the nominal pitch and roll of both
+        frames with ``config.pose_prior_deg`` standard deviation."""
+        sigma = np.radians(self.config.pose_prior_deg or 0.0)
+        if sigma <= 0:
+            return {}
+        p, r = self.nominal.pitch, self.nominal.roll
+        return {"prior_mean": np.array([p, r, p, r]), "prior_scale": inlier_px / 3.0 / sigma}
 
     def _fit(
         self, model: DisplacementModel, x0: FloatArray, usable: NDArray[np.bool_],
