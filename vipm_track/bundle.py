@@ -74,7 +74,8 @@ class DisplacementModel:
         fit then also minimises ``prior_scale · (pose − prior_mean)``, four extra residuals
         in plane pixels appended after the points' (a Gaussian prior of standard deviation
         ``noise_px / prior_scale`` for a point noise of ``noise_px``).
-    prior_scale : weight of the prior, plane pixels per radian (0: no prior).
+    prior_scale : weight of the prior, plane pixels per radian, a scalar or one per pose
+        angle (4,) (0: no prior).
 
     The prediction is the pair homography ``A · π(Θ_c) · T(Ψ) · π⁻¹(Θ_p)`` of geometry.py
     (exact for ground points), evaluated for a batch of parameter vectors at once so that
@@ -87,7 +88,7 @@ class DisplacementModel:
     targets: FloatArray
     plane_from_image: FloatArray | None = None
     prior_mean: FloatArray | None = None
-    prior_scale: float = 0.0
+    prior_scale: float | FloatArray = 0.0
 
     @property
     def n_points(self) -> int:
@@ -96,14 +97,14 @@ class DisplacementModel:
     @property
     def n_prior(self) -> int:
         """Number of prior residuals appended to the points' (0 or 4)."""
-        return 0 if self.prior_mean is None or self.prior_scale <= 0 else 4
+        return 0 if self.prior_mean is None or np.all(np.asarray(self.prior_scale) <= 0) else 4
 
     def prior_batch(self, xs: FloatArray) -> FloatArray:
         """Prior residuals (B, n_prior) for parameter vectors (B, n), plane pixels."""
         xs = np.asarray(xs, dtype=float)
         if not self.n_prior:
             return np.zeros((len(xs), 0))
-        return self.prior_scale * (self.full(xs)[:, :4] - np.asarray(self.prior_mean))
+        return np.asarray(self.prior_scale) * (self.full(xs)[:, :4] - np.asarray(self.prior_mean))
 
     def prior_jacobian_batch(self, xs: FloatArray) -> FloatArray:
         """Jacobians (B, n_prior, n) of :meth:`prior_batch` (central differences)."""

@@ -103,6 +103,9 @@ class EstimatorConfig:
         ambiguity of a near-level camera (a steeper pitch with a shorter travel explains
         the flow of the near road almost as well). 0 turns it off; None (default): 2° for
         forward-looking cameras, off for steep ones.
+    track_prior_deg : in tracking mode, frame k-1's pitch and roll are also held to the
+        previous pair's estimate of the same frame with this standard deviation, degrees
+        (fused with the nominal prior; 0: off). Only with the pose prior on.
     seed : seed of the subset sampler (runs are deterministic).
     keep_images : keep the last refinement's IPM images in the result.
     """
@@ -139,6 +142,7 @@ class EstimatorConfig:
     ipm_max_side: int = 3000
     vertical_motion: bool | None = None
     pose_prior_deg: float | None = None
+    track_prior_deg: float = 0.5
     seed: int = 0
     keep_images: bool = False
 
@@ -163,6 +167,7 @@ class EstimatorConfig:
             "roi_max_lateral_h": self.roi_max_lateral_h > 0,
             "max_deviation_deg": self.max_deviation_deg > 0,
             "pose_prior_deg": self.pose_prior_deg is None or self.pose_prior_deg >= 0,
+            "track_prior_deg": self.track_prior_deg >= 0,
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
@@ -326,6 +331,7 @@ class TwoFrameEstimator:
                                               pose_prior_deg=0.0 if self.steep else 2.0)
         self._maps = camera.undistortion_maps() if camera.has_distortion else None
         self._cache: tuple[int, NDArray] | None = None
+        self._prior_mean, self._prior_sigma = self._pose_prior(None)
 
     # --- public -----------------------------------------------------------------------------
 
@@ -343,6 +349,7 @@ class TwoFrameEstimator:
         prev = self._prepare(prev_img, "previous frame")
         curr = self._prepare(curr_img, "current frame")
         rng = np.random.default_rng(self.config.seed)
+        self._prior_mean, self._prior_sigma = self._pose_prior(guess)
         try:
             refinements = self.config.refinements
             loose = False
@@ -586,15 +593,30 @@ class TwoFrameEstimator:
 
     # --- helpers ----------------------------------------------------------------------------
 
+    def _pose_prior(self, guess: PairGuess | None) -> tuple[FloatArray | None, FloatArray]:
+        """Mean and standard deviation (4,) of the prior on (pitch_prev, roll_prev, pitch,
+        roll), radians: the nominal pose with ``pose_prior_deg``, frame k-1's fused with the
+        guess's pose of it at ``track_prior_deg`` (None mean: no prior)."""
+        cfg = self.config
+        sigma = np.radians(cfg.pose_prior_deg or 0.0)
+        if sigma <= 0:
+            return None, np.zeros(4)
+        p, r = self.nominal.pitch, self.nominal.roll
+        mean, std = np.array([p, r, p, r]), np.full(4, sigma)
+        s_t = np.radians(cfg.track_prior_deg)
+        if guess is not None and s_t > 0:
+            w_n, w_t = 1.0 / sigma**2, 1.0 / s_t**2
+            tracked = np.array([guess.pose_prev.pitch, guess.pose_prev.roll])
+            mean[:2] = (w_n * mean[:2] + w_t * tracked) / (w_n + w_t)
+            std[:2] = 1.0 / np.sqrt(w_n + w_t)
+        return mean, std
+
     def _prior(self, inlier_px: float) -> dict:
         """Pose-prior arguments of a residual model whose inlier threshold is ``inlier_px``
-        plane pixels (taken as 3 σ of a point's noise): the nominal pitch and roll of both
-        frames with ``config.pose_prior_deg`` standard deviation."""
-        sigma = np.radians(self.config.pose_prior_deg or 0.0)
-        if sigma <= 0:
+        plane pixels (taken as 3 σ of a point's noise); see :meth:`_pose_prior`."""
+        if self._prior_mean is None:
             return {}
-        p, r = self.nominal.pitch, self.nominal.roll
-        return {"prior_mean": np.array([p, r, p, r]), "prior_scale": inlier_px / 3.0 / sigma}
+        return {"prior_mean": self._prior_mean, "prior_scale": inlier_px / 3.0 / self._prior_sigma}
 
     def _fit(
         self, model: DisplacementModel, x0: FloatArray, usable: NDArray[np.bool_],
