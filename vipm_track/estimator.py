@@ -70,7 +70,9 @@ class EstimatorConfig:
     min_patch_image, min_patch_ipm : patches shrunk below these are dropped, pixels.
     n_subsets, subset_fraction : random subsets of the initial LM (paper: 50, 0.6).
     refine_subsets : random subsets in each refinement (0: one LM plus inlier trimming).
-    refinements : virtual-IPM refinements after the initial estimate (paper: 1).
+    refinements : virtual-IPM refinements after the initial estimate; None (default): 1 for
+        steep cameras (the paper's), 2 for forward-looking ones (each refinement removes
+        part of the pitch/travel coupling left by the distorted image patches).
     initial_pitch_deg, initial_roll_deg : cold-start pose (paper: 60°, 0°); give the nominal
         calibration for cameras far from it (forward-looking ones).
     coarse_scale, coarse_patch : downsampling and patch size (downsampled pixels) of the
@@ -122,7 +124,7 @@ class EstimatorConfig:
     n_subsets: int = 50
     subset_fraction: float = 0.6
     refine_subsets: int = 0
-    refinements: int = 1
+    refinements: int | None = None
     initial_pitch_deg: float = 60.0
     initial_roll_deg: float = 0.0
     coarse_scale: int = 4
@@ -156,7 +158,7 @@ class EstimatorConfig:
             "n_subsets": self.n_subsets >= 0,
             "subset_fraction": 0.0 < self.subset_fraction <= 1.0,
             "refine_subsets": self.refine_subsets >= 0,
-            "refinements": self.refinements >= 0,
+            "refinements": self.refinements is None or self.refinements >= 0,
             "coarse_scale": self.coarse_scale >= 1,
             "min_inliers": self.min_inliers >= 4,
             "inlier_px_image": self.inlier_px_image > 0,
@@ -326,6 +328,8 @@ class TwoFrameEstimator:
         if self.config.vertical_motion is None:
             steep = self.steep
             self.config = dataclasses.replace(self.config, vertical_motion=bool(steep))
+        if self.config.refinements is None:
+            self.config = dataclasses.replace(self.config, refinements=1 if self.steep else 2)
         if self.config.pose_prior_deg is None:
             self.config = dataclasses.replace(self.config,
                                               pose_prior_deg=0.0 if self.steep else 2.0)
@@ -445,9 +449,18 @@ class TwoFrameEstimator:
         self, prev: NDArray, curr: NDArray, x: FloatArray, n: int, loose: bool,
         rng: np.random.Generator, result: PairResult,
     ) -> FloatArray:
-        """``n`` refinements from ``x``, the first with the wide gate when ``loose``."""
+        """``n`` refinements from ``x``, the first with the wide gate when ``loose``. A
+        refinement after the first that fails keeps the previous one's estimate (noted in
+        ``result.reason``) instead of failing the pair."""
         for i in range(n):
-            x = self._refine(prev, curr, x, rng, result, loose=loose and i == 0)
+            try:
+                x = self._refine(prev, curr, x, rng, result, loose=loose and i == 0)
+            except _StageFailure as failure:
+                if i == 0:
+                    raise
+                note = f"refinement {i + 1} of {n} not used ({failure.reason})"
+                result.reason = f"{result.reason}; {note}" if result.reason else note
+                break
         return x
 
     def _cold_start_ipm(self, prev: NDArray, curr: NDArray, result: PairResult) -> FloatArray:

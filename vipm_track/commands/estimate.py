@@ -45,7 +45,8 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
                        "file (x y per line) or a mask image (non-zero = ground); "
                        "default: the estimator's")
     group.add_argument("--refinements", type=int, default=None, metavar="N",
-                       help="virtual-IPM refinement passes (default: the estimator's, 1)")
+                       help="virtual-IPM refinement passes (default: the estimator's, 1 for steep "
+                       "cameras, 2 for forward-looking ones)")
     group.add_argument("--grid", default=None, metavar="COLSxROWS",
                        help="patch grid, e.g. 11x9 (default: the estimator's)")
     group.add_argument("--patch-size", type=int, default=None, metavar="PX",
