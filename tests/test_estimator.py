@@ -99,6 +99,49 @@ def test_model_residual_is_zero_at_truth_and_jacobian_matches():
         np.testing.assert_allclose(jac[:, i], fd, rtol=1e-3, atol=1e-3)
 
 
+def test_pose_prior_residuals_jacobian_and_pull():
+    k = PRESETS["car"].camera().k
+    pp, pc = geometry.GroundPose(0.02, 0.0, 1.5), geometry.GroundPose(0.021, 0.001, 1.5)
+    mo = geometry.PlanarMotion(0.02, 0.8, 0.01)
+    pix = np.stack(np.meshgrid(np.linspace(100, 1180, 6), np.linspace(420, 700, 4)),
+                   -1).reshape(-1, 2)
+    target = geometry.predict_pixels(k, pp, pc, mo, pix)
+    x = bundle.pack(pp, pc, mo)
+    mean = x[:4] + np.radians([1.0, -0.5, 1.0, -0.5])
+    model = bundle.DisplacementModel(k, 1.5, pix, target, prior_mean=mean, prior_scale=30.0)
+    r = model.residuals(x)
+    assert r.size == 2 * len(pix) + 4 and model.n_prior == 4
+    np.testing.assert_allclose(r[-4:], 30.0 * (x[:4] - mean), atol=1e-12)
+    assert np.abs(r[:-4]).max() < 1e-9
+    jac = model.jacobian(x)
+    for i in range(7):
+        dx = np.zeros(7)
+        dx[i] = 1e-5
+        fd = (model.residuals(x + dx) - model.residuals(x - dx)) / 2e-5
+        np.testing.assert_allclose(jac[:, i], fd, rtol=1e-3, atol=1e-3)
+    # Exact data outweighs a weak prior; a strong one pulls the pose towards its mean.
+    usable = np.ones(len(pix), bool)
+    rng = np.random.default_rng(0)
+    weak = bundle.robust_fit(dataclasses.replace(model, prior_scale=1e-3), x, usable, 0, 1.0,
+                             1.0, rng)
+    strong = bundle.robust_fit(dataclasses.replace(model, prior_scale=1e6), x, usable, 0, 1.0,
+                               1.0, rng)
+    assert np.abs(weak.x[:4] - x[:4]).max() < np.radians(0.01)
+    assert np.abs(strong.x[:4] - mean).max() < np.radians(0.05)
+
+
+def test_forward_and_steep_defaults():
+    car = TwoFrameEstimator(PRESETS["car"].camera(), 1.5, EstimatorConfig(initial_pitch_deg=3.0))
+    assert not car.steep
+    assert car.config.refinements == 2 and car.config.pose_prior_deg == 2.0
+    assert car._prior(3.0)["prior_scale"] == pytest.approx(1.0 / np.radians(2.0))
+    cart = TwoFrameEstimator(PRESETS["cart"].camera(), 0.7)
+    assert cart.steep and cart.config.refinements == 1 and cart.config.pose_prior_deg == 0.0
+    assert cart._prior(3.0) == {}
+    with pytest.raises(InputError, match="pose_prior_deg"):
+        EstimatorConfig(pose_prior_deg=-1.0)
+
+
 # --- accuracy ----------------------------------------------------------------------------
 
 
@@ -341,6 +384,7 @@ def test_failed_image_stage_falls_back_to_the_guess():
     result = est.estimate(imgs[0], imgs[1], guess)
     assert result.ok, result.reason
     assert "refined from the guess" in result.reason
-    assert [s.plane for s in result.stages] == ["image", "ipm", "ipm"]
+    # One refinement more than configured (2 for a forward camera), from the guess.
+    assert [s.plane for s in result.stages] == ["image"] + ["ipm"] * (est.config.refinements + 1)
     err = _errors(traj, 1, result.pose_prev, result.pose_curr, result.motion)
     assert err["pitch"] < 0.25 and err["roll"] < 0.25, err

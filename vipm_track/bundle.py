@@ -70,6 +70,12 @@ class DisplacementModel:
         that plane's pixels.
     plane_from_image : (3, 3) fixed map from frame-k image pixels to the measurement plane,
         or None for the image plane itself.
+    prior_mean : (4,) optional prior on (pitch_prev, roll_prev, pitch, roll), radians: the
+        fit then also minimises ``prior_scale · (pose − prior_mean)``, four extra residuals
+        in plane pixels appended after the points' (a Gaussian prior of standard deviation
+        ``noise_px / prior_scale`` for a point noise of ``noise_px``).
+    prior_scale : weight of the prior, plane pixels per radian, a scalar or one per pose
+        angle (4,) (0: no prior).
 
     The prediction is the pair homography ``A · π(Θ_c) · T(Ψ) · π⁻¹(Θ_p)`` of geometry.py
     (exact for ground points), evaluated for a batch of parameter vectors at once so that
@@ -81,10 +87,35 @@ class DisplacementModel:
     pixels_prev: FloatArray
     targets: FloatArray
     plane_from_image: FloatArray | None = None
+    prior_mean: FloatArray | None = None
+    prior_scale: float | FloatArray = 0.0
 
     @property
     def n_points(self) -> int:
         return int(self.pixels_prev.shape[0])
+
+    @property
+    def n_prior(self) -> int:
+        """Number of prior residuals appended to the points' (0 or 4)."""
+        return 0 if self.prior_mean is None or np.all(np.asarray(self.prior_scale) <= 0) else 4
+
+    def prior_batch(self, xs: FloatArray) -> FloatArray:
+        """Prior residuals (B, n_prior) for parameter vectors (B, n), plane pixels."""
+        xs = np.asarray(xs, dtype=float)
+        if not self.n_prior:
+            return np.zeros((len(xs), 0))
+        return np.asarray(self.prior_scale) * (self.full(xs)[:, :4] - np.asarray(self.prior_mean))
+
+    def prior_jacobian_batch(self, xs: FloatArray) -> FloatArray:
+        """Jacobians (B, n_prior, n) of :meth:`prior_batch` (central differences)."""
+        xs = np.asarray(xs, dtype=float)
+        b, n = xs.shape
+        if not self.n_prior:
+            return np.zeros((b, 0, n))
+        steps = np.eye(n) * _FD_STEP
+        pert = np.concatenate([xs[:, None] + steps[None], xs[:, None] - steps[None]], axis=1)
+        p = self.prior_batch(pert.reshape(-1, n)).reshape(b, 2, n, -1)
+        return ((p[:, 0] - p[:, 1]) / (2 * _FD_STEP)).transpose(0, 2, 1)
 
     def full(self, xs: FloatArray) -> FloatArray:
         """The 7- (or 8-) parameter vectors (..., 7|8) of this model's parameters."""
@@ -112,10 +143,12 @@ class DisplacementModel:
         return self.predict_batch(np.asarray(x, dtype=float)[None], idx)[0]
 
     def residuals(self, x: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:
-        """Flattened residuals (2n,) predicted − measured, plane pixels (LM's objective)."""
+        """Flattened residuals (2n + n_prior,) predicted − measured, plane pixels (LM's
+        objective), the prior's last."""
         tgt = self.targets if idx is None else self.targets[idx]
         r = (self.predict(x, idx) - tgt).ravel()
-        return np.where(np.isfinite(r), r, INVALID_RESIDUAL)
+        r = np.where(np.isfinite(r), r, INVALID_RESIDUAL)
+        return np.concatenate([r, self.prior_batch(np.asarray(x, dtype=float)[None])[0]])
 
     def jacobian(self, x: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:
         """Jacobian (2n, 7) of :meth:`residuals` by central differences (one batched call)."""
@@ -125,7 +158,8 @@ class DisplacementModel:
         p = self.predict_batch(xs, idx)
         d = (p[:n] - p[n:]) / (2 * _FD_STEP)  # (n_params, n_points, 2)
         jac = d.reshape(n, -1).T
-        return np.where(np.isfinite(jac), jac, 0.0)
+        jac = np.where(np.isfinite(jac), jac, 0.0)
+        return np.concatenate([jac, self.prior_jacobian_batch(np.asarray(x, float)[None])[0]])
 
     def residuals_batch(self, xs: FloatArray) -> FloatArray:
         """Residuals (B, N, 2) over all points for parameter vectors (B, 7), invalid points
@@ -276,7 +310,8 @@ def lm_batch(
     n_par = np.shape(x0)[-1]
     x = np.broadcast_to(np.asarray(x0, dtype=float), (n_sets, n_par)).copy()
     def cost(xs: FloatArray, wts: FloatArray) -> FloatArray:
-        return np.sum(wts[:, :, None] * model.residuals_batch(xs) ** 2, axis=(1, 2))
+        return (np.sum(wts[:, :, None] * model.residuals_batch(xs) ** 2, axis=(1, 2))
+                + np.sum(model.prior_batch(xs) ** 2, axis=1))
 
     c = cost(x, weights)
     lam = np.full(n_sets, 1e-3)
@@ -294,6 +329,10 @@ def lm_batch(
         jw = jac * wa
         a = np.einsum("anki,ankj->aij", jw, jac)
         g = np.einsum("anki,ank->ai", jw, r)
+        if model.n_prior:
+            jp = model.prior_jacobian_batch(xa)  # (A, 4, n)
+            a = a + np.einsum("aki,akj->aij", jp, jp)
+            g = g + np.einsum("aki,ak->ai", jp, model.prior_batch(xa))
         diag = np.einsum("aii->ai", a)
         damp = (diag + 1e-9 * diag.max(axis=1, keepdims=True) + 1e-12)[:, :, None] * eye
         step = -np.linalg.solve(a + lam[idx, None, None] * damp, g[..., None])[..., 0]
@@ -360,7 +399,8 @@ def robust_fit(
         candidates = np.array([canonical(c) for c in candidates])
     c2 = inlier_px**2
     e = model.errors_batch(candidates)[:, use_idx]
-    scores = np.sum(np.minimum(e**2, c2), axis=1)
+    scores = np.sum(np.minimum(e**2, c2), axis=1) + np.sum(model.prior_batch(candidates)**2,
+                                                           axis=1)
     scores[~plausible(model.full(candidates))] = np.inf
     best = candidates[int(np.argmin(scores))]
     ok_all = bool(np.isfinite(scores.min()))
@@ -385,7 +425,8 @@ def robust_fit(
     inl = usable & (errors < inlier_px)
     if jac.shape[0] >= 2 * len(x0):
         cov = covariance_from_jacobian(jac, res)
-        rms = float(np.sqrt(np.mean(res**2) * 2)) if res.size else float("nan")
+        pts = res[:res.size - model.n_prior]
+        rms = float(np.sqrt(np.mean(pts**2) * 2)) if pts.size else float("nan")
     else:
         cov = np.full((len(x0), len(x0)), np.nan)
         rms = float("nan")

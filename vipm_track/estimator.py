@@ -70,7 +70,9 @@ class EstimatorConfig:
     min_patch_image, min_patch_ipm : patches shrunk below these are dropped, pixels.
     n_subsets, subset_fraction : random subsets of the initial LM (paper: 50, 0.6).
     refine_subsets : random subsets in each refinement (0: one LM plus inlier trimming).
-    refinements : virtual-IPM refinements after the initial estimate (paper: 1).
+    refinements : virtual-IPM refinements after the initial estimate; None (default): 1 for
+        steep cameras (the paper's), 2 for forward-looking ones (each refinement removes
+        part of the pitch/travel coupling left by the distorted image patches).
     initial_pitch_deg, initial_roll_deg : cold-start pose (paper: 60°, 0°); give the nominal
         calibration for cameras far from it (forward-looking ones).
     coarse_scale, coarse_patch : downsampling and patch size (downsampled pixels) of the
@@ -98,6 +100,14 @@ class EstimatorConfig:
         bouncing 0.7 m cart camera). Frame k's pose then has height ``height + dh``. None
         (default): on for steep cameras (the whole image below the horizon at the nominal
         pose), off for forward-looking ones, where it is poorly separable from pitch.
+    pose_prior_deg : standard deviation of a prior on both frames' pitch and roll around the
+        initial (nominal) pose inside every fit, degrees; it resolves the pitch/translation
+        ambiguity of a near-level camera (a steeper pitch with a shorter travel explains
+        the flow of the near road almost as well). 0 turns it off; None (default): 2° for
+        forward-looking cameras, off for steep ones.
+    track_prior_deg : in tracking mode, frame k-1's pitch and roll are also held to the
+        previous pair's estimate of the same frame with this standard deviation, degrees
+        (fused with the nominal prior; 0: off). Only with the pose prior on.
     seed : seed of the subset sampler (runs are deterministic).
     keep_images : keep the last refinement's IPM images in the result.
     """
@@ -114,7 +124,7 @@ class EstimatorConfig:
     n_subsets: int = 50
     subset_fraction: float = 0.6
     refine_subsets: int = 0
-    refinements: int = 1
+    refinements: int | None = None
     initial_pitch_deg: float = 60.0
     initial_roll_deg: float = 0.0
     coarse_scale: int = 4
@@ -133,6 +143,8 @@ class EstimatorConfig:
     ipm_resolution_scale: float = 1.0
     ipm_max_side: int = 3000
     vertical_motion: bool | None = None
+    pose_prior_deg: float | None = None
+    track_prior_deg: float = 0.5
     seed: int = 0
     keep_images: bool = False
 
@@ -146,7 +158,7 @@ class EstimatorConfig:
             "n_subsets": self.n_subsets >= 0,
             "subset_fraction": 0.0 < self.subset_fraction <= 1.0,
             "refine_subsets": self.refine_subsets >= 0,
-            "refinements": self.refinements >= 0,
+            "refinements": self.refinements is None or self.refinements >= 0,
             "coarse_scale": self.coarse_scale >= 1,
             "min_inliers": self.min_inliers >= 4,
             "inlier_px_image": self.inlier_px_image > 0,
@@ -156,6 +168,8 @@ class EstimatorConfig:
             "roi_max_range_h": self.roi_max_range_h > 0,
             "roi_max_lateral_h": self.roi_max_lateral_h > 0,
             "max_deviation_deg": self.max_deviation_deg > 0,
+            "pose_prior_deg": self.pose_prior_deg is None or self.pose_prior_deg >= 0,
+            "track_prior_deg": self.track_prior_deg >= 0,
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
@@ -314,8 +328,14 @@ class TwoFrameEstimator:
         if self.config.vertical_motion is None:
             steep = self.steep
             self.config = dataclasses.replace(self.config, vertical_motion=bool(steep))
+        if self.config.refinements is None:
+            self.config = dataclasses.replace(self.config, refinements=1 if self.steep else 2)
+        if self.config.pose_prior_deg is None:
+            self.config = dataclasses.replace(self.config,
+                                              pose_prior_deg=0.0 if self.steep else 2.0)
         self._maps = camera.undistortion_maps() if camera.has_distortion else None
         self._cache: tuple[int, NDArray] | None = None
+        self._prior_mean, self._prior_sigma = self._pose_prior(None)
 
     # --- public -----------------------------------------------------------------------------
 
@@ -333,6 +353,7 @@ class TwoFrameEstimator:
         prev = self._prepare(prev_img, "previous frame")
         curr = self._prepare(curr_img, "current frame")
         rng = np.random.default_rng(self.config.seed)
+        self._prior_mean, self._prior_sigma = self._pose_prior(guess)
         try:
             refinements = self.config.refinements
             loose = False
@@ -417,7 +438,8 @@ class TwoFrameEstimator:
                 "motion the pose against the ground is unobservable",
             )
         usable &= mag <= cfg.max_displacement_factor * median_mag + cfg.patch_image / 8
-        model = DisplacementModel(self.k, self.height, self.centres, self.centres + disp)
+        model = DisplacementModel(self.k, self.height, self.centres, self.centres + disp,
+                                  **self._prior(cfg.inlier_px_image))
         fit = self._fit(model, x0, usable, cfg.n_subsets, cfg.inlier_px_image, rng, result)
         result.stages.append(PatchField("image", self.centres, disp, peaks, fit.inliers, sizes))
         self._accept(fit, result, "initial estimate")
@@ -427,9 +449,18 @@ class TwoFrameEstimator:
         self, prev: NDArray, curr: NDArray, x: FloatArray, n: int, loose: bool,
         rng: np.random.Generator, result: PairResult,
     ) -> FloatArray:
-        """``n`` refinements from ``x``, the first with the wide gate when ``loose``."""
+        """``n`` refinements from ``x``, the first with the wide gate when ``loose``. A
+        refinement after the first that fails keeps the previous one's estimate (noted in
+        ``result.reason``) instead of failing the pair."""
         for i in range(n):
-            x = self._refine(prev, curr, x, rng, result, loose=loose and i == 0)
+            try:
+                x = self._refine(prev, curr, x, rng, result, loose=loose and i == 0)
+            except _StageFailure as failure:
+                if i == 0:
+                    raise
+                note = f"refinement {i + 1} of {n} not used ({failure.reason})"
+                result.reason = f"{result.reason}; {note}" if result.reason else note
+                break
         return x
 
     def _cold_start_ipm(self, prev: NDArray, curr: NDArray, result: PairResult) -> FloatArray:
@@ -507,7 +538,8 @@ class TwoFrameEstimator:
         usable = moving & (peaks >= max(cfg.min_peak, floor))
         if usable.sum() < cfg.min_inliers:
             return x0, np.zeros_like(self.centres)
-        model = SteadyPoseModel(self.k, self.height, pix, pix + disp * s)
+        model = SteadyPoseModel(self.k, self.height, pix, pix + disp * s,
+                                **self._prior(cfg.coarse_inlier_px))
         fit = self._fit(model, SteadyPoseModel.reduce(x0), usable, cfg.n_subsets,
                         cfg.coarse_inlier_px, rng, result)
         if fit.inliers.sum() < cfg.min_inliers or not fit.converged:
@@ -555,6 +587,7 @@ class TwoFrameEstimator:
         model = DisplacementModel(
             self.k, self.height, pixels_prev, q_p + disp,
             plane_from_image=ipm_from_image_homography(self.k, pose_c, grid),
+            **self._prior(cfg.inlier_px_ipm),
         )
         if usable.sum() < cfg.min_inliers:
             raise _StageFailure(
@@ -572,6 +605,31 @@ class TwoFrameEstimator:
         return fit.x
 
     # --- helpers ----------------------------------------------------------------------------
+
+    def _pose_prior(self, guess: PairGuess | None) -> tuple[FloatArray | None, FloatArray]:
+        """Mean and standard deviation (4,) of the prior on (pitch_prev, roll_prev, pitch,
+        roll), radians: the nominal pose with ``pose_prior_deg``, frame k-1's fused with the
+        guess's pose of it at ``track_prior_deg`` (None mean: no prior)."""
+        cfg = self.config
+        sigma = np.radians(cfg.pose_prior_deg or 0.0)
+        if sigma <= 0:
+            return None, np.zeros(4)
+        p, r = self.nominal.pitch, self.nominal.roll
+        mean, std = np.array([p, r, p, r]), np.full(4, sigma)
+        s_t = np.radians(cfg.track_prior_deg)
+        if guess is not None and s_t > 0:
+            w_n, w_t = 1.0 / sigma**2, 1.0 / s_t**2
+            tracked = np.array([guess.pose_prev.pitch, guess.pose_prev.roll])
+            mean[:2] = (w_n * mean[:2] + w_t * tracked) / (w_n + w_t)
+            std[:2] = 1.0 / np.sqrt(w_n + w_t)
+        return mean, std
+
+    def _prior(self, inlier_px: float) -> dict:
+        """Pose-prior arguments of a residual model whose inlier threshold is ``inlier_px``
+        plane pixels (taken as 3 σ of a point's noise); see :meth:`_pose_prior`."""
+        if self._prior_mean is None:
+            return {}
+        return {"prior_mean": self._prior_mean, "prior_scale": inlier_px / 3.0 / self._prior_sigma}
 
     def _fit(
         self, model: DisplacementModel, x0: FloatArray, usable: NDArray[np.bool_],

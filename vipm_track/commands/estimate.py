@@ -45,7 +45,8 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
                        "file (x y per line) or a mask image (non-zero = ground); "
                        "default: the estimator's")
     group.add_argument("--refinements", type=int, default=None, metavar="N",
-                       help="virtual-IPM refinement passes (default: the estimator's, 1)")
+                       help="virtual-IPM refinement passes (default: the estimator's, 1 for steep "
+                       "cameras, 2 for forward-looking ones)")
     group.add_argument("--grid", default=None, metavar="COLSxROWS",
                        help="patch grid, e.g. 11x9 (default: the estimator's)")
     group.add_argument("--patch-size", type=int, default=None, metavar="PX",
@@ -56,6 +57,11 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
                        "(default: the estimator's, 60; give ~0-5 for forward cameras)")
     group.add_argument("--roll", type=float, default=None, metavar="DEG",
                        help="nominal roll for the cold start, degrees (default 0)")
+    group.add_argument("--pose-prior-deg", type=float, default=None, metavar="DEG",
+                       help="standard deviation of a prior on pitch and roll around "
+                       "--pitch/--roll inside the fit, degrees; resolves the pitch/travel "
+                       "ambiguity of near-level cameras; 0 turns it off (default: the "
+                       "estimator's, 2 for forward-looking cameras, off for steep ones)")
     group.add_argument("--no-vertical-motion", action="store_true",
                        help="do not estimate the camera's vertical motion within a pair "
                        "(steadier on level, forward-looking cameras such as KITTI's)")
@@ -115,6 +121,9 @@ def build_config(args: argparse.Namespace, camera: CameraModel):
         raise InputError(f"--patch-size must be a multiple of 16, >= 32, got {args.patch_size}")
     pitch = _angle(args.pitch, "--pitch", -10.0, 90.0)
     roll = _angle(args.roll, "--roll", -45.0, 45.0)
+    prior = getattr(args, "pose_prior_deg", None)
+    if prior is not None and not (math.isfinite(prior) and 0 <= prior <= 45):
+        raise InputError(f"--pose-prior-deg must be in [0, 45] degrees, got {prior}")
     roi = parse_roi(args.roi, camera) if args.roi else None
     return config_with(
         EstimatorConfig(),
@@ -125,6 +134,7 @@ def build_config(args: argparse.Namespace, camera: CameraModel):
         initial_roll_deg=roll,
         roi=roi,
         vertical_motion=False if args.no_vertical_motion else None,
+        pose_prior_deg=prior,
     )
 
 
