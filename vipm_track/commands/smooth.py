@@ -35,7 +35,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "factor graph of filters/smoother.py: the EKF's model (mount calibration, body "
         "shaking, planar motion) with every measurement of the drive (--lag 0, default) or "
         "of a sliding window. Writes the track table, and a summary of the drive's mount "
-        "extrinsics (mean, 95 %% interval, drift) as JSON and Markdown.",
+        "extrinsics (mean, 95 % interval, drift) as JSON and Markdown.",
     )
     add_input_options(parser, required=False)
     parser.add_argument(
