@@ -54,7 +54,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--estimates", metavar="EST.csv",
                         help="per-frame estimates written by 'vipm-track estimate' (instead of "
                         "--images/--video)")
-    add_camera_options(parser, height_required=False)
+    add_camera_options(parser, height_required=False, camera_required=False)
     parser.add_argument("--nominal", required=True, metavar="CALIB.yaml",
                         help="nominal calibration: pitch_deg, roll_deg, height_m, tolerances, "
                         "limits (see data/nominal_car.yaml)")
@@ -83,14 +83,15 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.is_dir():
         raise InputError(f"--out {args.out}: is a folder; give a CSV file name")
-    camera = load_camera(args.camera)
+    # the camera is needed only to estimate from images (inputs.estimate_stream says so)
+    camera = load_camera(args.camera) if args.camera else None
     speed = load_speed(args)
     progress = not args.quiet
     from ..sinks.rerun_sink import log_monitor_run, sink_from_args
 
     sink = sink_from_args(args, "vipm-track monitor")
     # the cold start of the estimator is seeded with the nominal calibration
-    config = None if args.estimates else estimator_config(
+    config = None if args.estimates or camera is None else estimator_config(
         args, camera, pitch_deg=nominal.pitch_deg, roll_deg=nominal.roll_deg)
     measurements = measurements_from_args(args, height, config, sink, camera, progress)
 
