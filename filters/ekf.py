@@ -70,8 +70,33 @@ class EkfConfig:
     pose_soft_gate_factor: float = 4.0
 
 
+class FrameStds:
+    """1-σ of a per-frame estimate's ``mount_cov``, ``pose_cov`` and ``motion_cov`` (shared
+    by the EKF's :class:`FilterState` and the smoother's ``SmoothedFrame``)."""
+
+    mount_cov: FloatArray
+    pose_cov: FloatArray
+    motion_cov: FloatArray
+
+    @property
+    def mount_std(self) -> FloatArray:
+        return _std(self.mount_cov)
+
+    @property
+    def pose_std(self) -> FloatArray:
+        return _std(self.pose_cov)
+
+    @property
+    def motion_std(self) -> FloatArray:
+        return _std(self.motion_cov)
+
+
+def _std(cov: FloatArray) -> FloatArray:
+    return np.sqrt(np.clip(np.diag(cov), 0.0, None))
+
+
 @dataclass(frozen=True)
-class FilterState:
+class FilterState(FrameStds):
     """Filtered estimate after one frame (radians, metres, seconds; frames of filters.model).
 
     ``status``: ``ok`` (pair applied), ``partial`` (pose or motion block gated), ``gated``
@@ -105,17 +130,6 @@ class FilterState:
     def initialised(self) -> bool:
         return self.status != "waiting"
 
-    @property
-    def mount_std(self) -> FloatArray:
-        return np.sqrt(np.clip(np.diag(self.mount_cov), 0.0, None))
-
-    @property
-    def pose_std(self) -> FloatArray:
-        return np.sqrt(np.clip(np.diag(self.pose_cov), 0.0, None))
-
-    @property
-    def motion_std(self) -> FloatArray:
-        return np.sqrt(np.clip(np.diag(self.motion_cov), 0.0, None))
 
 
 class SpeedSource(Protocol):

@@ -37,7 +37,7 @@ from vipm_track.measurement import PairMeasurement
 
 from . import factors as F
 from . import model as M
-from .ekf import SpeedSource, speed_at
+from .ekf import FrameStds, SpeedSource, speed_at
 from .model import NoiseParams
 
 FloatArray = NDArray[np.float64]
@@ -101,7 +101,7 @@ def chi_norm(probability: float, dof: int) -> float:
 
 
 @dataclass(frozen=True)
-class SmoothedFrame:
+class SmoothedFrame(FrameStds):
     """Smoothed estimate of one frame (radians, metres, seconds; frames of filters.model),
     field for field like ``filters.ekf.FilterState``.
 
@@ -140,17 +140,6 @@ class SmoothedFrame:
         """The EKF's note column: here why a frame has no pair or was skipped."""
         return self.reason
 
-    @property
-    def mount_std(self) -> FloatArray:
-        return np.sqrt(np.clip(np.diag(self.mount_cov), 0.0, None))
-
-    @property
-    def pose_std(self) -> FloatArray:
-        return np.sqrt(np.clip(np.diag(self.pose_cov), 0.0, None))
-
-    @property
-    def motion_std(self) -> FloatArray:
-        return np.sqrt(np.clip(np.diag(self.motion_cov), 0.0, None))
 
 
 # --- shared pieces ----------------------------------------------------------------------------
