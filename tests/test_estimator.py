@@ -138,6 +138,7 @@ def test_forward_and_steep_defaults():
     cart = TwoFrameEstimator(PRESETS["cart"].camera(), 0.7)
     assert cart.steep and cart.config.refinements == 1 and cart.config.pose_prior_deg == 0.0
     assert cart._prior(3.0) == {}
+    assert car.config.stage_median and not cart.config.stage_median
     with pytest.raises(InputError, match="pose_prior_deg"):
         EstimatorConfig(pose_prior_deg=-1.0)
 
@@ -194,6 +195,15 @@ def test_car_preset_with_guess_converges():
     # A forward camera sees pitch far less well than the cart (0.5° off guess to start).
     assert err["pitch"] < 0.25 and err["roll"] < 0.25, err
     assert err["dist_mm"] / (tm.distance * 1e3) < 0.015, err  # under 1.5 % of ~0.6 m
+    # Forward cameras report the median of the stages (image stage + 2 refinements).
+    stack = np.array([bundle.pack(*s) for s in result.stage_estimates])
+    assert len(stack) == 3
+    reported = bundle.pack(result.pose_prev, result.pose_curr, result.motion)
+    np.testing.assert_allclose(reported, np.median(stack, axis=0), atol=1e-12)
+    last = dataclasses.replace(config, stage_median=False)
+    single = TwoFrameEstimator(cam, float(traj.height[0]), last).estimate(imgs[0], imgs[1], guess)
+    np.testing.assert_allclose(bundle.pack(single.pose_prev, single.pose_curr, single.motion),
+                               stack[-1], atol=1e-12)
 
 
 def test_obstacle_patches_are_outliers():

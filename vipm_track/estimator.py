@@ -108,6 +108,9 @@ class EstimatorConfig:
     track_prior_deg : in tracking mode, frame k-1's pitch and roll are also held to the
         previous pair's estimate of the same frame with this standard deviation, degrees
         (fused with the nominal prior; 0: off). Only with the pose prior on.
+    stage_median : report the element-wise median of the accepted stages' estimates (the
+        image stage and each refinement) instead of the last one; the covariance stays the
+        last stage's. None (default): on for forward-looking cameras, off for steep ones.
     seed : seed of the subset sampler (runs are deterministic).
     keep_images : keep the last refinement's IPM images in the result.
     """
@@ -145,6 +148,7 @@ class EstimatorConfig:
     vertical_motion: bool | None = None
     pose_prior_deg: float | None = None
     track_prior_deg: float = 0.5
+    stage_median: bool | None = None
     seed: int = 0
     keep_images: bool = False
 
@@ -330,6 +334,8 @@ class TwoFrameEstimator:
             self.config = dataclasses.replace(self.config, vertical_motion=bool(steep))
         if self.config.refinements is None:
             self.config = dataclasses.replace(self.config, refinements=1 if self.steep else 2)
+        if self.config.stage_median is None:
+            self.config = dataclasses.replace(self.config, stage_median=not self.steep)
         if self.config.pose_prior_deg is None:
             self.config = dataclasses.replace(self.config,
                                               pose_prior_deg=0.0 if self.steep else 2.0)
@@ -384,6 +390,11 @@ class TwoFrameEstimator:
                                  f"refined from the {source}")
                 x = self._refine_all(prev, curr, start, max(refinements, 1) + 1, True, rng,
                                      result)
+            if (self.config.stage_median and not self.config.vertical_motion
+                    and len(result.stage_estimates) >= 2):
+                stack = np.array([pack(*s) for s in result.stage_estimates])
+                result.pose_prev, result.pose_curr, result.motion = unpack(
+                    np.median(stack, axis=0), self.height)
         except _StageFailure as failure:
             result.status, result.reason = failure.status, failure.reason
             result.pose_prev = result.pose_curr = result.motion = None
