@@ -204,6 +204,12 @@ def test_car_preset_with_guess_converges():
     single = TwoFrameEstimator(cam, float(traj.height[0]), last).estimate(imgs[0], imgs[1], guess)
     np.testing.assert_allclose(bundle.pack(single.pose_prev, single.pose_curr, single.motion),
                                stack[-1], atol=1e-12)
+    # With one refinement there is no median of two: the refined estimate is reported.
+    one = TwoFrameEstimator(cam, float(traj.height[0]), dataclasses.replace(config, refinements=1))
+    r1 = one.estimate(imgs[0], imgs[1], guess)
+    assert len(r1.stage_estimates) == 2
+    np.testing.assert_allclose(bundle.pack(r1.pose_prev, r1.pose_curr, r1.motion),
+                               bundle.pack(*r1.stage_estimates[-1]), atol=1e-12)
 
 
 def test_obstacle_patches_are_outliers():
