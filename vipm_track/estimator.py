@@ -109,9 +109,9 @@ class EstimatorConfig:
         previous pair's estimate of the same frame with this standard deviation, degrees
         (fused with the nominal prior; 0: off). Only with the pose prior on.
     stage_median : report the element-wise median of the accepted stages' estimates (the
-        image stage and each refinement) instead of the last one, when there are at least
-        three; the covariance stays the last stage's. None (default): on for forward-looking
-        cameras, off for steep ones.
+        image stage and each refinement) instead of the last one, when two or more
+        refinements are configured; the covariance stays the last stage's. None (default): on
+        for forward-looking cameras, off for steep ones.
     seed : seed of the subset sampler (runs are deterministic).
     keep_images : keep the last refinement's IPM images in the result.
     """
@@ -391,10 +391,11 @@ class TwoFrameEstimator:
                                  f"refined from the {source}")
                 x = self._refine_all(prev, curr, start, max(refinements, 1) + 1, True, rng,
                                      result)
-            # a median needs three stages: with two it would average the refined estimate
-            # with the rougher image-stage one
+            # only with several refinements configured: with one, a median of two stages would
+            # average the refined estimate with the rougher image-stage one (when a later
+            # refinement fails, the accepted stages' median still helps)
             if (self.config.stage_median and not self.config.vertical_motion
-                    and len(result.stage_estimates) >= 3):
+                    and self.config.refinements >= 2 and len(result.stage_estimates) >= 2):
                 stack = np.array([pack(*s) for s in result.stage_estimates])
                 result.pose_prev, result.pose_curr, result.motion = unpack(
                     np.median(stack, axis=0), self.height)
