@@ -16,3 +16,25 @@ def shared_data(*parts: str) -> Path:
     if not path.exists():
         pytest.skip(f"shared data not found at {path} (the real-data tests need ../shared/data)")
     return path
+
+
+#: A 1280×720 pinhole camera (fx = fy = 900 px, no distortion) as a ROS camera_info YAML.
+CAR_CAMERA_YAML = (
+    "image_width: 1280\nimage_height: 720\ncamera_matrix: {rows: 3, cols: 3, data: "
+    "[900, 0, 640, 0, 900, 360, 0, 0, 1]}\ndistortion_model: plumb_bob\n"
+    "distortion_coefficients: {rows: 1, cols: 5, data: [0, 0, 0, 0, 0]}\n"
+)
+
+
+def write_drive_inputs(run, folder: Path) -> tuple[Path, Path, Path]:
+    """Write a drive_sim run as the files a user gives the CLI: ``est.csv`` (estimates table),
+    ``speed.csv`` (t,speed_mps) and ``cam.yaml`` (:data:`CAR_CAMERA_YAML`) in ``folder``."""
+    from filters.wheel_speed import SpeedSeries, write_speed_csv
+    from vipm_track.measurement import measurement_row
+    from vipm_track.table import ESTIMATE_COLUMNS, write_table
+
+    write_table(folder / "est.csv", [measurement_row(m) for m in run.measurements],
+                ESTIMATE_COLUMNS)
+    write_speed_csv(SpeedSeries(run.speed.t, run.speed.speed_mps), folder / "speed.csv")
+    (folder / "cam.yaml").write_text(CAR_CAMERA_YAML)
+    return folder / "est.csv", folder / "speed.csv", folder / "cam.yaml"

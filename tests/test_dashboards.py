@@ -415,22 +415,12 @@ def monitor_drive(tmp_path: Path) -> tuple[Path, Path, Path]:
     """Estimates and wheel-speed CSVs of a 20 s car drive whose mount pitch steps by 1° at 8 s,
     a camera file, the shipped nominal."""
     drive_sim = pytest.importorskip("filters.drive_sim")
-    from filters.wheel_speed import SpeedSeries, write_speed_csv
-    from vipm_track.measurement import measurement_row
-    from vipm_track.table import ESTIMATE_COLUMNS
+    from conftest import write_drive_inputs
 
     cfg = drive_sim.DriveConfig.preset(
         "car", fps=10.0, duration_s=20.0, mount_random_walk=False, stop_probability=0.0,
         mount_changes=(drive_sim.MountChange(8.0, pitch_deg=1.0),))
-    run = drive_sim.simulate_drive(cfg, seed=21)
-    write_table(tmp_path / "est.csv", [measurement_row(m) for m in run.measurements],
-                ESTIMATE_COLUMNS)
-    write_speed_csv(SpeedSeries(run.speed.t, run.speed.speed_mps), tmp_path / "speed.csv")
-    (tmp_path / "cam.yaml").write_text(
-        "image_width: 1280\nimage_height: 720\ncamera_matrix: {rows: 3, cols: 3, data: "
-        "[900, 0, 640, 0, 900, 360, 0, 0, 1]}\ndistortion_model: plumb_bob\n"
-        "distortion_coefficients: {rows: 1, cols: 5, data: [0, 0, 0, 0, 0]}\n")
-    return tmp_path / "est.csv", tmp_path / "speed.csv", tmp_path / "cam.yaml"
+    return write_drive_inputs(drive_sim.simulate_drive(cfg, seed=21), tmp_path)
 
 
 def test_monitor_cli_writes_recording(tmp_path: Path, monitor_drive) -> None:

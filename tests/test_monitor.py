@@ -295,21 +295,11 @@ def test_mount_from_ekf_like_state():
 def cli_inputs(tmp_path):
     """An estimates CSV and a wheel-speed CSV of a drive bumped by 1° pitch at 30 s, a
     camera file and the shipped car nominal calibration."""
-    from pathlib import Path
-
-    from filters.wheel_speed import SpeedSeries, write_speed_csv
-    from vipm_track.measurement import measurement_row
-    from vipm_track.table import ESTIMATE_COLUMNS, write_table
+    from conftest import ROOT, write_drive_inputs
 
     run = drive(50.0, seed=21, changes=[MountChange(30.0, pitch_deg=1.0)], stop_probability=0.0)
-    write_table(tmp_path / "est.csv", [measurement_row(m) for m in run.measurements],
-                ESTIMATE_COLUMNS)
-    write_speed_csv(SpeedSeries(run.speed.t, run.speed.speed_mps), tmp_path / "speed.csv")
-    (tmp_path / "cam.yaml").write_text(
-        "image_width: 1280\nimage_height: 720\ncamera_matrix: {rows: 3, cols: 3, data: "
-        "[900, 0, 640, 0, 900, 360, 0, 0, 1]}\ndistortion_model: plumb_bob\n"
-        "distortion_coefficients: {rows: 1, cols: 5, data: [0, 0, 0, 0, 0]}\n")
-    nominal = Path(__file__).resolve().parents[1] / "data" / "nominal_car.yaml"
+    write_drive_inputs(run, tmp_path)
+    nominal = ROOT / "data" / "nominal_car.yaml"
     return tmp_path, nominal
 
 
