@@ -126,3 +126,19 @@ def test_horizon_row_separates_ground_from_sky():
     v = g.horizon_row(K, pose, 400.0)
     assert g.below_horizon(K, pose, [[400.0, v + 1.0]])[0]
     assert not g.below_horizon(K, pose, [[400.0, v - 1.0]])[0]
+
+
+@settings(max_examples=100, deadline=None)
+@given(poses)
+def test_homography_jacobian_matches_finite_differences(pose):
+    h = g.ground_from_image_homography(K, pose)
+    px = _ground_pixels(pose)
+    if len(px) == 0:
+        return
+    jac = g.homography_jacobian(h, px)
+    eps = 1e-3
+    for axis in range(2):
+        step = np.zeros(2)
+        step[axis] = eps
+        fd = (g.apply_homography(h, px + step) - g.apply_homography(h, px - step)) / (2 * eps)
+        np.testing.assert_allclose(jac[:, :, axis], fd, rtol=1e-5, atol=1e-9)

@@ -76,6 +76,10 @@ class DisplacementModel:
         ``noise_px / prior_scale`` for a point noise of ``noise_px``).
     prior_scale : weight of the prior, plane pixels per radian, a scalar or one per pose
         angle (4,) (0: no prior).
+    point_whitening : (N, 2, 2) optional per-point matrices W applied to each residual
+        (``W · (predicted − measured)``): the inverse square root of the point's noise
+        covariance relative to a typical point's, so that a weighted least-squares fit and
+        its inlier thresholds stay in typical plane pixels (``ipm.patch_noise_whitening``).
 
     The prediction is the pair homography ``A · π(Θ_c) · T(Ψ) · π⁻¹(Θ_p)`` of geometry.py
     (exact for ground points), evaluated for a batch of parameter vectors at once so that
@@ -89,6 +93,14 @@ class DisplacementModel:
     plane_from_image: FloatArray | None = None
     prior_mean: FloatArray | None = None
     prior_scale: float | FloatArray = 0.0
+    point_whitening: FloatArray | None = None
+
+    def _whiten(self, r: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:
+        """Per-point residual vectors (..., n, 2) times their whitening matrices."""
+        if self.point_whitening is None:
+            return r
+        w = self.point_whitening if idx is None else self.point_whitening[idx]
+        return np.einsum("nij,...nj->...ni", w, r)
 
     @property
     def n_points(self) -> int:
@@ -146,7 +158,7 @@ class DisplacementModel:
         """Flattened residuals (2n + n_prior,) predicted − measured, plane pixels (LM's
         objective), the prior's last."""
         tgt = self.targets if idx is None else self.targets[idx]
-        r = (self.predict(x, idx) - tgt).ravel()
+        r = self._whiten(self.predict(x, idx) - tgt, idx).ravel()
         r = np.where(np.isfinite(r), r, INVALID_RESIDUAL)
         return np.concatenate([r, self.prior_batch(np.asarray(x, dtype=float)[None])[0]])
 
@@ -155,7 +167,7 @@ class DisplacementModel:
         n = len(x)
         steps = np.eye(n) * _FD_STEP
         xs = np.concatenate([x + steps, x - steps])
-        p = self.predict_batch(xs, idx)
+        p = self._whiten(self.predict_batch(xs, idx), idx)
         d = (p[:n] - p[n:]) / (2 * _FD_STEP)  # (n_params, n_points, 2)
         jac = d.reshape(n, -1).T
         jac = np.where(np.isfinite(jac), jac, 0.0)
@@ -164,7 +176,7 @@ class DisplacementModel:
     def residuals_batch(self, xs: FloatArray) -> FloatArray:
         """Residuals (B, N, 2) over all points for parameter vectors (B, 7), invalid points
         given :data:`INVALID_RESIDUAL`."""
-        r = self.predict_batch(xs) - self.targets[None]
+        r = self._whiten(self.predict_batch(xs) - self.targets[None])
         return np.where(np.isfinite(r), r, INVALID_RESIDUAL)
 
     def jacobian_batch(self, xs: FloatArray) -> FloatArray:
@@ -172,18 +184,18 @@ class DisplacementModel:
         b, n = xs.shape
         steps = np.eye(n) * _FD_STEP
         pert = np.concatenate([xs[:, None] + steps[None], xs[:, None] - steps[None]], axis=1)
-        p = self.predict_batch(pert.reshape(-1, n)).reshape(b, 2, n, -1, 2)
+        p = self._whiten(self.predict_batch(pert.reshape(-1, n))).reshape(b, 2, n, -1, 2)
         d = (p[:, 0] - p[:, 1]) / (2 * _FD_STEP)  # (B, 7, N, 2)
         return np.where(np.isfinite(d), d, 0.0).transpose(0, 2, 3, 1)
 
     def errors(self, x: FloatArray) -> FloatArray:
         """Per-point residual norms (N,), plane pixels (inf where undefined)."""
-        e = np.linalg.norm(self.predict(x) - self.targets, axis=1)
+        e = np.linalg.norm(self._whiten(self.predict(x) - self.targets), axis=1)
         return np.where(np.isfinite(e), e, np.inf)
 
     def errors_batch(self, xs: FloatArray) -> FloatArray:
         """Per-point residual norms (B, N) for parameter vectors (B, 7) (inf where undefined)."""
-        e = np.linalg.norm(self.predict_batch(xs) - self.targets[None], axis=2)
+        e = np.linalg.norm(self._whiten(self.predict_batch(xs) - self.targets[None]), axis=2)
         return np.where(np.isfinite(e), e, np.inf)
 
 
@@ -372,6 +384,7 @@ def robust_fit(
     fraction: float,
     inlier_px: float,
     rng: np.random.Generator,
+    median_factor: float = 0.0,
 ) -> FitResult:
     """Best of random-subset LM fits, scored on all usable points, re-fitted on its inliers.
 
@@ -385,6 +398,10 @@ def robust_fit(
     inlier_px : a point is an inlier when its residual norm is below this, plane pixels;
         subsets are scored by the truncated squared residual ``Σ min(e², inlier_px²)``.
     rng : seeded generator choosing the subsets.
+    median_factor : when > 0, the threshold then tightens to this multiple of the inliers'
+        median residual norm (where that is below ``inlier_px``; never to fewer than half
+        the inliers), re-fitting until the set settles: a fixed threshold sized for the
+        worst patches admits gross errors among precise ones.
     """
     use_idx = np.flatnonzero(usable)
     nfev = 0
@@ -408,21 +425,27 @@ def robust_fit(
     # Re-fit on the best candidate's inliers until the inlier set settles (twice at most).
     x = best
     converged = ok_all
-    inl = usable & (model.errors(x) < inlier_px)
+    threshold = inlier_px
+    inl = usable & (model.errors(x) < threshold)
     jac = np.zeros((0, len(x0)))
     res = np.zeros(0)
-    for _ in range(3):
+    for _ in range(6 if median_factor > 0 else 3):
         idx = np.flatnonzero(inl)
         if idx.size < 4:
             break
         x, converged, jac, res, n = fit_lm(model, x, idx)
         nfev += n
-        new_inl = usable & (model.errors(x) < inlier_px)
+        errors = model.errors(x)
+        if median_factor > 0:
+            tight = median_factor * float(np.median(errors[inl]))
+            if tight < threshold and np.sum(usable & (errors < tight)) >= inl.sum() / 2:
+                threshold = tight
+        new_inl = usable & (errors < threshold)
         if np.array_equal(new_inl, inl):
             break
         inl = new_inl
     errors = model.errors(x)
-    inl = usable & (errors < inlier_px)
+    inl = usable & (errors < threshold)
     if jac.shape[0] >= 2 * len(x0):
         cov = covariance_from_jacobian(jac, res)
         pts = res[:res.size - model.n_prior]

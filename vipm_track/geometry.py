@@ -164,6 +164,20 @@ def apply_homography(h: ArrayLike, points: ArrayLike) -> FloatArray:
     return out
 
 
+def homography_jacobian(h: ArrayLike, points: ArrayLike) -> FloatArray:
+    """Jacobians (..., 2, 2) of the map of a 3×3 homography at points (..., 2):
+    d(output)/d(input), rows the output coordinates; NaN where a point maps to infinity."""
+    p = np.asarray(points, dtype=float)
+    hm = np.asarray(h, dtype=float)
+    m = p @ hm[:2, :2].T + hm[:2, 2]  # numerators (..., 2)
+    w = p @ hm[2, :2] + hm[2, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        jac = (hm[:2, :2] * w[..., None, None] - m[..., :, None] * hm[2, :2]) / (
+            w[..., None, None] ** 2)
+    jac[w == 0] = np.nan
+    return jac
+
+
 def project(k: ArrayLike, pose: GroundPose, ground_xz: ArrayLike) -> FloatArray:
     """π: pixels (..., 2) of ground points (..., 2) [m] in G. Points behind the camera
     (non-positive depth) give NaN."""
