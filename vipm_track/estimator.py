@@ -618,19 +618,11 @@ class TwoFrameEstimator:
         result.timings["warp"] += time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        disp, peaks = _match_grouped(ipm_p, ipm_c, q_p, sizes, offsets)
-        # The Hann windows of a patch pair overlap less the further the content moved from
-        # the window offset, which pulls the POC estimate towards that offset (about 2 % of
-        # the gap, i.e. of the previous estimate's error); match again with the windows
-        # re-centred on the measured shift where it moved by half a pixel or more.
-        moved = np.all(np.isfinite(disp), axis=1) & np.any(np.abs(disp - offsets) >= 0.5, axis=1)
-        if cfg.recentre_windows and moved.any():
-            new_offsets = np.where(moved[:, None], np.round(np.nan_to_num(disp)), offsets)
-            same = moved & (ipm.patch_sizes(grid, poly_p, poly_c, q_p, new_offsets, cfg.patch_ipm,
-                                            cfg.min_patch_ipm) == sizes)
-            if same.any():
-                d2, p2 = _match_grouped(ipm_p, ipm_c, q_p, np.where(same, sizes, 0), new_offsets)
-                disp[same], peaks[same] = d2[same], p2[same]
+        # recentre: the Hann windows of a patch pair overlap less the further the content
+        # moved from the window offset, which pulls the POC estimate towards that offset
+        # (about 2 % of the gap, i.e. of the previous estimate's error)
+        disp, peaks = _match_grouped(ipm_p, ipm_c, q_p, sizes, offsets,
+                                     recentre=cfg.recentre_windows)
         result.timings["poc"] += time.perf_counter() - t0
 
         usable = (sizes > 0) & (peaks >= cfg.min_peak)
@@ -781,7 +773,7 @@ class TwoFrameEstimator:
 
 def _match_grouped(
     ref: NDArray, moving: NDArray, centres: FloatArray, sizes: NDArray[np.int64],
-    offsets: FloatArray,
+    offsets: FloatArray, recentre: bool = False,
 ) -> tuple[FloatArray, FloatArray]:
     """POC displacements (N, 2) and peaks (N,) of patches batched by size (one call per
     size); NaN displacement and zero peak where ``sizes`` is 0."""
@@ -791,7 +783,8 @@ def _match_grouped(
         if s <= 0:
             continue
         sel = np.flatnonzero(sizes == s)
-        d, p = poc.match_patches(ref, moving, centres[sel], int(s), offsets=np.round(offsets[sel]))
+        d, p = poc.match_patches(ref, moving, centres[sel], int(s), offsets=np.round(offsets[sel]),
+                                 recentre=recentre)
         disp[sel] = d
         peaks[sel] = p
     return disp, peaks

@@ -9,6 +9,7 @@ import sys
 import numpy as np
 
 from ..errors import InputError
+from .common import add_can_decoding_options
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -23,18 +24,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help="live python-can bus instead of a log, e.g. socketcan:can0")
     p.add_argument("--duration", type=float, default=10.0,
                    help="with --bus: seconds to listen (default 10)")
-    p.add_argument("--dbc", required=True, metavar="DBC", help="DBC file decoding the frames")
-    p.add_argument("--signals", metavar="MSG.SIG[:UNIT][,MSG.SIG...]",
-                   help="speed signal(s) (default: the DBC's rear wheel speeds); :UNIT "
-                   "overrides the DBC's unit (km/h, m/s, mph)")
-    p.add_argument("--combine", default="mean", choices=("mean", "median", "min", "max"),
-                   help="rule combining several speed signals (default: mean)")
-    p.add_argument("--can-channel", metavar="CH", default=None,
-                   help="only use frames from this CAN channel (can0 also matches index 0)")
-    p.add_argument("--speed-scale", type=float, default=1.0,
-                   help="scale factor on the speed (tyre-radius correction)")
-    p.add_argument("--clock-offset", type=float, default=0.0,
-                   help="seconds added to the CAN timestamps to reach the camera clock")
+    add_can_decoding_options(p, dbc_required=True)
     p.add_argument("--frame-times", metavar="times.txt",
                    help="write the speed at these camera frame times (one per line) instead "
                    "of at the CAN frames; frames without a valid speed are left out")

@@ -38,13 +38,24 @@ def add_speed_options(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("wheel speed (makes the camera height observable)")
     group.add_argument("--speed-csv", metavar="FILE", help="CSV with columns t,speed_mps")
     group.add_argument("--can", metavar="LOG", help="CAN log (.log/.asc/.blf/.trc/.csv/.mf4)")
-    group.add_argument("--dbc", metavar="DBC", help="DBC file decoding the CAN log")
-    group.add_argument("--signals", metavar="MSG.SIG[,MSG.SIG...]",
-                       help="speed signal(s); several are combined by --combine")
+    add_can_decoding_options(group)
+
+
+def add_can_decoding_options(group: argparse._ActionsContainer, dbc_required: bool = False,
+                             ) -> None:
+    """How CAN frames become a speed: ``--dbc``, ``--signals``, ``--combine``,
+    ``--can-channel``, ``--speed-scale``, ``--clock-offset`` (shared by every subcommand that
+    reads CAN, so they are spelled and default alike)."""
+    group.add_argument("--dbc", metavar="DBC", required=dbc_required,
+                       help="DBC file decoding the CAN frames")
+    group.add_argument("--signals", metavar="MSG.SIG[:UNIT][,MSG.SIG...]",
+                       help="speed signal(s) (default: the DBC's rear wheel speeds); several "
+                       "are combined by --combine; :UNIT overrides the DBC's unit (km/h, m/s, "
+                       "mph)")
     group.add_argument("--combine", default="mean", choices=("mean", "median", "min", "max"),
                        help="rule combining several speed signals (default: mean)")
     group.add_argument("--can-channel", metavar="CH", default=None,
-                       help="only use frames from this CAN channel")
+                       help="only use frames from this CAN channel (can0 also matches index 0)")
     group.add_argument("--speed-scale", type=float, default=1.0,
                        help="scale factor on the speed (tyre-radius correction)")
     group.add_argument("--clock-offset", type=float, default=0.0,

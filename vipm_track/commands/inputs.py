@@ -29,7 +29,9 @@ def load_speed(args: argparse.Namespace) -> SpeedSeries | None:
     from filters.wheel_speed import speed_from_args
 
     try:
-        return speed_from_args(args, progress=not getattr(args, "quiet", False))
+        quiet = getattr(args, "quiet", False)
+        return speed_from_args(args, progress=not quiet,
+                               report=(lambda _line: None) if quiet else None)
     except ValueError as exc:  # InputError is a ValueError; anything else becomes one
         if isinstance(exc, InputError):
             raise
