@@ -534,3 +534,47 @@ def test_fixed_lag_frame_is_the_batch_of_the_data_up_to_its_lag():
         assert np.all(np.abs(f.mount - ref.mount) < 0.05 * ref.mount_std)
         assert np.all(np.abs(f.pose - ref.pose) < 0.05 * ref.pose_std)
         np.testing.assert_allclose(f.mount_std, ref.mount_std, rtol=0.02)
+
+
+# --- the clairvoyant reference of scripts/bench_filters.py -----------------------------------
+
+
+@pytest.fixture(scope="module")
+def bench_filters():
+    import importlib.util
+    import sys
+
+    from conftest import ROOT
+
+    spec = importlib.util.spec_from_file_location(
+        "bench_filters", ROOT / "scripts" / "bench_filters.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["bench_filters"] = module  # its dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_reference_lag_beyond_the_drive_is_its_batch(bench_filters):
+    run = _drive(2, duration=10.0)
+    ref = bench_filters.clairvoyant(run, True, lags_s=(0.5, 100.0))
+    np.testing.assert_allclose(ref["lag 100 s"], ref["batch"], rtol=0, atol=1e-9)
+    # a short lag lies between the filter and the smoother: the last frame is the filter's
+    np.testing.assert_allclose(ref["lag 0.5 s"][-1], ref["causal"][-1], atol=1e-12)
+    assert not np.allclose(ref["lag 0.5 s"][:-20], ref["causal"][:-20])
+
+
+def test_batch_smoother_is_at_the_clairvoyant_bound(drive, batch, bench_filters):
+    """The batch smoother's mount and height errors are within 15 % of the clairvoyant RTS
+    smoother's (the model linearised about the truth), whose pitch/roll beat its filter's."""
+    ref = bench_filters.clairvoyant(drive, True)
+    tr = drive.truth
+    ours = from_filter_states(batch[0]).states
+    for i, truth, settle in ((0, tr.mount_pitch, 5.0), (1, tr.mount_roll, 5.0),
+                             (2, tr.mount_height, 10.0)):
+        bound = rms_after(tr.t, ref["batch"][:, i] - truth, settle)
+        causal = rms_after(tr.t, ref["causal"][:, i] - truth, settle)
+        got = rms_after(tr.t, ours[:, i] - truth, settle)
+        if i < 2:  # (height: a 30 s drive is too short to promise it drive by drive)
+            assert bound < causal, (i, bound, causal)
+        assert got < 1.15 * bound, (i, got, bound)
