@@ -230,6 +230,10 @@ class MonitorConfig:
     max_gated_run_s: float = 0.3
     #: history kept for the new-extrinsics estimate
     history_s: float = 60.0
+    #: a HOLD shorter than this (one failed pair, a short stop) raises no event; the
+    #: per-frame state still shows it. A longer one is reported once it has lasted this long,
+    #: with the time and frame it began.
+    min_hold_event_s: float = 1.0
 
     def __post_init__(self) -> None:
         if not self.false_alarms_per_hour > 0:
@@ -238,6 +242,8 @@ class MonitorConfig:
             raise InputError("monitor: fps must be > 0")
         if not self.angle_shifts_deg or not self.height_shifts_m:
             raise InputError("monitor: at least one design shift per axis is needed")
+        if not self.min_hold_event_s >= 0:
+            raise InputError("monitor: min_hold_event_s must be >= 0")
         if min(*self.angle_shifts_deg, *self.height_shifts_m) <= 0:
             raise InputError("monitor: design shifts must be > 0")
         if not 0 < self.warn_exit <= self.warn_enter < 1:
@@ -588,6 +594,8 @@ class DriftMonitor:
         n_hist = max(1, round(self.config.history_s * self.config.fps))
         self._history: deque[tuple[int, FloatArray, FloatArray]] = deque(maxlen=n_hist)
         self._state: str | None = None
+        self._reported: str | None = None  # the state the last event announced
+        self._hold_event: dict[str, Any] | None = None  # a HOLD not yet long enough to report
         self._change_at: int | None = None
         self._held = 0
 
@@ -626,10 +634,8 @@ class DriftMonitor:
             start = self._change_at if base == RECALIBRATE else self._change_start()
             estimate, interval = self._estimate(start)
         reason = self._reason(code, base, inp, stat, estimate)
-        event = None
-        if state != self._state:
-            event = self._event(inp, state, reason, estimate, interval)
-            self._state = state
+        event = self._debounced_event(inp, state, reason, estimate, interval)
+        self._state = state
         return MonitorOutput(
             frame=inp.frame, t=float(inp.t), state=state, reason=reason, statistic=stat,
             deviation=core.s.ema[0].copy(), estimate=estimate, interval95=interval, event=event,
@@ -637,6 +643,26 @@ class DriftMonitor:
         )
 
     # -- internals --------------------------------------------------------------------------
+
+    def _debounced_event(self, inp: MonitorInput, state: str, reason: str,
+                         estimate: FloatArray | None, interval: FloatArray | None,
+                         ) -> dict[str, Any] | None:
+        """The event of this frame, if any: a change of the announced state, where a HOLD
+        counts only once it has lasted ``min_hold_event_s`` (see MonitorConfig)."""
+        if state == "HOLD":
+            if self._state != "HOLD":
+                self._hold_event = self._event(inp, state, reason, estimate, interval)
+            pending = self._hold_event
+            if (pending is not None and self._reported != "HOLD"
+                    and float(inp.t) - pending["t"] >= self.config.min_hold_event_s - 1e-9):
+                self._reported = "HOLD"
+                return pending
+            return None
+        self._hold_event = None
+        if state == self._reported:
+            return None
+        self._reported = state
+        return self._event(inp, state, reason, estimate, interval)
 
     def _change_start(self) -> int:
         """Used-frame count at which the leading statistic last was zero (change time)."""

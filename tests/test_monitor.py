@@ -246,8 +246,26 @@ def test_events_are_json_lines_on_state_changes(tmp_path):
     n = write_events(out, tmp_path / "ev.jsonl")
     lines = [json.loads(x) for x in (tmp_path / "ev.jsonl").read_text().splitlines()]
     assert n == len(lines) >= 3
-    changes = [o for i, o in enumerate(out) if i == 0 or o.state != out[i - 1].state]
-    assert [e["state"] for e in lines] == [o.state for o in changes]
+    # Events announce state changes; a HOLD only once it has lasted min_hold_event_s (1 s),
+    # stamped with the frame it began.
+    hold_s = MonitorConfig().min_hold_event_s
+    expected, announced, i = [], None, 0
+    while i < len(out):
+        j = i
+        while j < len(out) and out[j].state == out[i].state:
+            j += 1
+        state = out[i].state
+        long_enough = state != "HOLD" or out[j - 1].t - out[i].t >= hold_s - 1e-9
+        if state != announced and long_enough:
+            expected.append((state, out[i].frame))
+            announced = state
+        i = j
+    assert [(e["state"], e["frame"]) for e in lines] == expected
+    assert sum(o.state == "HOLD" for o in out) > sum(e["state"] == "HOLD" for e in lines)
+    # min_hold_event_s = 0: one event per change of the per-frame state.
+    _, every = monitor_run(run, config=MonitorConfig(fps=FPS, min_hold_event_s=0.0))
+    changes = [o for i, o in enumerate(every) if i == 0 or o.state != every[i - 1].state]
+    assert [o.event["state"] for o in every if o.event] == [o.state for o in changes]
     recal = next(e for e in lines if e["state"] == "RECALIBRATE")
     assert set(recal) >= {"t", "frame", "state", "estimate", "interval95", "reason"}
     lo, hi = recal["interval95"]["pitch_deg"]
