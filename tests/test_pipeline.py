@@ -261,3 +261,28 @@ def test_interrupted_run_keeps_the_rows_written(tmp_path: Path) -> None:
     table = read_table(out)
     assert list(table["frame"]) == [0, 1, 2]
     np.testing.assert_allclose(table["tz_m"][1:], [0.1, 0.1])
+
+
+@pytest.mark.parametrize(("choice", "steep", "expected"), [
+    ("auto", True, (True, True, 6.0)),
+    ("auto", False, (False, False, 0.0)),
+    ("uniform", True, (False, False, 0.0)),
+    ("noise", False, (True, True, 6.0)),
+])
+def test_refinement_weights_option_sets_the_estimator(choice: str, steep: bool,
+                                                      expected: tuple) -> None:
+    import argparse
+
+    from vipm_track.commands.estimate import add_estimator_options, build_config
+    from vipm_track.estimator import TwoFrameEstimator
+    from vipm_track.sim import PRESETS
+
+    parser = argparse.ArgumentParser()
+    add_estimator_options(parser)
+    preset = PRESETS["cart" if steep else "car"]
+    args = parser.parse_args(["--refinement-weights", choice, "--pitch", str(preset.pitch_deg)])
+    camera = preset.camera()
+    est = TwoFrameEstimator(camera, preset.height_m, build_config(args, camera))
+    got = (est.config.weight_patches, est.config.recentre_windows,
+           est.config.inlier_median_factor)
+    assert got == expected
