@@ -13,7 +13,8 @@
   with tx, tz at the *assumed* height (× h0 / h_true), plus Gaussian noise (angles correlated
   between the two frames of a pair, translation noise proportional to the travel), optional
   outliers (pairs replaced by wrong values, reported with the normal covariance) and failed
-  frames (status ≠ ok, NaNs; also every standstill pair, which the estimator cannot solve);
+  frames (status ≠ ok, NaNs; also every standstill pair, which the estimator cannot solve:
+  status "no motion", as the estimator reports it);
 - wheel speed at its own rate with relative noise, quantisation (km/h steps) and a clock
   offset: the samples' clock is the camera clock minus ``speed_clock_offset_s`` (so
   ``t_camera = t_speed + offset``, the CLI's ``--clock-offset``).
@@ -32,7 +33,7 @@ from scipy.signal import lfilter
 
 from vipm_track.measurement import PairMeasurement
 
-from .model import NoiseParams
+from .model import NO_MOTION_STATUS, NoiseParams
 
 FloatArray = NDArray[np.float64]
 
@@ -348,7 +349,7 @@ def _measurements(
     status = np.full(n, "ok", dtype=object)
     status[0] = "first frame"
     still = np.nan_to_num(np.hypot(tr.tx, tr.tz)) < cfg.min_travel_m
-    status[1:][still[1:]] = "too little motion"
+    status[1:][still[1:]] = NO_MOTION_STATUS
     fail = rng.random(n) < cfg.failure_fraction
     status[fail & (status == "ok")] = "too few inliers"
     ok = status == "ok"
