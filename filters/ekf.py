@@ -61,6 +61,12 @@ class EkfConfig:
     max_mount_angle_std_deg: float = 10.0
     default_dt_s: float = 0.05  # frame interval assumed before the first frame time is known
     init_pairs: int = 5  # good pairs whose medians start (and restart) the filter
+    #: the start's speed / yaw-rate std is the robust spread (1.4826 · MAD) of the bootstrap
+    #: pairs' values, at least these floors and at most the model's prior: with the wide prior
+    #: the first pair, outlier or not, would be taken at face value and the gate would then
+    #: reject the good pairs after it while the heading integrates the wrong yaw rate
+    init_speed_std_min_mps: float = 0.2
+    init_yaw_rate_std_min_dps: float = 1.0
     speed_timeout_s: float = 1.0  # h is estimated only while wheel speeds are this recent
     #: adaptive body shaking: the body's stationary std per axis is the larger of the model's
     #: ``body_std_deg`` and a robust scale (1.4826 · MAD) of the measured body (pair pitch/roll
@@ -321,8 +327,13 @@ class ExtrinsicsEKF:
         body = np.radians(nz.body_std_deg) ** 2
         for i in (M.BODY_PITCH, M.BODY_ROLL, M.PREV_BODY_PITCH, M.PREV_BODY_ROLL):
             p[i, i] = body
-        p[M.SPEED, M.SPEED] = nz.prior_speed_std_mps**2
-        p[M.YAW_RATE, M.YAW_RATE] = np.radians(nz.prior_yaw_rate_std_dps) ** 2
+        cfg = self._cfg
+        p[M.SPEED, M.SPEED] = _spread(
+            speeds if len(speeds) else travel / dts, cfg.init_speed_std_min_mps,
+            nz.prior_speed_std_mps) ** 2
+        p[M.YAW_RATE, M.YAW_RATE] = _spread(
+            zs[:, 6] / dts, np.radians(cfg.init_yaw_rate_std_min_dps),
+            np.radians(nz.prior_yaw_rate_std_dps)) ** 2
         kf = _ClonedEKF(nz)
         kf.x, kf.P = x, p
         kf.body_std = self._body_std()
@@ -521,6 +532,12 @@ def _mahalanobis(y: FloatArray, s: FloatArray) -> float:
     except np.linalg.LinAlgError:
         return float("inf")
     return d if np.isfinite(d) else float("inf")
+
+
+def _spread(values: FloatArray, floor: float, cap: float) -> float:
+    """Robust std (1.4826 · MAD) of ``values``, clipped to [floor, cap]."""
+    mad = float(np.median(np.abs(values - np.median(values))))
+    return float(np.clip(1.4826 * mad, floor, cap))
 
 
 def _wrap(a: float) -> float:

@@ -199,6 +199,25 @@ def test_heading_does_not_drift_during_a_stop(speed):
     assert abs(drift[False]) > 5.0  # the last yaw rate integrated over the stop
 
 
+@pytest.mark.parametrize("preset", ["car", "cart"])
+def test_an_outlier_first_pair_does_not_turn_the_heading(preset):
+    # the first good pair's yaw is 1.3° off: started with the model's wide yaw-rate prior the
+    # filter takes it, then gates the good pairs while the heading turns with it
+    run = _drive(preset, seed=0, duration_s=20.0, failure_fraction=0.0, stop_probability=0.0)
+
+    def max_heading_error_deg(ms, floor_dps):
+        cfg = EkfConfig(height_m=run.config.h0, noise=run.config.noise,
+                        init_yaw_rate_std_min_dps=floor_dps)
+        states = run_filter(ms, run.speed, cfg)
+        return np.nanmax(np.abs(np.degrees([s.heading for s in states] - run.truth.heading)))
+
+    clean = max_heading_error_deg(run.measurements, 1.0)
+    ms = list(run.measurements)
+    ms[1] = replace(ms[1], z=ms[1].z + np.radians(1.3) * np.eye(7)[6])
+    assert max_heading_error_deg(ms, 1.0) < clean + 0.05
+    assert max_heading_error_deg(ms, 1000.0) > clean + 5.0  # the wide prior: fails
+
+
 def test_mount_step_resets_with_reason_and_reconverges():
     run = _drive(seed=4, duration_s=40.0, mount_changes=(MountChange(t_s=15.0, pitch_deg=3.0),))
     states = _filter(run, speed=True)
