@@ -1,7 +1,8 @@
 """Long simulated measurement streams, without rendering, from the estimator's noise model.
 
 ``simulate_drive(config, seed)`` draws a drive and returns its truth, the per-frame
-``PairMeasurement`` list the two-frame estimator would produce, and wheel-speed samples:
+``PairMeasurement`` list the two-frame estimator would produce, and wheel-speed samples
+(``profile=DriveProfile(...)`` replaces the random speed and curvature by given knots):
 
 - mount (the calibration): nominal pitch/roll/height/yaw offset, optional steps and ramps
   (``MountChange``), plus a slow random walk (rates of ``filters.model.NoiseParams``);
@@ -13,7 +14,8 @@
   with tx, tz at the *assumed* height (× h0 / h_true), plus Gaussian noise (angles correlated
   between the two frames of a pair, translation noise proportional to the travel), optional
   outliers (pairs replaced by wrong values, reported with the normal covariance) and failed
-  frames (status ≠ ok, NaNs; also every standstill pair, which the estimator cannot solve);
+  frames (status ≠ ok, NaNs; also every standstill pair, which the estimator cannot solve:
+  status "no motion", as the estimator reports it);
 - wheel speed at its own rate with relative noise, quantisation (km/h steps) and a clock
   offset: the samples' clock is the camera clock minus ``speed_clock_offset_s`` (so
   ``t_camera = t_speed + offset``, the CLI's ``--clock-offset``).
@@ -32,7 +34,7 @@ from scipy.signal import lfilter
 
 from vipm_track.measurement import PairMeasurement
 
-from .model import NoiseParams
+from .model import NO_MOTION_STATUS, NoiseParams
 
 FloatArray = NDArray[np.float64]
 
@@ -119,6 +121,24 @@ class DriveConfig:
 
 
 @dataclass(frozen=True)
+class DriveProfile:
+    """A given planar drive instead of the random one: speed (m/s) and curvature (1/m, > 0
+    turning right) at knot times (s), cosine-interpolated between knots (flat where two
+    consecutive values agree), held after the last knot."""
+
+    knot_t: tuple[float, ...]
+    speed_mps: tuple[float, ...]
+    curvature_per_m: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        n = len(self.knot_t)
+        if n < 2 or len(self.speed_mps) != n or len(self.curvature_per_m) != n:
+            raise ValueError("a drive profile needs ≥ 2 knots and one speed, curvature each")
+        if np.any(np.diff(self.knot_t) <= 0):
+            raise ValueError("drive profile knot times must increase")
+
+
+@dataclass(frozen=True)
 class SpeedSamples:
     """Wheel speed samples: times (s, speed-sensor clock) and speed (m/s)."""
 
@@ -183,15 +203,18 @@ class DriveRun:
     speed: SpeedSamples
 
 
-def simulate_drive(config: DriveConfig | None = None, seed: int = 0) -> DriveRun:
-    """Draw a drive of ``config`` (default: the car preset) from ``seed``; see module doc."""
+def simulate_drive(
+    config: DriveConfig | None = None, seed: int = 0, profile: DriveProfile | None = None
+) -> DriveRun:
+    """Draw a drive of ``config`` (default: the car preset) from ``seed``, on the planar
+    ``profile`` if given (else a random one); see module doc."""
     cfg = config or DriveConfig()
     if cfg.duration_s <= 0 or cfg.fps <= 0 or cfg.height_m <= 0 or cfg.h0 <= 0:
         raise ValueError("duration_s, fps, height_m and height_assumed_m must be > 0")
     rng = np.random.default_rng(seed)
     n = round(cfg.duration_s * cfg.fps) + 1
     t = np.arange(n) / cfg.fps
-    truth = _truth(cfg, t, rng)
+    truth = _truth(cfg, t, rng, profile)
     z, cov, status, outlier = _measurements(cfg, truth, rng)
     speed = _speed_samples(cfg, truth, rng)
     meas = [
@@ -207,7 +230,9 @@ def simulate_drive(config: DriveConfig | None = None, seed: int = 0) -> DriveRun
 # --- truth ----------------------------------------------------------------------------------
 
 
-def _truth(cfg: DriveConfig, t: FloatArray, rng: np.random.Generator) -> DriveTruth:
+def _truth(
+    cfg: DriveConfig, t: FloatArray, rng: np.random.Generator, profile: DriveProfile | None
+) -> DriveTruth:
     n = len(t)
     dt = 1.0 / cfg.fps
     noise = cfg.noise
@@ -240,8 +265,13 @@ def _truth(cfg: DriveConfig, t: FloatArray, rng: np.random.Generator) -> DriveTr
     body = lfilter([1.0], [1.0, -a], w, axis=0)
     # planar drive on a fine grid
     tf = np.arange((n - 1) * _SUBSTEPS + 1) * (dt / _SUBSTEPS)
-    v = _speed_profile(cfg, tf, rng)
-    kappa = _curvature_profile(cfg, tf, rng)
+    if profile is None:
+        v = _speed_profile(cfg, tf, rng)
+        kappa = _curvature_profile(cfg, tf, rng)
+    else:
+        knots = np.array(profile.knot_t, dtype=float)
+        v = _cosine_profile(knots, np.array(profile.speed_mps, dtype=float), tf)
+        kappa = _cosine_profile(knots, np.array(profile.curvature_per_m, dtype=float), tf)
     omega = kappa * v
     dtf = dt / _SUBSTEPS
     psi = np.concatenate([[0.0], np.cumsum(0.5 * (omega[1:] + omega[:-1]) * dtf)])
@@ -348,7 +378,7 @@ def _measurements(
     status = np.full(n, "ok", dtype=object)
     status[0] = "first frame"
     still = np.nan_to_num(np.hypot(tr.tx, tr.tz)) < cfg.min_travel_m
-    status[1:][still[1:]] = "too little motion"
+    status[1:][still[1:]] = NO_MOTION_STATUS
     fail = rng.random(n) < cfg.failure_fraction
     status[fail & (status == "ok")] = "too few inliers"
     ok = status == "ok"

@@ -12,6 +12,9 @@ or ``run_filter(measurements, speed_series, config)`` for a whole sequence.
 - Every call predicts to the frame time (stochastic cloning keeps frame k-1 for the pair).
 - A wheel speed (m/s, already on the camera clock) updates the speed: h becomes observable.
 - A pair whose status is not ``ok`` is skipped (the filter predicts through the gap).
+- Standstill (``model.standstill_states``): a wheel speed ≈ 0, or without wheel speed a pair
+  reported as "no motion", pins the yaw rate (and without wheel speed the speed) to 0, so the
+  heading does not drift with the last yaw rate during a stop (``FilterState.standstill``).
 - Mahalanobis gating, as robot_localization's rejection thresholds: the pose block (4 angles)
   and the motion block (tx, tz, yaw) of a pair are each rejected when their normalised
   innovation squared exceeds the chi-square quantile ``gate_probability`` (4 / 3 dof), so an
@@ -58,6 +61,12 @@ class EkfConfig:
     max_mount_angle_std_deg: float = 10.0
     default_dt_s: float = 0.05  # frame interval assumed before the first frame time is known
     init_pairs: int = 5  # good pairs whose medians start (and restart) the filter
+    #: the start's speed / yaw-rate std is the robust spread (1.4826 · MAD) of the bootstrap
+    #: pairs' values, at least these floors and at most the model's prior: with the wide prior
+    #: the first pair, outlier or not, would be taken at face value and the gate would then
+    #: reject the good pairs after it while the heading integrates the wrong yaw rate
+    init_speed_std_min_mps: float = 0.2
+    init_yaw_rate_std_min_dps: float = 1.0
     speed_timeout_s: float = 1.0  # h is estimated only while wheel speeds are this recent
     #: adaptive body shaking: the body's stationary std per axis is the larger of the model's
     #: ``body_std_deg`` and a robust scale (1.4826 · MAD) of the measured body (pair pitch/roll
@@ -125,6 +134,7 @@ class FilterState(FrameStds):
     speed_nis: float = float("nan")
     speed_gated: bool = False
     reset_reason: str = ""
+    standstill: bool = False  # the standstill pseudo-measurement was applied on this frame
 
     @property
     def initialised(self) -> bool:
@@ -184,8 +194,10 @@ class ExtrinsicsEKF:
         self._motion_gated_run = 0
         self._motion_note = ""
         self._pending_reset = ""
-        self._boot: list[tuple[PairMeasurement | None, float | None, float]] = []
+        #: bootstrap frames: (usable pair or None, wheel speed, dt, pair status)
+        self._boot: list[tuple[PairMeasurement | None, float | None, float, str]] = []
         self._last_speed_t: float | None = None
+        self._still = False  # the last _advance applied the standstill
         #: (t, measured body pitch, roll (pair minus filtered mount), their variances) of recent
         #: ok pairs, rad / rad²
         self._body_seen: deque[tuple[float, ...]] = deque()
@@ -217,6 +229,7 @@ class ExtrinsicsEKF:
         frame = -1 if frame is None else frame
         t = float(t)
         usable = measurement is not None and measurement.ok
+        pair_status = "" if measurement is None else measurement.status
         if self._t is not None and t <= self._t:
             # a frame out of order: report it, change nothing
             return self._state(frame, t, "predicted" if self._kf else "waiting",
@@ -230,23 +243,24 @@ class ExtrinsicsEKF:
             # outlier among them), then run them through the filter like any other frame
             if not usable and not self._boot:
                 return self._state(frame, t, "waiting")
-            self._boot.append((measurement if usable else None, speed, dt))
-            if sum(m is not None for m, _, _ in self._boot) < self._cfg.init_pairs:
+            self._boot.append((measurement if usable else None, speed, dt, pair_status))
+            if sum(b[0] is not None for b in self._boot) < self._cfg.init_pairs:
                 return self._state(frame, t, "waiting")
             if self._pending_reset:
                 reason = f"re-initialised after {self._pending_reset}"
             self._pending_reset = ""
             boot, self._boot = self._boot, []
             self._initialise(boot)
-            for m, v, d in boot[:-1]:
-                self._advance(m, v, d)
+            for m, v, d, st in boot[:-1]:
+                self._advance(m, v, d, st)
             if self._pending_reset:  # the start itself failed: try again on the next pairs
                 problem = self._pending_reset
                 self._reset(problem)
                 return self._state(frame, t, "waiting", reset_reason=problem)
         status, nis, gated, speed_nis, speed_gated = self._advance(
-            measurement if usable else None, speed, dt
+            measurement if usable else None, speed, dt, pair_status
         )
+        still = self._still
         if self._motion_note:
             reason = "; ".join(r for r in (reason, self._motion_note) if r)
             self._motion_note = ""
@@ -254,22 +268,30 @@ class ExtrinsicsEKF:
         problem = self._check()
         if problem:
             state = self._state(frame, t, "reset", nis=nis, gated=gated, speed_nis=speed_nis,
-                                speed_gated=speed_gated, reset_reason=problem)
+                                speed_gated=speed_gated, reset_reason=problem, standstill=still)
             self._reset(problem)
             return state
         return self._state(frame, t, status, nis=nis, gated=gated, speed_nis=speed_nis,
-                           speed_gated=speed_gated, reset_reason=reason)
+                           speed_gated=speed_gated, reset_reason=reason, standstill=still)
 
     def _advance(
-        self, m: PairMeasurement | None, speed: float | None, dt: float
+        self, m: PairMeasurement | None, speed: float | None, dt: float, pair_status: str = ""
     ) -> tuple[str, float, str, float, bool]:
-        """Predict over ``dt`` and apply the speed and the pair: (status, nis, gated blocks,
+        """Predict over ``dt`` and apply the speed, the standstill (if the speed, or the pair
+        status ``pair_status`` without one, says so) and the pair: (status, nis, gated blocks,
         speed NIS, speed gated)."""
         assert self._kf is not None
         self._kf.predict_dt(dt)
         speed_nis, speed_gated = float("nan"), False
         if speed is not None and np.isfinite(speed):
             speed_nis, speed_gated = self._update_speed(float(speed))
+        # a gated wheel speed says nothing, about standstill either
+        still = M.standstill_states(
+            None if speed_gated else speed, pair_status, self._cfg.noise
+        )
+        self._still = bool(still)
+        if still:
+            self._update_standstill(still)
         if m is None:
             return "predicted", float("nan"), "", speed_nis, speed_gated
         nis, gated = self._update_pair(m, dt)
@@ -279,18 +301,18 @@ class ExtrinsicsEKF:
     # --- internals --------------------------------------------------------------------------
 
     def _initialise(
-        self, boot: list[tuple[PairMeasurement | None, float | None, float]]
+        self, boot: list[tuple[PairMeasurement | None, float | None, float, str]]
     ) -> None:
         """Start, at the frame before the first of ``boot`` (pairs, speeds, intervals), from
         the prior and the medians of the pairs' angles, speed and yaw rate."""
         nz = self._cfg.noise
         h_mean, h_var = self._height
-        pairs = [(m, d) for m, _, d in boot if m is not None]
+        pairs = [(m, d) for m, _, d, _ in boot if m is not None]
         zs = np.array([m.z for m, _ in pairs])
         dts = np.array([d for _, d in pairs])
         h0s = np.array([m.height_assumed for m, _ in pairs])
         travel = np.hypot(zs[:, 4], zs[:, 5]) * h_mean / h0s
-        speeds = np.array([v for _, v, _ in boot if v is not None and np.isfinite(v)])
+        speeds = np.array([v for _, v, _, _ in boot if v is not None and np.isfinite(v)])
         x = np.zeros(M.STATE_DIM)
         x[M.MOUNT_PITCH] = float(np.median(0.5 * (zs[:, 0] + zs[:, 2])))
         x[M.MOUNT_ROLL] = float(np.median(0.5 * (zs[:, 1] + zs[:, 3])))
@@ -305,8 +327,13 @@ class ExtrinsicsEKF:
         body = np.radians(nz.body_std_deg) ** 2
         for i in (M.BODY_PITCH, M.BODY_ROLL, M.PREV_BODY_PITCH, M.PREV_BODY_ROLL):
             p[i, i] = body
-        p[M.SPEED, M.SPEED] = nz.prior_speed_std_mps**2
-        p[M.YAW_RATE, M.YAW_RATE] = np.radians(nz.prior_yaw_rate_std_dps) ** 2
+        cfg = self._cfg
+        p[M.SPEED, M.SPEED] = _spread(
+            speeds if len(speeds) else travel / dts, cfg.init_speed_std_min_mps,
+            nz.prior_speed_std_mps) ** 2
+        p[M.YAW_RATE, M.YAW_RATE] = _spread(
+            zs[:, 6] / dts, np.radians(cfg.init_yaw_rate_std_min_dps),
+            np.radians(nz.prior_yaw_rate_std_dps)) ** 2
         kf = _ClonedEKF(nz)
         kf.x, kf.P = x, p
         kf.body_std = self._body_std()
@@ -418,6 +445,15 @@ class ExtrinsicsEKF:
         self._last_speed_t = self._t
         return nis, False
 
+    def _update_standstill(self, states: tuple[int, ...]) -> None:
+        """Apply the standstill pseudo-measurement (``states`` = 0); no gate: the wheel speed
+        (itself gated) or the image pair decided that the vehicle stands."""
+        kf = self._kf
+        assert kf is not None
+        zp, h = M.standstill_measurement(kf.x, states)
+        r = np.diag(self._cfg.noise.standstill_var(states))
+        kf.update(np.zeros(len(states)), lambda _x: h, lambda _x: zp, R=r)
+
     def _metric(self) -> bool:
         """Whether a wheel speed was applied within ``speed_timeout_s``."""
         return (
@@ -460,7 +496,7 @@ class ExtrinsicsEKF:
     def _state(
         self, frame: int, t: float, status: str, nis: float = float("nan"), gated: str = "",
         speed_nis: float = float("nan"), speed_gated: bool = False, reset_reason: str = "",
-        note: str = "",
+        note: str = "", standstill: bool = False,
     ) -> FilterState:
         kf = self._kf
         if kf is None:
@@ -481,7 +517,7 @@ class ExtrinsicsEKF:
             speed=float(x[M.SPEED]), yaw_rate=float(x[M.YAW_RATE]),
             position=x[[M.POS_X, M.POS_Y]].copy(), heading=float(x[M.HEADING]), state=x,
             covariance=p, nis=nis, gated=gated, speed_nis=speed_nis, speed_gated=speed_gated,
-            reset_reason=reset_reason or note,
+            reset_reason=reset_reason or note, standstill=standstill,
         )
 
 
@@ -496,6 +532,12 @@ def _mahalanobis(y: FloatArray, s: FloatArray) -> float:
     except np.linalg.LinAlgError:
         return float("inf")
     return d if np.isfinite(d) else float("inf")
+
+
+def _spread(values: FloatArray, floor: float, cap: float) -> float:
+    """Robust std (1.4826 · MAD) of ``values``, clipped to [floor, cap]."""
+    mad = float(np.median(np.abs(values - np.median(values))))
+    return float(np.clip(1.4826 * mad, floor, cap))
 
 
 def _wrap(a: float) -> float:

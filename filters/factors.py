@@ -20,7 +20,9 @@ Factors, each the model's equation with its noise:
   acceleration (``model.propagate_pose`` and the ``model.transition`` noise), the
   displacement along the heading only (no side slip) up to ``cross_track_std_m``;
 - ``body_factor``: Gauss–Markov body b_k = a·b_{k-1} + w, a linear factor (no Python);
-- mount random walks, priors and the wheel speed are gtsam's built-in factors.
+- mount random walks, priors, the wheel speed and the standstill (``standstill_factors``:
+  yaw rate, and without wheel speed speed, = 0 where ``model.standstill_states`` says the
+  vehicle stands) are gtsam's built-in factors.
 
 Python ``CustomFactor`` callbacks are limited to the three nonlinear or robust pair/process
 terms. They must be linearised with Python-owned ``gtsam.Values`` (see ``smoother``): gtsam's
@@ -306,6 +308,21 @@ def speed_factor(
     return gtsam.PriorFactorVector(key("V", k), np.array([float(speed_mps)]), noise_model)
 
 
+def standstill_factors(
+    k: int, states: tuple[int, ...], noise: NoiseParams
+) -> list[gtsam.PriorFactorVector]:
+    """Standstill pseudo-measurements of frame k (``model.standstill_measurement``): W_k = 0
+    (rad/s) and, if ``states`` holds the speed, V_k = 0 (m/s), variances
+    ``noise.standstill_var``."""
+    letter = {M.SPEED: "V", M.YAW_RATE: "W"}
+    return [
+        gtsam.PriorFactorVector(
+            key(letter[i], k), np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(1, math.sqrt(var))
+        )
+        for i, var in zip(states, noise.standstill_var(states), strict=True)
+    ]
+
+
 # --- stacked per-frame rows in numpy (the sliding-window smoother) -----------------------------
 
 #: variables of a frame in the stacked rows, model coordinates (additive, no Pose2 tangent):
@@ -313,9 +330,10 @@ def speed_factor(
 #: b_roll (rad); the same order as ``smoother._BLOCK``
 FRAME_DIM = 11
 #: rows of one frame's stack: process 0–4, body 5–6, mount walk 7–10, pose pair 11–14,
-#: motion pair 15–17, wheel speed 18
-PAIR_ROWS = 19
+#: motion pair 15–17, wheel speed 18, standstill speed 19 and yaw rate 20
+PAIR_ROWS = 21
 POSE_ROWS, MOTION_ROWS, SPEED_ROW = slice(11, 15), slice(15, 18), 18
+STANDSTILL_ROWS = slice(19, 21)
 
 
 def robust_weight(norm: FloatArray, kind: str, k: float) -> FloatArray:
@@ -370,6 +388,7 @@ class StackedPairs:
     walk_isig: FloatArray  # (n, 4) 1 / σ of the mount walks (pitch, roll, h, yaw)
     speed: FloatArray  # (n,) wheel speed m/s (0 where none)
     speed_isig: FloatArray  # (n,) 1 / σ of the wheel speed (0 where none)
+    still_isig: FloatArray  # (n, 2) 1 / σ of the standstill speed, yaw rate (0 where none)
 
 
 def pair_constants(
@@ -385,6 +404,10 @@ def pair_constants(
     ok = bool(m.ok)
     cov = np.asarray(m.covariance, dtype=float) if ok else None
     has_speed = math.isfinite(speed)
+    still = M.standstill_states(speed, m.status, noise)
+    still_isig = np.zeros(2)
+    for i, var in zip(still, noise.standstill_var(still), strict=True):
+        still_isig[(M.SPEED, M.YAW_RATE).index(i)] = 1.0 / math.sqrt(var)
     return {
         "dt": dt,
         "z": np.asarray(m.z, dtype=float) if ok else np.zeros(7),
@@ -398,6 +421,7 @@ def pair_constants(
         "walk_isig": walk,
         "speed": speed if has_speed else 0.0,
         "speed_isig": 1.0 / math.sqrt(noise.speed_meas_var(speed)) if has_speed else 0.0,
+        "still_isig": still_isig,
     }
 
 
@@ -408,12 +432,13 @@ def stacked_rows(
     loss: tuple[str, float, float] = ("none", 1.0, 1.0),
     speed_loss: tuple[str, float] = ("none", 1.0),
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Whitened, robustly weighted residuals (n, 19) and Jacobians (n, 19, 22) w.r.t.
+    """Whitened, robustly weighted residuals (n, 21) and Jacobians (n, 21, 22) w.r.t.
     (prev, curr) of every factor joining frames k-1 and k (``FRAME_DIM`` layout, rows as
     ``PAIR_ROWS``), and the Gaussian whitened norms (n, 2) of the pose / motion pair blocks.
 
     The same equations as ``process_factor``, ``body_factor``, ``mount_walk_factors``,
-    ``pose_pair_factor``, ``motion_pair_factor`` and ``speed_factor`` (a test holds them
+    ``pose_pair_factor``, ``motion_pair_factor``, ``speed_factor`` and
+    ``standstill_factors`` (a test holds them
     equal), evaluated for all pairs at once. ``loss`` = (kind, threshold of the 4-dof pose
     block, threshold of the 3-dof motion block); ``speed_loss`` = (kind, threshold)."""
     n = len(prev)
@@ -487,6 +512,9 @@ def stacked_rows(
     s = np.sqrt(robust_weight(np.abs(es), *speed_loss))
     r[:, SPEED_ROW] = s * es
     jac[:, SPEED_ROW, d + 3] = s * c.speed_isig
+    # standstill: speed and yaw rate of the current frame measured as 0
+    r[:, STANDSTILL_ROWS] = c.still_isig * curr[:, 3:5]
+    jac[:, 19, d + 3], jac[:, 20, d + 4] = c.still_isig[:, 0], c.still_isig[:, 1]
     return r, jac, norms
 
 

@@ -61,7 +61,7 @@ _T_STATE[[M.PREV_POS_X, M.PREV_POS_Y, M.PREV_HEADING], [0, 1, 2]] = 1.0
 _T_STATE[[M.PREV_BODY_PITCH, M.PREV_BODY_ROLL], [9, 10]] = 1.0
 _FIELDS = (
     "dt", "z", "h0", "w_pose", "w_motion", "metric", "w_process", "body_a", "body_isig",
-    "walk_isig", "speed", "speed_isig",
+    "walk_isig", "speed", "speed_isig", "still_isig",
 )
 
 
@@ -152,6 +152,8 @@ class FixedLagSmoother:
         new[0:3] = (x, y, psi)
         if math.isfinite(speed):
             new[3] = speed
+        for i in M.standstill_states(speed, m.status, self._cfg.noise):
+            new[3 if i == M.SPEED else 4] = 0.0  # standing: start from the pseudo-measurement
         if m.ok:
             new[4] = m.z[6] / dt
             new[9:11] = m.z[2:4] - prev[5:7]
@@ -179,7 +181,7 @@ class FixedLagSmoother:
         sp = np.array([s for _, s in boot], dtype=float)
         t = np.array([b.t for b in ms])
         dts = np.concatenate([[0.0], np.diff(t)])
-        g = _initial_guess(ms, sp, dts, cfg.height_m, self._start_pose)
+        g = _initial_guess(ms, sp, dts, cfg.height_m, self._start_pose, cfg.noise)
         self._clear()
         self._started = True
         x = np.zeros((len(ms), _D))
@@ -189,7 +191,7 @@ class FixedLagSmoother:
         x[:, 9:11] = g.body
         self._x = x
         self._ms = list(ms)
-        self._prior = _first_prior(x[0], sp[0], cfg)
+        self._prior = _first_prior(x[0], sp[0], cfg, ms[0].status)
         for i in range(1, len(ms)):
             if math.isfinite(sp[i]):
                 self._last_speed_t = float(t[i])
@@ -378,10 +380,11 @@ class FixedLagSmoother:
 
 
 def _first_prior(
-    x0: FloatArray, speed: float, cfg: SmootherConfig
+    x0: FloatArray, speed: float, cfg: SmootherConfig, status: str = ""
 ) -> tuple[FloatArray, FloatArray]:
     """Square-root information R and mean of the first frame's prior (the batch's
-    ``_prior_factors`` and the wheel speed at that frame)."""
+    ``_prior_factors``, the wheel speed at that frame and the standstill if it stands; pair
+    status ``status``)."""
     nz = cfg.noise
     sig = np.array(
         [1e-3, 1e-3, 1e-3, nz.prior_speed_std_mps, math.radians(nz.prior_yaw_rate_std_dps)]
@@ -396,6 +399,11 @@ def _first_prior(
         iv = 1.0 / nz.speed_meas_var(speed)
         mu[3] = (info[3] * mu[3] + iv * speed) / (info[3] + iv)
         info[3] += iv
+    still = M.standstill_states(speed, status, nz)
+    for i, var in zip(still, nz.standstill_var(still), strict=True):
+        j = 3 if i == M.SPEED else 4  # measured as 0
+        mu[j] = info[j] * mu[j] / (info[j] + 1.0 / var)
+        info[j] += 1.0 / var
     return np.diag(np.sqrt(info)), mu
 
 

@@ -31,6 +31,12 @@ where (tx, tz) is the displacement (x − x_prev, y − y_prev) rotated into G_{
 ψ_prev + yaw_m) and *scaled by h0 / h_m* (h0 = ``PairMeasurement.height_assumed``: two frames
 fix translation in units of the height, CONVENTIONS.md Scale), and yaw = ψ − ψ_prev. A wheel
 speed measures v in m/s, which makes h_m observable; without it h_m stays at its prior.
+
+Standstill (zero-velocity update): a standing vehicle does not turn, but no pair says so (the
+estimator cannot solve a pair without motion), so the random-walk yaw rate would keep its last
+value and integrate it into the heading for the whole stop. ``standstill_states`` decides from a
+frame's wheel speed and pair status that the vehicle stands, and ``standstill_measurement``
+pins the yaw rate (and, without wheel speed, the speed) to 0 as a pseudo-measurement.
 """
 
 from __future__ import annotations
@@ -92,6 +98,17 @@ class NoiseParams:
     #: uniform → 0.0008 m/s std)
     speed_meas_std_rel: float = 0.005
     speed_meas_std_abs_mps: float = 0.002
+    #: standstill (zero-velocity update, ``standstill_states``): a wheel speed at or below
+    #: ``standstill_speed_mps`` (CAN logs read exactly 0 at a stop; 0.05 m/s = 0.18 km/h is
+    #: above their quantisation and below walking pace) means the vehicle stands, and so does
+    #: a pair reported as "no motion" when there is no wheel speed. Then the yaw rate is
+    #: measured as 0 ± ``standstill_yaw_rate_std_dps`` (and, without wheel speed, the speed as
+    #: 0 ± ``standstill_speed_std_mps``). The yaw-rate std allows for a vehicle still creeping
+    #: at the threshold on a tight curve; ``standstill_update=False`` turns it off.
+    standstill_update: bool = True
+    standstill_speed_mps: float = 0.05
+    standstill_yaw_rate_std_dps: float = 0.05
+    standstill_speed_std_mps: float = 0.02
 
     @classmethod
     def for_preset(cls, preset: str) -> NoiseParams:
@@ -105,6 +122,15 @@ class NoiseParams:
     def speed_meas_var(self, speed_mps: float) -> float:
         """Variance of one wheel-speed reading at ``speed_mps``, (m/s)²."""
         return (self.speed_meas_std_rel * abs(speed_mps)) ** 2 + self.speed_meas_std_abs_mps**2
+
+    def standstill_var(self, states: tuple[int, ...]) -> FloatArray:
+        """Variances of the standstill pseudo-measurement of ``states`` (``SPEED`` in (m/s)²,
+        ``YAW_RATE`` in (rad/s)²), in that order."""
+        var = {
+            SPEED: self.standstill_speed_std_mps**2,
+            YAW_RATE: np.radians(self.standstill_yaw_rate_std_dps) ** 2,
+        }
+        return np.array([var[i] for i in states], dtype=float)
 
 
 # --- process model --------------------------------------------------------------------------
@@ -256,6 +282,36 @@ def speed_measurement(state: FloatArray) -> tuple[FloatArray, FloatArray]:
     h = np.zeros((1, STATE_DIM))
     h[0, SPEED] = 1.0
     return np.array([state[SPEED]]), h
+
+
+#: pair status of the two-frame estimator when the image did not move
+#: (``vipm_track.estimator.STATUS_NO_MOTION``; a test holds them equal)
+NO_MOTION_STATUS = "no motion"
+
+
+def standstill_states(
+    speed_mps: float | None, pair_status: str | None, noise: NoiseParams
+) -> tuple[int, ...]:
+    """State indices a standstill pins to 0 at a frame: ``(YAW_RATE,)`` when the wheel speed
+    (m/s) is at most ``noise.standstill_speed_mps`` (the wheel speed itself measures v),
+    ``(SPEED, YAW_RATE)`` when there is no wheel speed (None / NaN) and the pair's status is
+    ``NO_MOTION_STATUS``, else ``()`` (moving, or nothing says otherwise)."""
+    if not noise.standstill_update:
+        return ()
+    if speed_mps is not None and np.isfinite(speed_mps):
+        return (YAW_RATE,) if abs(speed_mps) <= noise.standstill_speed_mps else ()
+    return (SPEED, YAW_RATE) if pair_status == NO_MOTION_STATUS else ()
+
+
+def standstill_measurement(
+    state: FloatArray, states: tuple[int, ...]
+) -> tuple[FloatArray, FloatArray]:
+    """Expected standstill pseudo-measurement (the ``states`` of ``state``, measured as 0) and
+    its len(states)×16 Jacobian; noise ``NoiseParams.standstill_var(states)``."""
+    idx = list(states)
+    h = np.zeros((len(idx), STATE_DIM))
+    h[np.arange(len(idx)), idx] = 1.0
+    return np.asarray(state, dtype=float)[idx].copy(), h
 
 
 def metric_motion(state: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -183,9 +183,11 @@ def _initial_guess(
     dts: FloatArray,
     h_nominal: float,
     start: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    noise: NoiseParams | None = None,
 ) -> _Guess:
     """Initial values from the measurements: medians for the mount, dead reckoning for the
-    poses (height from the wheel speed where there is one). ``dts[0]`` is unused."""
+    poses (height from the wheel speed where there is one; with ``noise``, speed / yaw rate 0
+    where ``model.standstill_states`` says the vehicle stands). ``dts[0]`` is unused."""
     n = len(ms)
     z = np.array([m.z if m.ok else np.full(7, np.nan) for m in ms], dtype=float).reshape(n, 7)
     h0 = np.array([m.height_assumed for m in ms], dtype=float)
@@ -209,6 +211,10 @@ def _initial_guess(
     v = _interp_missing(np.where(ok, travel * height / safe_dt, np.nan))
     v = np.where(np.isfinite(speeds), speeds, v)
     w = _interp_missing(np.where(ok, z[:, 6] / safe_dt, np.nan))
+    if noise is not None:
+        for k, m in enumerate(ms):
+            for i in M.standstill_states(float(speeds[k]), m.status, noise):
+                (v if i == M.SPEED else w)[k] = 0.0
     # dead reckoning: measured motion where there is a pair, the model's prediction elsewhere
     pose = np.zeros((n, 3))
     pose[0] = start
@@ -277,8 +283,8 @@ def _frame_factors(
     metric: bool = True,
 ) -> list[gtsam.NonlinearFactor]:
     """Factors that frame k (key index) adds: process, body, mount walk (unless ``first``),
-    the pair (if usable and not ``first``; ``metric``: see ``motion_pair_factor``) and the
-    wheel speed (if finite)."""
+    the pair (if usable and not ``first``; ``metric``: see ``motion_pair_factor``), the
+    wheel speed (if finite) and the standstill (``model.standstill_states``)."""
     nz = cfg.noise
     out: list[gtsam.NonlinearFactor] = []
     if not first:
@@ -295,6 +301,7 @@ def _frame_factors(
             )
     if math.isfinite(speed):
         out.append(F.speed_factor(k, speed, nz, cfg.speed_loss, cfg.loss_k(1)))
+    out.extend(F.standstill_factors(k, M.standstill_states(speed, m.status, nz), nz))
     return out
 
 
@@ -595,7 +602,7 @@ def smooth_batch(
     dts = np.concatenate([[0.0], np.diff(t)])
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    guess = _initial_guess(ms, sp, dts, cfg.height_m)
+    guess = _initial_guess(ms, sp, dts, cfg.height_m, noise=cfg.noise)
     metric = _metric_frames(t, sp, cfg.speed_timeout_s)
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()

@@ -103,10 +103,12 @@ def clairvoyant(run: DriveRun, use_speed: bool, lags_s: tuple[float, ...] = (2.0
     """Kalman filter + RTS smoother of ``filters.model`` linearised about the TRUE states,
     with the sim's own noise (the pairs' reported covariance, the model's mount/body process
     noise, which the sim draws from) and no gating or robust loss; outlier pairs (known to
-    the sim) and failed pairs are left out. Pitch and roll are linear in the model, so for
-    them this is the exact MMSE estimate (a bound no method can beat on average); height and
-    trajectory are linearised and use the model's motion random walks (the sim's speed and
-    turn profiles are not random walks): a near-optimal reference there.
+    the sim) and failed pairs are left out; the model's standstill pseudo-measurement is
+    applied where ``model.standstill_states`` says so. Pitch and roll are linear in the
+    model, so for them this is the exact MMSE estimate (a bound no method can beat on
+    average); height and trajectory are linearised and use the model's motion random walks
+    (the sim's speed and turn profiles are not random walks): a near-optimal reference
+    there.
 
     Returns (n, 16) state estimates: ``causal`` (filter), ``batch`` (RTS over the drive) and
     ``lag <L> s`` (RTS over the data up to t + L, evaluated at t) for each ``lags_s``, and
@@ -164,6 +166,11 @@ def clairvoyant(run: DriveRun, use_speed: bool, lags_s: tuple[float, ...] = (2.0
             hs.append(hk)
             zs.append(np.array([speeds[k]]))
             rs.append(np.array([[nz.speed_meas_var(float(speeds[k]))]]))
+        still = M.standstill_states(float(speeds[k]), str(run.status[k]), nz)
+        if still:  # the model's standstill pseudo-measurement (linear: states = 0)
+            hs.append(M.standstill_measurement(xt[k], still)[1])
+            zs.append(np.zeros(len(still)))
+            rs.append(np.diag(nz.standstill_var(still)))
         if hs:
             h = np.vstack(hs)
             z = np.concatenate(zs)

@@ -69,7 +69,7 @@ def test_outliers_failures_and_standstill():
     assert not np.any(run.outlier & ~ok)
     assert np.all(np.isnan(run.z[~ok]))
     assert not any(m.ok for m, s in zip(run.measurements, run.status, strict=True) if s != "ok")
-    still = run.status == "too little motion"
+    still = run.status == "no motion"
     assert still.sum() > 10 and np.all(run.truth.speed[still] < 0.5)
     failed = (run.status == "too few inliers").sum() / len(run.status)
     assert failed == pytest.approx(0.05, abs=0.02)

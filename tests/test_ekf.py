@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from filters import model as M
-from filters.drive_sim import DriveConfig, MountChange, simulate_drive
+from filters.drive_sim import DriveConfig, DriveProfile, MountChange, simulate_drive
 from filters.ekf import EkfConfig, ExtrinsicsEKF, run_filter
 from filters.metrics import consistency, from_filter_states, score_run
 from vipm_track.cli import main
@@ -146,6 +146,76 @@ def test_predicts_through_gaps():
     assert all(s.status != "reset" for s in states)
     err = np.degrees(states[-1].mount[0] - run.truth.mount_pitch[-1])
     assert abs(err) < 0.1
+
+
+# --- standstill (zero-velocity update) -----------------------------------------------------
+
+
+def _stop_in_a_turn(seed=0):
+    """Cart turning at 14°/s (curvature 0.25/m at 1 m/s), braking to a 10 s stop (8–18 s)
+    in the turn, then driving off straight: the last pairs before the stop still see ~1.4°/s."""
+    profile = DriveProfile(
+        (0.0, 6.0, 8.0, 18.0, 20.0), (1.0, 1.0, 0.0, 0.0, 1.0), (0.25, 0.25, 0.25, 0.0, 0.0)
+    )
+    cfg = DriveConfig.preset("cart", duration_s=30.0, height_m=0.7, failure_fraction=0.0)
+    run = simulate_drive(cfg, seed, profile)
+    still = np.flatnonzero(run.truth.speed == 0.0)
+    assert run.truth.t[still[-1]] - run.truth.t[still[0]] >= 9.9
+    return run, still[0], still[-1]
+
+
+def test_standstill_rule():
+    from vipm_track.estimator import STATUS_NO_MOTION
+
+    nz = M.NoiseParams()
+    assert M.NO_MOTION_STATUS == STATUS_NO_MOTION
+    assert M.standstill_states(0.0, "ok", nz) == (M.YAW_RATE,)
+    assert M.standstill_states(0.04, M.NO_MOTION_STATUS, nz) == (M.YAW_RATE,)
+    assert M.standstill_states(0.2, M.NO_MOTION_STATUS, nz) == ()  # the wheels say: moving
+    assert M.standstill_states(float("nan"), M.NO_MOTION_STATUS, nz) == (M.SPEED, M.YAW_RATE)
+    assert M.standstill_states(None, "too few inliers", nz) == ()
+    assert M.standstill_states(0.0, "ok", replace(nz, standstill_update=False)) == ()
+    z, h = M.standstill_measurement(np.arange(M.STATE_DIM, dtype=float), (M.SPEED, M.YAW_RATE))
+    assert z.tolist() == [M.SPEED, M.YAW_RATE] and h[0, M.SPEED] == h[1, M.YAW_RATE] == 1.0
+
+
+@pytest.mark.parametrize("speed", [True, False])
+def test_heading_does_not_drift_during_a_stop(speed):
+    run, a, b = _stop_in_a_turn()
+    tr = run.truth
+    drift = {}
+    for on in (True, False):
+        noise = replace(run.config.noise, standstill_update=on)
+        states = run_filter(run.measurements, run.speed if speed else None,
+                            EkfConfig(height_m=0.7, noise=noise))
+        herr = np.degrees(np.array([s.heading for s in states]) - tr.heading)
+        drift[on] = herr[b] - herr[a]
+        if on:
+            assert all(s.standstill for s in states[a:b + 1])
+            assert not any(s.standstill for s in states[b + 15:])
+            assert np.hypot(*(states[b].position - states[a].position)) < 0.005  # metres
+            assert np.max(np.abs(herr[a:])) < 1.5  # and no heading jumps when it drives off
+    assert abs(drift[True]) < 0.05
+    assert abs(drift[False]) > 5.0  # the last yaw rate integrated over the stop
+
+
+@pytest.mark.parametrize("preset", ["car", "cart"])
+def test_an_outlier_first_pair_does_not_turn_the_heading(preset):
+    # the first good pair's yaw is 1.3° off: started with the model's wide yaw-rate prior the
+    # filter takes it, then gates the good pairs while the heading turns with it
+    run = _drive(preset, seed=0, duration_s=20.0, failure_fraction=0.0, stop_probability=0.0)
+
+    def max_heading_error_deg(ms, floor_dps):
+        cfg = EkfConfig(height_m=run.config.h0, noise=run.config.noise,
+                        init_yaw_rate_std_min_dps=floor_dps)
+        states = run_filter(ms, run.speed, cfg)
+        return np.nanmax(np.abs(np.degrees([s.heading for s in states] - run.truth.heading)))
+
+    clean = max_heading_error_deg(run.measurements, 1.0)
+    ms = list(run.measurements)
+    ms[1] = replace(ms[1], z=ms[1].z + np.radians(1.3) * np.eye(7)[6])
+    assert max_heading_error_deg(ms, 1.0) < clean + 0.05
+    assert max_heading_error_deg(ms, 1000.0) > clean + 5.0  # the wide prior: fails
 
 
 def test_mount_step_resets_with_reason_and_reconverges():

@@ -12,7 +12,7 @@ import pytest
 
 from filters import factors as F
 from filters import model as M
-from filters.drive_sim import DriveConfig, simulate_drive
+from filters.drive_sim import DriveConfig, DriveProfile, simulate_drive
 from filters.ekf import EkfConfig, run_filter
 from filters.fixed_lag import SolveError
 from filters.metrics import from_filter_states, rms_after
@@ -476,17 +476,90 @@ def test_stacked_rows_are_the_gtsam_factors(metric):
     np.testing.assert_allclose(jac[0], num, rtol=1e-5, atol=1e-4 * np.abs(jac[0]).max())
 
 
-def test_fixed_lag_longer_than_the_drive_is_the_batch():
-    run = _drive(4, duration=6.0)
-    cfg = SmootherConfig(height_m=H0, noise=run.config.noise)
+@pytest.mark.parametrize("speed", [0.0, float("nan")])
+def test_stacked_standstill_rows_are_the_gtsam_factors(speed):
+    # wheel speed 0: yaw rate = 0; no wheel speed and a "no motion" pair: speed and yaw rate
+    rng = np.random.default_rng(5)
+    v = _random_values(rng, (0, 1))
+    nz, dt = M.NoiseParams(), 0.1
+    m = PairMeasurement(1, dt, np.full(7, np.nan), np.full((7, 7), np.nan), H0, "no motion")
+    c = F.StackedPairs(
+        **{k: np.asarray([val]) for k, val in F.pair_constants(m, dt, speed, nz, 0.001, True)
+           .items()}
+    )
+    prev, curr = _model_vector(v, 0)[None], _model_vector(v, 1)[None]
+    r, jac, _ = F.stacked_rows(prev, curr, c)
+    states = M.standstill_states(speed, m.status, nz)
+    assert len(states) == (1 if speed == 0.0 else 2)
+    fs = F.standstill_factors(1, states, nz)
+    assert 0.5 * np.sum(r[0, F.STANDSTILL_ROWS] ** 2) == pytest.approx(
+        sum(f.error(v) for f in fs), rel=1e-12
+    )
+    assert np.all(r[0, F.POSE_ROWS] == 0.0) and np.all(r[0, F.MOTION_ROWS] == 0.0)
+    # d/d(v_k, ω_k) = 1/σ where pinned, nothing else
+    isig = 1.0 / np.sqrt(nz.standstill_var((M.SPEED, M.YAW_RATE)))
+    expected = np.zeros((2, 22))
+    for i in states:
+        j = (M.SPEED, M.YAW_RATE).index(i)
+        expected[j, 11 + 3 + j] = isig[j]
+    np.testing.assert_allclose(jac[0, F.STANDSTILL_ROWS], expected)
+
+
+def _stop_in_a_turn(seed=0):
+    """Cart turning at 14°/s braking to a 10 s stop (8–18 s) in the turn, then driving off
+    straight (as tests/test_ekf.py)."""
+    profile = DriveProfile(
+        (0.0, 6.0, 8.0, 18.0, 20.0), (1.0, 1.0, 0.0, 0.0, 1.0), (0.25, 0.25, 0.25, 0.0, 0.0)
+    )
+    cfg = DriveConfig.preset("cart", duration_s=30.0, height_m=0.7, failure_fraction=0.0)
+    run = simulate_drive(cfg, seed, profile)
+    still = np.flatnonzero(run.truth.speed == 0.0)
+    return run, still[0], still[-1]
+
+
+@pytest.mark.parametrize("lag_s", [0.0, 2.0])
+def test_smoothed_heading_does_not_drift_during_a_stop(lag_s):
+    run, a, b = _stop_in_a_turn()
+    tr = run.truth
+    drift = {}
+    for on in (True, False):
+        noise = replace(run.config.noise, standstill_update=on)
+        frames = smooth(run.measurements, run.speed,
+                        SmootherConfig(height_m=0.7, noise=noise, lag_s=lag_s))
+        herr = np.degrees(np.array([f.heading for f in frames]) - tr.heading)
+        drift[on] = herr[b] - herr[a]
+        if on:
+            assert np.hypot(*(frames[b].position - frames[a].position)) < 0.005  # metres
+            assert np.max(np.abs(herr)) < 1.5
+            assert all(abs(f.yaw_rate) < math.radians(0.05) for f in frames[a + 5:b])
+    assert abs(drift[True]) < 0.05
+    # without it the process model bridges the stop: the yaw rate ramps from the last
+    # measured ~1.4°/s to the one after the stop
+    assert abs(drift[False]) > 3.0
+
+
+@pytest.mark.parametrize("start", ["moving", "standing"])
+def test_fixed_lag_longer_than_the_drive_is_the_batch(start):
+    if start == "moving":
+        run = _drive(4, duration=6.0)
+    else:  # the first frames stand (standstill in the first frame's prior), then drive off
+        profile = DriveProfile((0.0, 3.0, 5.0), (0.0, 0.0, 1.0), (0.1, 0.1, 0.1))
+        run = simulate_drive(DriveConfig.preset(
+            "cart", duration_s=8.0, height_m=0.714, height_assumed_m=0.7), 4, profile)
+    cfg = SmootherConfig(height_m=run.config.h0, noise=run.config.noise)
     batch, _ = smooth_batch(run.measurements, speeds_at_frames(run.measurements, run.speed), cfg)
     # converged to the end (the default stops at steps below 0.01 χ², ~0.1 σ)
     tight = replace(cfg, lag_s=100.0, lag_tolerance_chi2=1e-10, lag_max_iterations=30)
     window = smooth(run.measurements, run.speed, tight)
+    # the first frame's 3°-wide mount prior is centred on the median of the pairs each has at
+    # its start (batch: all, window: the first init_pairs): with only 30 pairs that shows
+    mount_atol = 1e-6 if start == "moving" else 1e-5
     for b, w in zip(batch, window, strict=True):
         assert b.frame == w.frame and b.status == w.status
-        np.testing.assert_allclose(w.mount, b.mount, atol=1e-6)
+        np.testing.assert_allclose(w.mount, b.mount, atol=mount_atol)
         np.testing.assert_allclose(w.position, b.position, atol=1e-4)
+        assert w.speed == pytest.approx(b.speed, abs=1e-4)  # m/s
+        assert w.yaw_rate == pytest.approx(b.yaw_rate, abs=1e-5)  # rad/s
         np.testing.assert_allclose(w.mount_std, b.mount_std, rtol=1e-4)
         if np.all(np.isfinite(b.motion_cov)):
             np.testing.assert_allclose(w.motion_cov, b.motion_cov, rtol=1e-3, atol=1e-12)
