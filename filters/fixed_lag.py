@@ -88,6 +88,7 @@ class FixedLagSmoother:
         self._started = False
         self._t_last = -math.inf
         self._last_speed_t = -math.inf
+        self._still: dict[int, bool] = {}  # frame → standstill, until the frame is emitted
         self._clear()
 
     # --- public ------------------------------------------------------------------------------
@@ -98,6 +99,7 @@ class FixedLagSmoother:
         if not (math.isfinite(m.t) and m.t > self._t_last):
             return [_skipped(m, f"time {m.t} not after the previous frame's")]
         self._t_last = m.t
+        self._still[m.frame] = bool(M.standstill_states(speed, m.status, self._cfg.noise))
         if not self._started:
             self._boot.append((m, speed))
             if sum(b.ok for b, _ in self._boot[1:]) < self._cfg.init_pairs:
@@ -349,7 +351,8 @@ class FixedLagSmoother:
         reason = "" if pair else m.status
         if self._reset is not None and self._reset[0] == m.frame:
             status, reason = "reset", self._reset[1]
-        return _make_frame(m, state, cov, status, gated, reason)
+        return _make_frame(m, state, cov, status, gated, reason,
+                           self._still.pop(m.frame, False))
 
     def _marginalise(self) -> None:
         """Fold the anchor (and the factors joining it to the next frame) into a Gaussian

@@ -130,6 +130,7 @@ class SmoothedFrame(FrameStds):
     nis: float = float("nan")
     gated: str = ""
     reason: str = ""
+    standstill: bool = False  # the standstill factor (model.standstill_states) holds here
 
     @property
     def initialised(self) -> bool:
@@ -511,6 +512,7 @@ def _make_frame(
     status: str,
     gated: str = "",
     reason: str = "",
+    standstill: bool = False,
 ) -> SmoothedFrame:
     pose, jp = M.frame_pose(np.nan_to_num(state))
     pose = np.where(np.isfinite(state[[0, 1, 2]]), pose, np.nan)
@@ -540,6 +542,7 @@ def _make_frame(
         covariance=cov,
         gated=gated,
         reason=reason,
+        standstill=standstill,
     )
 
 
@@ -647,7 +650,8 @@ def smooth_batch(
             cov = np.full((M.STATE_DIM, M.STATE_DIM), np.nan)
         status, gated = _status(ms[k], norms.get(k), cfg)
         reason = "" if status != "predicted" else ms[k].status
-        frames_kept.append(_make_frame(ms[k], state, cov, status, gated, reason))
+        still = bool(M.standstill_states(float(sp[k]), ms[k].status, cfg.noise))
+        frames_kept.append(_make_frame(ms[k], state, cov, status, gated, reason, still))
     timings["output"] = time.perf_counter() - t0
 
     out: list[SmoothedFrame] = []

@@ -41,7 +41,7 @@ TRACK_COLUMNS: tuple[str, ...] = (
     "mount_height_m", "mount_height_std_m", "mount_yaw_deg",
     "speed_mps", "yaw_rate_dps", "x_m", "y_m", "heading_deg", "filter_status",
     "meas_status", "meas_pitch_deg", "meas_roll_deg", "meas_tx_m", "meas_tz_m", "meas_yaw_deg",
-    "wheel_speed_mps", "nis", "gated", "reset_reason",
+    "wheel_speed_mps", "nis", "gated", "standstill", "reset_reason",
 )
 
 WAITING = "waiting for first pairs"
@@ -83,6 +83,7 @@ def track_row(state: FilterState, m: PairMeasurement | None, speed: float | None
     row["wheel_speed_mps"] = None if speed is None else _num(speed)
     row["nis"] = _num(state.nis)
     row["gated"] = state.gated
+    row["standstill"] = int(bool(state.standstill)) if state.initialised else None
     row["reset_reason"] = state.reset_reason
     return row
 

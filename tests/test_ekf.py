@@ -352,3 +352,20 @@ def test_frame_pose_follows_shaking_beyond_the_body_model(amp_deg):
         # at 1° the mount starts off by the shaking and its covariance collapses before the
         # body std has adapted (first 10 pairs): it converges slowly (known, see report)
         assert np.all(rms(mount - true_mount) < 0.5 * rms(raw - true_mount))
+
+
+@pytest.mark.parametrize("command", ["track", "smooth"])
+def test_cli_marks_standstill_frames(tmp_path, command):
+    """The ``standstill`` column is 1 during the stop (wheel speed 0) and 0 while driving."""
+    from conftest import write_drive_inputs
+
+    run, first, last = _stop_in_a_turn()
+    est, speed, _ = write_drive_inputs(run, tmp_path)
+    out = tmp_path / f"{command}.csv"
+    assert main([command, "--estimates", str(est), "--height", "0.7", "--speed-csv", str(speed),
+                 "--out", str(out), "--quiet"]) == 0
+    tab = read_table(out)
+    still = tab["standstill"]
+    assert np.all(still[first + 1:last] == 1)
+    moving = (run.truth.speed > 0.5) & (tab["t"] > 1.0)
+    assert moving.sum() > 100 and np.all(still[moving] == 0)
