@@ -355,7 +355,7 @@ class ExtrinsicsEKF:
             # EKF would invent information along it from its moving linearisation point;
             # hold h where it is (its prior) instead
             h[:, M.MOUNT_HEIGHT] = 0.0
-        r = np.asarray(m.covariance, dtype=float)
+        r = self._cfg.noise.pair_covariance(m.covariance)
         y = m.z - zp
         y[6] = _wrap(y[6])
         s = h @ kf.P @ h.T + r
@@ -392,7 +392,7 @@ class ExtrinsicsEKF:
         kf = self._kf
         assert kf is not None and self._t is not None
         b = m.z[2:4] - kf.x[[M.MOUNT_PITCH, M.MOUNT_ROLL]]
-        r = np.diag(np.asarray(m.covariance, dtype=float))[2:4]
+        r = np.diag(self._cfg.noise.pair_covariance(m.covariance))[2:4]
         self._body_seen.append((self._t, float(b[0]), float(b[1]), float(r[0]), float(r[1])))
         while self._body_seen and self._body_seen[0][0] < self._t - self._cfg.body_window_s:
             self._body_seen.popleft()

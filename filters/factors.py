@@ -402,7 +402,7 @@ def pair_constants(
     """One pair's entries of :class:`StackedPairs` (a row of each field)."""
     wq, a, bis, walk = _frame_whiteners(float(dt), noise, float(cross_track_std_m))
     ok = bool(m.ok)
-    cov = np.asarray(m.covariance, dtype=float) if ok else None
+    cov = noise.pair_covariance(m.covariance) if ok else None
     has_speed = math.isfinite(speed)
     still = M.standstill_states(speed, m.status, noise)
     still_isig = np.zeros(2)

@@ -293,7 +293,7 @@ def _frame_factors(
         out.append(F.body_factor(k, dt, nz))
         out.extend(F.mount_walk_factors(k, dt, nz))
         if m.ok:
-            cov = np.asarray(m.covariance, dtype=float)
+            cov = nz.pair_covariance(m.covariance)
             out.append(F.pose_pair_factor(k, m.z[:4], cov[:4, :4], cfg.loss, cfg.loss_k(4)))
             out.append(
                 F.motion_pair_factor(

@@ -369,3 +369,18 @@ def test_cli_marks_standstill_frames(tmp_path, command):
     assert np.all(still[first + 1:last] == 1)
     moving = (run.truth.speed > 0.5) & (tab["t"] > 1.0)
     assert moving.sum() > 100 and np.all(still[moving] == 0)
+
+
+def test_pair_covariance_floors_the_angles_only():
+    noise = M.NoiseParams(min_angle_meas_std_deg=0.01)
+    std = np.radians([0.002, 0.05, 0.004, 0.0, 0.0, 0.0, 0.01])
+    std[4:6] = [0.001, 0.002]
+    corr = np.eye(7)
+    corr[0, 2] = corr[2, 0] = 0.5
+    cov = corr * np.outer(std, std)
+    out = noise.pair_covariance(cov)
+    got = np.sqrt(np.diag(out))
+    np.testing.assert_allclose(np.degrees(got[:4]), [0.01, 0.05, 0.01, 0.01])
+    np.testing.assert_allclose(got[4:], std[4:])
+    assert out[0, 2] / (got[0] * got[2]) == pytest.approx(0.5)  # correlation kept
+    assert np.array_equal(M.NoiseParams(min_angle_meas_std_deg=0.0).pair_covariance(cov), cov)
