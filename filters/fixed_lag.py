@@ -80,7 +80,7 @@ class FixedLagSmoother:
         if cfg.lag_s <= 0:
             raise ValueError("FixedLagSmoother needs lag_s > 0 (use smooth_batch for 0)")
         self._cfg = cfg
-        self._loss = (cfg.loss, cfg.loss_k(4), cfg.loss_k(3))
+        self._loss = (cfg.loss, cfg.pair_loss_k(4), cfg.pair_loss_k(3))
         self._speed_loss = (cfg.speed_loss, cfg.loss_k(1))
         self._start_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self._reset: tuple[int, str] | None = None
