@@ -92,8 +92,8 @@ LOSS_K_SCALE: dict[str, float] = {"geman-mcclure": math.sqrt(2.0)}
 
 
 def robust(base: gtsam.noiseModel.Base, kind: str, k: float) -> gtsam.noiseModel.Base:
-    """``base`` wrapped in a Huber / Cauchy M-estimator of threshold ``k`` (whitened norm);
-    ``kind='none'`` returns ``base``."""
+    """``base`` wrapped in gtsam's M-estimator ``kind`` (``LOSSES``) of threshold ``k``
+    (whitened norm); ``kind='none'`` returns ``base``."""
     if kind == "none":
         return base
     if kind == "huber":
