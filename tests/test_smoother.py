@@ -674,8 +674,9 @@ def test_yaw_outliers_barely_bend_the_trajectory():
         for loss in ("geman-mcclure", "cauchy"):
             cfg = replace(base, loss=loss, lag_s=lag, marginals=False)
             clean, wrong = smooth(run.measurements, run.speed, cfg), smooth(bad, run.speed, cfg)
-            dh = [math.degrees(abs(a.heading - b.heading)) for a, b in zip(clean, wrong)]
-            dp = np.array([a.position - b.position for a, b in zip(clean, wrong)])
+            dh = [math.degrees(abs(math.remainder(a.heading - b.heading, math.tau)))
+                  for a, b in zip(clean, wrong, strict=True)]
+            dp = np.array([a.position - b.position for a, b in zip(clean, wrong, strict=True)])
             dev[loss] = (max(dh), float(np.sqrt(np.mean(np.sum(dp**2, axis=1)))))
         gm, cauchy = dev["geman-mcclure"], dev["cauchy"]
         assert gm[0] < 0.3 and gm[0] < 0.6 * cauchy[0], (lag, dev)
