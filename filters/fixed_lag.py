@@ -31,7 +31,7 @@ from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg import cho_solve_banded, cholesky_banded
+from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from vipm_track.measurement import PairMeasurement
 
@@ -80,7 +80,7 @@ class FixedLagSmoother:
         if cfg.lag_s <= 0:
             raise ValueError("FixedLagSmoother needs lag_s > 0 (use smooth_batch for 0)")
         self._cfg = cfg
-        self._loss = (cfg.loss, cfg.loss_k(4), cfg.loss_k(3))
+        self._loss = (cfg.loss, cfg.pair_loss_k(4), cfg.pair_loss_k(3))
         self._speed_loss = (cfg.speed_loss, cfg.loss_k(1))
         self._start_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self._reset: tuple[int, str] | None = None
@@ -137,9 +137,12 @@ class FixedLagSmoother:
         self._prior: tuple[FloatArray, FloatArray] | None = None  # (R, μ) on the anchor
         self._emitted = 0  # frames of the window already reported (the anchor, if 1)
         self._last: tuple[FloatArray, FloatArray] | None = None  # (factor, norms) of the window
+        self._stacked: F.StackedPairs | None = None  # self._c as arrays, until it changes
 
     def _pairs(self) -> F.StackedPairs:
-        return F.StackedPairs(**{f: np.asarray(v) for f, v in self._c.items()})
+        if self._stacked is None:
+            self._stacked = F.StackedPairs(**{f: np.asarray(v) for f, v in self._c.items()})
+        return self._stacked
 
     def _append(self, m: PairMeasurement, speed: float) -> None:
         """Add frame ``m`` to the window, predicted from the newest one."""
@@ -171,6 +174,7 @@ class FixedLagSmoother:
         )
         for f in _FIELDS:
             self._c[f].append(row[f])
+        self._stacked = None
 
     # --- start / restart -----------------------------------------------------------------------
 
@@ -217,6 +221,7 @@ class FixedLagSmoother:
         self._ms.pop()
         for f in _FIELDS:
             self._c[f].pop()
+        self._stacked = None
         self._x = self._x[: len(self._ms)]
         self._last = None
         try:
@@ -268,14 +273,16 @@ class FixedLagSmoother:
         """Banded upper Cholesky factor of the window's information matrix in *reversed*
         variable order (newest frame first), so its last blocks belong to the oldest frames."""
         n = len(hd)
-        rows, cols, src = _band_index(n)
-        vals = np.concatenate([hd.reshape(-1), hu.reshape(-1)])[src]
+        flat, src_d, src_u = _band_index(n)
         ab = np.zeros((2 * _D, n * _D))
-        ab[rows, cols] = vals
-        try:
-            return cholesky_banded(ab, lower=False, check_finite=True)
-        except (np.linalg.LinAlgError, ValueError) as exc:
-            raise SolveError(f"window information not positive definite ({exc})") from None
+        ab.reshape(-1)[flat] = np.concatenate([hd.reshape(-1)[src_d], hu.reshape(-1)[src_u]])
+        # LAPACK directly (scipy's cholesky_banded wrapper costs as much as the factorisation)
+        if not np.all(np.isfinite(ab)):
+            raise SolveError("window information not finite")
+        cb, info = dpbtrf(ab, lower=0, overwrite_ab=1)
+        if info != 0:
+            raise SolveError(f"window information not positive definite (leading minor {info})")
+        return cb
 
     def _solve(self, max_iterations: int | None = None) -> None:
         """Gauss–Newton steps until a step's predicted decrease of the cost is below
@@ -286,7 +293,10 @@ class FixedLagSmoother:
         for _ in range(max_iterations or cfg.lag_max_iterations):
             hd, hu, g, norms, _ = self._normal_equations()
             cb = self._factor(hd, hu)
-            delta = -cho_solve_banded((cb, False), g.reshape(-1)[::-1])[::-1].reshape(-1, _D)
+            sol, info = dpbtrs(cb, g.reshape(-1)[::-1], lower=0)
+            if info != 0:
+                raise SolveError(f"banded solve failed (LAPACK info {info})")
+            delta = -sol[::-1].reshape(-1, _D)
             if not np.all(np.isfinite(delta)):
                 raise SolveError("Gauss-Newton step is not finite")
             self._x = self._x + delta
@@ -305,11 +315,10 @@ class FixedLagSmoother:
             cb, norms = self._last
         n = len(self._x)
         k = min(2, n) * _D
-        u = np.zeros((k, k))
         last = n * _D - k
-        for i in range(k):
-            for j in range(i, min(k, i + 2 * _D)):
-                u[i, j] = cb[2 * _D - 1 + i - j, last + j]
+        i, j = np.triu_indices(k)  # j - i < k <= 2D: every upper entry is in the band
+        u = np.zeros((k, k))
+        u[i, j] = cb[2 * _D - 1 + i - j, last + j]
         # reversed order: undo with [::-1]
         info = (u.T @ u)[::-1, ::-1]
         return np.linalg.inv(info), norms[0] if len(norms) else np.full(2, np.nan)
@@ -358,7 +367,7 @@ class FixedLagSmoother:
         """Fold the anchor (and the factors joining it to the next frame) into a Gaussian
         prior on the next frame, which becomes the anchor."""
         x = self._x
-        first = F.StackedPairs(**{f: np.asarray(v[:1]) for f, v in self._c.items()})
+        first = F.StackedPairs(**{f: getattr(self._pairs(), f)[:1] for f in _FIELDS})
         r, j, _ = F.stacked_rows(x[0:1], x[1:2], first, self._loss, self._speed_loss)
         rp, mu = self._prior  # type: ignore[misc]
         a = np.zeros((_D + F.PAIR_ROWS, 2 * _D))
@@ -380,6 +389,7 @@ class FixedLagSmoother:
         self._ms.pop(0)
         for f in _FIELDS:
             self._c[f].pop(0)
+        self._stacked = None
 
 
 def _first_prior(
@@ -414,9 +424,10 @@ _BAND_CACHE: dict[int, tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.in
 
 
 def _band_index(n: int) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
-    """Where each entry of the block-tridiagonal matrix of ``n`` frames goes in LAPACK's upper
-    band storage of the *reversed* matrix: (band rows, band columns, index into the
-    concatenated flattened diagonal and upper blocks)."""
+    """Where the entries of the block-tridiagonal matrix of ``n`` frames go in LAPACK's upper
+    band storage (2D × nD) of the *reversed* matrix: (flat index into the band, indices into
+    the flattened diagonal blocks, indices into the flattened upper blocks; the band takes the
+    diagonal blocks' entries first)."""
     if n in _BAND_CACHE:
         return _BAND_CACHE[n]
     nn = n * _D
@@ -429,11 +440,11 @@ def _band_index(n: int) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[n
     r_u = fu * _D + iu
     c_u = (fu + 1) * _D + ju
     s_u = n * _D * _D + np.arange(len(r_u))
-    r, c, s = np.concatenate([r_d, r_u]), np.concatenate([c_d, c_u]), np.concatenate([s_d, s_u])
+    r, c = np.concatenate([r_d, r_u]), np.concatenate([c_d, c_u])
     # a'[i', j'] = a[N-1-i', N-1-j'] with i' ≤ j': i' = N-1-c, j' = N-1-r
     ri, ci = nn - 1 - c, nn - 1 - r
     u = 2 * _D - 1
-    out = (u + ri - ci, ci, s)
+    out = ((u + ri - ci) * nn + ci, s_d, s_u - n * _D * _D)
     _BAND_CACHE[n] = out
     return out
 

@@ -231,7 +231,7 @@ def test_marginal_stds_are_positive_and_consistent(drive, batch):
     good = np.all(np.isfinite(motion), axis=1)
     zt = (motion[good, :2] - np.c_[tr.tx, tr.tz][late][good]) / mstd[good, :2]
     # conservative: the motion priors (speed / yaw-rate random walks) are looser than the
-    # simulated drive profiles, and the Cauchy loss gives inliers weights a little below 1
+    # simulated drive profiles, and the robust loss gives inliers weights a little below 1
     assert 0.2 < float(np.mean(zt**2)) < 3.0
 
 
@@ -651,3 +651,33 @@ def test_batch_smoother_is_at_the_clairvoyant_bound(drive, batch, bench_filters)
         if i < 2:  # (height: a 30 s drive is too short to promise it drive by drive)
             assert bound < causal, (i, bound, causal)
         assert got < 1.15 * bound, (i, got, bound)
+
+
+def test_yaw_outliers_barely_bend_the_trajectory():
+    # the cart's yaw-rate model is loose, so a wrong yaw pulls the heading unless the loss
+    # redescends fast: Geman–McClure (the default) must hold the heading and the trajectory
+    # of a drive with ±2° yaw on every 10th pair far closer to the clean drive's than Cauchy
+    cfg_d = DriveConfig.preset("cart", duration_s=30.0, height_m=0.714, height_assumed_m=0.7)
+    run = simulate_drive(cfg_d, 0)
+    rng = np.random.default_rng(0)
+    bad = []
+    for m in run.measurements:
+        if m.ok and m.frame % 10 == 5:
+            z = m.z.copy()
+            z[6] += math.radians(2.0) * rng.choice([-1.0, 1.0])
+            m = replace(m, z=z)
+        bad.append(m)
+    base = SmootherConfig(height_m=0.7, noise=run.config.noise)
+    assert base.loss == "geman-mcclure"
+    for lag in (0.0, 2.0):
+        dev = {}
+        for loss in ("geman-mcclure", "cauchy"):
+            cfg = replace(base, loss=loss, lag_s=lag, marginals=False)
+            clean, wrong = smooth(run.measurements, run.speed, cfg), smooth(bad, run.speed, cfg)
+            dh = [math.degrees(abs(math.remainder(a.heading - b.heading, math.tau)))
+                  for a, b in zip(clean, wrong, strict=True)]
+            dp = np.array([a.position - b.position for a, b in zip(clean, wrong, strict=True)])
+            dev[loss] = (max(dh), float(np.sqrt(np.mean(np.sum(dp**2, axis=1)))))
+        gm, cauchy = dev["geman-mcclure"], dev["cauchy"]
+        assert gm[0] < 0.3 and gm[0] < 0.6 * cauchy[0], (lag, dev)
+        assert gm[1] < 0.05 and gm[1] < 0.6 * cauchy[1], (lag, dev)
