@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from filters.factors import LOSSES
+from filters.smoother import SmootherConfig
 
 from ..errors import InputError
 from .common import (
@@ -68,8 +69,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     group.add_argument(
         "--loss",
         choices=LOSSES,
-        default="cauchy",
-        help="robust loss of the pair factors (default: cauchy)",
+        default=SmootherConfig.loss,
+        help="robust loss of the pair factors (default: %(default)s; redescending, so a strong "
+        "outlier pair pulls the trajectory far less than with cauchy)",
     )
     group.add_argument(
         "--loss-probability",
