@@ -29,7 +29,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from vipm_track.baseline import homography_baseline  # noqa: E402
-from vipm_track.estimator import EstimatorConfig, TwoFrameEstimator  # noqa: E402
+from vipm_track.estimator import (  # noqa: E402
+    REFINEMENT_WEIGHTING,
+    EstimatorConfig,
+    TwoFrameEstimator,
+)
 from vipm_track.render import Effects  # noqa: E402
 from vipm_track.sim import (  # noqa: E402
     PRESETS,
@@ -74,8 +78,8 @@ def run_row(profile: str, texture: str | None, effects: Effects | None, pairs: i
     tex = preset_texture(preset, texture, seed)
     cam = preset.camera()
     cfg = EstimatorConfig(refinements=2)
-    cfg_paper = EstimatorConfig(refinements=1, vertical_motion=False, weight_patches=False,
-                                recentre_windows=False, inlier_median_factor=0.0)
+    cfg_paper = EstimatorConfig(refinements=1, vertical_motion=False,
+                                **REFINEMENT_WEIGHTING["uniform"])
     errs = Errors()
     times = []
     prev = render_trajectory_frame(tex, cam, traj, 0, effects)

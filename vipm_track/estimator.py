@@ -56,6 +56,15 @@ STATUS_NOT_CONVERGED = "did not converge"
 STATUS_DEGENERATE = "degenerate"
 
 
+#: The refinement's patch weighting, as EstimatorConfig fields: "noise" (the steep-camera
+#: default: modelled patch noise, re-centred windows, self-tightening inlier threshold) or
+#: "uniform" (the paper's: every patch alike).
+REFINEMENT_WEIGHTING: dict[str, dict[str, bool | float]] = {
+    "noise": {"weight_patches": True, "recentre_windows": True, "inlier_median_factor": 6.0},
+    "uniform": {"weight_patches": False, "recentre_windows": False, "inlier_median_factor": 0.0},
+}
+
+
 @dataclass(frozen=True)
 class EstimatorConfig:
     """Settings of :class:`TwoFrameEstimator` (defaults follow the paper where it says).
@@ -349,23 +358,17 @@ class TwoFrameEstimator:
             )
         # Steep: the whole image sees the ground at the nominal pose (no horizon in view).
         self.steep = bool(horizon_row(camera.k, self.nominal, camera.cx) < 0)
-        if self.config.vertical_motion is None:
-            steep = self.steep
-            self.config = dataclasses.replace(self.config, vertical_motion=bool(steep))
-        if self.config.refinements is None:
-            self.config = dataclasses.replace(self.config, refinements=1 if self.steep else 2)
-        if self.config.stage_median is None:
-            self.config = dataclasses.replace(self.config, stage_median=not self.steep)
-        if self.config.weight_patches is None:
-            self.config = dataclasses.replace(self.config, weight_patches=self.steep)
-        if self.config.recentre_windows is None:
-            self.config = dataclasses.replace(self.config, recentre_windows=self.steep)
-        if self.config.inlier_median_factor is None:
-            self.config = dataclasses.replace(self.config,
-                                              inlier_median_factor=6.0 if self.steep else 0.0)
-        if self.config.pose_prior_deg is None:
-            self.config = dataclasses.replace(self.config,
-                                              pose_prior_deg=0.0 if self.steep else 2.0)
+        # per-camera defaults of the fields left None (see EstimatorConfig)
+        by_camera = {
+            "vertical_motion": self.steep,
+            "refinements": 1 if self.steep else 2,
+            "stage_median": not self.steep,
+            "pose_prior_deg": 0.0 if self.steep else 2.0,
+            **REFINEMENT_WEIGHTING["noise" if self.steep else "uniform"],
+        }
+        self.config = dataclasses.replace(self.config, **{
+            name: value for name, value in by_camera.items() if getattr(self.config, name) is None
+        })
         self._maps = camera.undistortion_maps() if camera.has_distortion else None
         self._cache: tuple[int, NDArray] | None = None
         self._prior_mean, self._prior_sigma = self._pose_prior(None)

@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 
 from ..camera import CameraModel, load_camera
 from ..errors import InputError
+from ..estimator import REFINEMENT_WEIGHTING
 from .common import (
     add_camera_options,
     add_input_options,
@@ -37,11 +38,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(handler=run)
 
 
-#: ``--refinement-weights`` → EstimatorConfig fields (None: the estimator's per-camera default)
+#: ``--refinement-weights`` → EstimatorConfig fields ("auto": the estimator's per-camera
+#: default)
 REFINEMENT_WEIGHTS: dict[str, dict[str, object]] = {
-    "auto": {"weight_patches": None, "recentre_windows": None, "inlier_median_factor": None},
-    "noise": {"weight_patches": True, "recentre_windows": True, "inlier_median_factor": 6.0},
-    "uniform": {"weight_patches": False, "recentre_windows": False, "inlier_median_factor": 0.0},
+    "auto": {}, **REFINEMENT_WEIGHTING,
 }
 
 
