@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import math
+from pathlib import Path
+
+from ..errors import InputError
 
 
 def add_input_options(parser: argparse.ArgumentParser, required: bool = True) -> None:
@@ -24,6 +28,37 @@ def add_camera_options(
                         "KITTI calib.txt")
     parser.add_argument("--height", type=float, required=height_required, metavar="H",
                         help="nominal camera height above the ground [m]")
+
+
+def add_filter_inputs(parser: argparse.ArgumentParser, verb: str,
+                      height_required: bool = True) -> None:
+    """Where a filtering subcommand's pairs come from: a recording (``--images``/``--video``
+    with ``--camera``, estimated on the fly) or ``--estimates EST.csv``; ``--height``; the
+    wheel-speed group. ``verb`` says what the command does with them (help text)."""
+    add_input_options(parser, required=False)
+    parser.add_argument("--estimates", metavar="EST.csv",
+                        help=f"skip estimation: {verb} this estimates table (written by "
+                        "'vipm-track estimate') instead of --images/--video")
+    add_camera_options(parser, height_required=height_required, camera_required=False)
+    add_speed_options(parser)
+
+
+def check_height(height: float | None) -> float:
+    """``--height`` as a positive number of metres (InputError otherwise)."""
+    if height is None or not (math.isfinite(height) and height > 0):
+        raise InputError(f"--height must be a positive number of metres, got {height}")
+    return float(height)
+
+
+def check_output(out: str) -> Path:
+    """``--out`` as a CSV path: not a folder, not a .parquet name (``--parquet`` writes the
+    Parquet beside the CSV)."""
+    path = Path(out)
+    if path.is_dir():
+        raise InputError(f"--out {out}: is a folder; give a CSV file name")
+    if path.suffix.lower() == ".parquet":
+        raise InputError(f"--out {out}: give a .csv name; --parquet writes the Parquet beside it")
+    return path
 
 
 def add_output_options(parser: argparse.ArgumentParser, what: str = "per-frame CSV") -> None:

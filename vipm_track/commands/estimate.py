@@ -19,6 +19,8 @@ from .common import (
     add_input_options,
     add_output_options,
     add_rerun_options,
+    check_height,
+    check_output,
 )
 
 
@@ -152,21 +154,6 @@ def build_config(args: argparse.Namespace, camera: CameraModel):
         pose_prior_deg=prior,
         **REFINEMENT_WEIGHTS[getattr(args, "refinement_weights", "auto")],
     )
-
-
-def check_height(height: float) -> float:
-    if height is None or not (math.isfinite(height) and height > 0):
-        raise InputError(f"--height must be a positive number of metres, got {height}")
-    return float(height)
-
-
-def check_output(out: str) -> Path:
-    path = Path(out)
-    if path.is_dir():
-        raise InputError(f"--out {out}: is a folder; give a CSV file name")
-    if path.suffix.lower() == ".parquet":
-        raise InputError(f"--out {out}: give a .csv name; --parquet writes the Parquet beside it")
-    return path
 
 
 def _angle(value: float | None, option: str, low: float, high: float) -> float | None:

@@ -15,7 +15,6 @@ import argparse
 import math
 import sys
 from collections import Counter
-from pathlib import Path
 from typing import Any
 
 from ..camera import load_camera
@@ -23,11 +22,11 @@ from ..errors import InputError
 from ..measurement import PairMeasurement
 from ..table import TableWriter
 from .common import (
-    add_camera_options,
-    add_input_options,
+    add_filter_inputs,
     add_output_options,
     add_rerun_options,
-    add_speed_options,
+    check_height,
+    check_output,
 )
 from .estimate import add_estimator_options
 from .inputs import estimator_config, load_speed, measurements_from_args
@@ -50,15 +49,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "against a nominal calibration: UNCALIBRATED, CALIBRATED, DRIFTING, RECALIBRATE (with "
         "the new extrinsics and their 95 % interval), INVALID, HOLD.",
     )
-    add_input_options(parser, required=False)
-    parser.add_argument("--estimates", metavar="EST.csv",
-                        help="per-frame estimates written by 'vipm-track estimate' (instead of "
-                        "--images/--video)")
-    add_camera_options(parser, height_required=False, camera_required=False)
+    add_filter_inputs(parser, "judge", height_required=False)
     parser.add_argument("--nominal", required=True, metavar="CALIB.yaml",
                         help="nominal calibration: pitch_deg, roll_deg, height_m, tolerances, "
                         "limits (see data/nominal_car.yaml)")
-    add_speed_options(parser)
     add_output_options(parser, "per-frame monitor CSV")
     parser.add_argument("--events", metavar="EVENTS.jsonl",
                         help="write one JSON line per state change")
@@ -75,14 +69,10 @@ def run(args: argparse.Namespace) -> int:
     from filters.monitor_inputs import frame_rate, monitor_measurements
 
     nominal = load_nominal(args.nominal)
-    height = nominal.height_m if args.height is None else float(args.height)
-    if not (math.isfinite(height) and height > 0):
-        raise InputError(f"--height must be a positive number of metres, got {args.height}")
+    height = check_height(nominal.height_m if args.height is None else args.height)
     if not (math.isfinite(args.false_alarms_per_hour) and args.false_alarms_per_hour > 0):
         raise InputError(f"--false-alarms-per-hour must be > 0, got {args.false_alarms_per_hour}")
-    out = Path(args.out)
-    if out.is_dir():
-        raise InputError(f"--out {args.out}: is a folder; give a CSV file name")
+    out = check_output(args.out)
     # the camera is needed only to estimate from images (inputs.estimate_stream says so)
     camera = load_camera(args.camera) if args.camera else None
     speed = load_speed(args)

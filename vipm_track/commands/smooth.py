@@ -17,11 +17,11 @@ from filters.smoother import SmootherConfig
 
 from ..errors import InputError
 from .common import (
-    add_camera_options,
-    add_input_options,
+    add_filter_inputs,
     add_output_options,
     add_rerun_options,
-    add_speed_options,
+    check_height,
+    check_output,
 )
 from .estimate import add_estimator_options
 from .inputs import load_speed, measurements_from_args
@@ -38,14 +38,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "of a sliding window. Writes the track table, and a summary of the drive's mount "
         "extrinsics (mean, 95 % interval, drift) as JSON and Markdown.",
     )
-    add_input_options(parser, required=False)
-    parser.add_argument(
-        "--estimates",
-        metavar="EST.csv",
-        help="skip estimation: smooth this estimates table instead of images",
-    )
-    add_camera_options(parser, camera_required=False)
-    add_speed_options(parser)
+    add_filter_inputs(parser, "smooth")
     add_output_options(parser, "per-frame smoothed CSV")
     parser.add_argument(
         "--summary",
@@ -116,11 +109,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def build_config(args: argparse.Namespace):
     """``SmootherConfig`` of the command-line options (InputError on a bad value)."""
     from filters.model import NoiseParams
-    from filters.smoother import SmootherConfig
 
-    height = args.height
-    if height is None or not (math.isfinite(height) and height > 0):
-        raise InputError(f"--height must be a positive number of metres, got {height}")
+    height = check_height(args.height)
     if not (math.isfinite(args.lag) and args.lag >= 0):
         raise InputError(f"--lag must be >= 0 seconds, got {args.lag}")
     if not 0.5 < args.loss_probability < 1.0:
@@ -161,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
     frames = smooth(measurements, speed, config, progress=not args.quiet)
     speeds = speeds_at_frames(measurements, speed)
     by_frame = {m.frame: (m, v) for m, v in zip(measurements, speeds, strict=True)}
-    out = Path(args.out)
+    out = check_output(args.out)
     pq = out.with_suffix(".parquet") if args.parquet else None
     rows = []
     with TableWriter(out, TRACK_COLUMNS, parquet_path=pq) as writer:

@@ -4,18 +4,17 @@ or of an estimates table; columns in ``filters/track.py``."""
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from collections.abc import Iterator
 
 from ..errors import InputError
 from ..measurement import PairMeasurement
 from .common import (
-    add_camera_options,
-    add_input_options,
+    add_filter_inputs,
     add_output_options,
     add_rerun_options,
-    add_speed_options,
+    check_height,
+    check_output,
 )
 from .estimate import add_estimator_options
 from .inputs import estimate_stream, load_speed, read_estimates
@@ -30,11 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(pitch, roll, height: the calibration), the body shaking and the planar motion. "
         "A wheel speed makes the height observable; without one it stays at --height.",
     )
-    add_input_options(parser, required=False)
-    parser.add_argument("--estimates", metavar="EST.csv",
-                        help="skip estimation: filter this estimates table instead of images")
-    add_camera_options(parser, camera_required=False)
-    add_speed_options(parser)
+    add_filter_inputs(parser, "filter")
     add_output_options(parser, "per-frame track CSV")
     group = parser.add_argument_group("filter")
     group.add_argument("--vehicle", choices=("car", "cart"), default="car",
@@ -52,9 +47,8 @@ def run(args: argparse.Namespace) -> int:
     from filters.model import NoiseParams
     from filters.track import track, write_track
 
-    height = args.height
-    if not (math.isfinite(height) and height > 0):
-        raise InputError(f"--height must be a positive number of metres, got {height}")
+    height = check_height(args.height)
+    out = check_output(args.out)
     if not 0.5 < args.gate < 1.0:
         raise InputError(f"--gate must be a probability in (0.5, 1), got {args.gate}")
     config = EkfConfig(height_m=height, noise=NoiseParams.for_preset(args.vehicle),
@@ -79,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
         from tqdm import tqdm
 
         steps = tqdm(steps, total=total, desc="track", unit="frame", file=sys.stderr)
-    counts = write_track(steps, args.out, parquet=args.parquet)
+    counts = write_track(steps, out, parquet=args.parquet)
     if not args.quiet:
         summary = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
         print(f"vipm-track track: {sum(counts.values())} frames ({summary}) → {args.out}",
