@@ -31,7 +31,6 @@ from vipm_track.estimator import (  # noqa: E402
 )
 from vipm_track.geometry import (  # noqa: E402
     apply_homography,
-    homography_jacobian,
     image_from_ipm_homography,
     ipm_from_image_homography,
 )
@@ -46,8 +45,9 @@ ROW_BANDS = ((0, 150), (150, 300), (300, 600))
 
 
 def true_residuals(pairs: int, profile: str, seed: int) -> list[tuple]:
-    """Per usable patch: image row, size, the image→IPM Jacobian (2, 2) and the residual
-    (2,) of the POC displacement against the true parameters, IPM pixels."""
+    """Per refined pair: image rows (N,), patch sizes (N,), the image→IPM homography, the
+    patches' positions in frame k (N, 2) and their residuals (N, 2) against the true
+    parameters, IPM pixels (patches with a defined residual only)."""
     preset = PRESETS["cart"]
     traj = make_trajectory(profile, pairs + 1, preset=preset, seed=seed)
     tex = preset_texture(preset, None, seed)
@@ -68,30 +68,25 @@ def true_residuals(pairs: int, profile: str, seed: int) -> list[tuple]:
         targets = stage.centres + stage.displacements
         pixels = apply_homography(image_from_ipm_homography(est.k, pose_p, stage.grid),
                                   stage.centres)
-        model = DisplacementModel(est.k, h, pixels, targets, plane_from_image=a)
-        r = model.predict(x) - targets
-        jac = homography_jacobian(a, apply_homography(np.linalg.inv(a), targets))
-        for i in np.flatnonzero((stage.sizes > 0) & np.all(np.isfinite(r), axis=1)):
-            out.append((pixels[i, 1], int(stage.sizes[i]), jac[i], r[i]))
+        r = DisplacementModel(est.k, h, pixels, targets, plane_from_image=a).predict(x) - targets
+        keep = (stage.sizes > 0) & np.all(np.isfinite(r), axis=1)
+        out.append((pixels[keep, 1], stage.sizes[keep], a, targets[keep], r[keep]))
     return out
 
 
-def whitened_rms(rows: list[tuple], power: float | None) -> list[float]:
-    """RMS residual norm per row band: raw (power None) or whitened with area power p."""
-    out = []
-    for lo, hi in ROW_BANDS:
-        norms = []
-        for v, size, jac, r in rows:
-            if not lo <= v < hi:
-                continue
-            if power is None:
-                norms.append(float(np.hypot(*r)))
-                continue
-            area = max(1.0, abs(float(np.linalg.det(jac)))) ** power
-            cov = (np.eye(2) + jac @ jac.T * area) * (256 / size) ** 2
-            norms.append(float(np.linalg.norm(np.linalg.solve(np.linalg.cholesky(cov), r))))
-        out.append(float(np.sqrt(np.mean(np.square(norms)))) if norms else float("nan"))
-    return out
+def whitened_rms(pairs: list[tuple], power: float | None) -> list[float]:
+    """RMS residual norm per row band: raw (power None) or whitened by
+    ``ipm.patch_noise_whitening`` with area power p (each pair's median patch at unit
+    weight)."""
+    rows, norms = [], []
+    for v, sizes, a, targets, r in pairs:
+        if power is not None:
+            w = ipm.patch_noise_whitening(a, targets, sizes, 256, area_power=power)
+            r = np.einsum("nij,nj->ni", w, r)
+        rows.append(v)
+        norms.append(np.linalg.norm(r, axis=1))
+    v, e = np.concatenate(rows), np.concatenate(norms)
+    return [float(np.sqrt(np.mean(e[(v >= lo) & (v < hi)] ** 2))) for lo, hi in ROW_BANDS]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -102,10 +97,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--powers", default="0,1,1.5,2", help="area powers p to compare")
     ap.add_argument("--out", type=Path, default=ROOT / "scripts" / "results" / "patch_noise.md")
     args = ap.parse_args(argv)
-    rows = true_residuals(args.pairs, args.profile, args.seed)
+    pairs = true_residuals(args.pairs, args.profile, args.seed)
     bands = " | ".join(f"rows {lo}–{hi} px" for lo, hi in ROW_BANDS)
     lines = [
-        f"RMS residual norm of IPM patches at the true parameters, {len(rows)} patches of "
+        f"RMS residual norm of IPM patches at the true parameters, "
+        f"{sum(len(p[0]) for p in pairs)} patches of "
         f"{args.pairs} `cart` pairs (`{args.profile}`, seed {args.seed}); image rows 0–150 are "
         "the far field (magnified by the IPM). Whitened columns are in typical-patch units "
         "(arbitrary scale): what matters is the far/near ratio.",
@@ -118,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
         for p in (float(s) for s in args.powers.split(","))
     ]
     for name, power in cases:
-        rms = whitened_rms(rows, power)
+        rms = whitened_rms(pairs, power)
         lines.append(f"| {name} | " + " | ".join(f"{v:.4f}" for v in rms)
                      + f" | {rms[0] / rms[-1]:.1f} |")
     text = "\n".join(lines) + (

@@ -172,6 +172,7 @@ def patch_noise_whitening(
     targets: FloatArray,
     sizes: NDArray[np.int64],
     patch: int,
+    area_power: float = NOISE_AREA_POWER,
 ) -> FloatArray:
     """Whitening matrices (N, 2, 2) of IPM patch displacements, relative to a typical patch.
 
@@ -182,7 +183,7 @@ def patch_noise_whitening(
         Σ = (I + J Jᵀ · max(1, det J)^p) · (patch / size)²
 
     with J the 2×2 Jacobian of image → IPM at the patch's position in frame k (``targets``,
-    IPM pixels) and p = :data:`NOISE_AREA_POWER`. W = Σ^(-1/2), scaled so that the median
+    IPM pixels) and p = ``area_power``. W = Σ^(-1/2), scaled so that the median
     patch keeps unit weight (thresholds stay in typical IPM pixels). Patches with size 0 or
     undefined positions get W = I (they are not used).
     """
@@ -193,7 +194,7 @@ def patch_noise_whitening(
         return out
     image_pts = apply_homography(np.linalg.inv(plane_from_image), targets[ok])
     jac = homography_jacobian(plane_from_image, image_pts)
-    area = np.maximum(1.0, np.abs(np.linalg.det(jac))) ** NOISE_AREA_POWER
+    area = np.maximum(1.0, np.abs(np.linalg.det(jac))) ** area_power
     cov = np.eye(2) + jac @ np.swapaxes(jac, 1, 2) * area[:, None, None]
     cov *= ((patch / np.asarray(sizes)[ok]) ** 2)[:, None, None]
     vals, vecs = np.linalg.eigh(cov)
