@@ -422,7 +422,9 @@ def robust_fit(
     best = candidates[int(np.argmin(scores))]
     ok_all = bool(np.isfinite(scores.min()))
 
-    # Re-fit on the best candidate's inliers until the inlier set settles (twice at most).
+    # Re-fit on the best candidate's inliers until the inlier set settles: three fits at most
+    # with a fixed threshold (as before the tightening existed, so those fits are unchanged),
+    # six while a median_factor may still tighten it.
     x = best
     converged = ok_all
     threshold = inlier_px
