@@ -38,3 +38,21 @@ def write_drive_inputs(run, folder: Path) -> tuple[Path, Path, Path]:
     write_speed_csv(SpeedSeries(run.speed.t, run.speed.speed_mps), folder / "speed.csv")
     (folder / "cam.yaml").write_text(CAR_CAMERA_YAML)
     return folder / "est.csv", folder / "speed.csv", folder / "cam.yaml"
+
+
+def stop_in_a_turn(seed: int = 0):
+    """A ``drive_sim`` cart run turning at 14°/s (curvature 0.25/m at 1 m/s), braking to a 10 s
+    stop (8–18 s) in the turn, then driving off straight (the last pairs before the stop
+    still see ~1.4°/s); returns (run, first and last index of the stop)."""
+    import numpy as np
+
+    from filters.drive_sim import DriveConfig, DriveProfile, simulate_drive
+
+    profile = DriveProfile(
+        (0.0, 6.0, 8.0, 18.0, 20.0), (1.0, 1.0, 0.0, 0.0, 1.0), (0.25, 0.25, 0.25, 0.0, 0.0)
+    )
+    cfg = DriveConfig.preset("cart", duration_s=30.0, height_m=0.7, failure_fraction=0.0)
+    run = simulate_drive(cfg, seed, profile)
+    still = np.flatnonzero(run.truth.speed == 0.0)
+    assert run.truth.t[still[-1]] - run.truth.t[still[0]] >= 9.9
+    return run, still[0], still[-1]

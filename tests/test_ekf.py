@@ -7,9 +7,10 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from conftest import stop_in_a_turn
 
 from filters import model as M
-from filters.drive_sim import DriveConfig, DriveProfile, MountChange, simulate_drive
+from filters.drive_sim import DriveConfig, MountChange, simulate_drive
 from filters.ekf import EkfConfig, ExtrinsicsEKF, run_filter
 from filters.metrics import consistency, from_filter_states, score_run
 from vipm_track.cli import main
@@ -151,19 +152,6 @@ def test_predicts_through_gaps():
 # --- standstill (zero-velocity update) -----------------------------------------------------
 
 
-def _stop_in_a_turn(seed=0):
-    """Cart turning at 14°/s (curvature 0.25/m at 1 m/s), braking to a 10 s stop (8–18 s)
-    in the turn, then driving off straight: the last pairs before the stop still see ~1.4°/s."""
-    profile = DriveProfile(
-        (0.0, 6.0, 8.0, 18.0, 20.0), (1.0, 1.0, 0.0, 0.0, 1.0), (0.25, 0.25, 0.25, 0.0, 0.0)
-    )
-    cfg = DriveConfig.preset("cart", duration_s=30.0, height_m=0.7, failure_fraction=0.0)
-    run = simulate_drive(cfg, seed, profile)
-    still = np.flatnonzero(run.truth.speed == 0.0)
-    assert run.truth.t[still[-1]] - run.truth.t[still[0]] >= 9.9
-    return run, still[0], still[-1]
-
-
 def test_standstill_rule():
     from vipm_track.estimator import STATUS_NO_MOTION
 
@@ -181,7 +169,7 @@ def test_standstill_rule():
 
 @pytest.mark.parametrize("speed", [True, False])
 def test_heading_does_not_drift_during_a_stop(speed):
-    run, a, b = _stop_in_a_turn()
+    run, a, b = stop_in_a_turn()
     tr = run.truth
     drift = {}
     for on in (True, False):
@@ -359,7 +347,7 @@ def test_cli_marks_standstill_frames(tmp_path, command):
     """The ``standstill`` column is 1 during the stop (wheel speed 0) and 0 while driving."""
     from conftest import write_drive_inputs
 
-    run, first, last = _stop_in_a_turn()
+    run, first, last = stop_in_a_turn()
     est, speed, _ = write_drive_inputs(run, tmp_path)
     out = tmp_path / f"{command}.csv"
     assert main([command, "--estimates", str(est), "--height", "0.7", "--speed-csv", str(speed),

@@ -9,6 +9,7 @@ from dataclasses import replace
 import gtsam
 import numpy as np
 import pytest
+from conftest import stop_in_a_turn
 
 from filters import factors as F
 from filters import model as M
@@ -505,21 +506,9 @@ def test_stacked_standstill_rows_are_the_gtsam_factors(speed):
     np.testing.assert_allclose(jac[0, F.STANDSTILL_ROWS], expected)
 
 
-def _stop_in_a_turn(seed=0):
-    """Cart turning at 14°/s braking to a 10 s stop (8–18 s) in the turn, then driving off
-    straight (as tests/test_ekf.py)."""
-    profile = DriveProfile(
-        (0.0, 6.0, 8.0, 18.0, 20.0), (1.0, 1.0, 0.0, 0.0, 1.0), (0.25, 0.25, 0.25, 0.0, 0.0)
-    )
-    cfg = DriveConfig.preset("cart", duration_s=30.0, height_m=0.7, failure_fraction=0.0)
-    run = simulate_drive(cfg, seed, profile)
-    still = np.flatnonzero(run.truth.speed == 0.0)
-    return run, still[0], still[-1]
-
-
 @pytest.mark.parametrize("lag_s", [0.0, 2.0])
 def test_smoothed_heading_does_not_drift_during_a_stop(lag_s):
-    run, a, b = _stop_in_a_turn()
+    run, a, b = stop_in_a_turn()
     tr = run.truth
     drift = {}
     for on in (True, False):
