@@ -82,6 +82,16 @@ def test_batched_homographies_equal_geometry():
         np.testing.assert_allclose(h / h[2, 2], h_ref / h_ref[2, 2], atol=1e-9)
 
 
+def _assert_jacobian_matches_differences(model: bundle.DisplacementModel, x: np.ndarray) -> None:
+    """The model's Jacobian against central differences of its residuals."""
+    jac = model.jacobian(x)
+    for i in range(len(x)):
+        dx = np.zeros(len(x))
+        dx[i] = 1e-5
+        fd = (model.residuals(x + dx) - model.residuals(x - dx)) / 2e-5
+        np.testing.assert_allclose(jac[:, i], fd, rtol=1e-3, atol=1e-3)
+
+
 def test_model_residual_is_zero_at_truth_and_jacobian_matches():
     k = PRESETS["cart"].camera().k
     pp, pc = geometry.GroundPose(0.8, 0.02, 0.7), geometry.GroundPose(0.81, 0.01, 0.7)
@@ -91,12 +101,11 @@ def test_model_residual_is_zero_at_truth_and_jacobian_matches():
     model = bundle.DisplacementModel(k, 0.7, pix, target)
     x = bundle.pack(pp, pc, mo)
     assert np.abs(model.residuals(x)).max() < 1e-9
-    jac = model.jacobian(x)
-    for i in range(7):
-        dx = np.zeros(7)
-        dx[i] = 1e-5
-        fd = (model.residuals(x + dx) - model.residuals(x - dx)) / 2e-5
-        np.testing.assert_allclose(jac[:, i], fd, rtol=1e-3, atol=1e-3)
+    _assert_jacobian_matches_differences(model, x)
+    # the same with per-point whitening (the weighted refinement's residuals)
+    rng = np.random.default_rng(0)
+    w = np.eye(2) + 0.3 * rng.normal(size=(len(pix), 2, 2))
+    _assert_jacobian_matches_differences(dataclasses.replace(model, point_whitening=w), x)
 
 
 def test_pose_prior_residuals_jacobian_and_pull():
@@ -113,12 +122,7 @@ def test_pose_prior_residuals_jacobian_and_pull():
     assert r.size == 2 * len(pix) + 4 and model.n_prior == 4
     np.testing.assert_allclose(r[-4:], 30.0 * (x[:4] - mean), atol=1e-12)
     assert np.abs(r[:-4]).max() < 1e-9
-    jac = model.jacobian(x)
-    for i in range(7):
-        dx = np.zeros(7)
-        dx[i] = 1e-5
-        fd = (model.residuals(x + dx) - model.residuals(x - dx)) / 2e-5
-        np.testing.assert_allclose(jac[:, i], fd, rtol=1e-3, atol=1e-3)
+    _assert_jacobian_matches_differences(model, x)
     # Exact data outweighs a weak prior; a strong one pulls the pose towards its mean.
     usable = np.ones(len(pix), bool)
     rng = np.random.default_rng(0)
