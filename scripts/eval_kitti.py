@@ -7,7 +7,12 @@ pitch/roll-change error within each pair and the share of frames with status ok.
 Targets (issue 5): >= 95 % ok, median distance error <= 3 %, median yaw-change error <= 0.1°.
 
     python scripts/eval_kitti.py [--data ../shared/data/kitti07] [--out out/kitti]
-                                 [--results scripts/results/kitti.md] [-- extra CLI options]
+                                 [--results scripts/results/kitti.md] [--seeds 3]
+                                 [-- extra CLI options]
+
+The headline is the CLI's default run (subset-sampler seed 0); ``--seeds N`` also runs
+seeds 1..N-1 and tabulates them, since the random subsets of the image stage move the
+median distance error of this sequence by a few tenths of a percent.
 """
 
 from __future__ import annotations
@@ -76,8 +81,10 @@ def evaluate(est_csv: Path, data: Path) -> tuple[dict, dict]:
     return errors, headline
 
 
-def report(headline: dict, errors: dict, command: str, seconds: float, est: dict) -> str:
-    """Markdown report: headline vs targets, error table, status counts, the command."""
+def report(headline: dict, errors: dict, command: str, seconds: float, est: dict,
+           by_seed: dict[int, dict] | None = None) -> str:
+    """Markdown report: headline vs targets, error table, status counts, the per-seed
+    table (``by_seed``: seed → headline), the command."""
     def verdict(key: str, value: float, lower_is_better: bool = True) -> str:
         target = TARGETS[key]
         met = value <= target if lower_is_better else value >= target
@@ -112,6 +119,7 @@ def report(headline: dict, errors: dict, command: str, seconds: float, est: dict
         "Statuses: " + ", ".join(f"{n}× {s}" for s, n in sorted(statuses.items(),
                                                                key=lambda x: -x[1])),
         "",
+        *seed_table(by_seed or {}),
         f"Run time {seconds:.1f} s for {len(est['frame'])} frames on this machine "
         "(2 shared CPU cores; see scripts/results/bench_speed.md for speed).",
         "",
@@ -127,11 +135,36 @@ def report(headline: dict, errors: dict, command: str, seconds: float, est: dict
     return "\n".join(lines) + "\n"
 
 
+def seed_table(by_seed: dict[int, dict]) -> list[str]:
+    """Markdown lines: the headline numbers of each subset-sampler seed and their mean."""
+    if len(by_seed) < 2:
+        return []
+    keys = ("ok_share_pct", "distance_pct_median", "distance_pct_mean", "distance_pct_p95",
+            "distance_bias_pct", "yaw_deg_median")
+    rows = [(str(seed), [h[k] for k in keys]) for seed, h in sorted(by_seed.items())]
+    rows.append(("mean", [float(np.mean([h[k] for h in by_seed.values()])) for k in keys]))
+    fmt = ("{:.1f} %", "{:.2f} %", "{:.2f} %", "{:.2f} %", "{:+.2f} %", "{:.3f}°")
+    return [
+        "Subset-sampler seeds (`--seed`; the table above is seed 0, the CLI's default): the "
+        "image stage fits random subsets of the patches, and which ones are drawn moves "
+        "single pairs by ~1.5 % of distance and the median by a few tenths — comparisons of "
+        "variants on this sequence need several seeds.",
+        "",
+        "| seed | ok | distance err median | mean | p95 | bias | yaw median |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+        *(f"| {name} | " + " | ".join(f.format(v) for f, v in zip(fmt, vals, strict=True)) + " |"
+          for name, vals in rows),
+        "",
+    ]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data" / "kitti07")
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "kitti")
     parser.add_argument("--results", type=Path, default=ROOT / "scripts" / "results" / "kitti.md")
+    parser.add_argument("--seeds", type=int, default=3,
+                        help="subset-sampler seeds 0..N-1 to run (default 3; 1: seed 0 only)")
     parser.add_argument("extra", nargs=argparse.REMAINDER,
                         help="extra options for vipm-track estimate (after --)")
     args = parser.parse_args(argv)
@@ -147,8 +180,16 @@ def main(argv: list[str] | None = None) -> int:
     if rc:
         return rc
     errors, headline = evaluate(est_csv, args.data)
+    by_seed = {0: headline}
+    for seed in range(1, max(args.seeds, 1)):
+        seed_csv = args.out / f"estimates_seed{seed}.csv"
+        rc = cli_main(kitti_command(args.data, seed_csv, [*args.extra, "--seed", str(seed),
+                                                          "--quiet"]))
+        if rc:
+            return rc
+        by_seed[seed] = evaluate(seed_csv, args.data)[1]
     shown = [shlex.quote(_relative(a)) for a in cli_args]
-    text = report(headline, errors, " ".join(shown), seconds, read_table(est_csv))
+    text = report(headline, errors, " ".join(shown), seconds, read_table(est_csv), by_seed)
     print(text)
     args.results.parent.mkdir(parents=True, exist_ok=True)
     args.results.write_text(text)

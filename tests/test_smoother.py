@@ -670,3 +670,21 @@ def test_yaw_outliers_barely_bend_the_trajectory():
         gm, cauchy = dev["geman-mcclure"], dev["cauchy"]
         assert gm[0] < 0.3 and gm[0] < 0.6 * cauchy[0], (lag, dev)
         assert gm[1] < 0.05 and gm[1] < 0.6 * cauchy[1], (lag, dev)
+
+
+def test_mount_rw_sweep_drives_walk_at_their_rate(bench_filters):
+    """``bench_filters --mount-rw-sweep``: each scenario's sim draws the mount at the rate in
+    its name, and the methods are told it (the drive config carries it)."""
+    from filters.drive_sim import DriveConfig, simulate_drive
+
+    scs = bench_filters.scenarios(300.0, (0.002, 0.05))
+    assert [s.name for s in scs] == [
+        f"{p} + wheel speed, mount rw {rw:g}" for p in ("car", "cart") for rw in (0.002, 0.05)
+    ]
+    for sc, rw in zip(scs[:2], (0.002, 0.05), strict=True):
+        cfg = DriveConfig.preset(sc.preset, **sc.overrides)
+        assert cfg.noise.mount_angle_rw_deg_per_sqrt_s == rw and sc.use_speed
+        tr = simulate_drive(cfg, 0).truth
+        steps = np.degrees(np.concatenate([np.diff(tr.mount_pitch), np.diff(tr.mount_roll)]))
+        rate = np.std(steps) / np.sqrt(np.median(np.diff(tr.t)))
+        assert rate == pytest.approx(rw, rel=0.1)
