@@ -131,6 +131,8 @@ def report(headline: dict, errors: dict, command: str, seconds: float, est: dict
         "Command:",
         "",
         f"    vipm-track {command}",
+        "",
+        "How the forward-camera defaults were chosen, and the variants tried: `docs/kitti.md`.",
     ]
     return "\n".join(lines) + "\n"
 
@@ -145,7 +147,7 @@ def seed_table(by_seed: dict[int, dict]) -> list[str]:
     rows.append(("mean", [float(np.mean([h[k] for h in by_seed.values()])) for k in keys]))
     fmt = ("{:.1f} %", "{:.2f} %", "{:.2f} %", "{:.2f} %", "{:+.2f} %", "{:.3f}°")
     return [
-        "Subset-sampler seeds (`--seed`; the table above is seed 0, the CLI's default): the "
+        "Subset-sampler seeds (`--subset-seed`; the table above is seed 0, the CLI's default): the "
         "image stage fits random subsets of the patches, and which ones are drawn moves "
         "single pairs by ~1.5 % of distance and the median by a few tenths — comparisons of "
         "variants on this sequence need several seeds.",
@@ -183,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     by_seed = {0: headline}
     for seed in range(1, max(args.seeds, 1)):
         seed_csv = args.out / f"estimates_seed{seed}.csv"
-        rc = cli_main(kitti_command(args.data, seed_csv, [*args.extra, "--seed", str(seed),
+        rc = cli_main(kitti_command(args.data, seed_csv, [*args.extra, "--subset-seed", str(seed),
                                                           "--quiet"]))
         if rc:
             return rc

@@ -75,7 +75,7 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--no-vertical-motion", action="store_true",
                        help="do not estimate the camera's vertical motion within a pair "
                        "(steadier on level, forward-looking cameras such as KITTI's)")
-    group.add_argument("--seed", type=int, default=None, metavar="N",
+    group.add_argument("--subset-seed", type=int, default=None, metavar="N",
                        help="seed of the random-subset sampler (default: the estimator's, 0); "
                        "a run is deterministic for a given seed, and another seed shows how "
                        "much a result owes to the subsets drawn")
@@ -146,9 +146,9 @@ def build_config(args: argparse.Namespace, camera: CameraModel):
     if prior is not None and not (math.isfinite(prior) and 0 <= prior <= 45):
         raise InputError(f"--pose-prior-deg must be in [0, 45] degrees, got {prior}")
     roi = parse_roi(args.roi, camera) if args.roi else None
-    seed = getattr(args, "seed", None)
+    seed = getattr(args, "subset_seed", None)
     if seed is not None and seed < 0:
-        raise InputError(f"--seed must be >= 0, got {seed}")
+        raise InputError(f"--subset-seed must be >= 0, got {seed}")
     return config_with(
         EstimatorConfig(),
         grid=grid,
