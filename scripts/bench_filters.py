@@ -287,19 +287,20 @@ def scenarios(duration_s: float, mount_rws: tuple[float, ...] = ()) -> list[Scen
     """The issue-7 scenarios (clean, wheel speed, outliers; car and cart), or with
     ``mount_rws`` the wheel-speed drives at each mount random-walk rate (°/√s; the sim draws
     the mount with it and every method, the reference included, is told it)."""
-    if mount_rws:
-        from filters.model import NoiseParams
+    from filters.model import NoiseParams
 
-        return [
-            Scenario(f"{preset} + wheel speed, mount rw {rw:g}", preset, True, {
-                "duration_s": duration_s, "height_m": 1.02 * h0, "height_assumed_m": h0,
-                "noise": replace(NoiseParams.for_preset(preset), mount_angle_rw_deg_per_sqrt_s=rw),
-            })
-            for preset, h0 in (("car", 1.5), ("cart", 0.7)) for rw in mount_rws
-        ]
     out = []
     for preset, h0 in (("car", 1.5), ("cart", 0.7)):
         base = {"duration_s": duration_s, "height_m": 1.02 * h0, "height_assumed_m": h0}
+        if mount_rws:
+            out += [
+                Scenario(f"{preset} + wheel speed, mount rw {rw:g}", preset, True, {
+                    **base, "noise": replace(NoiseParams.for_preset(preset),
+                                             mount_angle_rw_deg_per_sqrt_s=rw),
+                })
+                for rw in mount_rws
+            ]
+            continue
         out += [
             Scenario(f"{preset} clean", preset, False, base),
             Scenario(f"{preset} + wheel speed", preset, True, base),
@@ -336,10 +337,10 @@ def bench(runs: int, duration_s: float, methods: dict[str, Method],
 
     rows: list[Row] = []
     clean_rms: dict[tuple[str, str], float] = {}
-    todo = [(sc, name) for sc in scenarios(duration_s, mount_rws) for name in methods]
-    bar = tqdm(total=len(todo) * runs, desc="bench_filters", unit="drive", disable=not progress,
-               file=sys.stderr)
-    for sc in scenarios(duration_s, mount_rws):
+    chosen = scenarios(duration_s, mount_rws)
+    bar = tqdm(total=len(chosen) * len(methods) * runs, desc="bench_filters", unit="drive",
+               disable=not progress, file=sys.stderr)
+    for sc in chosen:
         cfg = DriveConfig.preset(sc.preset, **sc.overrides)
         drives = [simulate_drive(cfg, seed) for seed in range(runs)]
         comps = [0, 1, 2, 3, 4] if sc.use_speed else [0, 1, 3, 4]
