@@ -133,13 +133,12 @@ def pose_pair_factor(
     z4 = np.asarray(z4, dtype=float).copy()
     noise = robust(_gaussian(cov4), loss, loss_k)
     keys = [key("M", k), key("B", k - 1), key("B", k)]
+    jm, jbp, jbc = _J_POSE_MOUNT, _J_POSE_BPREV, _J_POSE_BCURR
 
     def error(this: gtsam.CustomFactor, v: gtsam.Values, jac: list | None) -> FloatArray:
-        m, bp, bc = v.atVector(keys[0]), v.atVector(keys[1]), v.atVector(keys[2])
-        e = _J_POSE_MOUNT @ m + _J_POSE_BPREV @ bp + _J_POSE_BCURR @ bc - z4
         if jac is not None:
-            jac[0], jac[1], jac[2] = _J_POSE_MOUNT, _J_POSE_BPREV, _J_POSE_BCURR
-        return e
+            jac[0], jac[1], jac[2] = jm, jbp, jbc
+        return jm @ v.atVector(keys[0]) + jbp @ v.atVector(keys[1]) + jbc @ v.atVector(keys[2]) - z4
 
     return gtsam.CustomFactor(noise, keys, error)
 
@@ -163,29 +162,35 @@ def motion_pair_factor(
     noise = robust(_gaussian(cov3), loss, loss_k)
     keys = [key("X", k - 1), key("X", k), key("H", k), key("Y", k)]
     h0 = float(height_assumed)
+    zero31 = np.zeros((3, 1))
 
     def error(this: gtsam.CustomFactor, v: gtsam.Values, jac: list | None) -> FloatArray:
-        # model.expected_pair rows 4-6 written out (a test holds them equal): the Python
-        # callback runs for every frame and iteration
+        # model.expected_pair rows 4-6 written out with scalars (a test holds them equal): the
+        # Python callback runs for every frame and iteration
         p0, p1 = v.atPose2(keys[0]), v.atPose2(keys[1])
-        y0, x0, psi0 = p0.x(), p0.y(), p0.theta()
-        y1, x1, psi1 = p1.x(), p1.y(), p1.theta()
-        h = v.atVector(keys[2])[0]
-        g = psi0 + v.atVector(keys[3])[0]
+        psi0, psi1 = p0.theta(), p1.theta()
+        dx, dy = p1.y() - p0.y(), p1.x() - p0.x()
+        h = float(v.atVector(keys[2])[0])
+        g = psi0 + float(v.atVector(keys[3])[0])
         c, s = math.cos(g), math.sin(g)
         sc = h0 / h
-        dx, dy = x1 - x0, y1 - y0
         tx, tz = sc * (c * dx - s * dy), sc * (s * dx + c * dy)
         e = np.array([tx - z3[0], tz - z3[1], wrap(psi1 - psi0 - z3[2])])
         if jac is not None:
-            a = np.array([[sc * c, -sc * s, 0.0], [sc * s, sc * c, 0.0], [0.0, 0.0, 1.0]])
-            d_g = np.array([[sc * (-s * dx - c * dy)], [sc * (c * dx - s * dy)], [0.0]])
-            a_prev = -a
-            a_prev[:, 2:3] += d_g
-            jac[0] = a_prev @ tangent_jacobian(psi0)
-            jac[1] = a @ tangent_jacobian(psi1)
-            jac[2] = np.array([[-tx / h], [-tz / h], [0.0]]) if metric else np.zeros((3, 1))
-            jac[3] = d_g
+            # ∂/∂(x, y, ψ) of (tx, tz, yaw) times the Pose2 tangent Jacobian (tangent_jacobian)
+            # of either frame; the heading enters tx, tz through g = ψ_{k-1} + yaw_m
+            tg_x, tg_z = -tz, tx
+            s0, c0 = math.sin(psi0), math.cos(psi0)
+            s1, c1 = math.sin(psi1), math.cos(psi1)
+            # rows of ∂(tx, tz)/∂(x, y) = sc · [[c, -s], [s, c]] times [[s_, c_], [c_, -s_]]
+            a00, a01 = sc * (c * s1 - s * c1), sc * (c * c1 + s * s1)
+            a10, a11 = sc * (s * s1 + c * c1), sc * (s * c1 - c * s1)
+            b00, b01 = sc * (c * s0 - s * c0), sc * (c * c0 + s * s0)
+            b10, b11 = sc * (s * s0 + c * c0), sc * (s * c0 - c * s0)
+            jac[0] = np.array([[-b00, -b01, tg_x], [-b10, -b11, tg_z], [0.0, 0.0, -1.0]])
+            jac[1] = np.array([[a00, a01, 0.0], [a10, a11, 0.0], [0.0, 0.0, 1.0]])
+            jac[2] = np.array([[-tx / h], [-tz / h], [0.0]]) if metric else zero31
+            jac[3] = np.array([[tg_x], [tg_z], [0.0]])
         return e
 
     return gtsam.CustomFactor(noise, keys, error)
@@ -210,6 +215,25 @@ def process_noise(dt: float, noise: NoiseParams) -> FloatArray:
     return _transition_at_rest(float(dt), noise)[1]
 
 
+def _process_covariance(dt: float, noise: NoiseParams, cross_track_std_m: float) -> FloatArray:
+    """Covariance of the process factor's residual (along, cross, heading, Δv, Δω) over ``dt``:
+    ``model.transition``'s noise at heading 0, the cross-track axis replaced by
+    ``cross_track_std_m`` (the model has no side slip)."""
+    q = process_noise(dt, noise)
+    idx = [M.POS_Y, M.POS_X, M.HEADING, M.SPEED, M.YAW_RATE]
+    cov = q[np.ix_(idx, idx)].copy()
+    cov[1, :] = cov[:, 1] = 0.0
+    cov[1, 1] = cross_track_std_m**2
+    return cov
+
+
+@lru_cache(maxsize=256)
+def _process_noise_model(
+    dt: float, noise: NoiseParams, cross_track_std_m: float
+) -> gtsam.noiseModel.Gaussian:
+    return gtsam.noiseModel.Gaussian.Covariance(_process_covariance(dt, noise, cross_track_std_m))
+
+
 def process_factor(
     k: int, dt: float, noise: NoiseParams, cross_track_std_m: float
 ) -> gtsam.CustomFactor:
@@ -217,63 +241,64 @@ def process_factor(
     ``model.propagate_pose`` of X_{k-1}, V_{k-1}, W_{k-1}, with the residual position
     expressed along / across the mid-point heading (the model's noise has no side slip;
     ``cross_track_std_m`` keeps the factor full rank)."""
-    q = process_noise(dt, noise)
-    # residual order: along, cross, heading, speed, yaw rate
-    idx = [M.POS_Y, M.POS_X, M.HEADING, M.SPEED, M.YAW_RATE]
-    cov = q[np.ix_(idx, idx)].copy()
-    cov[1, :] = cov[:, 1] = 0.0
-    cov[1, 1] = cross_track_std_m**2
-    base = gtsam.noiseModel.Gaussian.Covariance(cov)
+    base = _process_noise_model(float(dt), noise, float(cross_track_std_m))
     keys = [key(c, j) for j in (k - 1, k) for c in "XVW"]
+
+    j_v0 = np.array([[-dt], [0.0], [0.0], [-1.0], [0.0]])
+    j_v1 = np.array([[0.0], [0.0], [0.0], [1.0], [0.0]])
+    j_w1 = np.array([[0.0], [0.0], [0.0], [0.0], [1.0]])
 
     def error(this: gtsam.CustomFactor, v: gtsam.Values, jac: list | None) -> FloatArray:
         p0, p1 = v.atPose2(keys[0]), v.atPose2(keys[3])
         y0, x0, psi0 = p0.x(), p0.y(), p0.theta()
         y1, x1, psi1 = p1.x(), p1.y(), p1.theta()
-        v0, w0 = v.atVector(keys[1])[0], v.atVector(keys[2])[0]
-        v1, w1 = v.atVector(keys[4])[0], v.atVector(keys[5])[0]
-        # model.propagate_pose, inlined (a test holds them equal)
+        v0, w0 = float(v.atVector(keys[1])[0]), float(v.atVector(keys[2])[0])
+        v1, w1 = float(v.atVector(keys[4])[0]), float(v.atVector(keys[5])[0])
+        # model.propagate_pose, inlined with scalars (a test holds them equal)
         a = psi0 + 0.5 * w0 * dt
         sa, ca = math.sin(a), math.cos(a)
-        xp, yp, psip = x0 + v0 * dt * sa, y0 + v0 * dt * ca, psi0 + w0 * dt
-        dx, dy = x1 - xp, y1 - yp
+        dx, dy = x1 - (x0 + v0 * dt * sa), y1 - (y0 + v0 * dt * ca)
         along = sa * dx + ca * dy
         cross = ca * dx - sa * dy
-        e = np.array([along, cross, wrap(psi1 - psip), v1 - v0, w1 - w0])
+        e = np.array([along, cross, wrap(psi1 - psi0 - w0 * dt), v1 - v0, w1 - w0])
         if jac is not None:
-            # ∂/∂(x0, y0, ψ0, v0, ω0) and ∂/∂(x1, y1, ψ1) of (along, cross, heading)
-            d_a = np.array([cross, -along - v0 * dt, 0.0])
-            j_prev = np.zeros((5, 3))
-            j_prev[0:2, 0:2] = -np.array([[sa, ca], [ca, -sa]])
-            j_prev[0:3, 2] = d_a + np.array([0.0, 0.0, -1.0])
-            j_v0 = np.array([[-dt], [0.0], [0.0], [-1.0], [0.0]])
-            j_w0 = np.zeros((5, 1))
-            j_w0[0:3, 0] = 0.5 * dt * d_a
-            j_w0[2, 0] -= dt
-            j_w0[4, 0] = -1.0
-            j_curr = np.zeros((5, 3))
-            j_curr[0:2, 0:2] = np.array([[sa, ca], [ca, -sa]])
-            j_curr[2, 2] = 1.0
-            jac[0] = j_prev @ tangent_jacobian(psi0)
-            jac[1], jac[2] = j_v0, j_w0
-            jac[3] = j_curr @ tangent_jacobian(psi1)
-            jac[4] = np.array([[0.0], [0.0], [0.0], [1.0], [0.0]])
-            jac[5] = np.array([[0.0], [0.0], [0.0], [0.0], [1.0]])
+            # ∂(along, cross, heading)/∂(x, y, ψ) of either frame times the Pose2 tangent
+            # Jacobian (tangent_jacobian); the mid-point heading a moves with ψ0 and ω0
+            d_psi = -along - v0 * dt  # ∂cross/∂a (∂along/∂a = cross)
+            s0, c0 = math.sin(psi0), math.cos(psi0)
+            s1, c1 = math.sin(psi1), math.cos(psi1)
+            jac[0] = np.array([
+                [-(sa * s0 + ca * c0), ca * s0 - sa * c0, cross],
+                [sa * c0 - ca * s0, -(ca * c0 + sa * s0), d_psi],
+                [0.0, 0.0, -1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0],
+            ])
+            jac[1] = j_v0
+            jac[2] = np.array([[0.5 * dt * cross], [0.5 * dt * d_psi], [-dt], [0.0], [-1.0]])
+            jac[3] = np.array([
+                [sa * s1 + ca * c1, sa * c1 - ca * s1, 0.0],
+                [ca * s1 - sa * c1, ca * c1 + sa * s1, 0.0],
+                [0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0],
+            ])
+            jac[4], jac[5] = j_v1, j_w1
         return e
 
     return gtsam.CustomFactor(base, keys, error)
 
 
+@lru_cache(maxsize=256)
+def _body_terms(dt: float, noise: NoiseParams) -> tuple:
+    f, q = _transition_at_rest(dt, noise)
+    a = f[M.BODY_PITCH, M.BODY_PITCH]
+    sigma = math.sqrt(q[M.BODY_PITCH, M.BODY_PITCH])
+    return -a * np.eye(2), np.eye(2), np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, sigma)
+
+
 def body_factor(k: int, dt: float, noise: NoiseParams) -> gtsam.LinearContainerFactor:
     """Gauss–Markov body b_k = a·b_{k-1} + w over ``dt`` (``model.transition``'s decay and
     variance): an exactly linear factor, so gtsam evaluates it without Python."""
-    f, q = _transition_at_rest(float(dt), noise)
-    a = f[M.BODY_PITCH, M.BODY_PITCH]
-    sigma = math.sqrt(q[M.BODY_PITCH, M.BODY_PITCH])
+    a_prev, eye, zero, sigma = _body_terms(float(dt), noise)
     kp, kc = key("B", k - 1), key("B", k)
-    jf = gtsam.JacobianFactor(
-        kp, -a * np.eye(2), kc, np.eye(2), np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, sigma)
-    )
+    jf = gtsam.JacobianFactor(kp, a_prev, kc, eye, zero, sigma)
     lin = gtsam.Values()
     lin.insert(kp, np.zeros(2))
     lin.insert(kc, np.zeros(2))
@@ -282,25 +307,21 @@ def body_factor(k: int, dt: float, noise: NoiseParams) -> gtsam.LinearContainerF
 
 def mount_walk_factors(k: int, dt: float, noise: NoiseParams) -> list[gtsam.NonlinearFactor]:
     """Random walks of the mount angles, height and yaw from frame k-1 to k over ``dt``."""
-    q = process_noise(dt, noise)
-    ang = math.sqrt(q[M.MOUNT_PITCH, M.MOUNT_PITCH])
     return [
-        gtsam.BetweenFactorVector(
-            key("M", k - 1), key("M", k), np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, ang)
-        ),
-        gtsam.BetweenFactorVector(
-            key("H", k - 1),
-            key("H", k),
-            np.zeros(1),
-            gtsam.noiseModel.Isotropic.Sigma(1, math.sqrt(q[M.MOUNT_HEIGHT, M.MOUNT_HEIGHT])),
-        ),
-        gtsam.BetweenFactorVector(
-            key("Y", k - 1),
-            key("Y", k),
-            np.zeros(1),
-            gtsam.noiseModel.Isotropic.Sigma(1, math.sqrt(q[M.MOUNT_YAW, M.MOUNT_YAW])),
-        ),
+        gtsam.BetweenFactorVector(key(c, k - 1), key(c, k), zero, sigma)
+        for c, zero, sigma in zip("MHY", (np.zeros(2), np.zeros(1), np.zeros(1)),
+                                  _walk_noise_models(float(dt), noise), strict=True)
     ]
+
+
+@lru_cache(maxsize=256)
+def _walk_noise_models(dt: float, noise: NoiseParams) -> tuple:
+    """Isotropic noise of the mount angles', height's and yaw offset's random walks over dt."""
+    q = process_noise(dt, noise)
+    return tuple(
+        gtsam.noiseModel.Isotropic.Sigma(dim, math.sqrt(q[i, i]))
+        for dim, i in ((2, M.MOUNT_PITCH), (1, M.MOUNT_HEIGHT), (1, M.MOUNT_YAW))
+    )
 
 
 def speed_factor(
@@ -362,37 +383,70 @@ def whitener(cov: FloatArray) -> FloatArray:
     return np.linalg.inv(np.linalg.cholesky(np.asarray(cov, dtype=float)))
 
 
+# columns of (frame k-1, frame k) in the stacked rows
+_PREV, _CURR = 0, FRAME_DIM
+# process rows (along, cross, heading, Δv, Δω): the Jacobian entries that do not depend on the
+# state, and those of (along, cross) that do (set per call in ``stacked_rows``)
+_PROCESS_DYN_COLS = np.array([0, 1, 2, 4, _CURR, _CURR + 1])
+
+
 @lru_cache(maxsize=256)
-def _frame_whiteners(dt: float, noise: NoiseParams, cross_track_std_m: float) -> tuple:
+def _frame_constants(dt: float, noise: NoiseParams, cross_track_std_m: float) -> tuple:
+    """Per-dt constants of the stacked rows: the process whitener (5, 5), its product with
+    the process rows' constant Jacobian (5, 22), and the whitened Jacobian (21, 22) of the
+    body and mount-walk rows (5–10) (read-only)."""
+    d = FRAME_DIM
     q = process_noise(dt, noise)
-    idx = [M.POS_Y, M.POS_X, M.HEADING, M.SPEED, M.YAW_RATE]
-    cov = q[np.ix_(idx, idx)].copy()
-    cov[1, :] = cov[:, 1] = 0.0
-    cov[1, 1] = cross_track_std_m**2
+    w = whitener(_process_covariance(dt, noise, cross_track_std_m))
+    static = np.zeros((5, 2 * d))
+    static[0, 3] = -dt  # along: -v0·dt
+    static[2, 2], static[2, 4], static[2, d + 2] = -1.0, -dt, 1.0
+    static[3, 3], static[3, d + 3], static[4, 4], static[4, d + 4] = -1.0, 1.0, -1.0, 1.0
     f, _ = _transition_at_rest(dt, noise)
-    walk = 1.0 / np.sqrt(np.diag(q)[[M.MOUNT_PITCH, M.MOUNT_ROLL, M.MOUNT_HEIGHT, M.MOUNT_YAW]])
+    body_a = float(f[M.BODY_PITCH, M.BODY_PITCH])
     body_isig = 1.0 / math.sqrt(q[M.BODY_PITCH, M.BODY_PITCH])
-    return whitener(cov), float(f[M.BODY_PITCH, M.BODY_PITCH]), body_isig, walk
+    walk = 1.0 / np.sqrt(np.diag(q)[[M.MOUNT_PITCH, M.MOUNT_ROLL, M.MOUNT_HEIGHT, M.MOUNT_YAW]])
+    lin = np.zeros((PAIR_ROWS, 2 * d))
+    for i, col in enumerate((9, 10)):  # body: b_k − a·b_{k-1}
+        lin[5 + i, col], lin[5 + i, d + col] = -body_isig * body_a, body_isig
+    for i, col in enumerate((5, 6, 7, 8)):  # mount walks: m_k − m_{k-1}
+        lin[7 + i, col], lin[7 + i, d + col] = -walk[i], walk[i]
+    out = (w, w @ static, lin)
+    for arr in out:
+        arr.setflags(write=False)
+    return out
+
+
+# (row, column) of the motion pair's state-dependent Jacobian entries, in ``stacked_rows``'
+# order: ∂(tx, tz)/∂(x_k, y_k), ∂/∂(x_{k-1}, y_{k-1}), ∂/∂ψ_{k-1} and ∂/∂yaw_m, ∂/∂h_m
+_MOTION_JAC_ROWS = np.array([0, 0, 1, 1, 0, 0, 1, 1, 0, 0, 1, 1, 0, 1])
+_MOTION_JAC_COLS = np.array([
+    _CURR, _CURR + 1, _CURR, _CURR + 1, 0, 1, 0, 1, 2, _CURR + 8, 2, _CURR + 8, _CURR + 7,
+    _CURR + 7,
+])
+
+# the pose pair's Jacobian (m + b_{k-1}, m + b_k) w.r.t. (frame k-1, frame k)
+_J_POSE_STACKED = np.zeros((4, 2 * FRAME_DIM))
+_J_POSE_STACKED[[0, 2, 1, 3], [_CURR + 5, _CURR + 5, _CURR + 6, _CURR + 6]] = 1.0
+_J_POSE_STACKED[[0, 1, 2, 3], [9, 10, _CURR + 9, _CURR + 10]] = 1.0
 
 
 @dataclass
 class StackedPairs:
     """Constants of the factors that join frames k-1 and k, for n consecutive pairs (arrays
-    with a leading axis n). Missing pieces have zero whiteners (no pair / no speed)."""
+    with a leading axis n). Missing pieces have zero rows (no pair / no speed)."""
 
     dt: FloatArray  # (n,) s
     z: FloatArray  # (n, 7) pair measurement, rad / m at h0
     h0: FloatArray  # (n,) assumed height of the pair, m
-    w_pose: FloatArray  # (n, 4, 4) whitener of the pair angles (0 without a pair)
     w_motion: FloatArray  # (n, 3, 3) whitener of the pair motion (0 without a pair)
     metric: NDArray[np.bool_]  # (n,) the pair's motion moves h_m (wheel speed nearby)
     w_process: FloatArray  # (n, 5, 5) whitener of (along, cross, heading, Δv, Δω)
-    body_a: FloatArray  # (n,) Gauss–Markov decay
-    body_isig: FloatArray  # (n,) 1 / σ of the body step
-    walk_isig: FloatArray  # (n, 4) 1 / σ of the mount walks (pitch, roll, h, yaw)
-    speed: FloatArray  # (n,) wheel speed m/s (0 where none)
-    speed_isig: FloatArray  # (n,) 1 / σ of the wheel speed (0 where none)
-    still_isig: FloatArray  # (n, 2) 1 / σ of the standstill speed, yaw rate (0 where none)
+    process_jac: FloatArray  # (n, 5, 22) whitened state-independent process Jacobian
+    #: (n, 21, 22), (n, 21): the rows that are linear in the state (body, mount walks, pose
+    #: pair, wheel speed, standstill), whitened: r = lin_jac · (x_{k-1}, x_k) − lin_b
+    lin_jac: FloatArray
+    lin_b: FloatArray
 
 
 def pair_constants(
@@ -404,28 +458,34 @@ def pair_constants(
     metric: bool,
 ) -> dict[str, object]:
     """One pair's entries of :class:`StackedPairs` (a row of each field)."""
-    wq, a, bis, walk = _frame_whiteners(float(dt), noise, float(cross_track_std_m))
+    d = FRAME_DIM
+    wq, process_jac, lin_static = _frame_constants(float(dt), noise, float(cross_track_std_m))
+    lin = lin_static.copy()
+    b = np.zeros(PAIR_ROWS)
     ok = bool(m.ok)
-    cov = noise.pair_covariance(m.covariance) if ok else None
-    has_speed = math.isfinite(speed)
+    z = np.asarray(m.z, dtype=float) if ok else np.zeros(7)
+    if ok:
+        cov = noise.pair_covariance(m.covariance)
+        w_pose = whitener(cov[:4, :4])
+        lin[POSE_ROWS] = w_pose @ _J_POSE_STACKED
+        b[POSE_ROWS] = w_pose @ z[:4]
+    if math.isfinite(speed):
+        isig = 1.0 / math.sqrt(noise.speed_meas_var(speed))
+        lin[SPEED_ROW, d + 3], b[SPEED_ROW] = isig, isig * speed
     still = M.standstill_states(speed, m.status, noise)
-    still_isig = np.zeros(2)
     for i, var in zip(still, noise.standstill_var(still), strict=True):
-        still_isig[(M.SPEED, M.YAW_RATE).index(i)] = 1.0 / math.sqrt(var)
+        row = STANDSTILL_ROWS.start + (M.SPEED, M.YAW_RATE).index(i)
+        lin[row, d + (3 if i == M.SPEED else 4)] = 1.0 / math.sqrt(var)
     return {
         "dt": dt,
-        "z": np.asarray(m.z, dtype=float) if ok else np.zeros(7),
+        "z": z,
         "h0": float(m.height_assumed) if ok else 1.0,
-        "w_pose": whitener(cov[:4, :4]) if ok else np.zeros((4, 4)),
         "w_motion": whitener(cov[4:7, 4:7]) if ok else np.zeros((3, 3)),
         "metric": metric,
         "w_process": wq,
-        "body_a": a,
-        "body_isig": bis,
-        "walk_isig": walk,
-        "speed": speed if has_speed else 0.0,
-        "speed_isig": 1.0 / math.sqrt(noise.speed_meas_var(speed)) if has_speed else 0.0,
-        "still_isig": still_isig,
+        "process_jac": process_jac,
+        "lin_jac": lin,
+        "lin_b": b,
     }
 
 
@@ -442,15 +502,17 @@ def stacked_rows(
 
     The same equations as ``process_factor``, ``body_factor``, ``mount_walk_factors``,
     ``pose_pair_factor``, ``motion_pair_factor``, ``speed_factor`` and
-    ``standstill_factors`` (a test holds them
-    equal), evaluated for all pairs at once. ``loss`` = (kind, threshold of the 4-dof pose
-    block, threshold of the 3-dof motion block); ``speed_loss`` = (kind, threshold)."""
+    ``standstill_factors`` (a test holds them equal), evaluated for all pairs at once; the
+    linear rows come whitened from ``pair_constants``. ``loss`` = (kind, threshold of the
+    4-dof pose block, threshold of the 3-dof motion block); ``speed_loss`` = (kind,
+    threshold)."""
     n = len(prev)
-    d = FRAME_DIM
-    r = np.zeros((n, PAIR_ROWS))
-    jac = np.zeros((n, PAIR_ROWS, 2 * d))
-    x0, y0, psi0, v0, w0 = (prev[:, i] for i in range(5))
-    x1, y1, psi1, v1, w1 = (curr[:, i] for i in range(5))
+    both = np.concatenate([prev, curr], axis=1)
+    r = np.matmul(c.lin_jac, both[..., None])[..., 0] - c.lin_b
+    jac = c.lin_jac.copy()
+    # (few, large numpy operations: the sliding window calls this for a few dozen pairs)
+    x0, y0, psi0, v0, w0, _, _, _, _, _, _ = prev.T
+    x1, y1, psi1, v1, w1, _, _, h, yaw_m, _, _ = curr.T
     dt = c.dt
     # process: model.propagate_pose, residual along / across the mid-point heading
     a = psi0 + 0.5 * w0 * dt
@@ -458,67 +520,45 @@ def stacked_rows(
     dx = x1 - (x0 + v0 * dt * sa)
     dy = y1 - (y0 + v0 * dt * ca)
     along, cross = sa * dx + ca * dy, ca * dx - sa * dy
-    r[:, 0], r[:, 1] = along, cross
-    r[:, 2] = _wrap(psi1 - psi0 - w0 * dt)
-    r[:, 3], r[:, 4] = v1 - v0, w1 - w0
-    jac[:, 0, 0], jac[:, 0, 1], jac[:, 1, 0], jac[:, 1, 1] = -sa, -ca, -ca, sa
-    jac[:, 0, d], jac[:, 0, d + 1], jac[:, 1, d], jac[:, 1, d + 1] = sa, ca, ca, -sa
-    jac[:, 0, 2], jac[:, 1, 2] = cross, -along - v0 * dt
-    jac[:, 0, 4], jac[:, 1, 4] = 0.5 * dt * cross, 0.5 * dt * (-along - v0 * dt)
-    jac[:, 0, 3] = -dt
-    jac[:, 2, 2], jac[:, 2, 4], jac[:, 2, d + 2] = -1.0, -dt, 1.0
-    jac[:, 3, 3], jac[:, 3, d + 3], jac[:, 4, 4], jac[:, 4, d + 4] = -1.0, 1.0, -1.0, 1.0
-    r[:, 0:5] = np.matmul(c.w_process, r[:, 0:5, None])[..., 0]
-    jac[:, 0:5] = np.matmul(c.w_process, jac[:, 0:5])
-    # body (Gauss–Markov) and mount random walks: linear
-    for i, col in enumerate((9, 10)):
-        r[:, 5 + i] = c.body_isig * (curr[:, col] - c.body_a * prev[:, col])
-        jac[:, 5 + i, col], jac[:, 5 + i, d + col] = -c.body_isig * c.body_a, c.body_isig
-    for i, col in enumerate((5, 6, 7, 8)):
-        r[:, 7 + i] = c.walk_isig[:, i] * (curr[:, col] - prev[:, col])
-        jac[:, 7 + i, col], jac[:, 7 + i, d + col] = -c.walk_isig[:, i], c.walk_isig[:, i]
-    # pose pair: (m + b_{k-1}, m + b_k) on the current mount
-    e4 = np.stack(
-        [curr[:, 5] + prev[:, 9], curr[:, 6] + prev[:, 10], curr[:, 5] + curr[:, 9],
-         curr[:, 6] + curr[:, 10]], axis=1,
-    ) - c.z[:, :4]
-    j4 = np.zeros((n, 4, 2 * d))
-    j4[:, 0, d + 5] = j4[:, 2, d + 5] = j4[:, 1, d + 6] = j4[:, 3, d + 6] = 1.0
-    j4[:, 0, 9] = j4[:, 1, 10] = j4[:, 2, d + 9] = j4[:, 3, d + 10] = 1.0
+    d_psi = -along - v0 * dt  # ∂cross/∂(mid-point heading); ∂along/∂ it is cross
+    # the two angle differences wrapped at once: process heading, pair yaw
+    turn = _wrap(np.array([psi1 - psi0 - w0 * dt, psi1 - psi0 - c.z[:, 6]]))
+    e5 = np.array([along, cross, turn[0], v1 - v0, w1 - w0]).T
+    r[:, 0:5] = np.matmul(c.w_process, e5[..., None])[..., 0]
+    # ∂(along, cross)/∂ columns _PROCESS_DYN_COLS (x0, y0, ψ0, ω0, x1, y1)
+    hdt = 0.5 * dt
+    dyn = np.array(
+        [-sa, -ca, cross, hdt * cross, sa, ca, -ca, sa, d_psi, hdt * d_psi, ca, -sa]
+    ).T.reshape(n, 2, 6)
+    jac[:, 0:5] = c.process_jac
+    jac[:, 0:5, _PROCESS_DYN_COLS] += np.matmul(c.w_process[:, :, 0:2], dyn)
     # motion pair: displacement in G_{k-1} scaled by h0 / h_m
-    g = psi0 + curr[:, 8]
-    cg, sg = np.cos(g), np.sin(g)
-    sc = c.h0 / curr[:, 7]
+    g = psi0 + yaw_m
+    sc = c.h0 / h
+    scg, ssg = sc * np.cos(g), sc * np.sin(g)
     ddx, ddy = x1 - x0, y1 - y0
-    tx, tz = sc * (cg * ddx - sg * ddy), sc * (sg * ddx + cg * ddy)
-    e3 = np.stack([tx - c.z[:, 4], tz - c.z[:, 5], _wrap(psi1 - psi0 - c.z[:, 6])], axis=1)
-    j3 = np.zeros((n, 3, 2 * d))
-    j3[:, 0, d], j3[:, 0, d + 1], j3[:, 1, d], j3[:, 1, d + 1] = sc * cg, -sc * sg, sc * sg, sc * cg
-    j3[:, 0:2, 0:2] = -j3[:, 0:2, d : d + 2]
-    tx_g, tz_g = sc * (-sg * ddx - cg * ddy), sc * (cg * ddx - sg * ddy)
-    j3[:, 0, 2] = j3[:, 0, d + 8] = tx_g
-    j3[:, 1, 2] = j3[:, 1, d + 8] = tz_g
-    j3[:, 0, d + 7] = np.where(c.metric, -tx / curr[:, 7], 0.0)
-    j3[:, 1, d + 7] = np.where(c.metric, -tz / curr[:, 7], 0.0)
-    j3[:, 2, 2], j3[:, 2, d + 2] = -1.0, 1.0
-    norms = np.zeros((n, 2))
+    tx, tz = scg * ddx - ssg * ddy, ssg * ddx + scg * ddy
+    e3 = np.array([tx - c.z[:, 4], tz - c.z[:, 5], turn[1]]).T
+    dh = np.where(c.metric, 1.0 / h, 0.0)  # the EKF's rule: without wheel speed, h stays
+    j3 = np.zeros((n, 3, 2 * FRAME_DIM))
+    j3[:, _MOTION_JAC_ROWS, _MOTION_JAC_COLS] = np.array(
+        [scg, -ssg, ssg, scg, -scg, ssg, -ssg, -scg, -tz, -tz, tx, tx, -tx * dh, -tz * dh]
+    ).T
+    j3[:, 2, 2], j3[:, 2, _CURR + 2] = -1.0, 1.0
+    r[:, MOTION_ROWS] = np.matmul(c.w_motion, e3[..., None])[..., 0]
+    jac[:, MOTION_ROWS] = np.matmul(c.w_motion, j3)
+    # robust weights (IRLS, as gtsam's noiseModel.Robust) of the pair blocks and the speed
+    sq = r * r
+    norms = np.sqrt(np.array([sq[:, POSE_ROWS].sum(axis=1), sq[:, MOTION_ROWS].sum(axis=1)]).T)
     kind, k4, k3 = loss
-    for rows, e, j, w, kk, col in (
-        (POSE_ROWS, e4, j4, c.w_pose, k4, 0), (MOTION_ROWS, e3, j3, c.w_motion, k3, 1)
-    ):
-        ew = np.matmul(w, e[..., None])[..., 0]
-        norms[:, col] = np.linalg.norm(ew, axis=1)
-        s = np.sqrt(robust_weight(norms[:, col], kind, kk))
-        r[:, rows] = s[:, None] * ew
-        jac[:, rows] = s[:, None, None] * np.matmul(w, j)
-    # wheel speed on the current frame
-    es = c.speed_isig * (v1 - c.speed)
-    s = np.sqrt(robust_weight(np.abs(es), *speed_loss))
-    r[:, SPEED_ROW] = s * es
-    jac[:, SPEED_ROW, d + 3] = s * c.speed_isig
-    # standstill: speed and yaw rate of the current frame measured as 0
-    r[:, STANDSTILL_ROWS] = c.still_isig * curr[:, 3:5]
-    jac[:, 19, d + 3], jac[:, 20, d + 4] = c.still_isig[:, 0], c.still_isig[:, 1]
+    scale = np.ones((n, PAIR_ROWS))
+    if kind != "none":
+        scale[:, POSE_ROWS] = np.sqrt(robust_weight(norms[:, 0], kind, k4))[:, None]
+        scale[:, MOTION_ROWS] = np.sqrt(robust_weight(norms[:, 1], kind, k3))[:, None]
+    if speed_loss[0] != "none":
+        scale[:, SPEED_ROW] = np.sqrt(robust_weight(np.abs(r[:, SPEED_ROW]), *speed_loss))
+    r *= scale
+    jac *= scale[..., None]
     return r, jac, norms
 
 

@@ -23,10 +23,12 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import dataclasses
 import glob
 import math
 import os
 from collections.abc import Iterator
+from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
@@ -59,10 +61,16 @@ _T_STATE = np.zeros((M.STATE_DIM, 2 * _D))
 _T_STATE[_STATE_OF_VAR, _D + np.arange(_D)] = 1.0
 _T_STATE[[M.PREV_POS_X, M.PREV_POS_Y, M.PREV_HEADING], [0, 1, 2]] = 1.0
 _T_STATE[[M.PREV_BODY_PITCH, M.PREV_BODY_ROLL], [9, 10]] = 1.0
-_FIELDS = (
-    "dt", "z", "h0", "w_pose", "w_motion", "metric", "w_process", "body_a", "body_isig",
-    "walk_isig", "speed", "speed_isig", "still_isig",
-)
+_FIELDS = tuple(f.name for f in dataclasses.fields(F.StackedPairs))
+
+
+@dataclass(frozen=True)
+class _LastSolve:
+    """What the window's last Gauss–Newton step leaves for the output and marginalisation."""
+
+    factor: FloatArray  # banded Cholesky factor (reversed order)
+    norms: FloatArray  # (n-1, 2) Gaussian norms of the pair blocks
+    first: tuple[FloatArray, FloatArray, FloatArray] | None  # anchor pair's r, J, point
 
 
 class SolveError(RuntimeError):
@@ -136,7 +144,9 @@ class FixedLagSmoother:
         self._c = {f: [] for f in _FIELDS}  # pair constants of frames lo+1 … hi-1
         self._prior: tuple[FloatArray, FloatArray] | None = None  # (R, μ) on the anchor
         self._emitted = 0  # frames of the window already reported (the anchor, if 1)
-        self._last: tuple[FloatArray, FloatArray] | None = None  # (factor, norms) of the window
+        # the last solve: factor, pair norms, and the anchor pair's rows (r, J) with the point
+        # (anchor and next frame) they were linearised at; None once the window changes
+        self._last: _LastSolve | None = None
         self._stacked: F.StackedPairs | None = None  # self._c as arrays, until it changes
 
     def _pairs(self) -> F.StackedPairs:
@@ -240,16 +250,19 @@ class FixedLagSmoother:
 
     # --- Gauss–Newton over the window ----------------------------------------------------------
 
-    def _normal_equations(self) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, float]:
+    def _normal_equations(
+        self,
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, tuple | None]:
         """Block-tridiagonal normal equations of the window at the current estimate:
         diagonal blocks (n, D, D), upper blocks (n-1, D, D), gradient (n, D), the pair
-        blocks' Gaussian norms (n-1, 2) and the cost ½‖r‖²."""
+        blocks' Gaussian norms (n-1, 2), and the anchor pair's (r, J, point) (None for one
+        frame)."""
         x = self._x
         n = len(x)
         hd = np.zeros((n, _D, _D))
         g = np.zeros((n, _D))
-        cost = 0.0
         norms = np.zeros((0, 2))
+        first = None
         hu = np.zeros((max(n - 1, 0), _D, _D))
         if n > 1:
             r, j, norms = F.stacked_rows(x[:-1], x[1:], self._pairs(), self._loss, self._speed_loss)
@@ -261,13 +274,12 @@ class FixedLagSmoother:
             hu = jtj[:, :_D, _D:]
             g[:-1] += jtr[:, :_D]
             g[1:] += jtr[:, _D:]
-            cost += 0.5 * float(np.sum(r * r))
+            first = (r[0], j[0], x[0:2].reshape(-1).copy())
         rp, mu = self._prior  # type: ignore[misc]
         r0 = rp @ (x[0] - mu)
         hd[0] += rp.T @ rp
         g[0] += rp.T @ r0
-        cost += 0.5 * float(r0 @ r0)
-        return hd, hu, g, norms, cost
+        return hd, hu, g, norms, first
 
     def _factor(self, hd: FloatArray, hu: FloatArray) -> FloatArray:
         """Banded upper Cholesky factor of the window's information matrix in *reversed*
@@ -291,7 +303,7 @@ class FixedLagSmoother:
         ``_oldest_marginal``."""
         cfg = self._cfg
         for _ in range(max_iterations or cfg.lag_max_iterations):
-            hd, hu, g, norms, _ = self._normal_equations()
+            hd, hu, g, norms, first = self._normal_equations()
             cb = self._factor(hd, hu)
             sol, info = dpbtrs(cb, g.reshape(-1)[::-1], lower=0)
             if info != 0:
@@ -300,7 +312,7 @@ class FixedLagSmoother:
             if not np.all(np.isfinite(delta)):
                 raise SolveError("Gauss-Newton step is not finite")
             self._x = self._x + delta
-            self._last = (cb, norms)
+            self._last = _LastSolve(cb, norms, first)
             if -0.5 * float(g.reshape(-1) @ delta.reshape(-1)) <= cfg.lag_tolerance_chi2:
                 break
 
@@ -309,10 +321,9 @@ class FixedLagSmoother:
         of the pair joining them: from the last solve's factor if the window has not changed
         since, else at the current estimate."""
         if self._last is None:
-            hd, hu, _, norms, _ = self._normal_equations()
-            cb = self._factor(hd, hu)
-        else:
-            cb, norms = self._last
+            hd, hu, _, norms, first = self._normal_equations()
+            self._last = _LastSolve(self._factor(hd, hu), norms, first)
+        cb, norms = self._last.factor, self._last.norms
         n = len(self._x)
         k = min(2, n) * _D
         last = n * _D - k
@@ -367,13 +378,20 @@ class FixedLagSmoother:
         """Fold the anchor (and the factors joining it to the next frame) into a Gaussian
         prior on the next frame, which becomes the anchor."""
         x = self._x
-        first = F.StackedPairs(**{f: getattr(self._pairs(), f)[:1] for f in _FIELDS})
-        r, j, _ = F.stacked_rows(x[0:1], x[1:2], first, self._loss, self._speed_loss)
+        if self._last is not None and self._last.first is not None:
+            # the last solve's linearisation of the pair, its residual moved to the estimate
+            # (the Gauss–Newton model: the step since is small, the frame converged over lag_s)
+            r0, j0, at = self._last.first
+            r0 = r0 + j0 @ (x[0:2].reshape(-1) - at)
+        else:
+            first = F.StackedPairs(**{f: getattr(self._pairs(), f)[:1] for f in _FIELDS})
+            r, j, _ = F.stacked_rows(x[0:1], x[1:2], first, self._loss, self._speed_loss)
+            r0, j0 = r[0], j[0]
         rp, mu = self._prior  # type: ignore[misc]
         a = np.zeros((_D + F.PAIR_ROWS, 2 * _D))
         a[:_D, :_D] = rp
-        a[_D:] = j[0]
-        b = np.concatenate([rp @ (x[0] - mu), r[0]])
+        a[_D:] = j0
+        b = np.concatenate([rp @ (x[0] - mu), r0])
         h, g = a.T @ a, a.T @ b
         k = np.linalg.solve(h[:_D, :_D], np.hstack([h[:_D, _D:], g[:_D, None]]))
         hs = h[_D:, _D:] - h[_D:, :_D] @ k[:, :_D]

@@ -254,49 +254,64 @@ def expected_pair(
     ``mount`` = (pitch_m, roll_m, h_m, yaw_m); bodies are (b_pitch, b_roll); poses are the
     vehicle's world (x, y, ψ). tx, tz are in metres *at* ``height_assumed`` (h0): the true
     displacement in G_{k-1} times h0 / h_m. The smoother's pair factor uses this function.
+    Entries may be arrays of one shape (many pairs): the result is then (..., 7).
     """
     pitch_m, roll_m, h_m, yaw_m = mount
     dx, dy = pose_curr[0] - pose_prev[0], pose_curr[1] - pose_prev[1]
     g = pose_prev[2] + yaw_m
     c, s = np.cos(g), np.sin(g)
     k = height_assumed / h_m
+    # np.array(...).T: (7,) from scalars, (..., 7) from arrays (cheap for the EKF's scalars)
     return np.array([
         pitch_m + body_prev[0], roll_m + body_prev[1],
         pitch_m + body_curr[0], roll_m + body_curr[1],
         k * (c * dx - s * dy), k * (s * dx + c * dy),
         pose_curr[2] - pose_prev[2],
-    ])
+    ]).T
 
 
-def pair_measurement(state: FloatArray, height_assumed: float) -> tuple[FloatArray, FloatArray]:
-    """Expected pair 7-vector of ``state`` (see ``expected_pair``) and its 7×16 Jacobian."""
-    s = state
+# the pair Jacobian's constant entries (angles = mount + body, yaw = ψ_k − ψ_{k-1}) and the
+# (row, column) of its state-dependent ones (pair_measurement)
+_PAIR_JAC_CONST = np.zeros((7, STATE_DIM))
+_PAIR_JAC_CONST[[0, 2, 1, 3, 0, 1, 2, 3], [MOUNT_PITCH, MOUNT_PITCH, MOUNT_ROLL, MOUNT_ROLL,
+                                            PREV_BODY_PITCH, PREV_BODY_ROLL, BODY_PITCH,
+                                            BODY_ROLL]] = 1.0
+_PAIR_JAC_CONST[6, HEADING], _PAIR_JAC_CONST[6, PREV_HEADING] = 1.0, -1.0
+_PAIR_JAC_ROWS = np.array([4, 4, 4, 4, 5, 5, 5, 5, 4, 4, 5, 5, 4, 5])
+_PAIR_JAC_COLS = np.array([
+    POS_X, POS_Y, PREV_POS_X, PREV_POS_Y, POS_X, POS_Y, PREV_POS_X, PREV_POS_Y,
+    PREV_HEADING, MOUNT_YAW, PREV_HEADING, MOUNT_YAW, MOUNT_HEIGHT, MOUNT_HEIGHT,
+])
+
+
+def pair_measurement(
+    state: FloatArray, height_assumed: float | FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Expected pair 7-vector of ``state`` (see ``expected_pair``) and its 7×16 Jacobian;
+    ``state`` (..., 16) gives (..., 7) and (..., 7, 16)."""
+    s = np.asarray(state, dtype=float)
+    v = s.T  # v[i]: a scalar for one state, the (...) array of state entry i for many
+    h0 = height_assumed if np.ndim(height_assumed) == 0 else np.asarray(height_assumed).T
     z = expected_pair(
-        (s[MOUNT_PITCH], s[MOUNT_ROLL], s[MOUNT_HEIGHT], s[MOUNT_YAW]),
-        (s[PREV_BODY_PITCH], s[PREV_BODY_ROLL]), (s[BODY_PITCH], s[BODY_ROLL]),
-        (s[PREV_POS_X], s[PREV_POS_Y], s[PREV_HEADING]), (s[POS_X], s[POS_Y], s[HEADING]),
-        height_assumed,
+        (v[MOUNT_PITCH], v[MOUNT_ROLL], v[MOUNT_HEIGHT], v[MOUNT_YAW]),
+        (v[PREV_BODY_PITCH], v[PREV_BODY_ROLL]), (v[BODY_PITCH], v[BODY_ROLL]),
+        (v[PREV_POS_X], v[PREV_POS_Y], v[PREV_HEADING]), (v[POS_X], v[POS_Y], v[HEADING]),
+        h0,
     )
-    h = np.zeros((7, STATE_DIM))
-    h[0, MOUNT_PITCH] = h[2, MOUNT_PITCH] = 1.0
-    h[1, MOUNT_ROLL] = h[3, MOUNT_ROLL] = 1.0
-    h[0, PREV_BODY_PITCH] = h[1, PREV_BODY_ROLL] = 1.0
-    h[2, BODY_PITCH] = h[3, BODY_ROLL] = 1.0
-    dx, dy = s[POS_X] - s[PREV_POS_X], s[POS_Y] - s[PREV_POS_Y]
-    g = s[PREV_HEADING] + s[MOUNT_YAW]
+    zt = z.T
+    dx, dy = v[POS_X] - v[PREV_POS_X], v[POS_Y] - v[PREV_POS_Y]
+    g = v[PREV_HEADING] + v[MOUNT_YAW]
     c, sn = np.cos(g), np.sin(g)
-    k = height_assumed / s[MOUNT_HEIGHT]
-    # tx = k (c dx - s dy), tz = k (s dx + c dy)
-    h[4, POS_X], h[4, POS_Y] = k * c, -k * sn
-    h[4, PREV_POS_X], h[4, PREV_POS_Y] = -k * c, k * sn
-    h[5, POS_X], h[5, POS_Y] = k * sn, k * c
-    h[5, PREV_POS_X], h[5, PREV_POS_Y] = -k * sn, -k * c
+    k = h0 / v[MOUNT_HEIGHT]
+    # tx = k (c dx - s dy), tz = k (s dx + c dy); entries in _PAIR_JAC_ROWS/COLS order
     dtx_dg, dtz_dg = k * (-sn * dx - c * dy), k * (c * dx - sn * dy)
-    h[4, PREV_HEADING] = h[4, MOUNT_YAW] = dtx_dg
-    h[5, PREV_HEADING] = h[5, MOUNT_YAW] = dtz_dg
-    h[4, MOUNT_HEIGHT] = -z[4] / s[MOUNT_HEIGHT]
-    h[5, MOUNT_HEIGHT] = -z[5] / s[MOUNT_HEIGHT]
-    h[6, HEADING], h[6, PREV_HEADING] = 1.0, -1.0
+    kc, ks = k * c, k * sn
+    h = np.empty((*s.shape[:-1], 7, STATE_DIM))
+    h[...] = _PAIR_JAC_CONST
+    h[..., _PAIR_JAC_ROWS, _PAIR_JAC_COLS] = np.array(
+        [kc, -ks, -kc, ks, ks, kc, -ks, -kc, dtx_dg, dtx_dg, dtz_dg, dtz_dg,
+         -zt[4] / v[MOUNT_HEIGHT], -zt[5] / v[MOUNT_HEIGHT]]
+    ).T
     return z, h
 
 
@@ -339,17 +354,24 @@ def standstill_measurement(
 
 def metric_motion(state: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Filtered motion (tx, tz, yaw) from frame k-1 to k in metres (true scale) / rad, in
-    G_{k-1}, and its 3×16 Jacobian (the pair model with h0 = h_m)."""
-    z, h = pair_measurement(state, float(state[MOUNT_HEIGHT]))
-    jac = h[4:7].copy()
-    jac[:, MOUNT_HEIGHT] = 0.0  # h0 = h_m cancels
-    return z[4:7], jac
+    G_{k-1}, and its 3×16 Jacobian (the pair model with h0 = h_m); ``state`` (..., 16)
+    gives (..., 3) and (..., 3, 16)."""
+    s = np.asarray(state, dtype=float)
+    z, h = pair_measurement(s, s[..., MOUNT_HEIGHT])
+    jac = h[..., 4:7, :].copy()
+    jac[..., MOUNT_HEIGHT] = 0.0  # h0 = h_m cancels
+    return z[..., 4:7], jac
+
+
+#: Jacobian of the frame pose (pitch, roll, h) = mount + body w.r.t. the state
+_FRAME_POSE_JAC = np.zeros((3, STATE_DIM))
+_FRAME_POSE_JAC[0, MOUNT_PITCH] = _FRAME_POSE_JAC[0, BODY_PITCH] = 1.0
+_FRAME_POSE_JAC[1, MOUNT_ROLL] = _FRAME_POSE_JAC[1, BODY_ROLL] = 1.0
+_FRAME_POSE_JAC[2, MOUNT_HEIGHT] = 1.0
+_FRAME_POSE_JAC.setflags(write=False)
 
 
 def frame_pose(state: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Current frame pose (pitch, roll, h) = mount + body, rad / m, and its 3×16 Jacobian."""
-    jac = np.zeros((3, STATE_DIM))
-    jac[0, MOUNT_PITCH] = jac[0, BODY_PITCH] = 1.0
-    jac[1, MOUNT_ROLL] = jac[1, BODY_ROLL] = 1.0
-    jac[2, MOUNT_HEIGHT] = 1.0
-    return jac @ state, jac
+    """Current frame pose (pitch, roll, h) = mount + body, rad / m, and its 3×16 Jacobian;
+    ``state`` (..., 16) gives (..., 3) (the Jacobian is the same for every state)."""
+    return np.asarray(state, dtype=float) @ _FRAME_POSE_JAC.T, _FRAME_POSE_JAC

@@ -164,8 +164,8 @@ def test_block_marginals_equal_gtsams():
     captured = {}
     original = S._gauss_newton
 
-    def spy(graph, values, ordering, a, b):
-        out = original(graph, values, ordering, a, b)
+    def spy(graph, values, ordering, a, b, **kw):
+        out = original(graph, values, ordering, a, b, **kw)
         captured["graph"], captured["values"] = graph, out[0]
         return out
 
