@@ -72,10 +72,13 @@ def model_from_pose2(p: gtsam.Pose2) -> tuple[float, float, float]:
     return float(p.y()), float(p.x()), float(p.theta())
 
 
-def tangent_jacobian(psi: float) -> FloatArray:
-    """∂(x, y, ψ)/∂(Pose2 tangent) at heading ψ: world position moves by R(θ)·(d1, d2)."""
-    s, c = math.sin(psi), math.cos(psi)
-    return np.array([[s, c, 0.0], [c, -s, 0.0], [0.0, 0.0, 1.0]])
+def tangent_jacobian(psi: float | FloatArray) -> FloatArray:
+    """∂(x, y, ψ)/∂(Pose2 tangent) at heading ψ: world position moves by R(θ)·(d1, d2).
+    An array of headings (...) gives (..., 3, 3)."""
+    s, c = np.sin(psi), np.cos(psi)
+    t = np.zeros((*np.shape(psi), 3, 3))
+    t[..., 0, 0], t[..., 0, 1], t[..., 1, 0], t[..., 1, 1], t[..., 2, 2] = s, c, c, -s, 1.0
+    return t
 
 
 def wrap(a: float) -> float:

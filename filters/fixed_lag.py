@@ -64,6 +64,54 @@ _T_STATE[[M.PREV_BODY_PITCH, M.PREV_BODY_ROLL], [9, 10]] = 1.0
 _FIELDS = tuple(f.name for f in dataclasses.fields(F.StackedPairs))
 
 
+class _PairStore:
+    """The window's pair constants (``factors.StackedPairs`` fields, one row per pair) in
+    growable arrays: appended at the end, dropped from either end, viewed without copying."""
+
+    def __init__(self) -> None:
+        self._arrays: dict[str, np.ndarray] = {}
+        self._lo = self._hi = 0
+
+    def __len__(self) -> int:
+        return self._hi - self._lo
+
+    def append(self, row: dict[str, object]) -> None:
+        cap = len(next(iter(self._arrays.values()))) if self._arrays else 0
+        if self._hi == cap:  # full: move the rows to the front of arrays twice their number
+            n = len(self)
+            new_cap = max(64, 2 * n)
+            self._arrays = {
+                f: _moved(self._arrays.get(f), self._lo, self._hi, new_cap, row[f])
+                for f in _FIELDS
+            }
+            self._lo, self._hi = 0, n
+        for f in _FIELDS:
+            self._arrays[f][self._hi] = row[f]
+        self._hi += 1
+
+    def pop_front(self) -> None:
+        self._lo += 1
+
+    def pop_back(self) -> None:
+        self._hi -= 1
+
+    def view(self, n: int | None = None) -> F.StackedPairs:
+        """The pairs (the first ``n`` only, if given) as StackedPairs of array views."""
+        hi = self._hi if n is None else self._lo + n
+        return F.StackedPairs(**{f: a[self._lo : hi] for f, a in self._arrays.items()})
+
+
+def _moved(
+    old: np.ndarray | None, lo: int, hi: int, cap: int, example: object
+) -> np.ndarray:
+    """A (cap, …) array shaped for rows like ``example`` holding ``old[lo:hi]`` first."""
+    ex = np.asarray(example)
+    new = np.zeros((cap, *ex.shape), dtype=ex.dtype)
+    if old is not None:
+        new[: hi - lo] = old[lo:hi]
+    return new
+
+
 @dataclass(frozen=True)
 class _LastSolve:
     """What the window's last Gauss–Newton step leaves for the output and marginalisation."""
@@ -141,18 +189,15 @@ class FixedLagSmoother:
     def _clear(self) -> None:
         self._ms: list[PairMeasurement] = []  # frames lo … hi-1
         self._x = np.zeros((0, _D))  # estimates of the window's frames
-        self._c = {f: [] for f in _FIELDS}  # pair constants of frames lo+1 … hi-1
+        self._c = _PairStore()  # pair constants of frames lo+1 … hi-1
         self._prior: tuple[FloatArray, FloatArray] | None = None  # (R, μ) on the anchor
         self._emitted = 0  # frames of the window already reported (the anchor, if 1)
         # the last solve: factor, pair norms, and the anchor pair's rows (r, J) with the point
         # (anchor and next frame) they were linearised at; None once the window changes
         self._last: _LastSolve | None = None
-        self._stacked: F.StackedPairs | None = None  # self._c as arrays, until it changes
 
     def _pairs(self) -> F.StackedPairs:
-        if self._stacked is None:
-            self._stacked = F.StackedPairs(**{f: np.asarray(v) for f, v in self._c.items()})
-        return self._stacked
+        return self._c.view()
 
     def _append(self, m: PairMeasurement, speed: float) -> None:
         """Add frame ``m`` to the window, predicted from the newest one."""
@@ -182,9 +227,7 @@ class FixedLagSmoother:
         row = F.pair_constants(
             m, dt, speed, self._cfg.noise, self._cfg.cross_track_std_m, bool(metric)
         )
-        for f in _FIELDS:
-            self._c[f].append(row[f])
-        self._stacked = None
+        self._c.append(row)
 
     # --- start / restart -----------------------------------------------------------------------
 
@@ -229,9 +272,7 @@ class FixedLagSmoother:
         why = f"smoother restarted: {exc}"
         # drop m (the last frame, appended before the failed solve)
         self._ms.pop()
-        for f in _FIELDS:
-            self._c[f].pop()
-        self._stacked = None
+        self._c.pop_back()
         self._x = self._x[: len(self._ms)]
         self._last = None
         try:
@@ -384,7 +425,7 @@ class FixedLagSmoother:
             r0, j0, at = self._last.first
             r0 = r0 + j0 @ (x[0:2].reshape(-1) - at)
         else:
-            first = F.StackedPairs(**{f: getattr(self._pairs(), f)[:1] for f in _FIELDS})
+            first = self._c.view(1)
             r, j, _ = F.stacked_rows(x[0:1], x[1:2], first, self._loss, self._speed_loss)
             r0, j0 = r[0], j[0]
         rp, mu = self._prior  # type: ignore[misc]
@@ -405,9 +446,7 @@ class FixedLagSmoother:
         self._x = x[1:]
         self._last = None
         self._ms.pop(0)
-        for f in _FIELDS:
-            self._c[f].pop(0)
-        self._stacked = None
+        self._c.pop_front()
 
 
 def _first_prior(

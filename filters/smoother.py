@@ -8,8 +8,9 @@ priors, and priors on frame 0 (the EKF's). Pair factors use a redescending robus
 (Geman–McClure by default), so an outlier pair is down-weighted instead of pulling the estimate.
 
 - ``smooth_batch``: the whole drive at once (Gauss–Newton with step halving over gtsam's
-  linearisation and multifrontal elimination in time order); marginal covariances from
-  ``gtsam.Marginals``.
+  linearisation and sequential elimination in COLAMD order); marginal covariances of the
+  last linearisation by a block-tridiagonal sweep (``block_marginals``: equal to
+  ``gtsam.Marginals``, in O(n)).
 - ``FixedLagSmoother`` (``filters.fixed_lag``): Gauss–Newton over a sliding window of
   ``lag_s`` seconds of the same factors, the past folded into a Gaussian prior; each frame
   is reported once ``lag_s`` of later data is in, with its marginal covariance.
@@ -329,29 +330,8 @@ def _metric_frames(t: FloatArray, speeds: FloatArray, timeout_s: float) -> NDArr
     return near <= timeout_s
 
 
-def _frame_keys(k: int) -> list[int]:
-    return [F.key(c, k) for c in "BMHYVWX"]
-
-
-def _state_of(values: gtsam.Values, k: int, has_prev: bool) -> FloatArray:
-    """16-state (filters.model layout) of key index k; prev slots NaN without a previous frame."""
-    s = np.full(M.STATE_DIM, np.nan)
-    s[[M.MOUNT_PITCH, M.MOUNT_ROLL]] = values.atVector(F.key("M", k))
-    s[M.MOUNT_HEIGHT] = values.atVector(F.key("H", k))[0]
-    s[M.MOUNT_YAW] = values.atVector(F.key("Y", k))[0]
-    s[M.BODY] = values.atVector(F.key("B", k))
-    s[M.SPEED] = values.atVector(F.key("V", k))[0]
-    s[M.YAW_RATE] = values.atVector(F.key("W", k))[0]
-    s[M.POSE] = F.model_from_pose2(values.atPose2(F.key("X", k)))
-    if has_prev:
-        s[M.PREV_BODY] = values.atVector(F.key("B", k - 1))
-        s[M.PREV_POSE] = F.model_from_pose2(values.atPose2(F.key("X", k - 1)))
-    return s
-
-
 def _states_of(values: gtsam.Values, n: int) -> FloatArray:
-    """(n, 16) states (filters.model layout) of key indices 0..n-1 (``_state_of`` for all at
-    once); frame 0's prev slots NaN."""
+    """(n, 16) states (filters.model layout) of key indices 0..n-1; frame 0's prev slots NaN."""
     u = gtsam.utilities
     s = np.full((n, M.STATE_DIM), np.nan)
     vec = {c: np.asarray(u.extractVectors(values, c)).reshape(n, -1) for c in "VWMHYB"}
@@ -366,40 +346,6 @@ def _states_of(values: gtsam.Values, n: int) -> FloatArray:
     s[1:, M.PREV_BODY] = s[:-1, M.BODY]
     s[1:, M.PREV_POSE] = s[:-1, M.POSE]
     return s
-
-
-# marginal keys of a frame and the state indices their tangent blocks map to
-_MARGINAL_LAYOUT: tuple[tuple[str, int, list[int]], ...] = (
-    ("M", 0, [M.MOUNT_PITCH, M.MOUNT_ROLL]),
-    ("H", 0, [M.MOUNT_HEIGHT]),
-    ("Y", 0, [M.MOUNT_YAW]),
-    ("B", 0, [M.BODY_PITCH, M.BODY_ROLL]),
-    ("V", 0, [M.SPEED]),
-    ("W", 0, [M.YAW_RATE]),
-    ("X", 0, [M.POS_X, M.POS_Y, M.HEADING]),
-    ("B", -1, [M.PREV_BODY_PITCH, M.PREV_BODY_ROLL]),
-    ("X", -1, [M.PREV_POS_X, M.PREV_POS_Y, M.PREV_HEADING]),
-)
-
-
-def _state_covariance(joint: object, state: FloatArray, k: int, has_prev: bool) -> FloatArray:
-    """16×16 covariance in the model's coordinates from a joint marginal over
-    ``_marginal_keys(k, has_prev)`` (tangent blocks; Pose2 tangents mapped to (x, y, ψ))."""
-    layout = [e for e in _MARGINAL_LAYOUT if has_prev or e[1] == 0]
-    full = np.asarray(joint.fullMatrix())  # type: ignore[attr-defined]
-    t = np.zeros((M.STATE_DIM, full.shape[0]))
-    col = 0
-    for c, _, idx in layout:
-        n = len(idx)
-        t[np.ix_(idx, range(col, col + n))] = (
-            F.tangent_jacobian(state[idx[2]]) if c == "X" else np.eye(n)
-        )
-        col += n
-    p = t @ full @ t.T
-    if not has_prev:
-        p[M.PREV_BODY, :] = p[:, M.PREV_BODY] = np.nan
-        p[M.PREV_POSE, :] = p[:, M.PREV_POSE] = np.nan
-    return p
 
 
 # layout of a frame's block in the block-tridiagonal information matrix: letter → offset, dim
@@ -495,9 +441,9 @@ def _state_covariances(
         psi_prev = np.where(np.arange(lo, hi) > 0, states[lo:hi, M.PREV_HEADING], 0.0)
         tk = np.zeros((m, M.STATE_DIM, 2 * d))
         tk[:, _STATE_OF_BLOCK, d + np.arange(d)] = 1.0
-        tk[:, M.POSE, d + xo : d + xo + 3] = _tangent_jacobians(psi)
+        tk[:, M.POSE, d + xo : d + xo + 3] = F.tangent_jacobian(psi)
         tk[:, M.PREV_BODY, bo : bo + 2] = np.eye(2)
-        tk[:, M.PREV_POSE, xo : xo + 3] = _tangent_jacobians(psi_prev)
+        tk[:, M.PREV_POSE, xo : xo + 3] = F.tangent_jacobian(psi_prev)
         joint = np.zeros((m, 2 * d, 2 * d))
         joint[:, d:, d:] = sigma[lo:hi]
         first = max(lo, 1)
@@ -509,18 +455,6 @@ def _state_covariances(
         out[0, M.PREV_BODY, :] = out[0, :, M.PREV_BODY] = np.nan
         out[0, M.PREV_POSE, :] = out[0, :, M.PREV_POSE] = np.nan
     return out
-
-
-def _tangent_jacobians(psi: FloatArray) -> FloatArray:
-    """``factors.tangent_jacobian`` at every heading of ``psi`` (n,): (n, 3, 3)."""
-    s, c = np.sin(psi), np.cos(psi)
-    t = np.zeros((len(psi), 3, 3))
-    t[:, 0, 0], t[:, 0, 1], t[:, 1, 0], t[:, 1, 1], t[:, 2, 2] = s, c, c, -s, 1.0
-    return t
-
-
-def _marginal_keys(k: int, has_prev: bool) -> list[int]:
-    return [F.key(c, k + d) for c, d, _ in _MARGINAL_LAYOUT if has_prev or d == 0]
 
 
 def _block_norms(
@@ -704,7 +638,7 @@ def smooth_batch(
 
         bar = tqdm(total=cfg.max_iterations, desc="smoother: Gauss-Newton", unit="step")
     try:
-        values, iters, e0, e1 = _gauss_newton(
+        values, iters, e0, e1, lin = _gauss_newton(
             graph, values, None, cfg.max_iterations, cfg.tolerance,
             on_step=None if bar is None else lambda: bar.update(1),
         )
@@ -717,7 +651,7 @@ def smooth_batch(
 
     t0 = time.perf_counter()
     if cfg.marginals:
-        sigma, cross = block_marginals(graph.linearize(values), len(ms))
+        sigma, cross = block_marginals(lin, len(ms))
     norms = _block_norms(pairs, values)
     n_kept = len(ms)
     states = _states_of(values, n_kept)
@@ -753,9 +687,10 @@ def _gauss_newton(
     max_iterations: int,
     tolerance: float,
     on_step: Callable[[], None] | None = None,
-) -> tuple[gtsam.Values, int, float, float]:
+) -> tuple[gtsam.Values, int, float, float, gtsam.GaussianFactorGraph]:
     """Gauss–Newton until a step's predicted relative decrease of the error is below
-    ``tolerance``.
+    ``tolerance``: (values, iterations, initial and final error, the last linearisation —
+    of the estimate before the last, converged step; the marginals are read from it).
 
     The linearisation runs with a Python-owned ``Values``, so CustomFactor callbacks see it by
     reference (gtsam's optimisers would copy all values for every callback). Full steps are
@@ -765,6 +700,7 @@ def _gauss_newton(
     after every step (progress)."""
     err0 = graph.error(values)
     start = values
+    lin = None
     for safe in (False, True):
         values, err, it = start, err0, 0
         for it in range(1, max_iterations + 1):  # noqa: B007
@@ -795,7 +731,9 @@ def _gauss_newton(
         err = graph.error(values)
         if err <= err0 * (1 + 1e-9):
             break
-    return values, it, float(err0), float(err)
+    if lin is None:
+        lin = graph.linearize(values)
+    return values, it, float(err0), float(err), lin
 
 
 # --- entry points -----------------------------------------------------------------------------

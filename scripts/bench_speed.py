@@ -14,7 +14,7 @@ image and with every 10th image; overhead = logging time (flush included) / esti
 summed over the pairs (target ≤ 10 %).
 
     python scripts/bench_speed.py [--frames 8] [--repeats 1] [--log-every 1,10]
-                                  [--results FILE.md]
+                                  [--out FILE.md]
 
 Timings on a shared machine are noisy: they are medians over all pairs of all repeats.
 """
@@ -153,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--refinements", default="0,1,2")
     parser.add_argument("--log-every", default="1,10",
                         help="rerun logging rows: image decimations to time ('' for none)")
-    parser.add_argument("--results", type=Path,
+    parser.add_argument("--out", type=Path,
                         default=ROOT / "scripts" / "results" / "bench_speed.md")
     args = parser.parse_args(argv)
     rows, log_rows = [], []
@@ -197,8 +197,8 @@ def main(argv: list[str] | None = None) -> int:
             "share of images than over a long run, so its row is an upper bound.\n"
         )
     print(text)
-    args.results.parent.mkdir(parents=True, exist_ok=True)
-    args.results.write_text(text)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(text)
     return 0
 
 
