@@ -399,8 +399,24 @@ class FixedLagSmoother:
             cov, norms = self._oldest_marginal()
             state = _T_STATE @ self._x[0:2].reshape(-1)
             out.append(self._frame(m, state, _T_STATE @ cov @ _T_STATE.T, norms))
-            self._marginalise()
+            try:
+                self._marginalise()
+            except SolveError as exc:  # the frame is out; the run goes on from it
+                self._reanchor(exc)
         return out
+
+    def _reanchor(self, exc: SolveError) -> None:
+        """The anchor could not be folded into a prior: drop it and anchor the window on
+        the frame just reported, with the first frame's prior around its estimate (the
+        trajectory continues; the next frame reported is marked ``reset``)."""
+        self._ms.pop(0)
+        self._c.pop_front()
+        self._x = self._x[1:]
+        self._last = None
+        self._prior = _first_prior(self._x[0], float("nan"), self._cfg, self._ms[0].status)
+        self._emitted = 1
+        if len(self._ms) > 1:
+            self._reset = (self._ms[1].frame, f"smoother re-anchored: {exc}")
 
     def _frame(
         self, m: PairMeasurement, state: FloatArray, cov: FloatArray, norms: FloatArray | None

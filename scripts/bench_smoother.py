@@ -71,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
             )
         )
 
-    n_lag = round(60 * args.lag_minutes * run.config.fps) + 1
+    n_lag = min(round(60 * args.lag_minutes * run.config.fps) + 1, n)
     lag_ms = ms[:n_lag]
     for lag in (2.0, 5.0):
         for marg in (True, False):
