@@ -386,24 +386,32 @@ class FixedLagSmoother:
             m = self._ms[self._emitted]
             if not final and t_new - m.t < self._cfg.lag_s:
                 break
+            cov, norms, note = self._marginal_or_nan()
             if self._emitted == 0:  # the very first frame: no previous one
-                cov, _ = self._oldest_marginal()
                 state = np.full(M.STATE_DIM, np.nan)
                 state[_STATE_OF_VAR] = self._x[0]
                 p = np.full((M.STATE_DIM, M.STATE_DIM), np.nan)
                 p[np.ix_(_STATE_OF_VAR, _STATE_OF_VAR)] = cov[:_D, :_D]
-                out.append(self._frame(m, state, p, None))
+                out.append(self._frame(m, state, p, None, note))
                 self._emitted = 1
                 continue
             # emitted == 1: report frame lo+1 with the anchor lo as its previous frame
-            cov, norms = self._oldest_marginal()
             state = _T_STATE @ self._x[0:2].reshape(-1)
-            out.append(self._frame(m, state, _T_STATE @ cov @ _T_STATE.T, norms))
+            out.append(self._frame(m, state, _T_STATE @ cov @ _T_STATE.T, norms, note))
             try:
                 self._marginalise()
             except SolveError as exc:  # the frame is out; the run goes on from it
                 self._reanchor(exc)
         return out
+
+    def _marginal_or_nan(self) -> tuple[FloatArray, FloatArray, str]:
+        """``_oldest_marginal`` and an empty note, or NaN (the frame is still reported, with
+        its estimate) and a note saying why there is no covariance."""
+        try:
+            return (*self._oldest_marginal(), "")
+        except SolveError as exc:
+            k = min(2, len(self._x)) * _D
+            return np.full((k, k), np.nan), np.full(2, np.nan), f"no covariance: {exc}"
 
     def _reanchor(self, exc: SolveError) -> None:
         """The anchor could not be folded into a prior: drop it and anchor the window on
@@ -419,7 +427,12 @@ class FixedLagSmoother:
             self._reset = (self._ms[1].frame, f"smoother re-anchored: {exc}")
 
     def _frame(
-        self, m: PairMeasurement, state: FloatArray, cov: FloatArray, norms: FloatArray | None
+        self,
+        m: PairMeasurement,
+        state: FloatArray,
+        cov: FloatArray,
+        norms: FloatArray | None,
+        note: str = "",
     ) -> SmoothedFrame:
         pair = None if norms is None or not m.ok else (float(norms[0]), float(norms[1]))
         if not self._cfg.marginals:
@@ -428,6 +441,8 @@ class FixedLagSmoother:
         reason = "" if pair else m.status
         if self._reset is not None and self._reset[0] == m.frame:
             status, reason = "reset", self._reset[1]
+        if note:
+            reason = f"{reason}; {note}" if reason else note
         return _make_frame(m, state, cov, status, gated, reason,
                            self._still.pop(m.frame, False))
 

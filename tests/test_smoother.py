@@ -478,6 +478,28 @@ def test_fixed_lag_goes_on_when_a_frame_cannot_be_marginalised(monkeypatch):
     assert all(np.all(np.isfinite(f.mount)) for f in frames)
 
 
+def test_fixed_lag_reports_a_frame_without_covariance_when_its_marginal_fails(monkeypatch):
+    run = _drive(6, duration=4.0)
+    calls = {"n": 0}
+    original = FixedLagSmoother._oldest_marginal
+
+    def flaky(self):
+        calls["n"] += 1
+        if calls["n"] == 20:
+            raise SolveError("window information not positive definite (test)")
+        return original(self)
+
+    monkeypatch.setattr(FixedLagSmoother, "_oldest_marginal", flaky)
+    cfg = SmootherConfig(height_m=H0, noise=run.config.noise, lag_s=0.5)
+    frames = smooth(run.measurements, run.speed, cfg)
+    assert [f.frame for f in frames] == [m.frame for m in run.measurements]
+    bare = [f for f in frames if "no covariance" in f.reason]
+    assert len(bare) == 1
+    assert np.all(np.isnan(bare[0].mount_cov)) and np.all(np.isfinite(bare[0].mount))
+    later = frames[frames.index(bare[0]) + 1 :]
+    assert later and all(np.all(np.isfinite(f.mount_cov)) for f in later)
+
+
 # --- sliding window (filters/fixed_lag.py) -----------------------------------------------------
 
 
