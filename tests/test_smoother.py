@@ -433,21 +433,32 @@ def test_cli_smooths_an_estimates_table(tmp_path, capsys):
     assert rc == 2
 
 
-def test_fixed_lag_restarts_after_a_failed_update(monkeypatch):
-    run = _drive(6, duration=4.0)
+def _fail_once(monkeypatch, method: str, at_call: int) -> None:
+    """Make ``FixedLagSmoother.<method>`` raise a SolveError on its ``at_call``-th call."""
     calls = {"n": 0}
-    original = FixedLagSmoother._solve
+    original = getattr(FixedLagSmoother, method)
 
     def flaky(self, *args, **kwargs):
         calls["n"] += 1
-        if calls["n"] == 30:
-            raise SolveError("window information not positive definite (test)")
+        if calls["n"] == at_call:
+            raise SolveError("not positive definite (test)")
         return original(self, *args, **kwargs)
 
-    monkeypatch.setattr(FixedLagSmoother, "_solve", flaky)
+    monkeypatch.setattr(FixedLagSmoother, method, flaky)
+
+
+def _smooth_with_failure(monkeypatch, method: str, at_call: int, speed: bool):
+    run = _drive(6, duration=4.0)
+    _fail_once(monkeypatch, method, at_call)
     cfg = SmootherConfig(height_m=H0, noise=run.config.noise, lag_s=0.5)
-    frames = smooth(run.measurements, None, cfg)
+    frames = smooth(run.measurements, run.speed if speed else None, cfg)
+    # every frame reported once, in order
     assert [f.frame for f in frames] == [m.frame for m in run.measurements]
+    return frames
+
+
+def test_fixed_lag_restarts_after_a_failed_update(monkeypatch):
+    frames = _smooth_with_failure(monkeypatch, "_solve", 30, speed=False)
     resets = [f for f in frames if f.status == "reset"]
     assert len(resets) == 1 and "restarted" in resets[0].reason
     # the trajectory continues where it was
@@ -456,21 +467,8 @@ def test_fixed_lag_restarts_after_a_failed_update(monkeypatch):
 
 
 def test_fixed_lag_goes_on_when_a_frame_cannot_be_marginalised(monkeypatch):
-    run = _drive(6, duration=4.0)
-    calls = {"n": 0}
-    original = FixedLagSmoother._marginalise
-
-    def flaky(self):
-        calls["n"] += 1
-        if calls["n"] == 20:
-            raise SolveError("marginal prior not positive definite (test)")
-        return original(self)
-
-    monkeypatch.setattr(FixedLagSmoother, "_marginalise", flaky)
-    cfg = SmootherConfig(height_m=H0, noise=run.config.noise, lag_s=0.5)
-    frames = smooth(run.measurements, run.speed, cfg)
-    # every frame reported once, in order; the next one starts the new window
-    assert [f.frame for f in frames] == [m.frame for m in run.measurements]
+    frames = _smooth_with_failure(monkeypatch, "_marginalise", 20, speed=True)
+    # the next frame starts the new window
     resets = [f for f in frames if f.status == "reset"]
     assert len(resets) == 1 and "re-anchored" in resets[0].reason
     i = frames.index(resets[0])
@@ -479,20 +477,7 @@ def test_fixed_lag_goes_on_when_a_frame_cannot_be_marginalised(monkeypatch):
 
 
 def test_fixed_lag_reports_a_frame_without_covariance_when_its_marginal_fails(monkeypatch):
-    run = _drive(6, duration=4.0)
-    calls = {"n": 0}
-    original = FixedLagSmoother._oldest_marginal
-
-    def flaky(self):
-        calls["n"] += 1
-        if calls["n"] == 20:
-            raise SolveError("window information not positive definite (test)")
-        return original(self)
-
-    monkeypatch.setattr(FixedLagSmoother, "_oldest_marginal", flaky)
-    cfg = SmootherConfig(height_m=H0, noise=run.config.noise, lag_s=0.5)
-    frames = smooth(run.measurements, run.speed, cfg)
-    assert [f.frame for f in frames] == [m.frame for m in run.measurements]
+    frames = _smooth_with_failure(monkeypatch, "_oldest_marginal", 20, speed=True)
     bare = [f for f in frames if "no covariance" in f.reason]
     assert len(bare) == 1
     assert np.all(np.isnan(bare[0].mount_cov)) and np.all(np.isfinite(bare[0].mount))
