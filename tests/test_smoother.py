@@ -457,20 +457,18 @@ def _smooth_with_failure(monkeypatch, method: str, at_call: int, speed: bool):
     return frames
 
 
-def test_fixed_lag_restarts_after_a_failed_update(monkeypatch):
-    frames = _smooth_with_failure(monkeypatch, "_solve", 30, speed=False)
+@pytest.mark.parametrize(
+    ("method", "at_call", "speed", "why"),
+    [
+        ("_solve", 30, False, "restarted"),  # a failed update: the window restarts
+        ("_marginalise", 20, True, "re-anchored"),  # the next frame starts the new window
+    ],
+)
+def test_fixed_lag_goes_on_after_a_failed_solve(monkeypatch, method, at_call, speed, why):
+    frames = _smooth_with_failure(monkeypatch, method, at_call, speed)
     resets = [f for f in frames if f.status == "reset"]
-    assert len(resets) == 1 and "restarted" in resets[0].reason
+    assert len(resets) == 1 and why in resets[0].reason
     # the trajectory continues where it was
-    i = frames.index(resets[0])
-    assert np.hypot(*(frames[i].position - frames[i - 1].position)) < 2.0
-
-
-def test_fixed_lag_goes_on_when_a_frame_cannot_be_marginalised(monkeypatch):
-    frames = _smooth_with_failure(monkeypatch, "_marginalise", 20, speed=True)
-    # the next frame starts the new window
-    resets = [f for f in frames if f.status == "reset"]
-    assert len(resets) == 1 and "re-anchored" in resets[0].reason
     i = frames.index(resets[0])
     assert np.hypot(*(frames[i].position - frames[i - 1].position)) < 2.0
     assert all(np.all(np.isfinite(f.mount)) for f in frames)
