@@ -386,8 +386,8 @@ def whitener(cov: FloatArray) -> FloatArray:
     return np.linalg.inv(np.linalg.cholesky(np.asarray(cov, dtype=float)))
 
 
-# columns of (frame k-1, frame k) in the stacked rows
-_PREV, _CURR = 0, FRAME_DIM
+# first column of frame k in the stacked rows (frame k-1's start at 0)
+_CURR = FRAME_DIM
 # process rows (along, cross, heading, Δv, Δω): the Jacobian entries that do not depend on the
 # state, and those of (along, cross) that do (set per call in ``stacked_rows``)
 _PROCESS_DYN_COLS = np.array([0, 1, 2, 4, _CURR, _CURR + 1])
@@ -428,10 +428,12 @@ _MOTION_JAC_COLS = np.array([
     _CURR + 7,
 ])
 
-# the pose pair's Jacobian (m + b_{k-1}, m + b_k) w.r.t. (frame k-1, frame k)
+# the pose pair's Jacobian (m + b_{k-1}, m + b_k) w.r.t. (frame k-1, frame k): the model's
+# blocks (read above) at the mount and body columns of the FRAME_DIM layout
 _J_POSE_STACKED = np.zeros((4, 2 * FRAME_DIM))
-_J_POSE_STACKED[[0, 2, 1, 3], [_CURR + 5, _CURR + 5, _CURR + 6, _CURR + 6]] = 1.0
-_J_POSE_STACKED[[0, 1, 2, 3], [9, 10, _CURR + 9, _CURR + 10]] = 1.0
+_J_POSE_STACKED[:, _CURR + 5 : _CURR + 7] = _J_POSE_MOUNT
+_J_POSE_STACKED[:, 9:11] = _J_POSE_BPREV
+_J_POSE_STACKED[:, _CURR + 9 : _CURR + 11] = _J_POSE_BCURR
 
 
 @dataclass

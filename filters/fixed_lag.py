@@ -417,10 +417,7 @@ class FixedLagSmoother:
         """The anchor could not be folded into a prior: drop it and anchor the window on
         the frame just reported, with the first frame's prior around its estimate (the
         trajectory continues; the next frame reported is marked ``reset``)."""
-        self._ms.pop(0)
-        self._c.pop_front()
-        self._x = self._x[1:]
-        self._last = None
+        self._drop_anchor()
         self._prior = _first_prior(self._x[0], float("nan"), self._cfg, self._ms[0].status)
         self._emitted = 1
         if len(self._ms) > 1:
@@ -474,10 +471,14 @@ class FixedLagSmoother:
         except np.linalg.LinAlgError as exc:
             raise SolveError(f"marginal prior not positive definite ({exc})") from None
         self._prior = (rs, x[1] - np.linalg.solve(hs, gs))
-        self._x = x[1:]
-        self._last = None
+        self._drop_anchor()
+
+    def _drop_anchor(self) -> None:
+        """Remove the anchor frame and the pair joining it to the next one from the window."""
         self._ms.pop(0)
         self._c.pop_front()
+        self._x = self._x[1:]
+        self._last = None
 
 
 def _first_prior(

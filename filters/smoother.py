@@ -615,7 +615,7 @@ def smooth_batch(
     pairs: dict[int, tuple[gtsam.CustomFactor, gtsam.CustomFactor]] = {}
     frames_it: Iterable[tuple[int, PairMeasurement]] = enumerate(ms)
     if progress:
-        from tqdm import tqdm
+        from tqdm import tqdm  # graph build per frame, then the Gauss–Newton steps
 
         frames_it = tqdm(frames_it, total=len(ms), desc="smoother: graph", unit="frame")
     for k, m in frames_it:
@@ -633,8 +633,6 @@ def smooth_batch(
     t0 = time.perf_counter()
     bar = None
     if progress:
-        from tqdm import tqdm
-
         bar = tqdm(total=cfg.max_iterations, desc="smoother: Gauss-Newton", unit="step")
     try:
         values, iters, e0, e1, lin = _gauss_newton(
