@@ -29,22 +29,19 @@ terms. They must be linearised with Python-owned ``gtsam.Values`` (see ``smoothe
 own nonlinear optimisers hand callbacks a copy of every value, which is quadratic in the
 drive length.
 
-``stacked_rows`` evaluates the same factors for many consecutive pairs at once in numpy
+``filters.window_rows`` evaluates the same factors for many consecutive pairs at once
 (whitened, robustly weighted residuals and Jacobians in model coordinates): the sliding-window
-smoother (``filters.fixed_lag``) runs on it; a test holds it equal to the gtsam factors.
+smoother (``filters.fixed_lag``) runs on it; a test holds it equal to these gtsam factors.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from functools import lru_cache
 
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
-
-from vipm_track.measurement import PairMeasurement
 
 from . import model as M
 from .model import NoiseParams
@@ -123,9 +120,9 @@ def _gaussian(cov: FloatArray) -> gtsam.noiseModel.Gaussian:
 _PROBE = np.zeros(M.STATE_DIM)
 _PROBE[M.MOUNT_HEIGHT] = 1.0
 _H_PAIR = M.pair_measurement(_PROBE, 1.0)[1]
-_J_POSE_MOUNT = _H_PAIR[0:4][:, [M.MOUNT_PITCH, M.MOUNT_ROLL]].copy()
-_J_POSE_BPREV = _H_PAIR[0:4][:, [M.PREV_BODY_PITCH, M.PREV_BODY_ROLL]].copy()
-_J_POSE_BCURR = _H_PAIR[0:4][:, [M.BODY_PITCH, M.BODY_ROLL]].copy()
+J_POSE_MOUNT = _H_PAIR[0:4][:, [M.MOUNT_PITCH, M.MOUNT_ROLL]].copy()
+J_POSE_BPREV = _H_PAIR[0:4][:, [M.PREV_BODY_PITCH, M.PREV_BODY_ROLL]].copy()
+J_POSE_BCURR = _H_PAIR[0:4][:, [M.BODY_PITCH, M.BODY_ROLL]].copy()
 
 
 def pose_pair_factor(
@@ -136,7 +133,7 @@ def pose_pair_factor(
     z4 = np.asarray(z4, dtype=float).copy()
     noise = robust(_gaussian(cov4), loss, loss_k)
     keys = [key("M", k), key("B", k - 1), key("B", k)]
-    jm, jbp, jbc = _J_POSE_MOUNT, _J_POSE_BPREV, _J_POSE_BCURR
+    jm, jbp, jbc = J_POSE_MOUNT, J_POSE_BPREV, J_POSE_BCURR
 
     def error(this: gtsam.CustomFactor, v: gtsam.Values, jac: list | None) -> FloatArray:
         if jac is not None:
@@ -218,7 +215,12 @@ def process_noise(dt: float, noise: NoiseParams) -> FloatArray:
     return _transition_at_rest(float(dt), noise)[1]
 
 
-def _process_covariance(dt: float, noise: NoiseParams, cross_track_std_m: float) -> FloatArray:
+def body_decay(dt: float, noise: NoiseParams) -> float:
+    """Decay ``a`` of the Gauss–Markov body angles over ``dt`` s: b_k = a·b_{k-1} + w."""
+    return float(_transition_at_rest(float(dt), noise)[0][M.BODY_PITCH, M.BODY_PITCH])
+
+
+def process_covariance(dt: float, noise: NoiseParams, cross_track_std_m: float) -> FloatArray:
     """Covariance of the process factor's residual (along, cross, heading, Δv, Δω) over ``dt``:
     ``model.transition``'s noise at heading 0, the cross-track axis replaced by
     ``cross_track_std_m`` (the model has no side slip)."""
@@ -234,7 +236,7 @@ def _process_covariance(dt: float, noise: NoiseParams, cross_track_std_m: float)
 def _process_noise_model(
     dt: float, noise: NoiseParams, cross_track_std_m: float
 ) -> gtsam.noiseModel.Gaussian:
-    return gtsam.noiseModel.Gaussian.Covariance(_process_covariance(dt, noise, cross_track_std_m))
+    return gtsam.noiseModel.Gaussian.Covariance(process_covariance(dt, noise, cross_track_std_m))
 
 
 def process_factor(
@@ -290,8 +292,8 @@ def process_factor(
 
 @lru_cache(maxsize=256)
 def _body_terms(dt: float, noise: NoiseParams) -> tuple:
-    f, q = _transition_at_rest(dt, noise)
-    a = f[M.BODY_PITCH, M.BODY_PITCH]
+    a = body_decay(dt, noise)
+    q = process_noise(dt, noise)
     sigma = math.sqrt(q[M.BODY_PITCH, M.BODY_PITCH])
     return -a * np.eye(2), np.eye(2), np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, sigma)
 
@@ -349,223 +351,3 @@ def standstill_factors(
         )
         for i, var in zip(states, noise.standstill_var(states), strict=True)
     ]
-
-
-# --- stacked per-frame rows in numpy (the sliding-window smoother) -----------------------------
-
-#: variables of a frame in the stacked rows, model coordinates (additive, no Pose2 tangent):
-#: x, y (m), ψ (rad), v (m/s), ω (rad/s), pitch_m, roll_m (rad), h_m (m), yaw_m, b_pitch,
-#: b_roll (rad); the same order as ``smoother._BLOCK``
-FRAME_DIM = 11
-#: rows of one frame's stack: process 0–4, body 5–6, mount walk 7–10, pose pair 11–14,
-#: motion pair 15–17, wheel speed 18, standstill speed 19 and yaw rate 20
-PAIR_ROWS = 21
-POSE_ROWS, MOTION_ROWS, SPEED_ROW = slice(11, 15), slice(15, 18), 18
-STANDSTILL_ROWS = slice(19, 21)
-
-
-def robust_weight(norm: FloatArray, kind: str, k: float) -> FloatArray:
-    """IRLS weight of gtsam's M-estimator ``kind`` of threshold ``k`` at whitened block
-    norms ``norm`` (what ``noiseModel.Robust`` multiplies the squared rows by)."""
-    r = np.asarray(norm, dtype=float)
-    if kind == "none":
-        return np.ones_like(r)
-    if kind == "huber":
-        return np.where(r <= k, 1.0, k / np.maximum(r, 1e-300))
-    if kind == "cauchy":
-        return k * k / (k * k + r * r)
-    if kind == "geman-mcclure":
-        return k**4 / (k * k + r * r) ** 2
-    if kind == "tukey":
-        return np.where(r <= k, (1.0 - (r / k) ** 2) ** 2, 0.0)
-    raise ValueError(f"unknown robust loss {kind!r}; expected one of {', '.join(LOSSES)}")
-
-
-def whitener(cov: FloatArray) -> FloatArray:
-    """L⁻¹ of cov = L·Lᵀ (…, n, n): whitened residual = L⁻¹ · residual."""
-    return np.linalg.inv(np.linalg.cholesky(np.asarray(cov, dtype=float)))
-
-
-# first column of frame k in the stacked rows (frame k-1's start at 0)
-_CURR = FRAME_DIM
-# process rows (along, cross, heading, Δv, Δω): the Jacobian entries that do not depend on the
-# state, and those of (along, cross) that do (set per call in ``stacked_rows``)
-_PROCESS_DYN_COLS = np.array([0, 1, 2, 4, _CURR, _CURR + 1])
-
-
-@lru_cache(maxsize=256)
-def _frame_constants(dt: float, noise: NoiseParams, cross_track_std_m: float) -> tuple:
-    """Per-dt constants of the stacked rows: the process whitener (5, 5), its product with
-    the process rows' constant Jacobian (5, 22), and the whitened Jacobian (21, 22) of the
-    body and mount-walk rows (5–10) (read-only)."""
-    d = FRAME_DIM
-    q = process_noise(dt, noise)
-    w = whitener(_process_covariance(dt, noise, cross_track_std_m))
-    static = np.zeros((5, 2 * d))
-    static[0, 3] = -dt  # along: -v0·dt
-    static[2, 2], static[2, 4], static[2, d + 2] = -1.0, -dt, 1.0
-    static[3, 3], static[3, d + 3], static[4, 4], static[4, d + 4] = -1.0, 1.0, -1.0, 1.0
-    f, _ = _transition_at_rest(dt, noise)
-    body_a = float(f[M.BODY_PITCH, M.BODY_PITCH])
-    body_isig = 1.0 / math.sqrt(q[M.BODY_PITCH, M.BODY_PITCH])
-    walk = 1.0 / np.sqrt(np.diag(q)[[M.MOUNT_PITCH, M.MOUNT_ROLL, M.MOUNT_HEIGHT, M.MOUNT_YAW]])
-    lin = np.zeros((PAIR_ROWS, 2 * d))
-    for i, col in enumerate((9, 10)):  # body: b_k − a·b_{k-1}
-        lin[5 + i, col], lin[5 + i, d + col] = -body_isig * body_a, body_isig
-    for i, col in enumerate((5, 6, 7, 8)):  # mount walks: m_k − m_{k-1}
-        lin[7 + i, col], lin[7 + i, d + col] = -walk[i], walk[i]
-    out = (w, w @ static, lin)
-    for arr in out:
-        arr.setflags(write=False)
-    return out
-
-
-# (row, column) of the motion pair's state-dependent Jacobian entries, in ``stacked_rows``'
-# order: ∂(tx, tz)/∂(x_k, y_k), ∂/∂(x_{k-1}, y_{k-1}), ∂/∂ψ_{k-1} and ∂/∂yaw_m, ∂/∂h_m
-_MOTION_JAC_ROWS = np.array([0, 0, 1, 1, 0, 0, 1, 1, 0, 0, 1, 1, 0, 1])
-_MOTION_JAC_COLS = np.array([
-    _CURR, _CURR + 1, _CURR, _CURR + 1, 0, 1, 0, 1, 2, _CURR + 8, 2, _CURR + 8, _CURR + 7,
-    _CURR + 7,
-])
-
-# the pose pair's Jacobian (m + b_{k-1}, m + b_k) w.r.t. (frame k-1, frame k): the model's
-# blocks (read above) at the mount and body columns of the FRAME_DIM layout
-_J_POSE_STACKED = np.zeros((4, 2 * FRAME_DIM))
-_J_POSE_STACKED[:, _CURR + 5 : _CURR + 7] = _J_POSE_MOUNT
-_J_POSE_STACKED[:, 9:11] = _J_POSE_BPREV
-_J_POSE_STACKED[:, _CURR + 9 : _CURR + 11] = _J_POSE_BCURR
-
-
-@dataclass
-class StackedPairs:
-    """Constants of the factors that join frames k-1 and k, for n consecutive pairs (arrays
-    with a leading axis n). Missing pieces have zero rows (no pair / no speed)."""
-
-    dt: FloatArray  # (n,) s
-    z: FloatArray  # (n, 7) pair measurement, rad / m at h0
-    h0: FloatArray  # (n,) assumed height of the pair, m
-    w_motion: FloatArray  # (n, 3, 3) whitener of the pair motion (0 without a pair)
-    metric: NDArray[np.bool_]  # (n,) the pair's motion moves h_m (wheel speed nearby)
-    w_process: FloatArray  # (n, 5, 5) whitener of (along, cross, heading, Δv, Δω)
-    process_jac: FloatArray  # (n, 5, 22) whitened state-independent process Jacobian
-    #: (n, 21, 22), (n, 21): the rows that are linear in the state (body, mount walks, pose
-    #: pair, wheel speed, standstill), whitened: r = lin_jac · (x_{k-1}, x_k) − lin_b
-    lin_jac: FloatArray
-    lin_b: FloatArray
-
-
-def pair_constants(
-    m: PairMeasurement,
-    dt: float,
-    speed: float,
-    noise: NoiseParams,
-    cross_track_std_m: float,
-    metric: bool,
-) -> dict[str, object]:
-    """One pair's entries of :class:`StackedPairs` (a row of each field)."""
-    d = FRAME_DIM
-    wq, process_jac, lin_static = _frame_constants(float(dt), noise, float(cross_track_std_m))
-    lin = lin_static.copy()
-    b = np.zeros(PAIR_ROWS)
-    ok = bool(m.ok)
-    z = np.asarray(m.z, dtype=float) if ok else np.zeros(7)
-    if ok:
-        cov = noise.pair_covariance(m.covariance)
-        w_pose = whitener(cov[:4, :4])
-        lin[POSE_ROWS] = w_pose @ _J_POSE_STACKED
-        b[POSE_ROWS] = w_pose @ z[:4]
-    if math.isfinite(speed):
-        isig = 1.0 / math.sqrt(noise.speed_meas_var(speed))
-        lin[SPEED_ROW, d + 3], b[SPEED_ROW] = isig, isig * speed
-    still = M.standstill_states(speed, m.status, noise)
-    for i, var in zip(still, noise.standstill_var(still), strict=True):
-        row = STANDSTILL_ROWS.start + (M.SPEED, M.YAW_RATE).index(i)
-        lin[row, d + (3 if i == M.SPEED else 4)] = 1.0 / math.sqrt(var)
-    return {
-        "dt": dt,
-        "z": z,
-        "h0": float(m.height_assumed) if ok else 1.0,
-        "w_motion": whitener(cov[4:7, 4:7]) if ok else np.zeros((3, 3)),
-        "metric": metric,
-        "w_process": wq,
-        "process_jac": process_jac,
-        "lin_jac": lin,
-        "lin_b": b,
-    }
-
-
-def stacked_rows(
-    prev: FloatArray,
-    curr: FloatArray,
-    c: StackedPairs,
-    loss: tuple[str, float, float] = ("none", 1.0, 1.0),
-    speed_loss: tuple[str, float] = ("none", 1.0),
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Whitened, robustly weighted residuals (n, 21) and Jacobians (n, 21, 22) w.r.t.
-    (prev, curr) of every factor joining frames k-1 and k (``FRAME_DIM`` layout, rows as
-    ``PAIR_ROWS``), and the Gaussian whitened norms (n, 2) of the pose / motion pair blocks.
-
-    The same equations as ``process_factor``, ``body_factor``, ``mount_walk_factors``,
-    ``pose_pair_factor``, ``motion_pair_factor``, ``speed_factor`` and
-    ``standstill_factors`` (a test holds them equal), evaluated for all pairs at once; the
-    linear rows come whitened from ``pair_constants``. ``loss`` = (kind, threshold of the
-    4-dof pose block, threshold of the 3-dof motion block); ``speed_loss`` = (kind,
-    threshold)."""
-    n = len(prev)
-    both = np.concatenate([prev, curr], axis=1)
-    r = np.matmul(c.lin_jac, both[..., None])[..., 0] - c.lin_b
-    jac = c.lin_jac.copy()
-    # (few, large numpy operations: the sliding window calls this for a few dozen pairs)
-    x0, y0, psi0, v0, w0, _, _, _, _, _, _ = prev.T
-    x1, y1, psi1, v1, w1, _, _, h, yaw_m, _, _ = curr.T
-    dt = c.dt
-    # process: model.propagate_pose, residual along / across the mid-point heading
-    a = psi0 + 0.5 * w0 * dt
-    sa, ca = np.sin(a), np.cos(a)
-    dx = x1 - (x0 + v0 * dt * sa)
-    dy = y1 - (y0 + v0 * dt * ca)
-    along, cross = sa * dx + ca * dy, ca * dx - sa * dy
-    d_psi = -along - v0 * dt  # ∂cross/∂(mid-point heading); ∂along/∂ it is cross
-    # the two angle differences wrapped at once: process heading, pair yaw
-    turn = _wrap(np.array([psi1 - psi0 - w0 * dt, psi1 - psi0 - c.z[:, 6]]))
-    e5 = np.array([along, cross, turn[0], v1 - v0, w1 - w0]).T
-    r[:, 0:5] = np.matmul(c.w_process, e5[..., None])[..., 0]
-    # ∂(along, cross)/∂ columns _PROCESS_DYN_COLS (x0, y0, ψ0, ω0, x1, y1)
-    hdt = 0.5 * dt
-    dyn = np.array(
-        [-sa, -ca, cross, hdt * cross, sa, ca, -ca, sa, d_psi, hdt * d_psi, ca, -sa]
-    ).T.reshape(n, 2, 6)
-    jac[:, 0:5] = c.process_jac
-    jac[:, 0:5, _PROCESS_DYN_COLS] += np.matmul(c.w_process[:, :, 0:2], dyn)
-    # motion pair: displacement in G_{k-1} scaled by h0 / h_m
-    g = psi0 + yaw_m
-    sc = c.h0 / h
-    scg, ssg = sc * np.cos(g), sc * np.sin(g)
-    ddx, ddy = x1 - x0, y1 - y0
-    tx, tz = scg * ddx - ssg * ddy, ssg * ddx + scg * ddy
-    e3 = np.array([tx - c.z[:, 4], tz - c.z[:, 5], turn[1]]).T
-    dh = np.where(c.metric, 1.0 / h, 0.0)  # the EKF's rule: without wheel speed, h stays
-    j3 = np.zeros((n, 3, 2 * FRAME_DIM))
-    j3[:, _MOTION_JAC_ROWS, _MOTION_JAC_COLS] = np.array(
-        [scg, -ssg, ssg, scg, -scg, ssg, -ssg, -scg, -tz, -tz, tx, tx, -tx * dh, -tz * dh]
-    ).T
-    j3[:, 2, 2], j3[:, 2, _CURR + 2] = -1.0, 1.0
-    r[:, MOTION_ROWS] = np.matmul(c.w_motion, e3[..., None])[..., 0]
-    jac[:, MOTION_ROWS] = np.matmul(c.w_motion, j3)
-    # robust weights (IRLS, as gtsam's noiseModel.Robust) of the pair blocks and the speed
-    sq = r * r
-    norms = np.sqrt(np.array([sq[:, POSE_ROWS].sum(axis=1), sq[:, MOTION_ROWS].sum(axis=1)]).T)
-    kind, k4, k3 = loss
-    scale = np.ones((n, PAIR_ROWS))
-    if kind != "none":
-        scale[:, POSE_ROWS] = np.sqrt(robust_weight(norms[:, 0], kind, k4))[:, None]
-        scale[:, MOTION_ROWS] = np.sqrt(robust_weight(norms[:, 1], kind, k3))[:, None]
-    if speed_loss[0] != "none":
-        scale[:, SPEED_ROW] = np.sqrt(robust_weight(np.abs(r[:, SPEED_ROW]), *speed_loss))
-    r *= scale
-    jac *= scale[..., None]
-    return r, jac, norms
-
-
-def _wrap(a: FloatArray) -> FloatArray:
-    return (a + np.pi) % (2.0 * np.pi) - np.pi

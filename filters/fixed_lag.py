@@ -2,7 +2,7 @@
 
 The window holds the frames of the last ``lag_s`` seconds plus one anchor frame. Its cost is
 the factor graph of ``filters.smoother`` (the same factors, evaluated for all pairs at once by
-``factors.stacked_rows``) plus a Gaussian prior on the anchor: the marginal of everything
+``window_rows.stacked_rows``) plus a Gaussian prior on the anchor: the marginal of everything
 that already left the window (a Schur complement, linearised where the frame left, as in
 every sliding-window estimator). The information matrix of a window is block tridiagonal in
 frame order, so one Gauss–Newton step is a banded Cholesky solve (LAPACK ``pbtrf``) of
@@ -32,13 +32,14 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from vipm_track.measurement import PairMeasurement
 
-from . import factors as F
 from . import model as M
+from . import window_rows as W
 from .smoother import (
     SmoothedFrame,
     SmootherConfig,
@@ -50,8 +51,8 @@ from .smoother import (
 
 FloatArray = NDArray[np.float64]
 
-_D = F.FRAME_DIM
-# frame-variable order (factors.FRAME_DIM) → index in the model's 16-state
+_D = W.FRAME_DIM
+# frame-variable order (window_rows.FRAME_DIM) → index in the model's 16-state
 _STATE_OF_VAR = np.array(
     [M.POS_X, M.POS_Y, M.HEADING, M.SPEED, M.YAW_RATE, M.MOUNT_PITCH, M.MOUNT_ROLL,
      M.MOUNT_HEIGHT, M.MOUNT_YAW, M.BODY_PITCH, M.BODY_ROLL]
@@ -61,7 +62,7 @@ _T_STATE = np.zeros((M.STATE_DIM, 2 * _D))
 _T_STATE[_STATE_OF_VAR, _D + np.arange(_D)] = 1.0
 _T_STATE[[M.PREV_POS_X, M.PREV_POS_Y, M.PREV_HEADING], [0, 1, 2]] = 1.0
 _T_STATE[[M.PREV_BODY_PITCH, M.PREV_BODY_ROLL], [9, 10]] = 1.0
-_FIELDS = tuple(f.name for f in dataclasses.fields(F.StackedPairs))
+_FIELDS = tuple(f.name for f in dataclasses.fields(W.StackedPairs))
 
 
 class _PairStore:
@@ -95,10 +96,10 @@ class _PairStore:
     def pop_back(self) -> None:
         self._hi -= 1
 
-    def view(self, n: int | None = None) -> F.StackedPairs:
+    def view(self, n: int | None = None) -> W.StackedPairs:
         """The pairs (the first ``n`` only, if given) as StackedPairs of array views."""
         hi = self._hi if n is None else self._lo + n
-        return F.StackedPairs(**{f: a[self._lo : hi] for f, a in self._arrays.items()})
+        return W.StackedPairs(**{f: a[self._lo : hi] for f, a in self._arrays.items()})
 
 
 def _moved(
@@ -196,7 +197,7 @@ class FixedLagSmoother:
         # (anchor and next frame) they were linearised at; None once the window changes
         self._last: _LastSolve | None = None
 
-    def _pairs(self) -> F.StackedPairs:
+    def _pairs(self) -> W.StackedPairs:
         return self._c.view()
 
     def _append(self, m: PairMeasurement, speed: float) -> None:
@@ -224,7 +225,7 @@ class FixedLagSmoother:
         self._last = None
 
     def _push_pair(self, m: PairMeasurement, dt: float, speed: float, metric: bool) -> None:
-        row = F.pair_constants(
+        row = W.pair_constants(
             m, dt, speed, self._cfg.noise, self._cfg.cross_track_std_m, bool(metric)
         )
         self._c.append(row)
@@ -291,44 +292,28 @@ class FixedLagSmoother:
 
     # --- Gauss–Newton over the window ----------------------------------------------------------
 
-    def _normal_equations(
-        self,
-    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, tuple | None]:
-        """Block-tridiagonal normal equations of the window at the current estimate:
-        diagonal blocks (n, D, D), upper blocks (n-1, D, D), gradient (n, D), the pair
-        blocks' Gaussian norms (n-1, 2), and the anchor pair's (r, J, point) (None for one
-        frame)."""
+    def _normal_equations(self) -> tuple[FloatArray, FloatArray, FloatArray, tuple | None]:
+        """Normal equations of the window at the current estimate: the information matrix in
+        LAPACK's upper band storage (2D × nD) of the *reversed* variable order (newest frame
+        first, so the last blocks of its Cholesky factor belong to the oldest frames), the
+        gradient (n, D) in frame order, the pair blocks' Gaussian norms (n-1, 2), and the
+        anchor pair's (r, J, point) (None for one frame)."""
         x = self._x
         n = len(x)
-        hd = np.zeros((n, _D, _D))
-        g = np.zeros((n, _D))
+        ab = np.zeros((2 * _D, n * _D), order="F")
+        g = np.zeros(n * _D)
         norms = np.zeros((0, 2))
         first = None
-        hu = np.zeros((max(n - 1, 0), _D, _D))
         if n > 1:
-            r, j, norms = F.stacked_rows(x[:-1], x[1:], self._pairs(), self._loss, self._speed_loss)
-            jt = j.transpose(0, 2, 1)
-            jtj = np.matmul(jt, j)
-            jtr = np.matmul(jt, r[..., None])[..., 0]
-            hd[:-1] += jtj[:, :_D, :_D]
-            hd[1:] += jtj[:, _D:, _D:]
-            hu = jtj[:, :_D, _D:]
-            g[:-1] += jtr[:, :_D]
-            g[1:] += jtr[:, _D:]
+            r, j, norms = W.stacked_rows(x[:-1], x[1:], self._pairs(), self._loss, self._speed_loss)
+            _add_pair_rows(j, r, ab, g)
             first = (r[0], j[0], x[0:2].reshape(-1).copy())
         rp, mu = self._prior  # type: ignore[misc]
-        r0 = rp @ (x[0] - mu)
-        hd[0] += rp.T @ rp
-        g[0] += rp.T @ r0
-        return hd, hu, g, norms, first
+        _add_rows(rp, rp @ (x[0] - mu), 0, ab, g)
+        return ab, g.reshape(n, _D), norms, first
 
-    def _factor(self, hd: FloatArray, hu: FloatArray) -> FloatArray:
-        """Banded upper Cholesky factor of the window's information matrix in *reversed*
-        variable order (newest frame first), so its last blocks belong to the oldest frames."""
-        n = len(hd)
-        flat, src_d, src_u = _band_index(n)
-        ab = np.zeros((2 * _D, n * _D))
-        ab.reshape(-1)[flat] = np.concatenate([hd.reshape(-1)[src_d], hu.reshape(-1)[src_u]])
+    def _factor(self, ab: FloatArray) -> FloatArray:
+        """Banded upper Cholesky factor of the band ``ab`` of ``_normal_equations``."""
         # LAPACK directly (scipy's cholesky_banded wrapper costs as much as the factorisation)
         if not np.all(np.isfinite(ab)):
             raise SolveError("window information not finite")
@@ -344,8 +329,8 @@ class FixedLagSmoother:
         ``_oldest_marginal``."""
         cfg = self._cfg
         for _ in range(max_iterations or cfg.lag_max_iterations):
-            hd, hu, g, norms, first = self._normal_equations()
-            cb = self._factor(hd, hu)
+            ab, g, norms, first = self._normal_equations()
+            cb = self._factor(ab)
             sol, info = dpbtrs(cb, g.reshape(-1)[::-1], lower=0)
             if info != 0:
                 raise SolveError(f"banded solve failed (LAPACK info {info})")
@@ -362,8 +347,8 @@ class FixedLagSmoother:
         of the pair joining them: from the last solve's factor if the window has not changed
         since, else at the current estimate."""
         if self._last is None:
-            hd, hu, _, norms, first = self._normal_equations()
-            self._last = _LastSolve(self._factor(hd, hu), norms, first)
+            ab, _, norms, first = self._normal_equations()
+            self._last = _LastSolve(self._factor(ab), norms, first)
         cb, norms = self._last.factor, self._last.norms
         n = len(self._x)
         k = min(2, n) * _D
@@ -454,10 +439,10 @@ class FixedLagSmoother:
             r0 = r0 + j0 @ (x[0:2].reshape(-1) - at)
         else:
             first = self._c.view(1)
-            r, j, _ = F.stacked_rows(x[0:1], x[1:2], first, self._loss, self._speed_loss)
+            r, j, _ = W.stacked_rows(x[0:1], x[1:2], first, self._loss, self._speed_loss)
             r0, j0 = r[0], j[0]
         rp, mu = self._prior  # type: ignore[misc]
-        a = np.zeros((_D + F.PAIR_ROWS, 2 * _D))
+        a = np.zeros((_D + W.PAIR_ROWS, 2 * _D))
         a[:_D, :_D] = rp
         a[_D:] = j0
         b = np.concatenate([rp @ (x[0] - mu), r0])
@@ -509,33 +494,37 @@ def _first_prior(
     return np.diag(np.sqrt(info)), mu
 
 
-_BAND_CACHE: dict[int, tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]] = {}
+@njit(cache=True)
+def _add_rows(jac, r, first, ab, g):  # pragma: no cover (compiled)
+    """Add the rows (jac, r) over variables ``first`` … to the band ``ab`` (upper storage of
+    the reversed matrix, see ``FixedLagSmoother._normal_equations``) and the gradient ``g``,
+    touching only each row's non-zero columns (a pair's rows are sparse: ~860 of 10 000
+    products)."""
+    nn = ab.shape[1]
+    u = ab.shape[0] - 1
+    cols = np.empty(jac.shape[1], np.int64)
+    for i in range(jac.shape[0]):
+        cnt = 0
+        for c in range(jac.shape[1]):
+            if jac[i, c] != 0.0:
+                cols[cnt] = c
+                cnt += 1
+        for a in range(cnt):
+            p = first + cols[a]
+            va = jac[i, cols[a]]
+            g[p] += va * r[i]
+            # original entry (p, q), p ≤ q, is entry (nn-1-q, nn-1-p) of the reversed matrix
+            for b in range(a, cnt):
+                q = first + cols[b]
+                ab[u + p - q, nn - 1 - p] += va * jac[i, cols[b]]
 
 
-def _band_index(n: int) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
-    """Where the entries of the block-tridiagonal matrix of ``n`` frames go in LAPACK's upper
-    band storage (2D × nD) of the *reversed* matrix: (flat index into the band, indices into
-    the flattened diagonal blocks, indices into the flattened upper blocks; the band takes the
-    diagonal blocks' entries first)."""
-    if n in _BAND_CACHE:
-        return _BAND_CACHE[n]
-    nn = n * _D
-    f, i, j = np.meshgrid(np.arange(n), np.arange(_D), np.arange(_D), indexing="ij")
-    keep = (i <= j).reshape(-1)
-    r_d = (f * _D + i).reshape(-1)[keep]
-    c_d = (f * _D + j).reshape(-1)[keep]
-    s_d = np.arange(n * _D * _D)[keep]
-    fu, iu, ju = (a.reshape(-1)[: max(n - 1, 0) * _D * _D] for a in (f, i, j))
-    r_u = fu * _D + iu
-    c_u = (fu + 1) * _D + ju
-    s_u = n * _D * _D + np.arange(len(r_u))
-    r, c = np.concatenate([r_d, r_u]), np.concatenate([c_d, c_u])
-    # a'[i', j'] = a[N-1-i', N-1-j'] with i' ≤ j': i' = N-1-c, j' = N-1-r
-    ri, ci = nn - 1 - c, nn - 1 - r
-    u = 2 * _D - 1
-    out = ((u + ri - ci) * nn + ci, s_d, s_u - n * _D * _D)
-    _BAND_CACHE[n] = out
-    return out
+@njit(cache=True)
+def _add_pair_rows(jac, r, ab, g):  # pragma: no cover (compiled)
+    """``_add_rows`` of every pair k (frames k, k+1 of the window)."""
+    d = jac.shape[2] // 2
+    for k in range(jac.shape[0]):
+        _add_rows(jac[k], r[k], k * d, ab, g)
 
 
 @lru_cache(maxsize=1)

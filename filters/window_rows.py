@@ -1,0 +1,299 @@
+"""The smoother's factors for many consecutive frame pairs at once (the sliding window's rows).
+
+``stacked_rows`` evaluates, for n pairs (k-1, k), every factor of ``filters.factors`` that
+joins the two frames — process, body, mount walks, pose pair, motion pair, wheel speed,
+standstill — as whitened, robustly weighted residuals (n, 21) and Jacobians (n, 21, 22) in
+model coordinates (additive, no Pose2 tangent); a test holds them equal to the gtsam factors.
+The rows that are linear in the state come whitened from ``pair_constants`` (once per pair);
+the rest are evaluated per call by one compiled loop (numba): the sliding window calls this
+twice per frame on a few dozen pairs, where numpy's per-operation cost dominated.
+
+Variables of a frame (``FRAME_DIM``): x, y (m), ψ (rad), v (m/s), ω (rad/s), pitch_m,
+roll_m (rad), h_m (m), yaw_m, b_pitch, b_roll (rad); a pair's 22 columns are frame k-1's
+then frame k's. Rows (``PAIR_ROWS``): process 0–4, body 5–6, mount walk 7–10, pose pair
+11–14, motion pair 15–17, wheel speed 18, standstill speed 19 and yaw rate 20.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from vipm_track.measurement import PairMeasurement
+
+from . import factors as F
+from . import model as M
+from .model import NoiseParams
+
+FloatArray = NDArray[np.float64]
+
+FRAME_DIM = 11
+PAIR_ROWS = 21
+POSE_ROWS, MOTION_ROWS, SPEED_ROW = slice(11, 15), slice(15, 18), 18
+STANDSTILL_ROWS = slice(19, 21)
+
+# first column of frame k in a pair's columns (frame k-1's start at 0)
+_CURR = FRAME_DIM
+# robust losses as the compiled loop's codes (``factors.LOSSES``)
+_LOSS_CODE = {"none": 0, "huber": 1, "cauchy": 2, "geman-mcclure": 3, "tukey": 4}
+
+
+@njit(cache=True)
+def _weight(norm: float, code: int, k: float) -> float:
+    """IRLS weight of gtsam's M-estimator (``_LOSS_CODE``) of threshold ``k`` at a whitened
+    block norm (what ``noiseModel.Robust`` multiplies the squared rows by)."""
+    if code == 1:
+        return 1.0 if norm <= k else k / max(norm, 1e-300)
+    if code == 2:
+        return k * k / (k * k + norm * norm)
+    if code == 3:
+        return k**4 / (k * k + norm * norm) ** 2
+    if code == 4:
+        return (1.0 - (norm / k) ** 2) ** 2 if norm <= k else 0.0
+    return 1.0
+
+
+@njit(cache=True)
+def _weights(norm: FloatArray, code: int, k: float) -> FloatArray:
+    out = np.empty(norm.size)
+    flat = norm.ravel()
+    for i in range(flat.size):
+        out[i] = _weight(flat[i], code, k)
+    return out.reshape(norm.shape)
+
+
+def _loss_code(kind: str) -> int:
+    if kind not in _LOSS_CODE:
+        raise ValueError(f"unknown robust loss {kind!r}; expected one of {', '.join(F.LOSSES)}")
+    return _LOSS_CODE[kind]
+
+
+def robust_weight(norm: FloatArray, kind: str, k: float) -> FloatArray:
+    """IRLS weight of gtsam's M-estimator ``kind`` (``factors.LOSSES``) of threshold ``k`` at
+    whitened block norms ``norm``."""
+    return _weights(np.asarray(norm, dtype=float), _loss_code(kind), float(k))
+
+
+def whitener(cov: FloatArray) -> FloatArray:
+    """L⁻¹ of cov = L·Lᵀ (…, n, n): whitened residual = L⁻¹ · residual."""
+    return np.linalg.inv(np.linalg.cholesky(np.asarray(cov, dtype=float)))
+
+
+@lru_cache(maxsize=256)
+def _frame_constants(dt: float, noise: NoiseParams, cross_track_std_m: float) -> tuple:
+    """Per-dt constants of the rows: the process whitener (5, 5), its product with the
+    process rows' constant Jacobian (5, 22), and the whitened Jacobian (21, 22) of the body
+    and mount-walk rows (5–10) (read-only)."""
+    d = FRAME_DIM
+    q = F.process_noise(dt, noise)
+    w = whitener(F.process_covariance(dt, noise, cross_track_std_m))
+    static = np.zeros((5, 2 * d))
+    static[0, 3] = -dt  # along: -v0·dt
+    static[2, 2], static[2, 4], static[2, d + 2] = -1.0, -dt, 1.0
+    static[3, 3], static[3, d + 3], static[4, 4], static[4, d + 4] = -1.0, 1.0, -1.0, 1.0
+    body_a = F.body_decay(dt, noise)
+    body_isig = 1.0 / math.sqrt(q[M.BODY_PITCH, M.BODY_PITCH])
+    walk = 1.0 / np.sqrt(np.diag(q)[[M.MOUNT_PITCH, M.MOUNT_ROLL, M.MOUNT_HEIGHT, M.MOUNT_YAW]])
+    lin = np.zeros((PAIR_ROWS, 2 * d))
+    for i, col in enumerate((9, 10)):  # body: b_k − a·b_{k-1}
+        lin[5 + i, col], lin[5 + i, d + col] = -body_isig * body_a, body_isig
+    for i, col in enumerate((5, 6, 7, 8)):  # mount walks: m_k − m_{k-1}
+        lin[7 + i, col], lin[7 + i, d + col] = -walk[i], walk[i]
+    out = (w, w @ static, lin)
+    for arr in out:
+        arr.setflags(write=False)
+    return out
+
+
+# the pose pair's Jacobian (m + b_{k-1}, m + b_k) w.r.t. (frame k-1, frame k): the model's
+# blocks (``factors``) at the mount and body columns
+_J_POSE = np.zeros((4, 2 * FRAME_DIM))
+_J_POSE[:, _CURR + 5 : _CURR + 7] = F.J_POSE_MOUNT
+_J_POSE[:, 9:11] = F.J_POSE_BPREV
+_J_POSE[:, _CURR + 9 : _CURR + 11] = F.J_POSE_BCURR
+
+
+@dataclass
+class StackedPairs:
+    """Constants of the factors that join frames k-1 and k, for n consecutive pairs (arrays
+    with a leading axis n). Missing pieces have zero rows (no pair / no speed)."""
+
+    dt: FloatArray  # (n,) s
+    z: FloatArray  # (n, 7) pair measurement, rad / m at h0
+    h0: FloatArray  # (n,) assumed height of the pair, m
+    w_motion: FloatArray  # (n, 3, 3) whitener of the pair motion (0 without a pair)
+    metric: NDArray[np.bool_]  # (n,) the pair's motion moves h_m (wheel speed nearby)
+    w_process: FloatArray  # (n, 5, 5) whitener of (along, cross, heading, Δv, Δω)
+    process_jac: FloatArray  # (n, 5, 22) whitened state-independent process Jacobian
+    #: (n, 21, 22), (n, 21): the rows that are linear in the state (body, mount walks, pose
+    #: pair, wheel speed, standstill), whitened: r = lin_jac · (x_{k-1}, x_k) − lin_b
+    lin_jac: FloatArray
+    lin_b: FloatArray
+
+
+def pair_constants(
+    m: PairMeasurement,
+    dt: float,
+    speed: float,
+    noise: NoiseParams,
+    cross_track_std_m: float,
+    metric: bool,
+) -> dict[str, object]:
+    """One pair's entries of :class:`StackedPairs` (a row of each field)."""
+    d = FRAME_DIM
+    wq, process_jac, lin_static = _frame_constants(float(dt), noise, float(cross_track_std_m))
+    lin = lin_static.copy()
+    b = np.zeros(PAIR_ROWS)
+    ok = bool(m.ok)
+    z = np.asarray(m.z, dtype=float) if ok else np.zeros(7)
+    if ok:
+        cov = noise.pair_covariance(m.covariance)
+        w_pose = whitener(cov[:4, :4])
+        lin[POSE_ROWS] = w_pose @ _J_POSE
+        b[POSE_ROWS] = w_pose @ z[:4]
+    if math.isfinite(speed):
+        isig = 1.0 / math.sqrt(noise.speed_meas_var(speed))
+        lin[SPEED_ROW, d + 3], b[SPEED_ROW] = isig, isig * speed
+    still = M.standstill_states(speed, m.status, noise)
+    for i, var in zip(still, noise.standstill_var(still), strict=True):
+        row = STANDSTILL_ROWS.start + (M.SPEED, M.YAW_RATE).index(i)
+        lin[row, d + (3 if i == M.SPEED else 4)] = 1.0 / math.sqrt(var)
+    return {
+        "dt": dt,
+        "z": z,
+        "h0": float(m.height_assumed) if ok else 1.0,
+        "w_motion": whitener(cov[4:7, 4:7]) if ok else np.zeros((3, 3)),
+        "metric": metric,
+        "w_process": wq,
+        "process_jac": process_jac,
+        "lin_jac": lin,
+        "lin_b": b,
+    }
+
+
+def stacked_rows(
+    prev: FloatArray,
+    curr: FloatArray,
+    c: StackedPairs,
+    loss: tuple[str, float, float] = ("none", 1.0, 1.0),
+    speed_loss: tuple[str, float] = ("none", 1.0),
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Whitened, robustly weighted residuals (n, 21) and Jacobians (n, 21, 22) w.r.t.
+    (prev, curr) of every factor joining frames k-1 and k (rows as ``PAIR_ROWS``), and the
+    Gaussian whitened norms (n, 2) of the pose / motion pair blocks.
+
+    The same equations as ``factors.process_factor``, ``body_factor``,
+    ``mount_walk_factors``, ``pose_pair_factor``, ``motion_pair_factor``, ``speed_factor``
+    and ``standstill_factors``. ``loss`` = (kind, threshold of the 4-dof pose block,
+    threshold of the 3-dof motion block); ``speed_loss`` = (kind, threshold)."""
+    n = len(prev)
+    r = np.empty((n, PAIR_ROWS))
+    jac = np.empty((n, PAIR_ROWS, 2 * FRAME_DIM))
+    norms = np.empty((n, 2))
+    _rows(
+        np.ascontiguousarray(prev, dtype=float), np.ascontiguousarray(curr, dtype=float),
+        c.dt, c.z, c.h0, c.w_motion, c.metric, c.w_process, c.process_jac, c.lin_jac, c.lin_b,
+        _loss_code(loss[0]), float(loss[1]), float(loss[2]),
+        _loss_code(speed_loss[0]), float(speed_loss[1]), r, jac, norms,
+    )
+    return r, jac, norms
+
+
+@njit(cache=True)
+def _wrap(a: float) -> float:
+    return (a + np.pi) % (2.0 * np.pi) - np.pi
+
+
+@njit(cache=True)
+def _rows(prev, curr, dt_, z, h0, w_motion, metric, w_process, process_jac, lin_jac, lin_b,
+          loss, k4, k3, speed_loss, k_speed, r, jac, norms):  # pragma: no cover (compiled)
+    """``stacked_rows``' loop over the pairs: fills r, jac, norms."""
+    d = FRAME_DIM
+    cols = 2 * d
+    dyn_cols = (0, 1, 2, 4, _CURR, _CURR + 1)
+    both = np.empty(cols)
+    dyn = np.empty((2, 6))
+    e = np.empty(5)
+    j3 = np.zeros((3, cols))
+    for k in range(prev.shape[0]):
+        both[:d] = prev[k]
+        both[d:] = curr[k]
+        # the linear rows (whitened once in pair_constants)
+        for i in range(PAIR_ROWS):
+            acc = -lin_b[k, i]
+            for c in range(cols):
+                jac[k, i, c] = lin_jac[k, i, c]
+                acc += lin_jac[k, i, c] * both[c]
+            r[k, i] = acc
+        x0, y0, psi0, v0, w0 = prev[k, 0], prev[k, 1], prev[k, 2], prev[k, 3], prev[k, 4]
+        x1, y1, psi1, v1, w1 = curr[k, 0], curr[k, 1], curr[k, 2], curr[k, 3], curr[k, 4]
+        h, yaw_m = curr[k, 7], curr[k, 8]
+        dt = dt_[k]
+        # process: model.propagate_pose, residual along / across the mid-point heading
+        a = psi0 + 0.5 * w0 * dt
+        sa, ca = math.sin(a), math.cos(a)
+        dx = x1 - (x0 + v0 * dt * sa)
+        dy = y1 - (y0 + v0 * dt * ca)
+        along, cross = sa * dx + ca * dy, ca * dx - sa * dy
+        d_psi = -along - v0 * dt  # ∂cross/∂(mid-point heading); ∂along/∂ it is cross
+        e[0], e[1], e[2] = along, cross, _wrap(psi1 - psi0 - w0 * dt)
+        e[3], e[4] = v1 - v0, w1 - w0
+        hdt = 0.5 * dt
+        # ∂(along, cross)/∂ (x0, y0, ψ0, ω0, x1, y1)
+        dyn[0, 0], dyn[0, 1], dyn[0, 2], dyn[0, 3], dyn[0, 4], dyn[0, 5] = (
+            -sa, -ca, cross, hdt * cross, sa, ca)
+        dyn[1, 0], dyn[1, 1], dyn[1, 2], dyn[1, 3], dyn[1, 4], dyn[1, 5] = (
+            -ca, sa, d_psi, hdt * d_psi, ca, -sa)
+        for i in range(5):
+            acc = 0.0
+            for j in range(5):
+                acc += w_process[k, i, j] * e[j]
+            r[k, i] = acc
+            for c in range(cols):
+                jac[k, i, c] = process_jac[k, i, c]
+            for j in range(6):
+                jac[k, i, dyn_cols[j]] += (
+                    w_process[k, i, 0] * dyn[0, j] + w_process[k, i, 1] * dyn[1, j]
+                )
+        # motion pair: displacement in G_{k-1} scaled by h0 / h_m
+        g = psi0 + yaw_m
+        sc = h0[k] / h
+        scg, ssg = sc * math.cos(g), sc * math.sin(g)
+        ddx, ddy = x1 - x0, y1 - y0
+        tx, tz = scg * ddx - ssg * ddy, ssg * ddx + scg * ddy
+        e[0], e[1], e[2] = tx - z[k, 4], tz - z[k, 5], _wrap(psi1 - psi0 - z[k, 6])
+        dh = 1.0 / h if metric[k] else 0.0  # the EKF's rule: without wheel speed, h stays
+        j3[0, _CURR], j3[0, _CURR + 1], j3[1, _CURR], j3[1, _CURR + 1] = scg, -ssg, ssg, scg
+        j3[0, 0], j3[0, 1], j3[1, 0], j3[1, 1] = -scg, ssg, -ssg, -scg
+        j3[0, 2], j3[0, _CURR + 8], j3[1, 2], j3[1, _CURR + 8] = -tz, -tz, tx, tx
+        j3[0, _CURR + 7], j3[1, _CURR + 7] = -tx * dh, -tz * dh
+        j3[2, 2], j3[2, _CURR + 2] = -1.0, 1.0
+        for i in range(3):
+            acc = 0.0
+            for j in range(3):
+                acc += w_motion[k, i, j] * e[j]
+            r[k, 15 + i] = acc
+            for c in range(cols):
+                jac[k, 15 + i, c] = (
+                    w_motion[k, i, 0] * j3[0, c] + w_motion[k, i, 1] * j3[1, c]
+                    + w_motion[k, i, 2] * j3[2, c]
+                )
+        # robust weights (IRLS, as gtsam's noiseModel.Robust) of the pair blocks and the speed
+        pose_sq = 0.0
+        for i in range(11, 15):
+            pose_sq += r[k, i] * r[k, i]
+        motion_sq = r[k, 15] ** 2 + r[k, 16] ** 2 + r[k, 17] ** 2
+        norms[k, 0], norms[k, 1] = math.sqrt(pose_sq), math.sqrt(motion_sq)
+        s_pose = math.sqrt(_weight(norms[k, 0], loss, k4))
+        s_motion = math.sqrt(_weight(norms[k, 1], loss, k3))
+        s_speed = math.sqrt(_weight(abs(r[k, SPEED_ROW]), speed_loss, k_speed))
+        for i in range(11, 19):
+            s = s_pose if i < 15 else (s_motion if i < 18 else s_speed)
+            r[k, i] *= s
+            for c in range(cols):
+                jac[k, i, c] *= s
