@@ -21,13 +21,13 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
 
 from vipm_track.measurement import PairMeasurement
 
 from . import factors as F
 from . import model as M
+from .compiled import kernel
 from .model import NoiseParams
 
 FloatArray = NDArray[np.float64]
@@ -43,7 +43,7 @@ _CURR = FRAME_DIM
 _LOSS_CODE = {"none": 0, "huber": 1, "cauchy": 2, "geman-mcclure": 3, "tukey": 4}
 
 
-@njit(cache=True)
+@kernel
 def _weight(norm: float, code: int, k: float) -> float:
     """IRLS weight of gtsam's M-estimator (``_LOSS_CODE``) of threshold ``k`` at a whitened
     block norm (what ``noiseModel.Robust`` multiplies the squared rows by)."""
@@ -58,7 +58,7 @@ def _weight(norm: float, code: int, k: float) -> float:
     return 1.0
 
 
-@njit(cache=True)
+@kernel
 def _weights(norm: FloatArray, code: int, k: float) -> FloatArray:
     out = np.empty(norm.size)
     flat = norm.ravel()
@@ -204,12 +204,12 @@ def stacked_rows(
     return r, jac, norms
 
 
-@njit(cache=True)
+@kernel
 def _wrap(a: float) -> float:
     return (a + np.pi) % (2.0 * np.pi) - np.pi
 
 
-@njit(cache=True)
+@kernel
 def _rows(prev, curr, dt_, z, h0, w_motion, metric, w_process, process_jac, lin_jac, lin_b,
           loss, k4, k3, speed_loss, k_speed, r, jac, norms):  # pragma: no cover (compiled)
     """``stacked_rows``' loop over the pairs: fills r, jac, norms."""
