@@ -41,6 +41,7 @@ pins the yaw rate (and, without wheel speed, the speed) to 0 as a pseudo-measure
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -122,16 +123,16 @@ class NoiseParams:
         pitch/roll variance raised to at least ``min_angle_meas_std_deg``² (correlations
         scaled along)."""
         cov = np.array(covariance, dtype=float)
-        floor = np.radians(self.min_angle_meas_std_deg)
-        scale = np.ones(7)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            std = np.sqrt(np.diag(cov))
-            scale[:4] = np.where(std[:4] < floor, floor / std[:4], 1.0)
-        scale = np.where(np.isfinite(scale), scale, 1.0)
-        out = cov * np.outer(scale, scale)
-        zero = np.flatnonzero(std[:4] == 0)
-        out[zero, zero] = floor**2
-        return out
+        floor = math.radians(self.min_angle_meas_std_deg)
+        for i in range(4):  # scalars: this runs for every pair of every filter
+            var = float(cov[i, i])
+            if var == 0.0:
+                cov[i, i] = floor**2
+            elif 0.0 < var < floor**2:
+                scale = floor / math.sqrt(var)
+                cov[i, :] *= scale
+                cov[:, i] *= scale
+        return cov
 
     @classmethod
     def for_preset(cls, preset: str) -> NoiseParams:

@@ -13,6 +13,7 @@ order and units. A frame whose ``status`` is not ``ok`` carries NaNs.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -40,9 +41,10 @@ class PairMeasurement:
     status: str = "ok"
     inliers: int = 0
 
-    @property
+    @cached_property
     def ok(self) -> bool:
-        return self.status == "ok" and bool(np.all(np.isfinite(self.z)))
+        """Usable: status ``ok`` and every value of ``z`` finite (read once, then kept)."""
+        return self.status == "ok" and bool(np.isfinite(self.z).all())
 
     @property
     def std(self) -> NDArray[np.float64]:
