@@ -24,8 +24,8 @@ or ``run_filter(measurements, speed_series, config)`` for a whole sequence.
   positive semi-definite and its mount angle std below ``max_mount_angle_std_deg``; after
   ``max_consecutive_gated`` pairs in a row gated on pitch/roll the filter no longer agrees with
   the data. Either way it re-initialises from the next good pair (keeping the height estimate)
-  and says why in ``reset_reason``. The same count of motion-gated pairs restarts only the speed
-  and yaw rate.
+  and says why in ``reset_reason``. ``max_consecutive_motion_gated`` motion-gated pairs in a
+  row restart only the speed, yaw rate, height and mount yaw.
 """
 
 from __future__ import annotations
@@ -58,6 +58,11 @@ class EkfConfig:
     gate_probability: float = 0.999
     speed_gate_probability: float = 0.999
     max_consecutive_gated: int = 15
+    #: motion-gated pairs in a row that restart speed, yaw rate, height and mount yaw (the
+    #: motion model lost track: every later pair disagrees with it and would be gated too;
+    #: KITTI 07 with 15: median travel error 4.3 %, p95 27 %; with 5: 3.4 % / 12 %). An
+    #: outlier run that long is rare (10 % outliers: 1e-5 per frame)
+    max_consecutive_motion_gated: int = 5
     max_mount_angle_std_deg: float = 10.0
     default_dt_s: float = 0.05  # frame interval assumed before the first frame time is known
     init_pairs: int = 5  # good pairs whose medians start (and restart) the filter
@@ -355,7 +360,7 @@ class ExtrinsicsEKF:
             # EKF would invent information along it from its moving linearisation point;
             # hold h where it is (its prior) instead
             h[:, M.MOUNT_HEIGHT] = 0.0
-        r = self._cfg.noise.pair_covariance(m.covariance)
+        r = self._cfg.noise.pair_covariance(m.covariance, m.z[6])
         y = m.z - zp
         y[6] = _wrap(y[6])
         s = h @ kf.P @ h.T + r
@@ -382,7 +387,7 @@ class ExtrinsicsEKF:
         n = self._cfg.max_consecutive_gated
         if self._pose_gated_run >= n:
             self._pending_reset = f"{self._pose_gated_run} pairs in a row gated on pitch/roll"
-        elif self._motion_gated_run >= n:
+        elif self._motion_gated_run >= self._cfg.max_consecutive_motion_gated:
             self._restart_motion(m, dt)
         rejected = [name for name, rows in (("pose", 0), ("motion", 4)) if rows not in keep]
         return nis, "+".join(rejected)
@@ -420,15 +425,19 @@ class ExtrinsicsEKF:
         x[M.SPEED] = float(np.hypot(m.z[4], m.z[5])) * x[M.MOUNT_HEIGHT] / m.height_assumed / dt
         x[M.YAW_RATE] = m.z[6] / dt
         h_prior = (nz.prior_height_std_rel * self._cfg.height_m) ** 2
-        # a wrong height also makes every translation disagree: let the next pairs move it
+        yaw_prior = np.radians(nz.prior_mount_yaw_std_deg) ** 2
+        # a wrong height or mount yaw also makes every translation disagree (the yaw turns
+        # the predicted (tx, tz) off the measured direction): let the next pairs move them
         for i, var in ((M.SPEED, nz.prior_speed_std_mps**2),
                        (M.YAW_RATE, np.radians(nz.prior_yaw_rate_std_dps) ** 2),
-                       (M.MOUNT_HEIGHT, max(h_prior, float(p[M.MOUNT_HEIGHT, M.MOUNT_HEIGHT])))):
+                       (M.MOUNT_HEIGHT, max(h_prior, float(p[M.MOUNT_HEIGHT, M.MOUNT_HEIGHT]))),
+                       (M.MOUNT_YAW, max(yaw_prior, float(p[M.MOUNT_YAW, M.MOUNT_YAW])))):
             p[i, :] = p[:, i] = 0.0
             p[i, i] = var
         kf.x, kf.P = x, p
         self._motion_note = (
-            f"speed/yaw rate/height re-opened after {self._motion_gated_run} pairs gated on motion"
+            f"speed/yaw rate/height/mount yaw re-opened after {self._motion_gated_run} pairs "
+            "gated on motion"
         )
         self._motion_gated_run = 0
 

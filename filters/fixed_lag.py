@@ -48,6 +48,7 @@ from .smoother import (
     _make_frame,
     _skipped,
     _status,
+    dead_reckoned,
 )
 
 FloatArray = NDArray[np.float64]
@@ -209,18 +210,22 @@ class FixedLagSmoother:
             self._last_speed_t = m.t
         metric = m.t - self._last_speed_t <= self._cfg.speed_timeout_s
         self._push_pair(m, dt, speed, metric)
-        x, y, psi = M.propagate_pose(prev[0], prev[1], prev[2], prev[3], prev[4], dt)
         new = prev.copy()
-        new[0:3] = (x, y, psi)
+        if m.ok:
+            # the pair's own motion, as the batch's initial guess: a prediction from the last
+            # speed and yaw rate can be so far off after a manoeuvre that the robust loss
+            # rejects the pair, and every later one (the estimate locks onto the old motion)
+            new[0:3] = dead_reckoned((prev[0], prev[1], prev[2]), prev[7], prev[8], m)
+            new[3] = math.hypot(m.z[4], m.z[5]) * prev[7] / m.height_assumed / dt
+            new[4] = m.z[6] / dt
+            new[9:11] = m.z[2:4] - prev[5:7]
+        else:
+            new[0:3] = M.propagate_pose(prev[0], prev[1], prev[2], prev[3], prev[4], dt)
+            new[9:11] = 0.0
         if math.isfinite(speed):
             new[3] = speed
         for i in M.standstill_states(speed, m.status, self._cfg.noise):
             new[3 if i == M.SPEED else 4] = 0.0  # standing: start from the pseudo-measurement
-        if m.ok:
-            new[4] = m.z[6] / dt
-            new[9:11] = m.z[2:4] - prev[5:7]
-        else:
-            new[9:11] = 0.0
         self._ms.append(m)
         self._x = np.vstack([self._x, new])
         self._last = None

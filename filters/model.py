@@ -117,12 +117,21 @@ class NoiseParams:
     #: 0.060° → 0.038°; 0.032° at 0.02°, where the frame pose starts to lag the raw one);
     #: simulated streams (0.1° per frame) are unaffected
     min_angle_meas_std_deg: float = 0.01
+    #: the model moves the camera as the vehicle, without side slip; a camera ahead of (or
+    #: behind) the axle the vehicle turns about also slides sideways by ~L·Δψ over a pair that
+    #: turns by Δψ (KITTI 07: 0.05–0.1 m per frame in its turns at 30°/s). Its lateral motion
+    #: (tx) gets that much more variance, with L up to ``lever_arm_std_m``, or the mount yaw
+    #: absorbs the turns (6° on KITTI) and the motion gate locks out the pairs after them
+    lever_arm_std_m: float = 2.0
 
-    def pair_covariance(self, covariance: FloatArray) -> FloatArray:
+    def pair_covariance(self, covariance: FloatArray, yaw_rad: float = 0.0) -> FloatArray:
         """A pair's 7×7 measurement covariance as the filters use it: the estimator's, each
         pitch/roll variance raised to at least ``min_angle_meas_std_deg``² (correlations
-        scaled along)."""
+        scaled along), and the lateral motion's raised by the unmodelled lever arm of a pair
+        turning by ``yaw_rad`` (``lever_arm_std_m``)."""
         cov = np.array(covariance, dtype=float)
+        if math.isfinite(yaw_rad):
+            cov[4, 4] += (self.lever_arm_std_m * math.sin(yaw_rad)) ** 2
         floor = math.radians(self.min_angle_meas_std_deg)
         for i in range(4):  # scalars: this runs for every pair of every filter
             var = float(cov[i, i])

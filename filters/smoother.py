@@ -234,14 +234,23 @@ def _initial_guess(
     for k in range(1, n):
         x, y, psi = pose[k - 1]
         if ok[k]:
-            g = psi + yaw_m
-            c, s = math.cos(g), math.sin(g)
-            scale = height / h0[k]
-            tx, tz = z[k, 4] * scale, z[k, 5] * scale
-            pose[k] = (x + c * tx + s * tz, y - s * tx + c * tz, psi + z[k, 6])
+            pose[k] = dead_reckoned((x, y, psi), height, yaw_m, ms[k])
         else:
             pose[k] = M.propagate_pose(x, y, psi, v[k - 1], w[k - 1], dts[k])
     return _Guess(mount, height, yaw_m, body, v, w, pose)
+
+
+def dead_reckoned(
+    pose: tuple[float, float, float], height: float, yaw_m: float, m: PairMeasurement
+) -> tuple[float, float, float]:
+    """World pose (x, y, ψ) of frame k from frame k-1's ``pose`` and the pair's measured
+    motion (tx, tz at h0, yaw) at mount height ``height`` (m) and yaw offset ``yaw_m`` (rad):
+    ``model.expected_pair`` solved for frame k's pose."""
+    x, y, psi = pose
+    scale = height / m.height_assumed
+    tx, tz = m.z[4] * scale, m.z[5] * scale
+    c, s = math.cos(psi + yaw_m), math.sin(psi + yaw_m)
+    return x + c * tx + s * tz, y - s * tx + c * tz, psi + m.z[6]
 
 
 def _insert_guess(values: gtsam.Values, k: int, guess: _Guess, i: int) -> None:
@@ -305,7 +314,7 @@ def _frame_factors(
         out.append(F.body_factor(k, dt, nz))
         out.extend(F.mount_walk_factors(k, dt, nz))
         if m.ok:
-            cov = nz.pair_covariance(m.covariance)
+            cov = nz.pair_covariance(m.covariance, m.z[6])
             out.append(F.pose_pair_factor(k, m.z[:4], cov[:4, :4], cfg.loss, cfg.pair_loss_k(4)))
             out.append(
                 F.motion_pair_factor(

@@ -152,7 +152,7 @@ def pair_constants(
     ok = bool(m.ok)
     z = np.asarray(m.z, dtype=float) if ok else np.zeros(7)
     if ok:
-        cov = noise.pair_covariance(m.covariance)
+        cov = noise.pair_covariance(m.covariance, m.z[6])
         w_pose = whitener(cov[:4, :4])
         lin[POSE_ROWS] = w_pose @ _J_POSE
         b[POSE_ROWS] = w_pose @ z[:4]

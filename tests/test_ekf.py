@@ -3,6 +3,7 @@ consistency, outliers, gaps, resets, and the ``track`` subcommand."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -372,3 +373,17 @@ def test_pair_covariance_floors_the_angles_only():
     np.testing.assert_allclose(got[4:], std[4:])
     assert out[0, 2] / (got[0] * got[2]) == pytest.approx(0.5)  # correlation kept
     assert np.array_equal(M.NoiseParams(min_angle_meas_std_deg=0.0).pair_covariance(cov), cov)
+
+
+def test_pair_covariance_widens_the_lateral_motion_of_a_turning_pair():
+    # a camera up to L from the axle the vehicle turns about slides sideways by ~L·Δψ
+    noise = M.NoiseParams(lever_arm_std_m=2.0)
+    cov = np.diag(np.radians([0.02] * 4 + [0.0] * 3) ** 2) + np.diag([0, 0, 0, 0, 1e-5, 2e-5,
+                                                                       1e-8])
+    turn = math.radians(3.0)
+    out = noise.pair_covariance(cov, turn)
+    expected = noise.pair_covariance(cov)
+    expected[4, 4] += (2.0 * math.sin(turn)) ** 2
+    np.testing.assert_allclose(out, expected, rtol=1e-15)
+    assert np.array_equal(noise.pair_covariance(cov, 0.0), noise.pair_covariance(cov))
+    assert np.array_equal(noise.pair_covariance(cov, math.nan), noise.pair_covariance(cov))
