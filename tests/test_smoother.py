@@ -432,6 +432,12 @@ def test_cli_smooths_an_estimates_table(tmp_path, capsys):
         ]
     )
     assert rc == 2
+    for option, value in (("--lever-arm-std", "-1"), ("--body-tau", "0"), ("--body-std", "nan")):
+        capsys.readouterr()
+        rc = main(["smooth", "--estimates", str(est), "--height", "1.5", option, value,
+                   "--out", str(out), "--quiet"])
+        assert rc == 2
+        assert option in capsys.readouterr().err
 
 
 def _fail_once(monkeypatch, method: str, at_call: int) -> None:

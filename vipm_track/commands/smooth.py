@@ -96,6 +96,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--body-std", type=float, metavar="DEG", help="stationary std of the body shaking (preset)"
     )
     group.add_argument(
+        "--lever-arm-std",
+        type=float,
+        metavar="M",
+        help="how far the camera may sit from the axle the vehicle turns about: a turning "
+        "pair's sideways motion gets that much more variance (default 2; 0 trusts the "
+        "no-side-slip model)",
+    )
+    group.add_argument(
         "--no-std",
         action="store_true",
         help="skip the marginal covariances (std columns empty; faster)",
@@ -116,16 +124,22 @@ def build_config(args: argparse.Namespace):
     if not 0.5 < args.loss_probability < 1.0:
         raise InputError(f"--loss-probability must be in (0.5, 1), got {args.loss_probability}")
     noise = NoiseParams.for_preset(args.vehicle)
-    overrides = {
-        "mount_angle_rw_deg_per_sqrt_s": args.mount_angle_rw,
-        "mount_height_rw_m_per_sqrt_s": args.mount_height_rw,
-        "body_tau_s": args.body_tau,
-        "body_std_deg": args.body_std,
-    }
-    for name, value in overrides.items():
-        if value is not None and not (math.isfinite(value) and value > 0):
-            raise InputError(f"--{name} must be a positive number, got {value}")
-    noise = replace(noise, **{k: v for k, v in overrides.items() if v is not None})
+    # (option, NoiseParams field, value, zero allowed)
+    options = [
+        ("--mount-angle-rw", "mount_angle_rw_deg_per_sqrt_s", args.mount_angle_rw, False),
+        ("--mount-height-rw", "mount_height_rw_m_per_sqrt_s", args.mount_height_rw, False),
+        ("--body-tau", "body_tau_s", args.body_tau, False),
+        ("--body-std", "body_std_deg", args.body_std, False),
+        ("--lever-arm-std", "lever_arm_std_m", args.lever_arm_std, True),
+    ]
+    for flag, _, value, zero_ok in options:
+        in_range = value is not None and math.isfinite(value) and (
+            value > 0 or (zero_ok and value == 0)
+        )
+        if value is not None and not in_range:
+            what = "a number >= 0" if zero_ok else "a positive number"
+            raise InputError(f"{flag} must be {what}, got {value}")
+    noise = replace(noise, **{field: v for _, field, v, _ in options if v is not None})
     return SmootherConfig(
         height_m=height,
         noise=noise,
