@@ -8,14 +8,15 @@ every sliding-window estimator). The information matrix of a window is block tri
 frame order, so one Gauss–Newton step is a banded Cholesky solve (LAPACK ``pbtrf``) of
 11 × (window length) unknowns.
 
-Each new frame is predicted from the previous one (``model.propagate_pose``) and the window
+Each new frame starts where its pair's measured motion puts it (``smoother.dead_reckoned``,
+as the batch's initial guess; ``model.propagate_pose`` without a usable pair) and the window
 is re-solved (warm start, usually 1–2 steps); a frame is reported once ``lag_s`` of later
 data is in, with its joint marginal covariance with the previous frame (read off the last
 block of the Cholesky factor, the window being ordered newest first), then marginalised.
 
 Why not gtsam's ``IncrementalFixedLagSmoother``: a Python ``CustomFactor`` gets a *copy* of
 all values of iSAM2's window for every call, which made it ~140 frames/s; this window runs
-at ~650 frames/s (2 s lag) with the same model and answers (a test checks that with a lag
+at 650–900 frames/s (2 s lag) with the same model and answers (a test checks that with a lag
 longer than the drive it equals ``smooth_batch``): the rows (``window_rows``) and their
 normal equations (``_add_rows``) are compiled loops, the rest is LAPACK and small numpy.
 """
