@@ -18,8 +18,10 @@ or ``run_filter(measurements, speed_series, config)`` for a whole sequence.
 - Mahalanobis gating, as robot_localization's rejection thresholds: the pose block (4 angles)
   and the motion block (tx, tz, yaw) of a pair are each rejected when their normalised
   innovation squared exceeds the chi-square quantile ``gate_probability`` (4 / 3 dof), so an
-  unexpected manoeuvre costs the motion only; the same for a speed reading (1 dof). ``nis``
-  reports the whole pair's 7-dof value.
+  unexpected manoeuvre costs the motion only; the same for a speed reading (1 dof). Between
+  the gate and ``pose_soft_gate_factor`` / ``motion_soft_gate_factor`` times it a block is
+  applied down-weighted (covariance × NIS / gate) instead. ``nis`` reports the whole pair's
+  7-dof value.
 - It never diverges silently: after each step the covariance must be finite, symmetric,
   positive semi-definite and its mount angle std below ``max_mount_angle_std_deg``; after
   ``max_consecutive_gated`` pairs in a row gated on pitch/roll the filter no longer agrees with
@@ -82,6 +84,12 @@ class EkfConfig:
     #: is applied with its covariance inflated by NIS / gate (down-weighted, not dropped);
     #: beyond that it is rejected
     pose_soft_gate_factor: float = 4.0
+    #: the same for the motion block (tx, tz, yaw): real estimates' covariances are optimistic
+    #: and real driving changes speed and yaw rate faster than the model expects, so a hard
+    #: gate drops good pairs in every manoeuvre (KITTI 07: 34 of 159; travel error median /
+    #: p95 3.43 / 11.6 % → 3.15 / 9.5 % with 2); 2 keeps rejecting simulated outliers (cart
+    #: trajectory with 10 % outliers unchanged; 4 let them bend it, 0.13 → 0.20 m RMS)
+    motion_soft_gate_factor: float = 2.0
 
 
 class FrameStds:
@@ -367,13 +375,16 @@ class ExtrinsicsEKF:
         nis = _mahalanobis(y, s)
         keep = []
         r = r.copy()
-        for block, gate in ((_POSE_ROWS, self._gate_pose), (_MOTION_ROWS, self._gate_motion)):
+        cfg = self._cfg
+        for block, gate, soft in ((_POSE_ROWS, self._gate_pose, cfg.pose_soft_gate_factor),
+                                  (_MOTION_ROWS, self._gate_motion, cfg.motion_soft_gate_factor)):
             d2 = _mahalanobis(y[block], s[np.ix_(block, block)])
             if d2 <= gate:
                 keep.extend(block)
-            elif block is _POSE_ROWS and d2 <= self._cfg.pose_soft_gate_factor * gate:
-                # shaking (or an optimistic covariance) beyond the model, not an outlier:
-                # down-weight rather than drop, or the frame pose falls back on the prediction
+            elif d2 <= soft * gate:
+                # shaking or a manoeuvre (or an optimistic covariance) beyond the model, not an
+                # outlier: down-weight rather than drop, or the estimate falls back on the
+                # prediction
                 r[np.ix_(block, block)] *= d2 / gate
                 keep.extend(block)
         self._observe_body(m)

@@ -204,7 +204,9 @@ def test_an_outlier_first_pair_does_not_turn_the_heading(preset):
     ms = list(run.measurements)
     ms[1] = replace(ms[1], z=ms[1].z + np.radians(1.3) * np.eye(7)[6])
     assert max_heading_error_deg(ms, 1.0) < clean + 0.05
-    assert max_heading_error_deg(ms, 1000.0) > clean + 5.0  # the wide prior: fails
+    # the wide prior takes the outlier; the soft motion gate and the motion restart now
+    # recover the heading sooner (~3° off here; > 5° with hard gating after 15 pairs)
+    assert max_heading_error_deg(ms, 1000.0) > clean + 2.0
 
 
 def test_mount_step_resets_with_reason_and_reconverges():

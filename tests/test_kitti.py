@@ -66,7 +66,7 @@ KITTI_ESTIMATES = Path(__file__).parent / "data" / "kitti07_estimates.csv"
 
 @pytest.mark.parametrize(
     ("method", "median_pct", "p95_pct"),
-    [("ekf", 4.0, 15.0), ("fixed-lag 2 s", 3.3, 9.0), ("batch", 3.3, 9.0)],
+    [("ekf", 3.5, 11.0), ("fixed-lag 2 s", 3.3, 9.0), ("batch", 3.3, 9.0)],
 )
 def test_filters_follow_the_real_kitti_drive(method: str, median_pct: float, p95_pct: float):
     # Real driving: a turn at 30°/s from standstill, then hard acceleration. The camera sits
