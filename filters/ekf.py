@@ -369,6 +369,7 @@ class ExtrinsicsEKF:
             # hold h where it is (its prior) instead
             h[:, M.MOUNT_HEIGHT] = 0.0
         r = self._cfg.noise.pair_covariance(m.covariance, m.z[6])
+        pitch_roll_var = np.diag(r)[2:4].copy()  # before any soft-gate inflation
         y = m.z - zp
         y[6] = _wrap(y[6])
         s = h @ kf.P @ h.T + r
@@ -387,7 +388,7 @@ class ExtrinsicsEKF:
                 # prediction
                 r[np.ix_(block, block)] *= d2 / gate
                 keep.extend(block)
-        self._observe_body(m)
+        self._observe_body(m, pitch_roll_var)
         self._pose_gated_run = 0 if 0 in keep else self._pose_gated_run + 1
         self._motion_gated_run = 0 if 4 in keep else self._motion_gated_run + 1
         if keep:
@@ -403,12 +404,12 @@ class ExtrinsicsEKF:
         rejected = [name for name, rows in (("pose", 0), ("motion", 4)) if rows not in keep]
         return nis, "+".join(rejected)
 
-    def _observe_body(self, m: PairMeasurement) -> None:
-        """Add the pair's measured body to the window and re-adapt the body std."""
+    def _observe_body(self, m: PairMeasurement, r: FloatArray) -> None:
+        """Add the pair's measured body (its current frame's pitch/roll, variances ``r``,
+        rad²) to the window and re-adapt the body std."""
         kf = self._kf
         assert kf is not None and self._t is not None
         b = m.z[2:4] - kf.x[[M.MOUNT_PITCH, M.MOUNT_ROLL]]
-        r = np.diag(self._cfg.noise.pair_covariance(m.covariance))[2:4]
         self._body_seen.append((self._t, float(b[0]), float(b[1]), float(r[0]), float(r[1])))
         while self._body_seen and self._body_seen[0][0] < self._t - self._cfg.body_window_s:
             self._body_seen.popleft()
@@ -433,8 +434,7 @@ class ExtrinsicsEKF:
         assert kf is not None
         nz = self._cfg.noise
         x, p = kf.x.copy(), kf.P.copy()
-        x[M.SPEED] = float(np.hypot(m.z[4], m.z[5])) * x[M.MOUNT_HEIGHT] / m.height_assumed / dt
-        x[M.YAW_RATE] = m.z[6] / dt
+        x[M.SPEED], x[M.YAW_RATE] = M.pair_rates(m.z, x[M.MOUNT_HEIGHT], m.height_assumed, dt)
         h_prior = (nz.prior_height_std_rel * self._cfg.height_m) ** 2
         yaw_prior = np.radians(nz.prior_mount_yaw_std_deg) ** 2
         # a wrong height or mount yaw also makes every translation disagree (the yaw turns

@@ -69,7 +69,7 @@ _FIELDS = tuple(f.name for f in dataclasses.fields(W.StackedPairs))
 
 
 class _PairStore:
-    """The window's pair constants (``factors.StackedPairs`` fields, one row per pair) in
+    """The window's pair constants (``window_rows.StackedPairs`` fields, one row per pair) in
     growable arrays: appended at the end, dropped from either end, viewed without copying."""
 
     def __init__(self) -> None:
@@ -204,7 +204,8 @@ class FixedLagSmoother:
         return self._c.view()
 
     def _append(self, m: PairMeasurement, speed: float) -> None:
-        """Add frame ``m`` to the window, predicted from the newest one."""
+        """Add frame ``m`` to the window, started from the newest one moved by its pair (by
+        the motion model without a usable pair)."""
         prev_m, prev = self._ms[-1], self._x[-1]
         dt = m.t - prev_m.t
         if math.isfinite(speed):
@@ -217,8 +218,7 @@ class FixedLagSmoother:
             # speed and yaw rate can be so far off after a manoeuvre that the robust loss
             # rejects the pair, and every later one (the estimate locks onto the old motion)
             new[0:3] = dead_reckoned((prev[0], prev[1], prev[2]), prev[7], prev[8], m)
-            new[3] = math.hypot(m.z[4], m.z[5]) * prev[7] / m.height_assumed / dt
-            new[4] = m.z[6] / dt
+            new[3:5] = M.pair_rates(m.z, prev[7], m.height_assumed, dt)
             new[9:11] = m.z[2:4] - prev[5:7]
         else:
             new[0:3] = M.propagate_pose(prev[0], prev[1], prev[2], prev[3], prev[4], dt)

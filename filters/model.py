@@ -187,6 +187,14 @@ def propagate_pose(
     return x + v * dt * np.sin(a), y + v * dt * np.cos(a), psi + omega * dt
 
 
+def pair_rates(
+    z: FloatArray, height_m: float, height_assumed: float, dt: float
+) -> tuple[float, float]:
+    """Speed (m/s) and yaw rate (rad/s) that a pair's motion ``z`` (rows 4–6: tx, tz at the
+    assumed height h0, m; yaw, rad) implies over ``dt`` s at mount height ``height_m``."""
+    return math.hypot(z[4], z[5]) * height_m / height_assumed / dt, z[6] / dt
+
+
 def transition(
     state: FloatArray, dt: float, noise: NoiseParams
 ) -> tuple[FloatArray, FloatArray, FloatArray]:

@@ -58,25 +58,10 @@ def _weight(norm: float, code: int, k: float) -> float:
     return 1.0
 
 
-@kernel
-def _weights(norm: FloatArray, code: int, k: float) -> FloatArray:
-    out = np.empty(norm.size)
-    flat = norm.ravel()
-    for i in range(flat.size):
-        out[i] = _weight(flat[i], code, k)
-    return out.reshape(norm.shape)
-
-
 def _loss_code(kind: str) -> int:
     if kind not in _LOSS_CODE:
         raise ValueError(f"unknown robust loss {kind!r}; expected one of {', '.join(F.LOSSES)}")
     return _LOSS_CODE[kind]
-
-
-def robust_weight(norm: FloatArray, kind: str, k: float) -> FloatArray:
-    """IRLS weight of gtsam's M-estimator ``kind`` (``factors.LOSSES``) of threshold ``k`` at
-    whitened block norms ``norm``."""
-    return _weights(np.asarray(norm, dtype=float), _loss_code(kind), float(k))
 
 
 def whitener(cov: FloatArray) -> FloatArray:

@@ -133,10 +133,9 @@ def build_config(args: argparse.Namespace):
         ("--lever-arm-std", "lever_arm_std_m", args.lever_arm_std, True),
     ]
     for flag, _, value, zero_ok in options:
-        in_range = value is not None and math.isfinite(value) and (
-            value > 0 or (zero_ok and value == 0)
-        )
-        if value is not None and not in_range:
+        if value is None:
+            continue
+        if not (math.isfinite(value) and (value > 0 or (zero_ok and value == 0))):
             what = "a number >= 0" if zero_ok else "a positive number"
             raise InputError(f"{flag} must be {what}, got {value}")
     noise = replace(noise, **{field: v for _, field, v, _ in options if v is not None})
