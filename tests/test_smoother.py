@@ -363,6 +363,28 @@ def test_summary_reports_mean_interval_and_drift(batch, drive):
     assert s["frames"] == len(drive.measurements)
 
 
+def test_summary_interval_widens_to_slow_errors_the_model_lacks(batch, drive):
+    # Where the model is right, the data's batch-means error matches the model's σ; add a
+    # slow 0.5° wander (period 10 s: road camber, load) to the measured pitch and the model
+    # still claims 0.03°, while the data widen the interval so that it covers the truth.
+    ms = drive.measurements
+    plain = summarize_mount(batch[0], ms)
+    for axis in ("pitch", "roll"):
+        assert 0.6 < plain[axis]["std_data"] / plain[axis]["std_model"] < 1.5
+    t = np.array([m.t for m in ms])
+    wander = np.radians(0.5) * np.sin(2 * np.pi * t / 10.0)
+    bent = [replace(m, z=m.z + np.array([w0, 0, w1, 0, 0, 0, 0]))
+            for m, w0, w1 in zip(ms, np.r_[0.0, wander[:-1]], wander, strict=True)]
+    cfg = SmootherConfig(height_m=H0, noise=drive.config.noise)
+    frames, _ = smooth_batch(bent, speeds_at_frames(bent, drive.speed), cfg)
+    s = summarize_mount(frames, bent)
+    p = s["pitch"]
+    assert p["interval_from"] == "data" and s["roll"]["interval_from"] == "model"
+    assert p["std_data"] > 3 * p["std_model"]
+    truth = math.degrees(float(np.mean(drive.truth.mount_pitch)))
+    assert p["ci95"][0] < truth < p["ci95"][1]
+
+
 # --- command line -----------------------------------------------------------------------------
 
 

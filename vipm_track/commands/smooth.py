@@ -179,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
         log_filter_run(sink, measurements, rows, "smoothed")
         sink.finish()
 
-    summary = summarize_mount(frames)
+    summary = summarize_mount(frames, measurements)
     summary["smoother"] = {
         "lag_s": config.lag_s,
         "loss": config.loss,
