@@ -6,7 +6,10 @@
 
 - mount (the calibration): nominal pitch/roll/height/yaw offset, optional steps and ramps
   (``MountChange``), plus a slow random walk (rates of ``filters.model.NoiseParams``);
-- body shaking: first-order Gauss–Markov on pitch and roll (exactly the model's);
+- body shaking: first-order Gauss–Markov on pitch and roll (exactly the model's), plus an
+  optional slow road-relative tilt (``road_std_deg``, ``road_tau_s``: a second, slower
+  Gauss–Markov standing for road camber and slope changes; not in the filters' model, off by
+  default), kept in the truth's ``body_*``;
 - planar drive: speed held and ramped (cosine ramps) between random targets, with standstill
   periods; turns as curvature segments (yaw rate = curvature · speed); integrated on a fine
   grid; the camera's ground frame G moves with the vehicle, turned by the mount yaw offset;
@@ -71,6 +74,8 @@ class DriveConfig:
     mount_changes: tuple[MountChange, ...] = ()
     mount_random_walk: bool = True
     noise: NoiseParams = field(default_factory=NoiseParams)  # body shaking + mount walk truth
+    road_std_deg: float = 0.0  # slow road-relative tilt on pitch and roll (0: flat ground)
+    road_tau_s: float = 2.0
     # drive profile
     speed_min_mps: float = 5.0
     speed_max_mps: float = 20.0
@@ -258,11 +263,10 @@ def _truth(
         height += noise.mount_height_rw_m_per_sqrt_s * walk[:, 2]
         yaw_m += np.radians(noise.mount_yaw_rw_deg_per_sqrt_s) * walk[:, 3]
     # body: AR(1) at the frame rate, started in its stationary distribution
-    a = np.exp(-dt / noise.body_tau_s)
-    std = np.radians(noise.body_std_deg)
-    w = rng.standard_normal((n, 2)) * std * np.sqrt(1.0 - a * a)
-    w[0] = rng.standard_normal(2) * std
-    body = lfilter([1.0], [1.0, -a], w, axis=0)
+    body = _gauss_markov(rng, n, 2, np.exp(-dt / noise.body_tau_s), np.radians(noise.body_std_deg))
+    if cfg.road_std_deg > 0:
+        body += _gauss_markov(rng, n, 2, np.exp(-dt / cfg.road_tau_s),
+                              np.radians(cfg.road_std_deg))
     # planar drive on a fine grid
     tf = np.arange((n - 1) * _SUBSTEPS + 1) * (dt / _SUBSTEPS)
     if profile is None:
@@ -294,6 +298,15 @@ def _truth(
         body_pitch=body[:, 0], body_roll=body[:, 1], speed=v, yaw_rate=omega, x=x, y=y,
         heading=psi, tx=tx, tz=tz, yaw=yaw,
     )
+
+
+def _gauss_markov(
+    rng: np.random.Generator, n: int, dims: int, a: float, std: float
+) -> FloatArray:
+    """(n, dims) stationary AR(1) series with coefficient ``a`` and std ``std``."""
+    w = rng.standard_normal((n, dims)) * std * np.sqrt(1.0 - a * a)
+    w[0] = rng.standard_normal(dims) * std
+    return lfilter([1.0], [1.0, -a], w, axis=0)
 
 
 def _cosine_profile(knot_t: FloatArray, knot_v: FloatArray, t: FloatArray) -> FloatArray:

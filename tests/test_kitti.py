@@ -116,3 +116,22 @@ def test_smoothed_summary_interval_is_honest_on_the_real_drive():
         assert d["interval_from"] == "data"
         assert d["std_model"] < 0.06 and d["std_data"] > 3 * d["std_model"]
         assert 0.3 < (d["ci95"][1] - d["ci95"][0]) / 2 < 1.0
+
+
+def test_monitor_on_the_real_drive_needs_the_road_model(tmp_path: Path):
+    # KITTI's camera did not move, so any RECALIBRATE is a false alarm. The flat-ground
+    # monitor (the default) raises one within a second: the road's slow camber/slope
+    # excursions look like a moved camera to it. With the road-tilt model it stays quiet.
+    nominal = tmp_path / "nominal.yaml"
+    nominal.write_text("pitch_deg: 1.0\nroll_deg: 0.0\nheight_m: 1.65\n"
+                       "tolerances: {pitch_deg: 0.1, roll_deg: 0.1, height_m: 0.005}\n")
+    first = {}
+    for name, extra in (("flat", []), ("road", ["--road-std", "0.5", "--road-tau", "2"])):
+        out = tmp_path / f"{name}.csv"
+        assert main(["monitor", "--estimates", str(KITTI_ESTIMATES), "--height", "1.65",
+                     "--nominal", str(nominal), "--out", str(out), "--quiet", *extra]) == 0
+        table = read_table(out)
+        flagged = np.asarray(table["monitor_state"], dtype=object) == "RECALIBRATE"
+        first[name] = float(np.asarray(table["t"])[flagged][0]) if flagged.any() else None
+    assert first["flat"] is not None and first["flat"] < 2.0
+    assert first["road"] is None

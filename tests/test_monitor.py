@@ -171,6 +171,32 @@ def test_deviation_inside_tolerance_is_calibrated():
     assert judged.count("CALIBRATED") > 0.9 * len(judged)
 
 
+def test_road_tilt_model_keeps_slowly_tilting_roads_quiet_and_still_flags_a_bump():
+    """Roads whose camber and slope wander slowly (0.5°, τ 2 s, as on KITTI 07): the
+    flat-ground monitor takes the excursions for a moved camera; told of them, it stays
+    quiet on the nominal drives, still flags a 3° bump within seconds, and its threshold and
+    new-extrinsics interval account for the wander."""
+    flat = MonitorConfig(fps=FPS)
+    road = MonitorConfig(fps=FPS, road_std_deg=0.5, road_tau_s=2.0)
+    a = math.exp(-1.0 / FPS / 2.0)
+    extra = MonitorCore(NOMINAL, road).w_nominal - MonitorCore(NOMINAL, flat).w_nominal
+    assert np.allclose(extra, [math.radians(0.5) ** 2 * (1 + a) / (1 - a)] * 2 + [0.0])
+    flat_alarms = road_alarms = 0
+    for seed in range(4):
+        run = drive(300.0, seed=40 + seed, stop_probability=0.0, road_std_deg=0.5, road_tau_s=2.0)
+        flat_alarms += first_time(monitor_run(run, config=flat)[1], "RECALIBRATE") is not None
+        road_alarms += first_time(monitor_run(run, config=road)[1], "RECALIBRATE") is not None
+    assert flat_alarms >= 3 and road_alarms == 0
+    run = drive(60.0, seed=44, changes=[MountChange(20.0, pitch_deg=3.0)], stop_probability=0.0,
+                road_std_deg=0.5, road_tau_s=2.0)
+    _, out = monitor_run(run, config=road)
+    t_flag = first_time(out, "RECALIBRATE")
+    assert t_flag is not None and 20.0 <= t_flag <= 30.0
+    last = [o for o in out if o.state != "HOLD"][-1]
+    assert last.interval95[0, 0] <= math.radians(6.0) <= last.interval95[0, 1]
+    assert np.diff(last.interval95[0])[0] > math.radians(0.3)  # the road's share of it
+
+
 def test_recalibrate_is_held_until_sustained_return():
     """Bumped by 1° at 15 s and back at 30 s: RECALIBRATE until about clear_after_s of calm
     frames after the return, then CALIBRATED."""
@@ -348,6 +374,8 @@ def test_cli_monitor_from_estimates(cli_inputs):
         (["--nominal", "missing.yaml"], "missing.yaml"),
         (["--images", "somewhere"], "exactly one of"),
         (["--false-alarms-per-hour", "0"], "false-alarms-per-hour"),
+        (["--road-std", "-0.5"], "--road-std"),
+        (["--road-tau", "0"], "--road-tau"),
     ],
 )
 def test_cli_monitor_errors_exit_2(cli_inputs, capsys, extra, message):

@@ -58,6 +58,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="write one JSON line per state change")
     parser.add_argument("--false-alarms-per-hour", type=float, default=0.1, metavar="RATE",
                         help="false-alarm rate the test is set for (default 0.1)")
+    parser.add_argument("--road-std", type=float, default=0.0, metavar="DEG",
+                        help="slow road-relative tilt that is not a calibration change (road "
+                        "camber and slope, load): its std on pitch and roll (default 0: flat "
+                        "ground; ~0.5 on public roads, see README)")
+    parser.add_argument("--road-tau", type=float, default=2.0, metavar="S",
+                        help="time constant of that tilt (default 2)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars or summary")
     add_estimator_options(parser)
     add_rerun_options(parser)
@@ -72,6 +78,10 @@ def run(args: argparse.Namespace) -> int:
     height = check_height(nominal.height_m if args.height is None else args.height)
     if not (math.isfinite(args.false_alarms_per_hour) and args.false_alarms_per_hour > 0):
         raise InputError(f"--false-alarms-per-hour must be > 0, got {args.false_alarms_per_hour}")
+    if not (math.isfinite(args.road_std) and args.road_std >= 0):
+        raise InputError(f"--road-std must be >= 0 degrees, got {args.road_std}")
+    if not (math.isfinite(args.road_tau) and args.road_tau > 0):
+        raise InputError(f"--road-tau must be > 0 seconds, got {args.road_tau}")
     out = check_output(args.out)
     # the camera is needed only to estimate from images (inputs.estimate_stream says so)
     camera = load_camera(args.camera) if args.camera else None
@@ -91,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
     config = MonitorConfig.from_noise(
         ekf_config.noise, fps=frame_rate(measurements),
         false_alarms_per_hour=args.false_alarms_per_hour,
+        road_std_deg=args.road_std, road_tau_s=args.road_tau,
     )
     states, outputs = monitor_measurements(
         measurements, nominal, speed, config, ekf_config, progress=progress
