@@ -160,6 +160,35 @@ def seed_table(by_seed: dict[int, dict]) -> list[str]:
     ]
 
 
+def seed_tables(out_dir: Path, seeds: int = 3) -> list[str]:
+    """Default paths of the estimates tables ``main --seeds N`` writes into ``out_dir``."""
+    return [str(out_dir / ("estimates.csv" if s == 0 else f"estimates_seed{s}.csv"))
+            for s in range(seeds)]
+
+
+def existing_tables(paths: list[str]) -> list[Path]:
+    """``paths`` as Paths; exits with the command to run where one is missing."""
+    tables = [Path(p) for p in paths]
+    missing = [str(p) for p in tables if not p.is_file()]
+    if missing:
+        raise SystemExit(f"no estimates table {', '.join(missing)}: run "
+                         "`python scripts/eval_kitti.py --seeds 3` first")
+    return tables
+
+
+def write_results(lines: list[str], out: str | Path, script: str) -> None:
+    """Print a results document, ending with the command of ``script`` (a script that reads
+    the seed tables), and write it to ``out``."""
+    lines = [*lines, "", f"Command: `python scripts/{script}` (after "
+             "`python scripts/eval_kitti.py --seeds 3`)."]
+    text = "\n".join(lines) + "\n"
+    print(text)
+    path = Path(out)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    print(f"written {path}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data" / "kitti07")

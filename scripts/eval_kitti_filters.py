@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from eval_kitti import KITTI_HEIGHT, evaluate  # noqa: E402
+from eval_kitti import KITTI_HEIGHT, evaluate, existing_tables, seed_tables, write_results  # noqa: E402
 
 from vipm_track.cli import main as cli_main  # noqa: E402
 
@@ -54,17 +54,11 @@ def _scored(errors: dict, headline: dict) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "kitti07"))
-    ap.add_argument("--estimates", nargs="+", default=[
-        str(ROOT / "out" / "kitti" / name)
-        for name in ("estimates.csv", "estimates_seed1.csv", "estimates_seed2.csv")])
+    ap.add_argument("--estimates", nargs="+", default=seed_tables(ROOT / "out" / "kitti"))
     ap.add_argument("--out", default=str(ROOT / "scripts" / "results" / "kitti_filters.md"))
     args = ap.parse_args(argv)
     data = Path(args.data)
-    ests = [Path(e) for e in args.estimates]
-    missing = [str(e) for e in ests if not e.is_file()]
-    if missing:
-        raise SystemExit(f"no estimates table {', '.join(missing)}: run "
-                         "`python scripts/eval_kitti.py --seeds 3` first")
+    ests = existing_tables(args.estimates)
     rows: dict[str, list[dict]] = {"pairs (`estimate`)": []}
     seconds: dict[str, float] = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -101,16 +95,8 @@ def main(argv: list[str] | None = None) -> int:
         "Run time of the filters through the CLI (all tables, 2 shared cores): "
         + ", ".join(f"{name.split(' (')[0]} {sec:.1f} s" for name, sec in seconds.items())
         + ".",
-        "",
-        "Command: `python scripts/eval_kitti_filters.py` (after "
-        "`python scripts/eval_kitti.py --seeds 3`).",
     ]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(text)
-    print(f"written {out}")
+    write_results(lines, args.out, "eval_kitti_filters.py")
     return 0
 
 

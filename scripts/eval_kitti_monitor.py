@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from eval_kitti import KITTI_HEIGHT  # noqa: E402
+from eval_kitti import KITTI_HEIGHT, existing_tables, seed_tables, write_results  # noqa: E402
 
 from vipm_track.cli import main as cli_main  # noqa: E402
 from vipm_track.table import read_table  # noqa: E402
@@ -56,16 +56,10 @@ def _nominal_file(path: Path, pitch: float, roll: float) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--estimates", nargs="+", default=[
-        str(ROOT / "out" / "kitti" / name)
-        for name in ("estimates.csv", "estimates_seed1.csv", "estimates_seed2.csv")])
+    ap.add_argument("--estimates", nargs="+", default=seed_tables(ROOT / "out" / "kitti"))
     ap.add_argument("--out", default=str(ROOT / "scripts" / "results" / "kitti_monitor.md"))
     args = ap.parse_args(argv)
-    ests = [Path(e) for e in args.estimates]
-    missing = [str(e) for e in ests if not e.is_file()]
-    if missing:
-        raise SystemExit(f"no estimates table {', '.join(missing)}: run "
-                         "`python scripts/eval_kitti.py --seeds 3` first")
+    ests = existing_tables(args.estimates)
     lines = [
         "# KITTI 07: the drift monitor on a camera that did not move",
         "",
@@ -114,16 +108,8 @@ def main(argv: list[str] | None = None) -> int:
         "(`--road-std 0.5 --road-tau 2`, what `scripts/bench_monitor.py`'s road rows "
         "simulate) it raises no RECALIBRATE on this drive; what that costs in delay is in "
         "`bench_monitor.md`.",
-        "",
-        "Command: `python scripts/eval_kitti_monitor.py` (after "
-        "`python scripts/eval_kitti.py --seeds 3`).",
     ]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(text)
-    print(f"written {out}")
+    write_results(lines, args.out, "eval_kitti_monitor.py")
     return 0
 
 
