@@ -56,8 +56,9 @@ computed at the nominal deviation Δ = 0 and the typical w) is set to
 The new extrinsics reported with DRIFTING/RECALIBRATE are the nominal plus the median
 deviation since the estimated change time (the last time the alarming statistic was zero);
 the 95 % interval uses the long-run variance of a mean of n correlated frames (× π/2 for
-the median). INVALID uses a 1 s exponential average of the deviations (and the filter's
-mount estimate where given) against the physical limits.
+the median), or the frames' own batch-means scatter (``filters.long_run``) where wider.
+INVALID uses a 1 s exponential average of the deviations (and the filter's mount estimate
+where given) against the physical limits.
 
 Height is tested only on frames with a metric travel (wheel speed; see
 ``inputs_from_measurements``): h_k = h_assumed · d_wheel / ‖t_est‖ (CONVENTIONS.md, Scale).
@@ -79,6 +80,8 @@ from numpy.typing import NDArray
 from scipy.optimize import brentq
 
 from vipm_track.errors import InputError
+
+from .long_run import batch_means
 
 FloatArray = NDArray[np.float64]
 
@@ -719,6 +722,9 @@ class DriftMonitor:
             mv = (mean_variance(core.body_std[j], a[j], float(np.mean(var[ok, j])), n)
                   + mean_variance(core.road_std[j], a_road, 0.0, n))
             half[j] = 1.96 * math.sqrt(math.pi / 2.0 * mv)
+            data = batch_means(dev[ok, j])  # the data's own scatter, where wider
+            if data is not None:
+                half[j] = max(half[j], math.sqrt(math.pi / 2.0) * data.half_width95)
         value = core.nominal_values + est
         return value, np.stack([value - half, value + half], axis=1)
 
