@@ -134,9 +134,9 @@ def run_sequence(
         if tracking and previous_ok is not None:
             guess = predict_guess(previous_ok, prev_dt, dt)
         start = time.perf_counter()
-        result = _estimate(estimator, prev_image, image, guess)
+        result = estimate_pair(estimator, prev_image, image, guess)
         if guess is not None and result.status != "ok" and retry_cold:
-            result = _estimate(estimator, prev_image, image, None)
+            result = estimate_pair(estimator, prev_image, image, None)
             guess = None
         seconds = time.perf_counter() - start
         previous_ok = result if result.status == "ok" else None
@@ -144,7 +144,7 @@ def run_sequence(
         yield SequenceStep(frame.index, frame.t, result, result.status, guess is not None, seconds)
 
 
-def _estimate(
+def estimate_pair(
     estimator: TwoFrameEstimator, prev: NDArray, curr: NDArray, guess: PairGuess | None
 ) -> PairResult:
     """One pair; an exception inside the estimator becomes a failed result, not a dead run."""

@@ -104,6 +104,7 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..pipeline import estimate_sequence
     from ..sources import open_source
+    from .inputs import with_searched_nominal
 
     camera = load_camera(args.camera)
     height = check_height(args.height)
@@ -111,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
     out = check_output(args.out)
     source = open_source(images=args.images, video=args.video, fps=args.fps,
                          start=args.start, max_frames=args.max_frames)
+    config = with_searched_nominal(args, source, camera, height, config)
     from ..sinks.rerun_sink import run_logging
 
     logging = run_logging(args, "vipm-track estimate", source, camera, config)

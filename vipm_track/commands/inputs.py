@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from filters.wheel_speed import SpeedSeries
 
     from ..estimator import EstimatorConfig
+    from ..sources import FrameSource
 
 
 def load_speed(args: argparse.Namespace) -> SpeedSeries | None:
@@ -73,6 +74,33 @@ def estimator_config(
     )
 
 
+def with_searched_nominal(
+    args: argparse.Namespace,
+    source: FrameSource,
+    camera: CameraModel,
+    height: float,
+    config: EstimatorConfig,
+) -> EstimatorConfig:
+    """``config`` with the nominal pose ``nominal_search.search_nominal_pose`` finds on the
+    first frames of ``source`` where the user gave no ``--pitch`` and the cold start from the
+    default pitch fails (a forward-looking camera); unchanged otherwise. Says so on stderr
+    unless ``--quiet``."""
+    from ..estimator import EstimatorConfig
+    from ..nominal_search import search_nominal_pose
+    from ..pipeline import config_with
+
+    if (getattr(args, "pitch", None) is not None
+            or config.initial_pitch_deg != EstimatorConfig.initial_pitch_deg):
+        return config
+    found = search_nominal_pose(source, camera, height, config)
+    if found is None:
+        return config
+    if not getattr(args, "quiet", False):
+        print(f"vipm-track: {found.line()}", file=sys.stderr)
+    roll = found.roll_deg if getattr(args, "roll", None) is None else None
+    return config_with(config, initial_pitch_deg=found.pitch_deg, initial_roll_deg=roll)
+
+
 def estimate_stream(
     args: argparse.Namespace,
     height: float,
@@ -92,6 +120,7 @@ def estimate_stream(
     camera = camera or load_camera(args.camera)
     config = config or estimator_config(args, camera)
     source = open_source(images=args.images, video=args.video, fps=args.fps)
+    config = with_searched_nominal(args, source, camera, height, config)
     if sink is not None:
         from ..sinks.rerun_sink import ImageTap
 

@@ -1,0 +1,74 @@
+"""Finding the cold start's nominal pose when no --pitch is given (vipm_track.nominal_search)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from vipm_track.camera import write_ros_yaml
+from vipm_track.estimator import EstimatorConfig
+from vipm_track.nominal_search import search_nominal_pose
+from vipm_track.sim import PRESETS, make_trajectory, preset_texture, render_trajectory_frame
+from vipm_track.sources import open_source
+
+
+def _render(folder: Path, preset_name: str, frames: int, pitch_deg: float | None = None,
+            profile: str = "shaking"):
+    preset = PRESETS[preset_name]
+    if pitch_deg is not None:
+        preset = replace(preset, pitch_deg=pitch_deg)
+    traj = make_trajectory(profile, frames, preset.fps, preset, seed=3)
+    texture = preset_texture(preset, seed=3)
+    camera = preset.camera()
+    (folder / "images").mkdir(parents=True)
+    for k in range(frames):
+        cv2.imwrite(str(folder / "images" / f"{k:06d}.png"),
+                    render_trajectory_frame(texture, camera, traj, k))
+    (folder / "times.txt").write_text("".join(f"{t:.6f}\n" for t in traj.t))
+    write_ros_yaml(camera, folder / "camera.yaml")
+    return preset, camera, traj
+
+
+@pytest.mark.parametrize("pitch_deg", [3.0, 0.5, 20.0])
+def test_forward_and_mid_cameras_get_their_pitch(tmp_path, pitch_deg):
+    # the default cold start (60°) fails on these; the search converges near the truth
+    preset, camera, traj = _render(tmp_path, "car", 3, pitch_deg)
+    found = search_nominal_pose(open_source(images=tmp_path / "images"), camera,
+                                preset.height_m, EstimatorConfig())
+    assert found is not None and found.default_pitch_deg == 60.0
+    assert found.frames == (0, 1)
+    assert abs(found.pitch_deg - math.degrees(traj.pitch[1])) < 0.5
+    assert abs(found.measured_roll_deg - math.degrees(traj.roll[1])) < 2.0
+    assert found.roll_deg == 0.0  # within the camber of level: the nominal stays level
+    assert "--pitch" in found.line()
+
+
+def test_steep_camera_keeps_the_default(tmp_path):
+    preset, camera, _ = _render(tmp_path, "cart", 3)
+    assert search_nominal_pose(open_source(images=tmp_path / "images"), camera,
+                               preset.height_m, EstimatorConfig()) is None
+
+
+def test_cli_without_pitch_estimates_a_forward_camera_as_with_it(tmp_path, capsys):
+    # the issue's command line has no --pitch: a car camera must work as if it had one
+    from vipm_track.cli import main
+    from vipm_track.table import read_table
+
+    preset, _, traj = _render(tmp_path, "car", 5, profile="gradual")
+    errors = {}
+    for name, extra in (("searched", []), ("given", ["--pitch", "3"])):
+        out = tmp_path / f"{name}.csv"
+        assert main(["estimate", "--images", str(tmp_path / "images"), "--camera",
+                     str(tmp_path / "camera.yaml"), "--height", str(preset.height_m),
+                     "--out", str(out), *extra]) == 0
+        est = read_table(out)
+        assert list(est["status"][1:]) == ["ok"] * 4, name
+        errors[name] = np.abs(est["pitch_deg"][1:] - np.degrees(traj.pitch[1:]))
+    assert "converged to pitch" in capsys.readouterr().err
+    assert np.median(errors["searched"]) < np.median(errors["given"]) + 0.05
+    assert np.max(errors["searched"]) < 0.5

@@ -1,0 +1,164 @@
+"""The nominal pose for the cold start when the user gives none (no ``--pitch``).
+
+The estimator starts cold from a nominal pitch (``EstimatorConfig.initial_pitch_deg``, the
+paper's 60°), which also decides its region of interest and its steep/forward-camera
+defaults. A forward-looking camera (a car's, pitch ~0–5°) does not converge from 60°. Before
+a run without ``--pitch``, :func:`search_nominal_pose` cold-starts the first pair with motion
+from the configured pitch; only if that fails does it try the pair from each of
+``CANDIDATE_PITCHES_DEG`` and keep the converged estimate with the smallest residual (a wrong
+start that converges — a steep pitch with a short travel on a level camera, the second
+minimum of issue 5 — fits the patches worse). Its pose is settled on the next few pairs
+(the median pose of pairs started from it, repeated until it stops moving) and becomes the
+run's nominal pose, exactly as if given with ``--pitch/--roll``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .errors import InputError
+
+if TYPE_CHECKING:
+    from .camera import CameraModel
+    from .estimator import EstimatorConfig, PairResult
+    from .sources import FrameSource
+
+#: cold-start pitches tried when the configured one fails [deg], steep to level
+CANDIDATE_PITCHES_DEG: tuple[float, ...] = (40.0, 25.0, 12.0, 5.0, 1.0)
+#: a found roll within this of level is the road's camber over the first frames, not the
+#: camera's (KITTI 07 starts at 1.5°); the nominal roll stays 0 [deg]
+CAMBER_ROLL_DEG = 3.0
+
+
+@dataclass(frozen=True)
+class NominalSearch:
+    """A nominal pose found on the pair (``frames``) [deg], from the start ``start_pitch_deg``
+    (the configured ``default_pitch_deg`` failed there). ``roll_deg`` is the nominal roll:
+    the ``measured_roll_deg``, or 0 where that is within ``CAMBER_ROLL_DEG`` of level."""
+
+    pitch_deg: float
+    measured_roll_deg: float
+    start_pitch_deg: float
+    default_pitch_deg: float
+    frames: tuple[int, int]
+    pairs: int = 1  # pairs whose median it is
+
+    @property
+    def roll_deg(self) -> float:
+        return self.measured_roll_deg if abs(self.measured_roll_deg) > CAMBER_ROLL_DEG else 0.0
+
+    def line(self) -> str:
+        return (f"no --pitch given and the cold start from {self.default_pitch_deg:g}° failed on "
+                f"frames {self.frames[0]}-{self.frames[1]}; from {self.start_pitch_deg:g}° it "
+                f"converged to pitch {self.pitch_deg:.1f}°, roll {self.measured_roll_deg:.1f}° "
+                f"(median of {self.pairs} pairs); nominal pose now pitch {self.pitch_deg:.1f}°, "
+                f"roll {self.roll_deg:.1f}° (give --pitch/--roll to set it)")
+
+
+def search_nominal_pose(
+    source: FrameSource,
+    camera: CameraModel,
+    height: float,
+    config: EstimatorConfig,
+    max_frames: int = 12,
+    max_failed_pairs: int = 3,
+    confirm_pairs: int = 6,
+) -> NominalSearch | None:
+    """Find a nominal pose on the first ``max_frames`` frames of ``source`` (module doc).
+
+    The pose from the start that converges best on the first failing pair is then settled
+    on up to ``confirm_pairs`` pairs from there (``_settle``): a single pair's pitch is noisy
+    (±1° on KITTI's first frames), and a forward camera's pose prior pulls each cold start
+    towards its nominal. None where the configured pitch converges on the first pair with
+    motion (nothing to change), or where no start converges on ``max_failed_pairs`` pairs
+    (the run then goes as configured and reports its failures)."""
+    from .estimator import TwoFrameEstimator
+    from .pipeline import config_with, estimate_pair, prepare_image
+
+    pairs = _pairs(source, camera, max_frames, prepare_image)
+    default = TwoFrameEstimator(camera, height, config)
+    failed = 0
+    for i, (frames, before, image) in enumerate(pairs):
+        result = estimate_pair(default, before, image, None)
+        if result.status == "ok":
+            return None
+        if result.status == "no motion":
+            continue
+        failed += 1
+        best: tuple[float, PairResult] | None = None
+        for start in CANDIDATE_PITCHES_DEG:
+            if abs(start - config.initial_pitch_deg) < 1.0:
+                continue
+            try:
+                estimator = TwoFrameEstimator(camera, height,
+                                              config_with(config, initial_pitch_deg=start))
+            except InputError:  # too few interest points from this start
+                continue
+            r = estimate_pair(estimator, before, image, None)
+            if r.status == "ok" and r.pose_curr is not None and (
+                    best is None or r.residual_px < best[1].residual_px):
+                best = start, r
+        if best is not None:
+            start, r = best
+            pitch, roll, n = _settle(camera, height, config, pairs[i:i + confirm_pairs],
+                                     r.pose_curr.pitch, r.pose_curr.roll)
+            return NominalSearch(round(math.degrees(pitch), 1), round(math.degrees(roll), 1),
+                                 start, config.initial_pitch_deg, frames, n)
+        if failed >= max_failed_pairs:
+            break
+    return None
+
+
+def _settle(
+    camera: CameraModel, height: float, config: EstimatorConfig,
+    pairs: list[tuple[tuple[int, int], np.ndarray, np.ndarray]],
+    pitch: float, roll: float, rounds: int = 3, tolerance_deg: float = 0.3,
+) -> tuple[float, float, int]:
+    """Fixed point of "nominal → median pose of the pairs cold-started from it" (radians),
+    from (``pitch``, ``roll``), at most ``rounds`` rounds; with the number of pairs behind
+    the last median."""
+    from .estimator import TwoFrameEstimator
+    from .pipeline import config_with, estimate_pair
+
+    n = 1
+    for _ in range(rounds):
+        estimator = TwoFrameEstimator(camera, height, config_with(
+            config, initial_pitch_deg=round(math.degrees(pitch), 1),
+            initial_roll_deg=round(math.degrees(roll), 1)))
+        poses = [r.pose_curr for _, b, c in pairs
+                 if (r := estimate_pair(estimator, b, c, None)).status == "ok"
+                 and r.pose_curr is not None]
+        if not poses:
+            break
+        new = float(np.median([p.pitch for p in poses]))
+        roll, n = float(np.median([p.roll for p in poses])), len(poses)
+        moved = abs(new - pitch)
+        pitch = new
+        if moved < math.radians(tolerance_deg):
+            break
+    return pitch, roll, n
+
+
+def _pairs(
+    source: FrameSource, camera: CameraModel, max_frames: int,
+    prepare: Callable[[Any, CameraModel], np.ndarray],
+) -> list[tuple[tuple[int, int], np.ndarray, np.ndarray]]:
+    """Consecutive readable pairs ``((k-1, k), image k-1, image k)`` of the first
+    ``max_frames`` frames (an unreadable or wrong-size frame breaks the chain)."""
+    out, prev = [], None
+    for n, frame in enumerate(source):
+        if n >= max_frames:
+            break
+        try:
+            image = None if frame.image is None else prepare(frame, camera)
+        except ValueError:
+            image = None
+        if image is not None and prev is not None:
+            out.append(((prev[0], frame.index), prev[1], image))
+        prev = None if image is None else (frame.index, image)
+    return out
