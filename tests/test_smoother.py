@@ -388,6 +388,19 @@ def test_summary_interval_widens_to_slow_errors_the_model_lacks(batch, drive):
 # --- command line -----------------------------------------------------------------------------
 
 
+def test_cli_warns_when_no_pair_is_usable(tmp_path, capsys):
+    # a forward camera started cold from the default pitch fails every pair; the smoother
+    # then writes its priors, which must not pass for an answer
+    nan7, nan77 = np.full(7, np.nan), np.full((7, 7), np.nan)
+    ms = [PairMeasurement(k, 0.05 * k, nan7, nan77, H0, "did not converge") for k in range(20)]
+    est = tmp_path / "est.csv"
+    write_table(est, [measurement_row(m) for m in ms], ESTIMATE_COLUMNS)
+    assert main(["smooth", "--estimates", str(est), "--height", str(H0),
+                 "--out", str(tmp_path / "s.csv"), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "no frame has a usable pair" in err and "20× did not converge" in err
+
+
 def test_cli_smooths_an_estimates_table(tmp_path, capsys):
     run = _drive(7, duration=10.0)
     est = tmp_path / "est.csv"

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections import Counter
 from collections.abc import Iterator
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
@@ -153,7 +154,9 @@ def measurements_from_args(
         raise InputError("give exactly one of --estimates EST.csv, --images DIR, --video FILE"
                          + (f" (got --{' --'.join(given)})" if given else ""))
     if args.estimates:
-        return read_estimates(args.estimates)
+        measurements = read_estimates(args.estimates)
+        warn_if_no_usable_pair(measurements, args.estimates)
+        return measurements
     stream = estimate_stream(args, height, config, sink, camera)
     if progress:
         from tqdm import tqdm
@@ -162,4 +165,17 @@ def measurements_from_args(
     out = list(stream)
     if not out:
         raise InputError(f"{args.images or args.video}: no frames")
+    warn_if_no_usable_pair(out, str(args.images or args.video))
     return out
+
+
+def warn_if_no_usable_pair(measurements: list[PairMeasurement], source: str) -> None:
+    """Say on stderr when not one frame of ``source`` has a usable pair: the filters would
+    then output their priors only, which reads like an answer."""
+    if any(m.ok for m in measurements):
+        return
+    counts = Counter(m.status for m in measurements)
+    print(f"vipm-track: warning: {source}: no frame has a usable pair estimate ("
+          + ", ".join(f"{n}× {status}" for status, n in counts.most_common())
+          + "); the output holds the filter's priors only. For a forward-looking camera give "
+          "--pitch; see the estimator options.", file=sys.stderr)
