@@ -203,6 +203,22 @@ def test_weighted_refinement_beats_the_papers_uniform_one():
     assert np.mean(errors[True]) < 0.7 * np.mean(errors[False]), errors
 
 
+def test_car_camera_10deg_down_starts_cold_from_the_image_plane():
+    # A car camera 10° down at 0.6 m per frame: the nominal pose's virtual IPM is too
+    # stretched in the near field to match, so the forward-camera cold start fails there;
+    # the image-plane cold start of steep cameras is tried next and converges.
+    traj, imgs, cam = _sequence("car", "static", 2, pitch_deg=10.0)
+    config = EstimatorConfig(initial_pitch_deg=10.0)
+    est = TwoFrameEstimator(cam, float(traj.height[0]), config)
+    assert not est.steep
+    result = est.estimate(imgs[0], imgs[1])
+    assert result.ok, result.reason
+    assert "image-plane cold start" in result.reason
+    err = _errors(traj, 1, result.pose_prev, result.pose_curr, result.motion)
+    assert err["pitch"] < 0.3 and err["roll"] < 0.3, err
+    assert err["dist_mm"] / (traj.motion(1).distance * 1e3) < 0.02, err
+
+
 def test_car_preset_with_guess_converges():
     traj, imgs, cam = _sequence("car", "static", 2)
     tp, tc, tm = traj.pose(0), traj.pose(1), traj.motion(1)

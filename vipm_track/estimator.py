@@ -382,7 +382,26 @@ class TwoFrameEstimator:
 
         Images are grey or BGR arrays of the camera's size. ``guess`` (tracking mode) seeds
         the optimisation and offsets the patch windows by the displacements it predicts.
+        A forward camera's cold start goes from the nominal pose's virtual IPM; where that
+        fails, the image-plane cold start of steep cameras is tried too (a camera ~10° down
+        on a fast car: the near field's IPM is too stretched to match from the nominal pose).
         """
+        ipm_start = guess is None and not self.steep and self.config.cold_start_ipm
+        result = self._estimate(prev_img, curr_img, guess, ipm_start)
+        if ipm_start and result.status not in (STATUS_OK, STATUS_NO_MOTION):
+            plain = self._estimate(prev_img, curr_img, None, False)
+            if plain.status == STATUS_OK:
+                plain.reason = (f"cold start from the nominal-pose IPM failed ({result.reason}); "
+                                "image-plane cold start")
+                for key, seconds in result.timings.items():
+                    plain.timings[key] = plain.timings.get(key, 0.0) + seconds
+                return plain
+        return result
+
+    def _estimate(
+        self, prev_img: NDArray, curr_img: NDArray, guess: PairGuess | None, ipm_start: bool
+    ) -> PairResult:
+        """:meth:`estimate` with the cold start chosen by ``ipm_start``."""
         t_start = time.perf_counter()
         timings = {"poc": 0.0, "warp": 0.0, "lm": 0.0}
         result = PairResult(status=STATUS_OK, timings=timings, height=self.height)
@@ -396,7 +415,7 @@ class TwoFrameEstimator:
             start, source = None, "guess"
             if guess is not None:
                 start = self._guess_vector(guess)
-            elif not self.steep and self.config.cold_start_ipm:
+            elif ipm_start:
                 start, source = self._cold_start_ipm(prev, curr, result), "nominal-pose IPM"
             try:
                 x = self._initial(prev, curr, start, rng, result)
