@@ -9,7 +9,9 @@ from the configured pitch; only if that fails does it try the pair from each of
 start that converges — a steep pitch with a short travel on a level camera, the second
 minimum of issue 5 — fits the patches worse). Its pose is settled on the next few pairs
 (the median pose of pairs started from it, repeated until it stops moving) and becomes the
-run's nominal pose, exactly as if given with ``--pitch/--roll``.
+run's nominal pose, exactly as if given with ``--pitch/--roll`` — but for a roll within
+``CAMBER_ROLL_DEG`` of level, which the first frames' road camber explains as well as the
+camera, so the nominal roll stays 0 there.
 """
 
 from __future__ import annotations
