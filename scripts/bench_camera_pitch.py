@@ -20,20 +20,13 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from vipm_track.camera import write_ros_yaml  # noqa: E402
 from vipm_track.cli import main as cli_main  # noqa: E402
-from vipm_track.sim import (  # noqa: E402
-    PRESETS,
-    make_trajectory,
-    preset_texture,
-    render_trajectory_frame,
-)
+from vipm_track.sim import PRESETS, simulate_sequence  # noqa: E402
 from vipm_track.table import read_table  # noqa: E402
 
 PITCHES = {"car": (0.0, 3.0, 6.0, 10.0, 15.0, 20.0, 30.0),
@@ -41,17 +34,9 @@ PITCHES = {"car": (0.0, 3.0, 6.0, 10.0, 15.0, 20.0, 30.0),
 
 
 def render(folder: Path, preset_name: str, pitch_deg: float, frames: int):
-    """Images, times.txt and camera.yaml of one sequence; returns (preset, trajectory)."""
+    """The sequence of one row written to ``folder``; returns (preset, trajectory)."""
     preset = replace(PRESETS[preset_name], pitch_deg=pitch_deg)
-    traj = make_trajectory("gradual", frames, preset.fps, preset, seed=5)
-    texture, camera = preset_texture(preset, seed=5), preset.camera()
-    (folder / "images").mkdir(parents=True)
-    for k in range(frames):
-        cv2.imwrite(str(folder / "images" / f"{k:06d}.png"),
-                    render_trajectory_frame(texture, camera, traj, k))
-    (folder / "times.txt").write_text("".join(f"{t:.6f}\n" for t in traj.t))
-    write_ros_yaml(camera, folder / "camera.yaml")
-    return preset, traj
+    return preset, simulate_sequence(preset, frames, folder, seed=5, profile="gradual")
 
 
 def score(folder: Path, preset, traj, extra: list[str]) -> tuple[str, str, str, str]:

@@ -6,14 +6,12 @@ import math
 from dataclasses import replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
-from vipm_track.camera import write_ros_yaml
 from vipm_track.estimator import EstimatorConfig
 from vipm_track.nominal_search import search_nominal_pose
-from vipm_track.sim import PRESETS, make_trajectory, preset_texture, render_trajectory_frame
+from vipm_track.sim import PRESETS, simulate_sequence
 from vipm_track.sources import open_source
 
 
@@ -22,16 +20,8 @@ def _render(folder: Path, preset_name: str, frames: int, pitch_deg: float | None
     preset = PRESETS[preset_name]
     if pitch_deg is not None:
         preset = replace(preset, pitch_deg=pitch_deg)
-    traj = make_trajectory(profile, frames, preset.fps, preset, seed=3)
-    texture = preset_texture(preset, seed=3)
-    camera = preset.camera()
-    (folder / "images").mkdir(parents=True)
-    for k in range(frames):
-        cv2.imwrite(str(folder / "images" / f"{k:06d}.png"),
-                    render_trajectory_frame(texture, camera, traj, k))
-    (folder / "times.txt").write_text("".join(f"{t:.6f}\n" for t in traj.t))
-    write_ros_yaml(camera, folder / "camera.yaml")
-    return preset, camera, traj
+    traj = simulate_sequence(preset, frames, folder, seed=3, profile=profile)
+    return preset, preset.camera(), traj
 
 
 @pytest.mark.parametrize("pitch_deg", [3.0, 0.5, 20.0])
