@@ -62,3 +62,4 @@ def test_cli_without_pitch_estimates_a_forward_camera_as_with_it(tmp_path, capsy
     assert "converged to pitch" in capsys.readouterr().err
     assert np.median(errors["searched"]) < np.median(errors["given"]) + 0.05
     assert np.max(errors["searched"]) < 0.5
+

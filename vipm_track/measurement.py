@@ -12,7 +12,7 @@ order and units. A frame whose ``status`` is not ``ok`` carries NaNs.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -49,6 +49,11 @@ class PairMeasurement:
     @property
     def std(self) -> NDArray[np.float64]:
         return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+
+    def as_in_table(self) -> PairMeasurement:
+        """This measurement as an estimates table keeps it: each value's variance, no
+        correlations (what ``measurements_from_table`` reads back)."""
+        return replace(self, covariance=np.diag(np.diag(self.covariance)))
 
 
 def measurements_from_table(
