@@ -532,7 +532,7 @@ class MonitorCore:
         """Long-run variance per frame of the road tilt (Gauss–Markov, ``road_*``) at frame
         spacing ``dt`` (per axis; 0 where the road term is off)."""
         a = np.exp(-np.minimum(dt, 1e6) / self.config.road_tau_s)
-        return self.road_std**2 * (1.0 + a) / np.maximum(1.0 - a, 1e-12)
+        return long_run_variance(self.road_std, a, 0.0)
 
     def _decay(self, dt: FloatArray) -> FloatArray:
         tau = self.tau

@@ -203,7 +203,8 @@ def main(argv: list[str] | None = None) -> int:
     if not (args.data / "poses.txt").is_file():
         print(f"KITTI data not found at {args.data}", file=sys.stderr)
         return 2
-    est_csv = args.out / "estimates.csv"
+    tables = [Path(t) for t in seed_tables(args.out, max(args.seeds, 1))]
+    est_csv = tables[0]
     cli_args = kitti_command(args.data, est_csv, args.extra)
     start = time.perf_counter()
     rc = cli_main(cli_args)
@@ -212,8 +213,7 @@ def main(argv: list[str] | None = None) -> int:
         return rc
     errors, headline = evaluate(est_csv, args.data)
     by_seed = {0: headline}
-    for seed in range(1, max(args.seeds, 1)):
-        seed_csv = args.out / f"estimates_seed{seed}.csv"
+    for seed, seed_csv in enumerate(tables[1:], start=1):
         rc = cli_main(kitti_command(args.data, seed_csv, [*args.extra, "--subset-seed", str(seed),
                                                           "--quiet"]))
         if rc:

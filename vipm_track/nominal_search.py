@@ -17,9 +17,8 @@ camera, so the nominal roll stays 0 there.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -79,17 +78,17 @@ def search_nominal_pose(
     towards its nominal. None where the configured pitch converges on the first pair with
     motion (nothing to change), or where no start converges on ``max_failed_pairs`` pairs
     (the run then goes as configured and reports its failures)."""
-    from .estimator import TwoFrameEstimator
-    from .pipeline import config_with, estimate_pair, prepare_image
+    from .estimator import STATUS_NO_MOTION, STATUS_OK, TwoFrameEstimator
+    from .pipeline import config_with, estimate_pair
 
-    pairs = _pairs(source, camera, max_frames, prepare_image)
+    pairs = _pairs(source, camera, max_frames)
     default = TwoFrameEstimator(camera, height, config)
     failed = 0
     for i, (frames, before, image) in enumerate(pairs):
         result = estimate_pair(default, before, image, None)
-        if result.status == "ok":
+        if result.status == STATUS_OK:
             return None
-        if result.status == "no motion":
+        if result.status == STATUS_NO_MOTION:
             continue
         failed += 1
         best: tuple[float, PairResult] | None = None
@@ -102,7 +101,7 @@ def search_nominal_pose(
             except InputError:  # too few interest points from this start
                 continue
             r = estimate_pair(estimator, before, image, None)
-            if r.status == "ok" and r.pose_curr is not None and (
+            if r.status == STATUS_OK and r.pose_curr is not None and (
                     best is None or r.residual_px < best[1].residual_px):
                 best = start, r
         if best is not None:
@@ -124,7 +123,7 @@ def _settle(
     """Fixed point of "nominal → median pose of the pairs cold-started from it" (radians),
     from (``pitch``, ``roll``), at most ``rounds`` rounds; with the number of pairs behind
     the last median."""
-    from .estimator import TwoFrameEstimator
+    from .estimator import STATUS_OK, TwoFrameEstimator
     from .pipeline import config_with, estimate_pair
 
     n = 1
@@ -133,7 +132,7 @@ def _settle(
             config, initial_pitch_deg=round(math.degrees(pitch), 1),
             initial_roll_deg=round(math.degrees(roll), 1)))
         poses = [r.pose_curr for _, b, c in pairs
-                 if (r := estimate_pair(estimator, b, c, None)).status == "ok"
+                 if (r := estimate_pair(estimator, b, c, None)).status == STATUS_OK
                  and r.pose_curr is not None]
         if not poses:
             break
@@ -147,17 +146,18 @@ def _settle(
 
 
 def _pairs(
-    source: FrameSource, camera: CameraModel, max_frames: int,
-    prepare: Callable[[Any, CameraModel], np.ndarray],
+    source: FrameSource, camera: CameraModel, max_frames: int
 ) -> list[tuple[tuple[int, int], np.ndarray, np.ndarray]]:
     """Consecutive readable pairs ``((k-1, k), image k-1, image k)`` of the first
     ``max_frames`` frames (an unreadable or wrong-size frame breaks the chain)."""
+    from .pipeline import prepare_image
+
     out, prev = [], None
     for n, frame in enumerate(source):
         if n >= max_frames:
             break
         try:
-            image = None if frame.image is None else prepare(frame, camera)
+            image = None if frame.image is None else prepare_image(frame, camera)
         except ValueError:
             image = None
         if image is not None and prev is not None:
