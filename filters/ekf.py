@@ -369,6 +369,13 @@ class ExtrinsicsEKF:
             # hold h where it is (its prior) instead
             h[:, M.MOUNT_HEIGHT] = 0.0
         r = self._cfg.noise.pair_covariance(m.covariance, m.z[6])
+        # without the angle-motion correlations: the filter's predicted frame pose (body
+        # predicted to decay) is no better than the pair's own, so correcting the motion by it
+        # only adds the prediction's error (KITTI 07, distance error median 3.09 % without,
+        # 4.26 % with, bias −2.0 % / −3.5 %); the smoothers, which know each frame's pose from
+        # the pairs on both sides, use them (``model.motion_given_pose``)
+        r[:4, 4:] = 0.0
+        r[4:, :4] = 0.0
         pitch_roll_var = np.diag(r)[2:4].copy()  # before any soft-gate inflation
         y = m.z - zp
         y[6] = _wrap(y[6])

@@ -151,16 +151,26 @@ def motion_pair_factor(
     loss: str = "huber",
     loss_k: float = 3.0,
     metric: bool = True,
+    given_pose: tuple[FloatArray, FloatArray] | None = None,
 ) -> gtsam.CustomFactor:
     """Factor of the pair's motion (tx, tz at the assumed height, m; yaw, rad) on X_{k-1},
     X_k, H_k, Y_k: ``model.pair_measurement`` rows 4–6.
 
     ``metric=False`` (no wheel speed near this frame) drops the derivative w.r.t. the height,
     as the EKF does: scale is then unobservable and the motion prior alone would shrink it
-    (smaller motion, smaller accelerations), so the pair must not move h."""
+    (smaller motion, smaller accelerations), so the pair must not move h.
+
+    ``given_pose`` = (z4, A): the motion given the pair's angles (``model.motion_given_pose``;
+    ``cov3`` is then the conditional covariance): the residual is the motion's minus A times
+    the pose pair's residual, so the factor also acts on M_k, B_{k-1}, B_k."""
     z3 = np.asarray(z3, dtype=float).copy()
     noise = robust(_gaussian(cov3), loss, loss_k)
     keys = [key("X", k - 1), key("X", k), key("H", k), key("Y", k)]
+    if given_pose is not None:
+        z4 = np.asarray(given_pose[0], dtype=float).copy()
+        gain = np.asarray(given_pose[1], dtype=float)
+        keys += [key("M", k), key("B", k - 1), key("B", k)]
+        j_pose = [-gain @ J_POSE_MOUNT, -gain @ J_POSE_BPREV, -gain @ J_POSE_BCURR]
     h0 = float(height_assumed)
     zero31 = np.zeros((3, 1))
 
@@ -176,6 +186,10 @@ def motion_pair_factor(
         sc = h0 / h
         tx, tz = sc * (c * dx - s * dy), sc * (s * dx + c * dy)
         e = np.array([tx - z3[0], tz - z3[1], wrap(psi1 - psi0 - z3[2])])
+        if given_pose is not None:
+            pose_residual = (J_POSE_MOUNT @ v.atVector(keys[4]) + J_POSE_BPREV @ v.atVector(keys[5])
+                             + J_POSE_BCURR @ v.atVector(keys[6]) - z4)
+            e -= gain @ pose_residual
         if jac is not None:
             # ∂/∂(x, y, ψ) of (tx, tz, yaw) times the Pose2 tangent Jacobian (tangent_jacobian)
             # of either frame; the heading enters tx, tz through g = ψ_{k-1} + yaw_m
@@ -191,6 +205,8 @@ def motion_pair_factor(
             jac[1] = np.array([[a00, a01, 0.0], [a10, a11, 0.0], [0.0, 0.0, 1.0]])
             jac[2] = np.array([[-tx / h], [-tz / h], [0.0]]) if metric else zero31
             jac[3] = np.array([[tg_x], [tg_z], [0.0]])
+            if given_pose is not None:
+                jac[4], jac[5], jac[6] = j_pose
         return e
 
     return gtsam.CustomFactor(noise, keys, error)

@@ -233,7 +233,8 @@ class FixedLagSmoother:
 
     def _push_pair(self, m: PairMeasurement, dt: float, speed: float, metric: bool) -> None:
         row = W.pair_constants(
-            m, dt, speed, self._cfg.noise, self._cfg.cross_track_std_m, bool(metric)
+            m, dt, speed, self._cfg.noise, self._cfg.cross_track_std_m, bool(metric),
+            self._cfg.motion_given_pose,
         )
         self._c.append(row)
 

@@ -63,6 +63,11 @@ class SmootherConfig:
     #: trajectory (1.30× the EKF's RMS at 10 % outliers; GM: 0.92×, clean drives unchanged)
     loss: str = "geman-mcclure"
     loss_probability: float = 0.99
+    #: the pair's motion given its angles (``model.motion_given_pose``): the estimator's tz is
+    #: correlated ~−0.95 with its pitch, so a smoothed frame pose better than the pair's own
+    #: corrects the pair's motion. Off by default: it helps only where the body model follows
+    #: the real pitching (see docs/filters.md: KITTI 07 accelerates hard and pitches ~1.5°)
+    motion_given_pose: bool = False
     #: robust loss of the wheel-speed factors
     speed_loss: str = "huber"
     #: side slip allowed per frame by the no-side-slip process model, metres
@@ -317,10 +322,14 @@ def _frame_factors(
         if m.ok:
             cov = nz.pair_covariance(m.covariance, m.z[6])
             out.append(F.pose_pair_factor(k, m.z[:4], cov[:4, :4], cfg.loss, cfg.pair_loss_k(4)))
+            motion_cov, given = cov[4:7, 4:7], None
+            if cfg.motion_given_pose:
+                gain, motion_cov = M.motion_given_pose(cov)
+                given = (m.z[:4], gain)
             out.append(
                 F.motion_pair_factor(
-                    k, m.z[4:7], cov[4:7, 4:7], m.height_assumed, cfg.loss, cfg.pair_loss_k(3),
-                    metric,
+                    k, m.z[4:7], motion_cov, m.height_assumed, cfg.loss, cfg.pair_loss_k(3),
+                    metric, given,
                 )
             )
     if math.isfinite(speed):

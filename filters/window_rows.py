@@ -111,7 +111,11 @@ class StackedPairs:
     dt: FloatArray  # (n,) s
     z: FloatArray  # (n, 7) pair measurement, rad / m at h0
     h0: FloatArray  # (n,) assumed height of the pair, m
-    w_motion: FloatArray  # (n, 3, 3) whitener of the pair motion (0 without a pair)
+    w_motion: FloatArray  # (n, 3, 3) whitener of the pair motion given its angles (0: none)
+    #: (n, 3, 22), (n, 3): the whitened motion given the angles subtracts
+    #: W·A·(pose residual) = given_jac · (x_{k-1}, x_k) − given_b (``model.motion_given_pose``)
+    given_jac: FloatArray
+    given_b: FloatArray
     metric: NDArray[np.bool_]  # (n,) the pair's motion moves h_m (wheel speed nearby)
     w_process: FloatArray  # (n, 5, 5) whitener of (along, cross, heading, Δv, Δω)
     process_jac: FloatArray  # (n, 5, 22) whitened state-independent process Jacobian
@@ -128,19 +132,30 @@ def pair_constants(
     noise: NoiseParams,
     cross_track_std_m: float,
     metric: bool,
+    given_pose: bool = False,
 ) -> dict[str, object]:
-    """One pair's entries of :class:`StackedPairs` (a row of each field)."""
+    """One pair's entries of :class:`StackedPairs` (a row of each field); ``given_pose``: the
+    motion rows are the motion given the pair's angles (``SmootherConfig.motion_given_pose``),
+    else its own (marginal) covariance."""
     d = FRAME_DIM
     wq, process_jac, lin_static = _frame_constants(float(dt), noise, float(cross_track_std_m))
     lin = lin_static.copy()
     b = np.zeros(PAIR_ROWS)
     ok = bool(m.ok)
     z = np.asarray(m.z, dtype=float) if ok else np.zeros(7)
+    w_motion = np.zeros((3, 3))
+    given_jac, given_b = np.zeros((3, 2 * d)), np.zeros(3)
     if ok:
         cov = noise.pair_covariance(m.covariance, m.z[6])
         w_pose = whitener(cov[:4, :4])
         lin[POSE_ROWS] = w_pose @ _J_POSE
         b[POSE_ROWS] = w_pose @ z[:4]
+        if given_pose:
+            gain, motion_cov = M.motion_given_pose(cov)
+            w_motion = whitener(motion_cov)
+            given_jac, given_b = w_motion @ gain @ _J_POSE, w_motion @ gain @ z[:4]
+        else:
+            w_motion = whitener(cov[4:7, 4:7])
     if math.isfinite(speed):
         isig = 1.0 / math.sqrt(noise.speed_meas_var(speed))
         lin[SPEED_ROW, d + 3], b[SPEED_ROW] = isig, isig * speed
@@ -152,7 +167,9 @@ def pair_constants(
         "dt": dt,
         "z": z,
         "h0": float(m.height_assumed) if ok else 1.0,
-        "w_motion": whitener(cov[4:7, 4:7]) if ok else np.zeros((3, 3)),
+        "w_motion": w_motion,
+        "given_jac": given_jac,
+        "given_b": given_b,
         "metric": metric,
         "w_process": wq,
         "process_jac": process_jac,
@@ -182,8 +199,8 @@ def stacked_rows(
     norms = np.empty((n, 2))
     _rows(
         np.ascontiguousarray(prev, dtype=float), np.ascontiguousarray(curr, dtype=float),
-        c.dt, c.z, c.h0, c.w_motion, c.metric, c.w_process, c.process_jac, c.lin_jac, c.lin_b,
-        _loss_code(loss[0]), float(loss[1]), float(loss[2]),
+        c.dt, c.z, c.h0, c.w_motion, c.given_jac, c.given_b, c.metric, c.w_process,
+        c.process_jac, c.lin_jac, c.lin_b, _loss_code(loss[0]), float(loss[1]), float(loss[2]),
         _loss_code(speed_loss[0]), float(speed_loss[1]), r, jac, norms,
     )
     return r, jac, norms
@@ -195,8 +212,10 @@ def _wrap(a: float) -> float:
 
 
 @kernel
-def _rows(prev, curr, dt_, z, h0, w_motion, metric, w_process, process_jac, lin_jac, lin_b,
-          loss, k4, k3, speed_loss, k_speed, r, jac, norms):  # pragma: no cover (compiled)
+def _rows(  # pragma: no cover (compiled)
+    prev, curr, dt_, z, h0, w_motion, given_jac, given_b, metric, w_process, process_jac,
+    lin_jac, lin_b, loss, k4, k3, speed_loss, k_speed, r, jac, norms,
+):
     """``stacked_rows``' loop over the pairs: fills r, jac, norms."""
     d = FRAME_DIM
     cols = 2 * d
@@ -259,15 +278,16 @@ def _rows(prev, curr, dt_, z, h0, w_motion, metric, w_process, process_jac, lin_
         j3[0, _CURR + 7], j3[1, _CURR + 7] = -tx * dh, -tz * dh
         j3[2, 2], j3[2, _CURR + 2] = -1.0, 1.0
         for i in range(3):
-            acc = 0.0
+            acc = given_b[k, i]
             for j in range(3):
                 acc += w_motion[k, i, j] * e[j]
-            r[k, 15 + i] = acc
             for c in range(cols):
+                acc -= given_jac[k, i, c] * both[c]
                 jac[k, 15 + i, c] = (
                     w_motion[k, i, 0] * j3[0, c] + w_motion[k, i, 1] * j3[1, c]
-                    + w_motion[k, i, 2] * j3[2, c]
+                    + w_motion[k, i, 2] * j3[2, c] - given_jac[k, i, c]
                 )
+            r[k, 15 + i] = acc
         # robust weights (IRLS, as gtsam's noiseModel.Robust) of the pair blocks and the speed
         pose_sq = 0.0
         for i in range(11, 15):

@@ -377,6 +377,30 @@ def test_pair_covariance_floors_the_angles_only():
     assert np.array_equal(M.NoiseParams(min_angle_meas_std_deg=0.0).pair_covariance(cov), cov)
 
 
+def test_pair_covariance_floors_a_change_claimed_far_too_precise():
+    # the estimator's prev/curr pitch correlated 0.99999: a change of 0.0001° claimed
+    noise = M.NoiseParams(min_angle_change_std_deg=0.03)
+    std = np.array([*np.radians([0.02, 0.02, 0.02, 0.02]), 0.001, 0.002, 1e-4])
+    corr = np.eye(7)
+    corr[0, 2] = corr[2, 0] = corr[1, 3] = corr[3, 1] = 0.99999
+    corr[0, 5] = corr[5, 0] = corr[2, 5] = corr[5, 2] = -0.9  # tz with pitch
+    cov = corr * np.outer(std, std)
+    assert np.all(np.linalg.eigvalsh(cov) > 0)
+    out = noise.pair_covariance(cov)
+    for prev, curr in ((0, 2), (1, 3)):
+        change = out[prev, prev] + out[curr, curr] - 2 * out[prev, curr]
+        mean = (out[prev, prev] + out[curr, curr] + 2 * out[prev, curr]) / 4
+        # raised to the angles' own std (0.02° < the 0.03° floor); the mean angle untouched
+        assert math.degrees(math.sqrt(change)) == pytest.approx(0.02, rel=1e-9)
+        assert mean == pytest.approx((cov[prev, prev] + cov[curr, curr] + 2 * cov[prev, curr]) / 4,
+                                     rel=1e-12)
+    np.testing.assert_array_equal(out[4:, :], cov[4:, :])  # motion and its correlations kept
+    assert np.all(np.linalg.eigvalsh(out) > 0)
+    # independent angles keep their covariance (their change is as uncertain as they are)
+    independent = np.diag(std**2)
+    np.testing.assert_array_equal(noise.pair_covariance(independent), independent)
+
+
 def test_pair_covariance_widens_the_lateral_motion_of_a_turning_pair():
     # a camera up to L from the axle the vehicle turns about slides sideways by ~L·Δψ
     noise = M.NoiseParams(lever_arm_std_m=2.0)

@@ -286,3 +286,34 @@ def test_refinement_weights_option_sets_the_estimator(choice: str, steep: bool,
     got = (est.config.weight_patches, est.config.recentre_windows,
            est.config.inlier_median_factor)
     assert got == expected
+
+
+def test_estimates_table_keeps_the_full_covariance(tmp_path: Path) -> None:
+    from vipm_track.measurement import measurement_row
+    from vipm_track.table import CORRELATION_COLUMNS, ESTIMATE_COLUMNS, read_table, write_table
+
+    rng = np.random.default_rng(2)
+    a = rng.normal(size=(7, 7))
+    cov = a @ a.T * 1e-6 + np.eye(7) * 1e-8
+    z = rng.normal(0, 0.05, 7)
+    ms = [PairMeasurement(1, 0.1, z, cov, 1.5),
+          PairMeasurement(2, 0.2, np.full(7, np.nan), np.full((7, 7), np.nan), 1.5, "no motion")]
+    path = tmp_path / "est.csv"
+    write_table(path, [measurement_row(m) for m in ms], ESTIMATE_COLUMNS)
+    back = read_measurements(path)
+    np.testing.assert_allclose(back[0].covariance, cov, rtol=1e-12, atol=1e-24)
+    np.testing.assert_allclose(back[0].z, z, rtol=1e-12)
+    assert not back[1].ok
+    # an older table without the correlation columns: diagonal
+    columns = read_table(path)
+    old = [c for c in columns if c not in CORRELATION_COLUMNS]
+    rows = [{c: columns[c][i] for c in old} for i in range(2)]
+    write_table(tmp_path / "old.csv", rows, [c for c in ESTIMATE_COLUMNS if c in old])
+    np.testing.assert_allclose(read_measurements(tmp_path / "old.csv")[0].covariance,
+                               np.diag(np.diag(cov)), rtol=1e-12, atol=1e-24)
+    # a coefficient outside [-1, 1] names row, frame and column
+    rows = [{c: columns[c][i] for c in columns} for i in range(2)]
+    rows[0]["corr_pitch__tz"] = 1.5
+    write_table(tmp_path / "bad.csv", rows, ESTIMATE_COLUMNS)
+    with pytest.raises(InputError, match=r"row 1 \(frame 1\): corr_pitch__tz = 1.5"):
+        read_measurements(tmp_path / "bad.csv")

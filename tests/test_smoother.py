@@ -116,6 +116,35 @@ def test_motion_factor_is_the_model_and_its_jacobians_are_right():
     np.testing.assert_allclose(a_all, whiten @ numeric, rtol=1e-5, atol=1e-4)
 
 
+def test_motion_given_pose_factor_subtracts_the_regression_on_the_pose_residual():
+    rng = np.random.default_rng(4)
+    v = _random_values(rng, (0, 1))
+    p0 = v.atPose2(F.key("X", 0))
+    v.update(F.key("X", 1), p0.compose(gtsam.Pose2(0.8, 0.05, 0.03)))
+    a = rng.normal(size=(7, 7))
+    cov = a @ a.T * 1e-5 + np.eye(7) * 1e-6
+    gain, cond = M.motion_given_pose(cov)
+    # the decomposition: motion − A·angles is uncorrelated with the angles, of covariance cond
+    t = np.hstack([-gain, np.eye(3)])
+    np.testing.assert_allclose((t @ cov)[:, :4], 0.0, atol=1e-18)
+    np.testing.assert_allclose(t @ cov @ t.T, cond, rtol=1e-9, atol=1e-18)
+    z = np.array([0.01, 0.02, 0.015, 0.01, 0.01, 0.7, 0.02])
+    f = F.motion_pair_factor(1, z[4:], cond, H0, loss="none", given_pose=(z[:4], gain))
+    marginal = F.motion_pair_factor(1, z[4:], cond, H0, loss="none")
+    pose = F.pose_pair_factor(1, z[:4], cov[:4, :4], loss="none")
+    np.testing.assert_allclose(
+        f.unwhitenedError(v), marginal.unwhitenedError(v) - gain @ pose.unwhitenedError(v),
+        atol=1e-12,
+    )
+    keys = [F.key(c, k) for c, k in (("X", 0), ("X", 1), ("H", 1), ("Y", 1), ("M", 1),
+                                    ("B", 0), ("B", 1))]
+    numeric = _numeric_jacobians(f, v, keys, [3, 3, 1, 1, 2, 2, 2])
+    a_all, _ = f.linearize(v).jacobian()
+    # a full covariance whitens with some square root of its inverse: compare the information
+    info = numeric.T @ np.linalg.solve(cond, numeric)
+    np.testing.assert_allclose(a_all.T @ a_all, info, rtol=1e-5, atol=1e-6 * np.abs(info).max())
+
+
 def test_process_factor_follows_propagate_pose_and_its_jacobians_are_right():
     rng = np.random.default_rng(1)
     v = _random_values(rng, (0, 1))
@@ -564,8 +593,9 @@ def _model_vector(v, k):
     )
 
 
-@pytest.mark.parametrize("metric", [True, False])
-def test_stacked_rows_are_the_gtsam_factors(metric):
+@pytest.mark.parametrize(("metric", "given"), [(True, False), (False, False), (True, True),
+                                              (False, True)])
+def test_stacked_rows_are_the_gtsam_factors(metric, given):
     rng = np.random.default_rng(3)
     v = _random_values(rng, (0, 1))
     p0 = v.atPose2(F.key("X", 0))
@@ -577,17 +607,21 @@ def test_stacked_rows_are_the_gtsam_factors(metric):
     m = PairMeasurement(frame=1, t=dt, z=z, covariance=cov, height_assumed=H0, status="ok")
     c = W.StackedPairs(
         **{k: np.asarray([val]) for k, val in
-           W.pair_constants(m, dt, speed, nz, 0.001, metric).items()}
+           W.pair_constants(m, dt, speed, nz, 0.001, metric, given).items()}
     )
     prev, curr = _model_vector(v, 0)[None], _model_vector(v, 1)[None]
     r, jac, norms = W.stacked_rows(prev, curr, c)
     pair_cov = nz.pair_covariance(cov, z[6])  # as the filters take it (lever arm: tx)
+    gain, motion_cov = M.motion_given_pose(pair_cov)  # the motion given the pair's angles
+    motion = (F.motion_pair_factor(1, z[4:], motion_cov, H0, "none", 3.0, metric, (z[:4], gain))
+              if given else F.motion_pair_factor(1, z[4:], pair_cov[4:, 4:], H0, "none", 3.0,
+                                                 metric))
     blocks = [
         (slice(0, 5), [F.process_factor(1, dt, nz, 0.001)]),
         (slice(5, 7), [F.body_factor(1, dt, nz)]),
         (slice(7, 11), F.mount_walk_factors(1, dt, nz)),
         (W.POSE_ROWS, [F.pose_pair_factor(1, z[:4], pair_cov[:4, :4], "none")]),
-        (W.MOTION_ROWS, [F.motion_pair_factor(1, z[4:], pair_cov[4:, 4:], H0, "none")]),
+        (W.MOTION_ROWS, [motion]),
         (slice(18, 19), [F.speed_factor(1, speed, nz)]),
     ]
     for rows, fs in blocks:

@@ -12,7 +12,7 @@ order and units. A frame whose ``status`` is not ``ok`` carries NaNs.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 
@@ -20,13 +20,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import InputError
-from .table import read_table
+from .table import CORRELATION_COLUMNS, read_table
 
 PARAMETER_NAMES: tuple[str, ...] = ("pitch_prev", "roll_prev", "pitch", "roll", "tx", "tz", "yaw")
 _ANGLE = np.array([True, True, True, True, False, False, True])
 #: Estimates-table columns of ``z`` and of its standard deviations, in ``PARAMETER_NAMES`` order.
 _Z_COLUMNS = ("prev_pitch_deg", "prev_roll_deg", "pitch_deg", "roll_deg", "tx_m", "tz_m", "yaw_deg")
 _STD_COLUMNS = tuple(c.replace("_deg", "_std_deg").replace("_m", "_std_m") for c in _Z_COLUMNS)
+#: (row, column) of ``covariance`` behind each of ``table.CORRELATION_COLUMNS``
+_UPPER = np.triu_indices(7, 1)
 
 
 @dataclass(frozen=True)
@@ -50,10 +52,14 @@ class PairMeasurement:
     def std(self) -> NDArray[np.float64]:
         return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
 
-    def as_in_table(self) -> PairMeasurement:
-        """This measurement as an estimates table keeps it: each value's variance, no
-        correlations (what ``measurements_from_table`` reads back)."""
-        return replace(self, covariance=np.diag(np.diag(self.covariance)))
+    @property
+    def correlation(self) -> NDArray[np.float64]:
+        """7×7 correlation matrix of ``z`` (identity where a value's variance is 0)."""
+        std = self.std
+        scale = np.where(std > 0, std, 1.0)
+        corr = self.covariance / np.outer(scale, scale)
+        np.fill_diagonal(corr, 1.0)
+        return corr
 
 
 def measurements_from_table(
@@ -62,11 +68,14 @@ def measurements_from_table(
     """Measurements from the columns of an estimates table (``read_table``).
 
     Needs the base columns plus ``prev_pitch_deg``/``prev_roll_deg`` and the ``*_std``
-    columns; a missing column is an :class:`InputError` naming ``source``."""
+    columns; a missing column is an :class:`InputError` naming ``source``. With the
+    ``corr_*`` columns (tables written since they were added) the covariance is the
+    estimator's full one; without them, or where a row's are empty, it is diagonal."""
     missing = [c for c in (*_Z_COLUMNS, *_STD_COLUMNS, "height_m") if c not in columns]
     if missing:
         raise InputError(f"{source}: estimates table lacks column(s) {missing}")
     n = len(columns["frame"])
+    corr_all = _correlations(columns, n, source)
     status = columns.get("status", np.array(["ok"] * n, dtype=object))
     z_all = _stack_in_radians(columns, _Z_COLUMNS)
     std_all = _stack_in_radians(columns, _STD_COLUMNS)
@@ -79,13 +88,36 @@ def measurements_from_table(
                 frame=int(columns["frame"][i]),
                 t=float(columns["t"][i]),
                 z=z_all[i],
-                covariance=np.diag(std_all[i] ** 2),
+                covariance=corr_all[i] * np.outer(std_all[i], std_all[i]),
                 height_assumed=float(columns["height_m"][i]),
                 status=st,
                 inliers=int(inliers[i]) if np.isfinite(inliers[i]) else 0,
             )
         )
     return out
+
+
+def _correlations(columns: dict[str, NDArray], n: int, source: str) -> NDArray:
+    """(n, 7, 7) correlation matrices from the ``corr_*`` columns (identity without them);
+    a coefficient outside [-1, 1] is an :class:`InputError` naming row and column."""
+    corr = np.broadcast_to(np.eye(7), (n, 7, 7)).copy()
+    present = [c for c in CORRELATION_COLUMNS if c in columns]
+    if not present:
+        return corr
+    if len(present) < len(CORRELATION_COLUMNS):
+        lacking = [c for c in CORRELATION_COLUMNS if c not in columns]
+        raise InputError(f"{source}: estimates table has some correlation columns but lacks "
+                         f"{lacking}")
+    values = np.stack([np.asarray(columns[c], dtype=float) for c in CORRELATION_COLUMNS], axis=1)
+    bad = np.abs(values) > 1.0 + 1e-9
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        raise InputError(f"{source}: row {row + 1} (frame {int(columns['frame'][row])}): "
+                         f"{CORRELATION_COLUMNS[col]} = {values[row, col]} is not in [-1, 1]")
+    values = np.where(np.isfinite(values), values, 0.0)
+    corr[:, _UPPER[0], _UPPER[1]] = values
+    corr[:, _UPPER[1], _UPPER[0]] = values
+    return corr
 
 
 def _stack_in_radians(columns: dict[str, NDArray], names: tuple[str, ...]) -> NDArray:
@@ -127,4 +159,5 @@ def measurement_row(m: PairMeasurement) -> dict[str, object]:
         "tz_std_m": val(s[5]),
         "yaw_std_deg": val(s[6]),
         "inliers": m.inliers,
+        **dict(zip(CORRELATION_COLUMNS, (val(c) for c in m.correlation[_UPPER]), strict=True)),
     }

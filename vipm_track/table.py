@@ -31,6 +31,18 @@ BASE_COLUMNS: tuple[str, ...] = (
     "status",
 )
 
+#: Short names of the pair's seven values (``measurement.PARAMETER_NAMES`` order) as the
+#: correlation columns spell them.
+CORRELATION_NAMES: tuple[str, ...] = ("prev_pitch", "prev_roll", "pitch", "roll", "tx", "tz", "yaw")
+#: Correlation coefficients of the pair's values, upper triangle row by row:
+#: ``corr_<a>__<b>`` (dimensionless, in [-1, 1]); with the ``*_std`` columns they give the
+#: estimator's full 7×7 covariance.
+CORRELATION_COLUMNS: tuple[str, ...] = tuple(
+    f"corr_{a}__{b}"
+    for i, a in enumerate(CORRELATION_NAMES)
+    for b in CORRELATION_NAMES[i + 1 :]
+)
+
 #: Columns the two-frame estimator adds after the base ones (see ``measurement.py``).
 ESTIMATE_COLUMNS: tuple[str, ...] = (
     "prev_pitch_deg",
@@ -45,6 +57,7 @@ ESTIMATE_COLUMNS: tuple[str, ...] = (
     "inliers",
     "patches",
     "residual_px",
+    *CORRELATION_COLUMNS,
 )
 
 TEXT_COLUMNS = frozenset(

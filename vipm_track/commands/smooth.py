@@ -67,6 +67,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "outlier pair pulls the trajectory far less than with cauchy)",
     )
     group.add_argument(
+        "--motion-given-pose",
+        action="store_true",
+        help="use each pair's motion given its angles (the estimator's tz is correlated ~-0.95 "
+        "with its pitch): a smoothed frame pose corrects the pair's motion. Helps where the "
+        "body model follows the real pitching; off by default (docs/filters.md)",
+    )
+    group.add_argument(
         "--loss-probability",
         type=float,
         default=0.99,
@@ -145,6 +152,7 @@ def build_config(args: argparse.Namespace):
         lag_s=args.lag,
         loss=args.loss,
         loss_probability=args.loss_probability,
+        motion_given_pose=args.motion_given_pose,
         marginals=not args.no_std,
     )
 
@@ -161,12 +169,6 @@ def run(args: argparse.Namespace) -> int:
     sink = sink_from_args(args, "vipm-track smooth")
     measurements = measurements_from_args(args, config.height_m, sink=sink,
                                           progress=not args.quiet)
-    # The smoother sees a drive estimated here exactly as it would its saved estimates table
-    # (--estimates): each value's variance, without the pair's correlations. With them (the
-    # two frames' pitches of a pair are correlated ~1: their difference is known far better
-    # than either) the Geman–McClure loss rejected most pose blocks on rendered car drives,
-    # from its first linearisation on (frame pitch RMS 0.28° vs 0.06° without).
-    measurements = [m.as_in_table() for m in measurements]
     frames = smooth(measurements, speed, config, progress=not args.quiet)
     speeds = speeds_at_frames(measurements, speed)
     by_frame = {m.frame: (m, v) for m, v in zip(measurements, speeds, strict=True)}
@@ -189,6 +191,7 @@ def run(args: argparse.Namespace) -> int:
     summary["smoother"] = {
         "lag_s": config.lag_s,
         "loss": config.loss,
+        "motion_given_pose": config.motion_given_pose,
         "wheel_speed": speed is not None,
         "source": _source_name(args),
     }
