@@ -419,8 +419,9 @@ def test_summary_interval_widens_to_slow_errors_the_model_lacks(batch, drive):
 
 def test_smooth_from_images_equals_smooth_of_the_saved_estimates(tmp_path):
     # "a drive is estimated once and smoothed many times": both paths give the same answer
-    # (the smoother sees what the estimates table keeps). With the pairs' full covariance the
-    # Geman-McClure loss had rejected most pose blocks of this drive (frame pitch 0.28° RMS).
+    # (the table keeps the pairs' full covariance). Taken as reported, the correlations made the
+    # Geman-McClure loss reject most pose blocks of this drive (frame pitch 0.28° RMS); the
+    # pitch-change floor (NoiseParams.min_angle_change_std_deg) keeps them usable.
     from vipm_track.sim import PRESETS, simulate_sequence
 
     preset = PRESETS["car"]
@@ -441,6 +442,12 @@ def test_smooth_from_images_equals_smooth_of_the_saved_estimates(tmp_path):
     truth = np.degrees(traj.pitch)
     assert (np.sqrt(np.mean((a["pitch_deg"][ok] - truth[ok]) ** 2))
             < np.sqrt(np.mean((raw["pitch_deg"][ok] - truth[ok]) ** 2)))
+    # the motion given the angles: runs through the CLI and is recorded in the summary
+    assert main(["smooth", "--estimates", str(tmp_path / "est.csv"), *common[2:],
+                 "--motion-given-pose", "--out", str(tmp_path / "c.csv")]) == 0
+    summary = json.loads((tmp_path / "c.summary.json").read_text())
+    assert summary["smoother"]["motion_given_pose"] is True
+    assert np.all(np.isfinite(read_table(tmp_path / "c.csv")["tz_m"][ok]))
 
 
 def test_cli_warns_when_no_pair_is_usable(tmp_path, capsys):
