@@ -132,15 +132,25 @@ def pose_pair_factor(
     B_k: z4 = (m + b_{k-1}, m + b_k) + noise of covariance ``cov4``."""
     z4 = np.asarray(z4, dtype=float).copy()
     noise = robust(_gaussian(cov4), loss, loss_k)
-    keys = [key("M", k), key("B", k - 1), key("B", k)]
-    jm, jbp, jbc = J_POSE_MOUNT, J_POSE_BPREV, J_POSE_BCURR
+    keys = _pose_keys(k)
 
     def error(this: gtsam.CustomFactor, v: gtsam.Values, jac: list | None) -> FloatArray:
         if jac is not None:
-            jac[0], jac[1], jac[2] = jm, jbp, jbc
-        return jm @ v.atVector(keys[0]) + jbp @ v.atVector(keys[1]) + jbc @ v.atVector(keys[2]) - z4
+            jac[0], jac[1], jac[2] = J_POSE_MOUNT, J_POSE_BPREV, J_POSE_BCURR
+        return _pose_residual(v, keys, z4)
 
     return gtsam.CustomFactor(noise, keys, error)
+
+
+def _pose_keys(k: int) -> list[int]:
+    """Keys the pair's four angles depend on: M_k, B_{k-1}, B_k."""
+    return [key("M", k), key("B", k - 1), key("B", k)]
+
+
+def _pose_residual(v: gtsam.Values, keys: list[int], z4: FloatArray) -> FloatArray:
+    """The pair's angles (m + b_{k-1}, m + b_k) at ``v`` (``keys``: ``_pose_keys``) minus z4."""
+    return (J_POSE_MOUNT @ v.atVector(keys[0]) + J_POSE_BPREV @ v.atVector(keys[1])
+            + J_POSE_BCURR @ v.atVector(keys[2]) - z4)
 
 
 def motion_pair_factor(
@@ -169,7 +179,7 @@ def motion_pair_factor(
     if given_pose is not None:
         z4 = np.asarray(given_pose[0], dtype=float).copy()
         gain = np.asarray(given_pose[1], dtype=float)
-        keys += [key("M", k), key("B", k - 1), key("B", k)]
+        keys += _pose_keys(k)
         j_pose = [-gain @ J_POSE_MOUNT, -gain @ J_POSE_BPREV, -gain @ J_POSE_BCURR]
     h0 = float(height_assumed)
     zero31 = np.zeros((3, 1))
@@ -187,9 +197,7 @@ def motion_pair_factor(
         tx, tz = sc * (c * dx - s * dy), sc * (s * dx + c * dy)
         e = np.array([tx - z3[0], tz - z3[1], wrap(psi1 - psi0 - z3[2])])
         if given_pose is not None:
-            pose_residual = (J_POSE_MOUNT @ v.atVector(keys[4]) + J_POSE_BPREV @ v.atVector(keys[5])
-                             + J_POSE_BCURR @ v.atVector(keys[6]) - z4)
-            e -= gain @ pose_residual
+            e -= gain @ _pose_residual(v, keys[4:], z4)
         if jac is not None:
             # ∂/∂(x, y, ψ) of (tx, tz, yaw) times the Pose2 tangent Jacobian (tangent_jacobian)
             # of either frame; the heading enters tx, tz through g = ψ_{k-1} + yaw_m

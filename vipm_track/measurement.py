@@ -101,11 +101,10 @@ def _correlations(columns: dict[str, NDArray], n: int, source: str) -> NDArray:
     """(n, 7, 7) correlation matrices from the ``corr_*`` columns (identity without them);
     a coefficient outside [-1, 1] is an :class:`InputError` naming row and column."""
     corr = np.broadcast_to(np.eye(7), (n, 7, 7)).copy()
-    present = [c for c in CORRELATION_COLUMNS if c in columns]
-    if not present:
+    lacking = [c for c in CORRELATION_COLUMNS if c not in columns]
+    if len(lacking) == len(CORRELATION_COLUMNS):
         return corr
-    if len(present) < len(CORRELATION_COLUMNS):
-        lacking = [c for c in CORRELATION_COLUMNS if c not in columns]
+    if lacking:
         raise InputError(f"{source}: estimates table has some correlation columns but lacks "
                          f"{lacking}")
     values = np.stack([np.asarray(columns[c], dtype=float) for c in CORRELATION_COLUMNS], axis=1)
