@@ -32,7 +32,6 @@ or ``run_filter(measurements, speed_series, config)`` for a whole sequence.
 
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -45,6 +44,7 @@ from scipy.stats import chi2
 from vipm_track.measurement import PairMeasurement
 
 from . import model as M
+from .body_scale import BodyScale, body_transition
 from .model import NoiseParams
 
 FloatArray = NDArray[np.float64]
@@ -175,15 +175,11 @@ class _ClonedEKF(ExtendedKalmanFilter):
 
     def predict_dt(self, dt: float) -> None:
         x_new, self.F, self.Q = M.transition(self.x, dt, self._noise)
-        std0 = np.radians(self._noise.body_std_deg)
-        for i, std in zip((M.BODY_PITCH, M.BODY_ROLL), self.body_std, strict=True):
-            # shaking beyond the model's is fast: keep the body's low-frequency power 2σ²τ
-            # (what competes with the mount) by shortening τ as σ grows
-            tau = self._noise.body_tau_s * (std0 / std) ** 2
-            decay = M.body_decay(dt, tau)
-            x_new[i] = decay * self.x[i]
-            self.F[i, i] = decay
-            self.Q[i, i] = M.body_process_var(dt, tau, float(std))
+        decay, var = body_transition(dt, self.body_std, self._noise)
+        for j, i in enumerate((M.BODY_PITCH, M.BODY_ROLL)):
+            x_new[i] = decay[j] * self.x[i]
+            self.F[i, i] = decay[j]
+            self.Q[i, i] = var[j]
         self._x_new = x_new
         self.predict()
 
@@ -211,9 +207,9 @@ class ExtrinsicsEKF:
         self._boot: list[tuple[PairMeasurement | None, float | None, float, str]] = []
         self._last_speed_t: float | None = None
         self._still = False  # the last _advance applied the standstill
-        #: (t, measured body pitch, roll (pair minus filtered mount), their variances) of recent
-        #: ok pairs, rad / rad²
-        self._body_seen: deque[tuple[float, ...]] = deque()
+        #: the measured body (pair minus filtered mount) of recent ok pairs
+        cfg = self._cfg
+        self._body = BodyScale(cfg.noise, cfg.body_window_s, cfg.body_window_min_pairs)
         h0 = self._cfg.height_m
         self._height = (h0, (self._cfg.noise.prior_height_std_rel * h0) ** 2)
 
@@ -349,7 +345,7 @@ class ExtrinsicsEKF:
             np.radians(nz.prior_yaw_rate_std_dps)) ** 2
         kf = _ClonedEKF(nz)
         kf.x, kf.P = x, p
-        kf.body_std = self._body_std()
+        kf.body_std = self._body.std()
         self._kf = kf
         self._pose_gated_run = self._motion_gated_run = 0
 
@@ -412,28 +408,12 @@ class ExtrinsicsEKF:
         return nis, "+".join(rejected)
 
     def _observe_body(self, m: PairMeasurement, r: FloatArray) -> None:
-        """Add the pair's measured body (its current frame's pitch/roll, variances ``r``,
-        rad²) to the window and re-adapt the body std."""
+        """Add the pair's measured body (its current frame's pitch/roll minus the filtered
+        mount, variances ``r``, rad²) to the window and re-adapt the body std."""
         kf = self._kf
         assert kf is not None and self._t is not None
-        b = m.z[2:4] - kf.x[[M.MOUNT_PITCH, M.MOUNT_ROLL]]
-        self._body_seen.append((self._t, float(b[0]), float(b[1]), float(r[0]), float(r[1])))
-        while self._body_seen and self._body_seen[0][0] < self._t - self._cfg.body_window_s:
-            self._body_seen.popleft()
-        kf.body_std = self._body_std()
-
-    def _body_std(self) -> FloatArray:
-        """Stationary body std (pitch, roll), rad: the model's, or the robust scale of the
-        measured body over the window where that is larger (covariance matching)."""
-        floor = np.full(2, np.radians(self._cfg.noise.body_std_deg))
-        if self._cfg.body_window_s <= 0 or len(self._body_seen) < self._cfg.body_window_min_pairs:
-            return floor
-        seen = np.array(self._body_seen)
-        b, r = seen[:, 1:3], seen[:, 3:5]
-        mad = np.median(np.abs(b - np.median(b, axis=0)), axis=0)
-        # the measured body carries the measurement noise too: remove its variance
-        var = (1.4826 * mad) ** 2 - np.median(r, axis=0)
-        return np.sqrt(np.maximum(floor**2, var))
+        self._body.add(self._t, m.z[2:4] - kf.x[[M.MOUNT_PITCH, M.MOUNT_ROLL]], r)
+        kf.body_std = self._body.std()
 
     def _restart_motion(self, m: PairMeasurement, dt: float) -> None:
         """Re-initialise speed and yaw rate from this pair after the motion model lost track."""

@@ -19,7 +19,8 @@ Factors, each the model's equation with its noise:
 - ``process_factor``: constant-velocity planar motion with white acceleration / yaw
   acceleration (``model.propagate_pose`` and the ``model.transition`` noise), the
   displacement along the heading only (no side slip) up to ``cross_track_std_m``;
-- ``body_factor``: Gauss–Markov body b_k = a·b_{k-1} + w, a linear factor (no Python);
+- ``body_factor``: Gauss–Markov body b_k = a·b_{k-1} + w, a linear factor (no Python), its
+  std per frame (``body_scale``: adapted to the measured shaking);
 - mount random walks, priors, the wheel speed and the standstill (``standstill_factors``:
   yaw rate, and without wheel speed speed, = 0 where ``model.standstill_states`` says the
   vehicle stands) are gtsam's built-in factors.
@@ -44,6 +45,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import model as M
+from .body_scale import body_transition
 from .model import NoiseParams
 
 FloatArray = NDArray[np.float64]
@@ -239,11 +241,6 @@ def process_noise(dt: float, noise: NoiseParams) -> FloatArray:
     return _transition_at_rest(float(dt), noise)[1]
 
 
-def body_decay(dt: float, noise: NoiseParams) -> float:
-    """Decay ``a`` of the Gauss–Markov body angles over ``dt`` s: b_k = a·b_{k-1} + w."""
-    return float(_transition_at_rest(float(dt), noise)[0][M.BODY_PITCH, M.BODY_PITCH])
-
-
 def process_covariance(dt: float, noise: NoiseParams, cross_track_std_m: float) -> FloatArray:
     """Covariance of the process factor's residual (along, cross, heading, Δv, Δω) over ``dt``:
     ``model.transition``'s noise at heading 0, the cross-track axis replaced by
@@ -314,20 +311,20 @@ def process_factor(
     return gtsam.CustomFactor(base, keys, error)
 
 
-@lru_cache(maxsize=256)
-def _body_terms(dt: float, noise: NoiseParams) -> tuple:
-    a = body_decay(dt, noise)
-    q = process_noise(dt, noise)
-    sigma = math.sqrt(q[M.BODY_PITCH, M.BODY_PITCH])
-    return -a * np.eye(2), np.eye(2), np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, sigma)
-
-
-def body_factor(k: int, dt: float, noise: NoiseParams) -> gtsam.LinearContainerFactor:
-    """Gauss–Markov body b_k = a·b_{k-1} + w over ``dt`` (``model.transition``'s decay and
-    variance): an exactly linear factor, so gtsam evaluates it without Python."""
-    a_prev, eye, zero, sigma = _body_terms(float(dt), noise)
+def body_factor(
+    k: int, dt: float, noise: NoiseParams, std: FloatArray | None = None
+) -> gtsam.LinearContainerFactor:
+    """Gauss–Markov body b_k = a·b_{k-1} + w over ``dt`` with stationary std ``std`` (rad,
+    pitch and roll; None: the model's; ``body_scale.body_transition``'s decay and variance):
+    an exactly linear factor, so gtsam evaluates it without Python."""
+    if std is None:
+        std = np.full(2, math.radians(noise.body_std_deg))
+    decay, var = body_transition(float(dt), std, noise)
     kp, kc = key("B", k - 1), key("B", k)
-    jf = gtsam.JacobianFactor(kp, a_prev, kc, eye, zero, sigma)
+    jf = gtsam.JacobianFactor(
+        kp, -np.diag(decay), kc, np.eye(2), np.zeros(2),
+        gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(var)),
+    )
     lin = gtsam.Values()
     lin.insert(kp, np.zeros(2))
     lin.insert(kc, np.zeros(2))

@@ -43,6 +43,7 @@ from . import model as M
 from . import window_rows as W
 from .compiled import kernel
 from .smoother import (
+    BodyTracker,
     SmoothedFrame,
     SmootherConfig,
     _initial_guess,
@@ -144,7 +145,9 @@ class FixedLagSmoother:
         self._speed_loss = (cfg.speed_loss, cfg.loss_k(1))
         self._start_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self._reset: tuple[int, str] | None = None
-        self._boot: list[tuple[PairMeasurement, float]] = []
+        #: frames before the window starts: (pair, wheel speed, body std)
+        self._boot: list[tuple[PairMeasurement, float, FloatArray]] = []
+        self._body = BodyTracker(cfg)
         self._started = False
         self._t_last = -math.inf
         self._last_speed_t = -math.inf
@@ -160,21 +163,22 @@ class FixedLagSmoother:
             return [_skipped(m, f"time {m.t} not after the previous frame's")]
         self._t_last = m.t
         self._still[m.frame] = bool(M.standstill_states(speed, m.status, self._cfg.noise))
+        body_std = self._body.observe(m)
         if not self._started:
-            self._boot.append((m, speed))
-            if sum(b.ok for b, _ in self._boot[1:]) < self._cfg.init_pairs:
+            self._boot.append((m, speed, body_std))
+            if sum(b.ok for b, _, _ in self._boot[1:]) < self._cfg.init_pairs:
                 return []
             boot, self._boot = self._boot, []
             with one_blas_thread():
                 return self._start(boot)
         saved = self._x.copy()
-        self._append(m, speed)
+        self._append(m, speed, body_std)
         with one_blas_thread():
             try:
                 self._solve()
             except SolveError as exc:
                 self._x = saved
-                return self._restart(m, speed, exc)
+                return self._restart(m, speed, body_std, exc)
             return self._emit(final=False)
 
     def finish(self) -> list[SmoothedFrame]:
@@ -203,15 +207,15 @@ class FixedLagSmoother:
     def _pairs(self) -> W.StackedPairs:
         return self._c.view()
 
-    def _append(self, m: PairMeasurement, speed: float) -> None:
+    def _append(self, m: PairMeasurement, speed: float, body_std: FloatArray) -> None:
         """Add frame ``m`` to the window, started from the newest one moved by its pair (by
-        the motion model without a usable pair)."""
+        the motion model without a usable pair); ``body_std``: its body std, rad."""
         prev_m, prev = self._ms[-1], self._x[-1]
         dt = m.t - prev_m.t
         if math.isfinite(speed):
             self._last_speed_t = m.t
         metric = m.t - self._last_speed_t <= self._cfg.speed_timeout_s
-        self._push_pair(m, dt, speed, metric)
+        self._push_pair(m, dt, speed, metric, body_std)
         new = prev.copy()
         if m.ok:
             # the pair's own motion, as the batch's initial guess: a prediction from the last
@@ -231,22 +235,24 @@ class FixedLagSmoother:
         self._x = np.vstack([self._x, new])
         self._last = None
 
-    def _push_pair(self, m: PairMeasurement, dt: float, speed: float, metric: bool) -> None:
+    def _push_pair(
+        self, m: PairMeasurement, dt: float, speed: float, metric: bool, body_std: FloatArray
+    ) -> None:
         row = W.pair_constants(
             m, dt, speed, self._cfg.noise, self._cfg.cross_track_std_m, bool(metric),
-            self._cfg.motion_given_pose,
+            self._cfg.motion_given_pose, body_std,
         )
         self._c.append(row)
 
     # --- start / restart -----------------------------------------------------------------------
 
     def _start(
-        self, boot: list[tuple[PairMeasurement, float]], final: bool = False
+        self, boot: list[tuple[PairMeasurement, float, FloatArray]], final: bool = False
     ) -> list[SmoothedFrame]:
         """Open a window on the bootstrap frames (the batch's initial guess), solve it."""
         cfg = self._cfg
-        ms = [b for b, _ in boot]
-        sp = np.array([s for _, s in boot], dtype=float)
+        ms = [b for b, _, _ in boot]
+        sp = np.array([s for _, s, _ in boot], dtype=float)
         t = np.array([b.t for b in ms])
         dts = np.concatenate([[0.0], np.diff(t)])
         g = _initial_guess(ms, sp, dts, cfg.height_m, self._start_pose, cfg.noise)
@@ -264,7 +270,7 @@ class FixedLagSmoother:
             if math.isfinite(sp[i]):
                 self._last_speed_t = float(t[i])
             metric = t[i] - self._last_speed_t <= cfg.speed_timeout_s
-            self._push_pair(ms[i], float(dts[i]), float(sp[i]), bool(metric))
+            self._push_pair(ms[i], float(dts[i]), float(sp[i]), bool(metric), boot[i][2])
         if math.isfinite(sp[0]):
             self._last_speed_t = max(self._last_speed_t, float(t[0]))
         try:
@@ -275,7 +281,9 @@ class FixedLagSmoother:
             return [_skipped(b, why) for b in ms]
         return self._emit(final=final)
 
-    def _restart(self, m: PairMeasurement, speed: float, exc: Exception) -> list[SmoothedFrame]:
+    def _restart(
+        self, m: PairMeasurement, speed: float, body_std: FloatArray, exc: Exception
+    ) -> list[SmoothedFrame]:
         """Emit the window from the last good solution, then start a new window at ``m``
         (bootstrapped again, continuing the trajectory), as the EKF resets."""
         why = f"smoother restarted: {exc}"
@@ -294,7 +302,7 @@ class FixedLagSmoother:
             self._start_pose = (float(last.position[0]), float(last.position[1]), last.heading)
         self._reset = (m.frame, why)
         self._started = False
-        self._boot = [(m, speed)]
+        self._boot = [(m, speed, body_std)]
         self._clear()
         return out
 

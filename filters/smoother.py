@@ -38,6 +38,7 @@ from vipm_track.measurement import PairMeasurement
 
 from . import factors as F
 from . import model as M
+from .body_scale import BodyScale
 from .ekf import FrameStds, SpeedSource, speed_at
 from .long_run import batch_means
 from .model import NoiseParams
@@ -68,6 +69,11 @@ class SmootherConfig:
     #: corrects the pair's motion. Off by default: it helps only where the body model follows
     #: the real pitching (see docs/filters.md: KITTI 07 accelerates hard and pitches ~1.5°)
     motion_given_pose: bool = False
+    #: adaptive body shaking, as the EKF's (``body_scale``): each frame's body std is the
+    #: larger of the model's ``body_std_deg`` and the robust spread of the pairs' pitch/roll
+    #: over this many seconds up to it, less their measurement noise; 0 keeps the model's
+    body_window_s: float = 6.0
+    body_window_min_pairs: int = 10
     #: robust loss of the wheel-speed factors
     speed_loss: str = "huber"
     #: side slip allowed per frame by the no-side-slip process model, metres
@@ -309,15 +315,17 @@ def _frame_factors(
     cfg: SmootherConfig,
     first: bool,
     metric: bool = True,
+    body_std: FloatArray | None = None,
 ) -> list[gtsam.NonlinearFactor]:
-    """Factors that frame k (key index) adds: process, body, mount walk (unless ``first``),
-    the pair (if usable and not ``first``; ``metric``: see ``motion_pair_factor``), the
-    wheel speed (if finite) and the standstill (``model.standstill_states``)."""
+    """Factors that frame k (key index) adds: process, body (std ``body_std``, rad; None: the
+    model's), mount walk (unless ``first``), the pair (if usable and not ``first``;
+    ``metric``: see ``motion_pair_factor``), the wheel speed (if finite) and the standstill
+    (``model.standstill_states``)."""
     nz = cfg.noise
     out: list[gtsam.NonlinearFactor] = []
     if not first:
         out.append(F.process_factor(k, dt, nz, cfg.cross_track_std_m))
-        out.append(F.body_factor(k, dt, nz))
+        out.append(F.body_factor(k, dt, nz, body_std))
         out.extend(F.mount_walk_factors(k, dt, nz))
         if m.ok:
             cov = nz.pair_covariance(m.covariance, m.z[6])
@@ -336,6 +344,22 @@ def _frame_factors(
         out.append(F.speed_factor(k, speed, nz, cfg.speed_loss, cfg.loss_k(1)))
     out.extend(F.standstill_factors(k, M.standstill_states(speed, m.status, nz), nz))
     return out
+
+
+class BodyTracker:
+    """The smoothers' adaptive body std (``body_scale.BodyScale`` on the pairs' current-frame
+    pitch/roll and their variances): feed every frame in time order."""
+
+    def __init__(self, cfg: SmootherConfig) -> None:
+        self._noise = cfg.noise
+        self._scale = BodyScale(cfg.noise, cfg.body_window_s, cfg.body_window_min_pairs)
+
+    def observe(self, m: PairMeasurement) -> FloatArray:
+        """Add frame ``m``'s pair (if usable); the body std (pitch, roll, rad) at its time."""
+        if m.ok:
+            var = np.diag(self._noise.pair_covariance(m.covariance, m.z[6]))[2:4]
+            self._scale.add(m.t, m.z[2:4], var)
+        return self._scale.std()
 
 
 def _metric_frames(t: FloatArray, speeds: FloatArray, timeout_s: float) -> NDArray[np.bool_]:
@@ -629,6 +653,7 @@ def smooth_batch(
     t0 = time.perf_counter()
     guess = _initial_guess(ms, sp, dts, cfg.height_m, noise=cfg.noise)
     metric = _metric_frames(t, sp, cfg.speed_timeout_s)
+    body = BodyTracker(cfg)
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     pairs: dict[int, tuple[gtsam.CustomFactor, gtsam.CustomFactor]] = {}
@@ -642,7 +667,9 @@ def smooth_batch(
         if k == 0:
             for f in _prior_factors(0, guess, cfg):
                 graph.add(f)
-        fs = _frame_factors(k, m, float(sp[k]), float(dts[k]), cfg, k == 0, bool(metric[k]))
+        fs = _frame_factors(
+            k, m, float(sp[k]), float(dts[k]), cfg, k == 0, bool(metric[k]), body.observe(m)
+        )
         for f in fs:
             graph.add(f)
         if k > 0 and m.ok:

@@ -27,6 +27,7 @@ from vipm_track.measurement import PairMeasurement
 
 from . import factors as F
 from . import model as M
+from .body_scale import body_transition
 from .compiled import kernel
 from .model import NoiseParams
 
@@ -72,8 +73,8 @@ def whitener(cov: FloatArray) -> FloatArray:
 @lru_cache(maxsize=256)
 def _frame_constants(dt: float, noise: NoiseParams, cross_track_std_m: float) -> tuple:
     """Per-dt constants of the rows: the process whitener (5, 5), its product with the
-    process rows' constant Jacobian (5, 22), and the whitened Jacobian (21, 22) of the body
-    and mount-walk rows (5–10) (read-only)."""
+    process rows' constant Jacobian (5, 22), and the whitened Jacobian (21, 22) of the
+    mount-walk rows (7–10) (read-only; the body rows 5–6 depend on the frame's body std)."""
     d = FRAME_DIM
     q = F.process_noise(dt, noise)
     w = whitener(F.process_covariance(dt, noise, cross_track_std_m))
@@ -81,12 +82,8 @@ def _frame_constants(dt: float, noise: NoiseParams, cross_track_std_m: float) ->
     static[0, 3] = -dt  # along: -v0·dt
     static[2, 2], static[2, 4], static[2, d + 2] = -1.0, -dt, 1.0
     static[3, 3], static[3, d + 3], static[4, 4], static[4, d + 4] = -1.0, 1.0, -1.0, 1.0
-    body_a = F.body_decay(dt, noise)
-    body_isig = 1.0 / math.sqrt(q[M.BODY_PITCH, M.BODY_PITCH])
     walk = 1.0 / np.sqrt(np.diag(q)[[M.MOUNT_PITCH, M.MOUNT_ROLL, M.MOUNT_HEIGHT, M.MOUNT_YAW]])
     lin = np.zeros((PAIR_ROWS, 2 * d))
-    for i, col in enumerate((9, 10)):  # body: b_k − a·b_{k-1}
-        lin[5 + i, col], lin[5 + i, d + col] = -body_isig * body_a, body_isig
     for i, col in enumerate((5, 6, 7, 8)):  # mount walks: m_k − m_{k-1}
         lin[7 + i, col], lin[7 + i, d + col] = -walk[i], walk[i]
     out = (w, w @ static, lin)
@@ -133,13 +130,21 @@ def pair_constants(
     cross_track_std_m: float,
     metric: bool,
     given_pose: bool = False,
+    body_std: FloatArray | None = None,
 ) -> dict[str, object]:
     """One pair's entries of :class:`StackedPairs` (a row of each field); ``given_pose``: the
     motion rows are the motion given the pair's angles (``SmootherConfig.motion_given_pose``),
-    else its own (marginal) covariance."""
+    else its own (marginal) covariance; ``body_std``: frame k's body std (pitch, roll, rad;
+    None: the model's)."""
     d = FRAME_DIM
     wq, process_jac, lin_static = _frame_constants(float(dt), noise, float(cross_track_std_m))
     lin = lin_static.copy()
+    if body_std is None:
+        body_std = np.full(2, math.radians(noise.body_std_deg))
+    decay, var = body_transition(float(dt), body_std, noise)
+    for i, col in enumerate((9, 10)):  # body: b_k − a·b_{k-1}
+        isig = 1.0 / math.sqrt(var[i])
+        lin[5 + i, col], lin[5 + i, d + col] = -isig * decay[i], isig
     b = np.zeros(PAIR_ROWS)
     ok = bool(m.ok)
     z = np.asarray(m.z, dtype=float) if ok else np.zeros(7)
