@@ -38,6 +38,7 @@ smoother (``filters.fixed_lag``) runs on it; a test holds it equal to these gtsa
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from functools import lru_cache
 
 import gtsam
@@ -46,6 +47,7 @@ from numpy.typing import NDArray
 
 from . import model as M
 from .body_scale import body_transition
+from .compiled import kernel
 from .model import NoiseParams
 
 FloatArray = NDArray[np.float64]
@@ -91,6 +93,30 @@ LOSSES: tuple[str, ...] = ("huber", "cauchy", "geman-mcclure", "tukey", "none")
 #: weight is 1 − 2r²/k² + O(r⁴), Cauchy's 1 − r²/k², so GM at √2·k weighs the good pairs as
 #: Cauchy at k does (at k itself it cost ~1 % pitch / roll RMS on clean drives)
 LOSS_K_SCALE: dict[str, float] = {"geman-mcclure": math.sqrt(2.0)}
+
+
+#: the losses as the compiled code's codes (``robust_weight``, ``window_rows``)
+LOSS_CODE: dict[str, int] = {"none": 0, "huber": 1, "cauchy": 2, "geman-mcclure": 3, "tukey": 4}
+
+
+@kernel
+def robust_weight(norm: float, code: int, k: float) -> float:
+    """IRLS weight of gtsam's M-estimator (``LOSS_CODE``) of threshold ``k`` at a whitened
+    block norm (what ``noiseModel.Robust`` multiplies the squared rows by)."""
+    if code == 1:
+        return 1.0 if norm <= k else k / max(norm, 1e-300)
+    if code == 2:
+        return k * k / (k * k + norm * norm)
+    if code == 3:
+        return k**4 / (k * k + norm * norm) ** 2
+    if code == 4:
+        return (1.0 - (norm / k) ** 2) ** 2 if norm <= k else 0.0
+    return 1.0
+
+
+def whitener(cov: FloatArray) -> FloatArray:
+    """L⁻¹ of cov = L·Lᵀ (…, n, n): whitened residual = L⁻¹ · residual."""
+    return np.linalg.inv(np.linalg.cholesky(np.asarray(cov, dtype=float)))
 
 
 def robust(base: gtsam.noiseModel.Base, kind: str, k: float) -> gtsam.noiseModel.Base:
@@ -155,6 +181,27 @@ def _pose_residual(v: gtsam.Values, keys: list[int], z4: FloatArray) -> FloatArr
             + J_POSE_BCURR @ v.atVector(keys[2]) - z4)
 
 
+@dataclass(frozen=True)
+class GivenPose:
+    """What the motion-given-angles form of ``motion_pair_factor`` needs of its pair: the
+    angles z4 (rad), A and the covariance A·Σ_angles,motion they explain
+    (``model.motion_given_pose``), the angles' whitener and the pose factor's robust loss."""
+
+    z4: FloatArray
+    gain: FloatArray  # (3, 4)
+    reduction: FloatArray  # (3, 3)
+    pose_whitener: FloatArray  # (4, 4)
+    loss: str
+    loss_k: float
+
+    @classmethod
+    def of_pair(cls, cov: FloatArray, z4: FloatArray, loss: str, loss_k: float) -> GivenPose:
+        """From a pair's 7×7 covariance (``pair_covariance``) and angles."""
+        gain, conditional = M.motion_given_pose(cov)
+        return cls(np.asarray(z4, dtype=float).copy(), gain, cov[4:, 4:] - conditional,
+                   whitener(cov[:4, :4]), loss, float(loss_k))
+
+
 def motion_pair_factor(
     k: int,
     z3: FloatArray,
@@ -163,7 +210,7 @@ def motion_pair_factor(
     loss: str = "huber",
     loss_k: float = 3.0,
     metric: bool = True,
-    given_pose: tuple[FloatArray, FloatArray] | None = None,
+    given_pose: GivenPose | None = None,
 ) -> gtsam.CustomFactor:
     """Factor of the pair's motion (tx, tz at the assumed height, m; yaw, rad) on X_{k-1},
     X_k, H_k, Y_k: ``model.pair_measurement`` rows 4–6.
@@ -172,17 +219,23 @@ def motion_pair_factor(
     as the EKF does: scale is then unobservable and the motion prior alone would shrink it
     (smaller motion, smaller accelerations), so the pair must not move h.
 
-    ``given_pose`` = (z4, A): the motion given the pair's angles (``model.motion_given_pose``;
-    ``cov3`` is then the conditional covariance): the residual is the motion's minus A times
-    the pose pair's residual, so the factor also acts on M_k, B_{k-1}, B_k."""
+    ``given_pose``: the motion given the pair's angles (:class:`GivenPose`): the residual is
+    the motion's minus w·A times the pose pair's residual, of covariance ``cov3`` − w·(what the
+    angles explain), w the pose block's robust weight at the current values (1: the
+    conditional of ``model.motion_given_pose``; 0, angles rejected: the motion's own); the
+    factor then also acts on M_k, B_{k-1}, B_k and whitens itself (w held fixed in the
+    Jacobian, as IRLS holds a robust weight)."""
     z3 = np.asarray(z3, dtype=float).copy()
-    noise = robust(_gaussian(cov3), loss, loss_k)
+    cov3 = np.asarray(cov3, dtype=float)
     keys = [key("X", k - 1), key("X", k), key("H", k), key("Y", k)]
-    if given_pose is not None:
-        z4 = np.asarray(given_pose[0], dtype=float).copy()
-        gain = np.asarray(given_pose[1], dtype=float)
+    if given_pose is None:
+        noise = robust(_gaussian(cov3), loss, loss_k)
+    else:
+        noise = robust(gtsam.noiseModel.Unit.Create(3), loss, loss_k)
+        gp = given_pose
         keys += _pose_keys(k)
-        j_pose = [-gain @ J_POSE_MOUNT, -gain @ J_POSE_BPREV, -gain @ J_POSE_BCURR]
+        j_pose = [gp.gain @ J_POSE_MOUNT, gp.gain @ J_POSE_BPREV, gp.gain @ J_POSE_BCURR]
+        pose_loss = LOSS_CODE[gp.loss]
     h0 = float(height_assumed)
     zero31 = np.zeros((3, 1))
 
@@ -199,7 +252,11 @@ def motion_pair_factor(
         tx, tz = sc * (c * dx - s * dy), sc * (s * dx + c * dy)
         e = np.array([tx - z3[0], tz - z3[1], wrap(psi1 - psi0 - z3[2])])
         if given_pose is not None:
-            e -= gain @ _pose_residual(v, keys[4:], z4)
+            pose_res = _pose_residual(v, keys[4:], gp.z4)
+            w = robust_weight(float(np.linalg.norm(gp.pose_whitener @ pose_res)), pose_loss,
+                              gp.loss_k)
+            wm = whitener(cov3 - w * gp.reduction)
+            e = wm @ (e - w * gp.gain @ pose_res)
         if jac is not None:
             # ∂/∂(x, y, ψ) of (tx, tz, yaw) times the Pose2 tangent Jacobian (tangent_jacobian)
             # of either frame; the heading enters tx, tz through g = ψ_{k-1} + yaw_m
@@ -216,7 +273,9 @@ def motion_pair_factor(
             jac[2] = np.array([[-tx / h], [-tz / h], [0.0]]) if metric else zero31
             jac[3] = np.array([[tg_x], [tg_z], [0.0]])
             if given_pose is not None:
-                jac[4], jac[5], jac[6] = j_pose
+                for i in range(4):
+                    jac[i] = wm @ jac[i]
+                jac[4], jac[5], jac[6] = (-w * wm @ j for j in j_pose)
         return e
 
     return gtsam.CustomFactor(noise, keys, error)

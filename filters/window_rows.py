@@ -29,6 +29,7 @@ from . import factors as F
 from . import model as M
 from .body_scale import body_transition
 from .compiled import kernel
+from .factors import robust_weight
 from .model import NoiseParams
 
 FloatArray = NDArray[np.float64]
@@ -40,34 +41,10 @@ STANDSTILL_ROWS = slice(19, 21)
 
 # first column of frame k in a pair's columns (frame k-1's start at 0)
 _CURR = FRAME_DIM
-# robust losses as the compiled loop's codes (``factors.LOSSES``)
-_LOSS_CODE = {"none": 0, "huber": 1, "cauchy": 2, "geman-mcclure": 3, "tukey": 4}
-
-
-@kernel
-def _weight(norm: float, code: int, k: float) -> float:
-    """IRLS weight of gtsam's M-estimator (``_LOSS_CODE``) of threshold ``k`` at a whitened
-    block norm (what ``noiseModel.Robust`` multiplies the squared rows by)."""
-    if code == 1:
-        return 1.0 if norm <= k else k / max(norm, 1e-300)
-    if code == 2:
-        return k * k / (k * k + norm * norm)
-    if code == 3:
-        return k**4 / (k * k + norm * norm) ** 2
-    if code == 4:
-        return (1.0 - (norm / k) ** 2) ** 2 if norm <= k else 0.0
-    return 1.0
-
-
 def _loss_code(kind: str) -> int:
-    if kind not in _LOSS_CODE:
+    if kind not in F.LOSS_CODE:
         raise ValueError(f"unknown robust loss {kind!r}; expected one of {', '.join(F.LOSSES)}")
-    return _LOSS_CODE[kind]
-
-
-def whitener(cov: FloatArray) -> FloatArray:
-    """L⁻¹ of cov = L·Lᵀ (…, n, n): whitened residual = L⁻¹ · residual."""
-    return np.linalg.inv(np.linalg.cholesky(np.asarray(cov, dtype=float)))
+    return F.LOSS_CODE[kind]
 
 
 @lru_cache(maxsize=256)
@@ -77,7 +54,7 @@ def _frame_constants(dt: float, noise: NoiseParams, cross_track_std_m: float) ->
     mount-walk rows (7–10) (read-only; the body rows 5–6 depend on the frame's body std)."""
     d = FRAME_DIM
     q = F.process_noise(dt, noise)
-    w = whitener(F.process_covariance(dt, noise, cross_track_std_m))
+    w = F.whitener(F.process_covariance(dt, noise, cross_track_std_m))
     static = np.zeros((5, 2 * d))
     static[0, 3] = -dt  # along: -v0·dt
     static[2, 2], static[2, 4], static[2, d + 2] = -1.0, -dt, 1.0
@@ -108,9 +85,12 @@ class StackedPairs:
     dt: FloatArray  # (n,) s
     z: FloatArray  # (n, 7) pair measurement, rad / m at h0
     h0: FloatArray  # (n,) assumed height of the pair, m
-    w_motion: FloatArray  # (n, 3, 3) whitener of the pair motion given its angles (0: none)
-    #: (n, 3, 22), (n, 3): the whitened motion given the angles subtracts
-    #: W·A·(pose residual) = given_jac · (x_{k-1}, x_k) − given_b (``model.motion_given_pose``)
+    #: (n, 3, 3) covariance of the pair's motion (zeros where there is no pair: no rows)
+    motion_cov: FloatArray
+    #: (n, 3, 3), (n, 3, 22), (n, 3): the motion given the angles (``model.motion_given_pose``,
+    #: zeros without it): of covariance motion_cov − w·given_red, it subtracts w·A·(pose
+    #: residual) = w·(given_jac · (x_{k-1}, x_k) − given_b), w the pose block's robust weight
+    given_red: FloatArray
     given_jac: FloatArray
     given_b: FloatArray
     metric: NDArray[np.bool_]  # (n,) the pair's motion moves h_m (wheel speed nearby)
@@ -148,19 +128,18 @@ def pair_constants(
     b = np.zeros(PAIR_ROWS)
     ok = bool(m.ok)
     z = np.asarray(m.z, dtype=float) if ok else np.zeros(7)
-    w_motion = np.zeros((3, 3))
+    motion_cov, given_red = np.zeros((3, 3)), np.zeros((3, 3))
     given_jac, given_b = np.zeros((3, 2 * d)), np.zeros(3)
     if ok:
         cov = noise.pair_covariance(m.covariance, m.z[6])
-        w_pose = whitener(cov[:4, :4])
+        w_pose = F.whitener(cov[:4, :4])
         lin[POSE_ROWS] = w_pose @ _J_POSE
         b[POSE_ROWS] = w_pose @ z[:4]
+        motion_cov = cov[4:7, 4:7]
         if given_pose:
-            gain, motion_cov = M.motion_given_pose(cov)
-            w_motion = whitener(motion_cov)
-            given_jac, given_b = w_motion @ gain @ _J_POSE, w_motion @ gain @ z[:4]
-        else:
-            w_motion = whitener(cov[4:7, 4:7])
+            gain, conditional = M.motion_given_pose(cov)
+            given_red = motion_cov - conditional
+            given_jac, given_b = gain @ _J_POSE, gain @ z[:4]
     if math.isfinite(speed):
         isig = 1.0 / math.sqrt(noise.speed_meas_var(speed))
         lin[SPEED_ROW, d + 3], b[SPEED_ROW] = isig, isig * speed
@@ -172,7 +151,8 @@ def pair_constants(
         "dt": dt,
         "z": z,
         "h0": float(m.height_assumed) if ok else 1.0,
-        "w_motion": w_motion,
+        "motion_cov": motion_cov,
+        "given_red": given_red,
         "given_jac": given_jac,
         "given_b": given_b,
         "metric": metric,
@@ -204,7 +184,8 @@ def stacked_rows(
     norms = np.empty((n, 2))
     _rows(
         np.ascontiguousarray(prev, dtype=float), np.ascontiguousarray(curr, dtype=float),
-        c.dt, c.z, c.h0, c.w_motion, c.given_jac, c.given_b, c.metric, c.w_process,
+        c.dt, c.z, c.h0, c.motion_cov, c.given_red, c.given_jac, c.given_b, c.metric,
+        c.w_process,
         c.process_jac, c.lin_jac, c.lin_b, _loss_code(loss[0]), float(loss[1]), float(loss[2]),
         _loss_code(speed_loss[0]), float(speed_loss[1]), r, jac, norms,
     )
@@ -217,9 +198,25 @@ def _wrap(a: float) -> float:
 
 
 @kernel
+def _lower_inverse_cholesky(cov, out):  # pragma: no cover (compiled)
+    """out = L⁻¹ for the 3×3 ``cov`` = L·Lᵀ (the whitener of ``whitener``)."""
+    l00 = math.sqrt(cov[0, 0])
+    l10 = cov[1, 0] / l00
+    l20 = cov[2, 0] / l00
+    l11 = math.sqrt(cov[1, 1] - l10 * l10)
+    l21 = (cov[2, 1] - l20 * l10) / l11
+    l22 = math.sqrt(cov[2, 2] - l20 * l20 - l21 * l21)
+    out[0, 0], out[0, 1], out[0, 2] = 1.0 / l00, 0.0, 0.0
+    out[1, 0], out[1, 1], out[1, 2] = -l10 / (l00 * l11), 1.0 / l11, 0.0
+    out[2, 1] = -l21 / (l11 * l22)
+    out[2, 0] = -(l20 * out[0, 0] + l21 * out[1, 0]) / l22
+    out[2, 2] = 1.0 / l22
+
+
+@kernel
 def _rows(  # pragma: no cover (compiled)
-    prev, curr, dt_, z, h0, w_motion, given_jac, given_b, metric, w_process, process_jac,
-    lin_jac, lin_b, loss, k4, k3, speed_loss, k_speed, r, jac, norms,
+    prev, curr, dt_, z, h0, motion_cov, given_red, given_jac, given_b, metric, w_process,
+    process_jac, lin_jac, lin_b, loss, k4, k3, speed_loss, k_speed, r, jac, norms,
 ):
     """``stacked_rows``' loop over the pairs: fills r, jac, norms."""
     d = FRAME_DIM
@@ -229,6 +226,9 @@ def _rows(  # pragma: no cover (compiled)
     dyn = np.empty((2, 6))
     e = np.empty(5)
     j3 = np.zeros((3, cols))
+    cov = np.empty((3, 3))
+    w_motion = np.zeros((3, 3))
+    given = np.empty(3)
     for k in range(prev.shape[0]):
         both[:d] = prev[k]
         both[d:] = curr[k]
@@ -282,26 +282,42 @@ def _rows(  # pragma: no cover (compiled)
         j3[0, 2], j3[0, _CURR + 8], j3[1, 2], j3[1, _CURR + 8] = -tz, -tz, tx, tx
         j3[0, _CURR + 7], j3[1, _CURR + 7] = -tx * dh, -tz * dh
         j3[2, 2], j3[2, _CURR + 2] = -1.0, 1.0
-        for i in range(3):
-            acc = given_b[k, i]
-            for j in range(3):
-                acc += w_motion[k, i, j] * e[j]
-            for c in range(cols):
-                acc -= given_jac[k, i, c] * both[c]
-                jac[k, 15 + i, c] = (
-                    w_motion[k, i, 0] * j3[0, c] + w_motion[k, i, 1] * j3[1, c]
-                    + w_motion[k, i, 2] * j3[2, c] - given_jac[k, i, c]
-                )
-            r[k, 15 + i] = acc
-        # robust weights (IRLS, as gtsam's noiseModel.Robust) of the pair blocks and the speed
+        # the motion given the angles as far as the pose block is trusted: its robust weight w
+        # inflates the angles' covariance by 1/w, which scales A by w and gives back w·(the
+        # covariance the angles explained)
         pose_sq = 0.0
         for i in range(11, 15):
             pose_sq += r[k, i] * r[k, i]
+        norms[k, 0] = math.sqrt(pose_sq)
+        w_pose = robust_weight(norms[k, 0], loss, k4)
+        for i in range(3):
+            for j in range(3):
+                cov[i, j] = motion_cov[k, i, j] - w_pose * given_red[k, i, j]
+        if motion_cov[k, 0, 0] > 0.0:
+            _lower_inverse_cholesky(cov, w_motion)
+        else:
+            w_motion[:, :] = 0.0
+        for i in range(3):
+            acc = -given_b[k, i]
+            for c in range(cols):
+                acc += given_jac[k, i, c] * both[c]
+            given[i] = e[i] - w_pose * acc
+        for i in range(3):
+            acc = 0.0
+            for j in range(3):
+                acc += w_motion[i, j] * given[j]
+            r[k, 15 + i] = acc
+            for c in range(cols):
+                acc = 0.0
+                for j in range(3):
+                    acc += w_motion[i, j] * (j3[j, c] - w_pose * given_jac[k, j, c])
+                jac[k, 15 + i, c] = acc
+        # robust weights (IRLS, as gtsam's noiseModel.Robust) of the pair blocks and the speed
         motion_sq = r[k, 15] ** 2 + r[k, 16] ** 2 + r[k, 17] ** 2
-        norms[k, 0], norms[k, 1] = math.sqrt(pose_sq), math.sqrt(motion_sq)
-        s_pose = math.sqrt(_weight(norms[k, 0], loss, k4))
-        s_motion = math.sqrt(_weight(norms[k, 1], loss, k3))
-        s_speed = math.sqrt(_weight(abs(r[k, SPEED_ROW]), speed_loss, k_speed))
+        norms[k, 1] = math.sqrt(motion_sq)
+        s_pose = math.sqrt(w_pose)
+        s_motion = math.sqrt(robust_weight(norms[k, 1], loss, k3))
+        s_speed = math.sqrt(robust_weight(abs(r[k, SPEED_ROW]), speed_loss, k_speed))
         for i in range(11, 19):
             s = s_pose if i < 15 else (s_motion if i < 18 else s_speed)
             r[k, i] *= s

@@ -129,20 +129,29 @@ def test_motion_given_pose_factor_subtracts_the_regression_on_the_pose_residual(
     np.testing.assert_allclose((t @ cov)[:, :4], 0.0, atol=1e-18)
     np.testing.assert_allclose(t @ cov @ t.T, cond, rtol=1e-9, atol=1e-18)
     z = np.array([0.01, 0.02, 0.015, 0.01, 0.01, 0.7, 0.02])
-    f = F.motion_pair_factor(1, z[4:], cond, H0, loss="none", given_pose=(z[:4], gain))
-    marginal = F.motion_pair_factor(1, z[4:], cond, H0, loss="none")
-    pose = F.pose_pair_factor(1, z[:4], cov[:4, :4], loss="none")
-    np.testing.assert_allclose(
-        f.unwhitenedError(v), marginal.unwhitenedError(v) - gain @ pose.unwhitenedError(v),
-        atol=1e-12,
-    )
     keys = [F.key(c, k) for c, k in (("X", 0), ("X", 1), ("H", 1), ("Y", 1), ("M", 1),
                                     ("B", 0), ("B", 1))]
-    numeric = _numeric_jacobians(f, v, keys, [3, 3, 1, 1, 2, 2, 2])
-    a_all, _ = f.linearize(v).jacobian()
-    # a full covariance whitens with some square root of its inverse: compare the information
-    info = numeric.T @ np.linalg.solve(cond, numeric)
-    np.testing.assert_allclose(a_all.T @ a_all, info, rtol=1e-5, atol=1e-6 * np.abs(info).max())
+    marginal = F.motion_pair_factor(1, z[4:], cov[4:, 4:], H0, loss="none")
+    pose = F.pose_pair_factor(1, z[:4], cov[:4, :4], loss="none")
+    pose_res = pose.unwhitenedError(v)
+    for loss, k4 in (("none", 1.0), ("geman-mcclure", 0.5 * pose.whitenedError(v).dot(
+            pose.whitenedError(v)) ** 0.5)):
+        given = F.GivenPose.of_pair(cov, z[:4], loss, k4)
+        f = F.motion_pair_factor(1, z[4:], cov[4:, 4:], H0, loss="none", given_pose=given)
+        # the pose block's robust weight w: the angles' covariance inflated by 1/w
+        w = 1.0 if loss == "none" else 1.0 / (1.0 + 4.0) ** 2  # GM at half the norm: 1/25
+        inflated = cov.copy()
+        inflated[:4, :4] /= w
+        gain_w, cond_w = M.motion_given_pose(inflated)
+        np.testing.assert_allclose(gain_w, w * gain, rtol=1e-9, atol=1e-15)
+        # self-whitened: W(cond_w) · (motion residual − w·A·pose residual)
+        expected = F.whitener(cond_w) @ (marginal.unwhitenedError(v) - gain_w @ pose_res)
+        np.testing.assert_allclose(f.unwhitenedError(v), expected, rtol=1e-9, atol=1e-9)
+        # Jacobians with w held fixed (IRLS): numeric ones of the same expression
+        numeric = _numeric_jacobians(f, v, keys, [3, 3, 1, 1, 2, 2, 2]) if w == 1.0 else None
+        if numeric is not None:
+            a_all, _ = f.linearize(v).jacobian()
+            np.testing.assert_allclose(a_all, numeric, rtol=1e-5, atol=1e-6 * np.abs(a_all).max())
 
 
 def test_process_factor_follows_propagate_pose_and_its_jacobians_are_right():
@@ -442,12 +451,19 @@ def test_smooth_from_images_equals_smooth_of_the_saved_estimates(tmp_path):
     truth = np.degrees(traj.pitch)
     assert (np.sqrt(np.mean((a["pitch_deg"][ok] - truth[ok]) ** 2))
             < np.sqrt(np.mean((raw["pitch_deg"][ok] - truth[ok]) ** 2)))
-    # the motion given the angles: runs through the CLI and is recorded in the summary
+    # the motion given the angles and a fixed body std: run through the CLI, recorded in the
+    # summary (the default is each pair's own motion, body std matched over 6 s)
+    assert json.loads((tmp_path / "b.summary.json").read_text())["smoother"][
+        "motion_given_pose"] is False
     assert main(["smooth", "--estimates", str(tmp_path / "est.csv"), *common[2:],
-                 "--motion-given-pose", "--out", str(tmp_path / "c.csv")]) == 0
+                 "--motion-given-pose", "--body-window", "0",
+                 "--out", str(tmp_path / "c.csv")]) == 0
     summary = json.loads((tmp_path / "c.summary.json").read_text())
     assert summary["smoother"]["motion_given_pose"] is True
-    assert np.all(np.isfinite(read_table(tmp_path / "c.csv")["tz_m"][ok]))
+    assert summary["smoother"]["body_window_s"] == 0.0
+    c = read_table(tmp_path / "c.csv")
+    assert np.all(np.isfinite(c["tz_m"][ok]))
+    assert not np.allclose(c["tz_m"][ok], b["tz_m"][ok], atol=1e-9)
 
 
 def test_cli_warns_when_no_pair_is_usable(tmp_path, capsys):
@@ -529,7 +545,8 @@ def test_cli_smooths_an_estimates_table(tmp_path, capsys):
         ]
     )
     assert rc == 2
-    for option, value in (("--lever-arm-std", "-1"), ("--body-tau", "0"), ("--body-std", "nan")):
+    for option, value in (("--lever-arm-std", "-1"), ("--body-tau", "0"), ("--body-std", "nan"),
+                          ("--body-window", "-1")):
         capsys.readouterr()
         rc = main(["smooth", "--estimates", str(est), "--height", "1.5", option, value,
                    "--out", str(out), "--quiet"])
@@ -619,10 +636,8 @@ def test_stacked_rows_are_the_gtsam_factors(metric, given):
     prev, curr = _model_vector(v, 0)[None], _model_vector(v, 1)[None]
     r, jac, norms = W.stacked_rows(prev, curr, c)
     pair_cov = nz.pair_covariance(cov, z[6])  # as the filters take it (lever arm: tx)
-    gain, motion_cov = M.motion_given_pose(pair_cov)  # the motion given the pair's angles
-    motion = (F.motion_pair_factor(1, z[4:], motion_cov, H0, "none", 3.0, metric, (z[:4], gain))
-              if given else F.motion_pair_factor(1, z[4:], pair_cov[4:, 4:], H0, "none", 3.0,
-                                                 metric))
+    given_pose = F.GivenPose.of_pair(pair_cov, z[:4], "none", 3.0) if given else None
+    motion = F.motion_pair_factor(1, z[4:], pair_cov[4:, 4:], H0, "none", 3.0, metric, given_pose)
     blocks = [
         (slice(0, 5), [F.process_factor(1, dt, nz, 0.001)]),
         (slice(5, 7), [F.body_factor(1, dt, nz)]),
@@ -652,8 +667,9 @@ def test_stacked_rows_are_the_gtsam_factors(metric, given):
     np.testing.assert_allclose(jac[0], num, rtol=1e-5, atol=1e-4 * np.abs(jac[0]).max())
 
 
+@pytest.mark.parametrize("given", [False, True])
 @pytest.mark.parametrize("kind", [k for k in F.LOSSES if k != "none"])
-def test_stacked_robust_rows_are_gtsams_robust_factors(kind):
+def test_stacked_robust_rows_are_gtsams_robust_factors(kind, given):
     # thresholds below the blocks' norms: every loss down-weights; gtsam's linearisation of
     # the robust factor (IRLS: rows × √weight) has the same norm as the stacked rows
     rng = np.random.default_rng(11)
@@ -661,22 +677,29 @@ def test_stacked_robust_rows_are_gtsams_robust_factors(kind):
     v.update(F.key("X", 1), v.atPose2(F.key("X", 0)).compose(gtsam.Pose2(0.6, 0.02, 0.01)))
     dt, nz, speed = 0.05, M.NoiseParams(), 11.0
     cov = np.diag([1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-6])
+    if given:  # tz correlated with the pitch, as the estimator's
+        cov[5, 2] = cov[2, 5] = -0.9e-4
     z = rng.normal(0, 0.05, 7)
     m = PairMeasurement(frame=1, t=dt, z=z, covariance=cov, height_assumed=H0, status="ok")
     c = W.StackedPairs(
-        **{k: np.asarray([val]) for k, val in W.pair_constants(m, dt, speed, nz, 0.001, True)
-           .items()}
+        **{k: np.asarray([val]) for k, val in W.pair_constants(m, dt, speed, nz, 0.001, True,
+                                                                 given).items()}
     )
     prev, curr = _model_vector(v, 0)[None], _model_vector(v, 1)[None]
     plain, _, norms = W.stacked_rows(prev, curr, c)
-    k4, k3 = 0.8 * norms[0, 0], 0.8 * norms[0, 1]
+    k4 = 0.8 * norms[0, 0]
+    # the motion block's norm depends on the pose block's weight (given): take it robust
+    k3 = 0.8 * W.stacked_rows(prev, curr, c, (kind, k4, 1e9))[2][0, 1]
     ks = 0.8 * abs(plain[0, W.SPEED_ROW])
     r, _, norms_robust = W.stacked_rows(prev, curr, c, (kind, k4, k3), (kind, ks))
-    np.testing.assert_array_equal(norms_robust, norms)  # norms are the Gaussian ones
+    if not given:
+        np.testing.assert_array_equal(norms_robust, norms)  # norms are the Gaussian ones
     pair_cov = nz.pair_covariance(cov, z[6])
+    given_pose = F.GivenPose.of_pair(pair_cov, z[:4], kind, k4) if given else None
     for rows, f in (
         (W.POSE_ROWS, F.pose_pair_factor(1, z[:4], pair_cov[:4, :4], kind, k4)),
-        (W.MOTION_ROWS, F.motion_pair_factor(1, z[4:], pair_cov[4:, 4:], H0, kind, k3)),
+        (W.MOTION_ROWS, F.motion_pair_factor(1, z[4:], pair_cov[4:, 4:], H0, kind, k3, True,
+                                             given_pose)),
         (slice(18, 19), F.speed_factor(1, speed, nz, kind, ks)),
     ):
         lin = f.linearize(v)  # (kept: getb is a view into it)
