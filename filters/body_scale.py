@@ -3,10 +3,9 @@
 The model's ``NoiseParams.body_std_deg`` is a floor. Over a trailing window the measured body
 (a pair's current-frame pitch/roll, minus the mount where a filter has one) has the robust
 variance (1.4826 · MAD)² = body variance + measurement variance (covariance matching); where
-that body std is larger than the floor, it replaces it. A larger std comes with a shorter
-time constant, τ = τ₀ · (σ₀ / σ)², so the body's low-frequency power 2σ²τ (what competes with
-the slow mount) stays the model's: shaking beyond the model is fast, it does not pull the
-mount. Used by the EKF (body = pair minus its filtered mount) and both smoothers (body = the
+that body std is larger than the floor, it replaces it (with a shorter time constant, so
+the shaking beyond the model is fast and does not pull the mount: ``model.body_transition``).
+Used by the EKF (body = pair minus its filtered mount) and both smoothers (body = the
 pair's angles; within a window of seconds the mount is constant, and the MAD is about the
 window's median).
 """
@@ -57,30 +56,3 @@ class BodyScale:
         mad = np.median(np.abs(b - np.median(b, axis=0)), axis=0)
         var = (1.4826 * mad) ** 2 - np.median(r, axis=0)
         return np.sqrt(np.maximum(self._floor**2, var))
-
-
-def body_transition(
-    dt: float, std: FloatArray, noise: NoiseParams
-) -> tuple[FloatArray, FloatArray]:
-    """Decay a and process variance (rad²) of the body (pitch, roll) over ``dt`` s with
-    stationary std ``std`` (rad, per axis): b_k = a·b_{k-1} + w, var(w) as returned. The
-    time constant shrinks as the std grows (module doc)."""
-    std = np.asarray(std, dtype=float)
-    tau = noise.body_tau_s * (math.radians(noise.body_std_deg) / std) ** 2
-    decay = np.exp(-dt / tau)
-    return decay, std**2 * (1.0 - decay**2)
-
-
-def body_std_series(
-    t: FloatArray, body: FloatArray, var: FloatArray, ok: NDArray[np.bool_],
-    noise: NoiseParams, window_s: float, min_pairs: int,
-) -> FloatArray:
-    """:class:`BodyScale` run over a drive: (n, 2) body std (rad) at each frame from the pairs
-    up to it (``body``, ``var``: (n, 2) measured body and variances; ``ok``: usable pairs)."""
-    scale = BodyScale(noise, window_s, min_pairs)
-    out = np.empty((len(t), 2))
-    for k in range(len(t)):
-        if ok[k]:
-            scale.add(float(t[k]), body[k], var[k])
-        out[k] = scale.std()
-    return out

@@ -44,7 +44,7 @@ from scipy.stats import chi2
 from vipm_track.measurement import PairMeasurement
 
 from . import model as M
-from .body_scale import BodyScale, body_transition
+from .body_scale import BodyScale
 from .model import NoiseParams
 
 FloatArray = NDArray[np.float64]
@@ -175,7 +175,7 @@ class _ClonedEKF(ExtendedKalmanFilter):
 
     def predict_dt(self, dt: float) -> None:
         x_new, self.F, self.Q = M.transition(self.x, dt, self._noise)
-        decay, var = body_transition(dt, self.body_std, self._noise)
+        decay, var = M.body_transition(dt, self._noise, self.body_std)
         for j, i in enumerate((M.BODY_PITCH, M.BODY_ROLL)):
             x_new[i] = decay[j] * self.x[i]
             self.F[i, i] = decay[j]

@@ -46,7 +46,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import model as M
-from .body_scale import body_transition
 from .compiled import kernel
 from .model import NoiseParams
 
@@ -117,6 +116,23 @@ def robust_weight(norm: float, code: int, k: float) -> float:
 def whitener(cov: FloatArray) -> FloatArray:
     """L⁻¹ of cov = L·Lᵀ (…, n, n): whitened residual = L⁻¹ · residual."""
     return np.linalg.inv(np.linalg.cholesky(np.asarray(cov, dtype=float)))
+
+
+@kernel
+def lower_inverse_cholesky(cov: FloatArray, out: FloatArray) -> None:
+    """out = L⁻¹ for a 3×3 ``cov`` = L·Lᵀ: ``whitener`` of a 3×3 covariance, compiled (the
+    motion blocks' whitener in the compiled rows and the motion factor)."""
+    l00 = math.sqrt(cov[0, 0])
+    l10 = cov[1, 0] / l00
+    l20 = cov[2, 0] / l00
+    l11 = math.sqrt(cov[1, 1] - l10 * l10)
+    l21 = (cov[2, 1] - l20 * l10) / l11
+    l22 = math.sqrt(cov[2, 2] - l20 * l20 - l21 * l21)
+    out[0, 0], out[0, 1], out[0, 2] = 1.0 / l00, 0.0, 0.0
+    out[1, 0], out[1, 1], out[1, 2] = -l10 / (l00 * l11), 1.0 / l11, 0.0
+    out[2, 1] = -l21 / (l11 * l22)
+    out[2, 0] = -(l20 * out[0, 0] + l21 * out[1, 0]) / l22
+    out[2, 2] = 1.0 / l22
 
 
 def robust(base: gtsam.noiseModel.Base, kind: str, k: float) -> gtsam.noiseModel.Base:
@@ -236,6 +252,7 @@ def motion_pair_factor(
         keys += _pose_keys(k)
         j_pose = [gp.gain @ J_POSE_MOUNT, gp.gain @ J_POSE_BPREV, gp.gain @ J_POSE_BCURR]
         pose_loss = LOSS_CODE[gp.loss]
+        wm = np.empty((3, 3))  # the whitener at the current pose weight
     h0 = float(height_assumed)
     zero31 = np.zeros((3, 1))
 
@@ -255,7 +272,7 @@ def motion_pair_factor(
             pose_res = _pose_residual(v, keys[4:], gp.z4)
             w = robust_weight(float(np.linalg.norm(gp.pose_whitener @ pose_res)), pose_loss,
                               gp.loss_k)
-            wm = whitener(cov3 - w * gp.reduction)
+            lower_inverse_cholesky(cov3 - w * gp.reduction, wm)
             e = wm @ (e - w * gp.gain @ pose_res)
         if jac is not None:
             # ∂/∂(x, y, ψ) of (tx, tz, yaw) times the Pose2 tangent Jacobian (tangent_jacobian)
@@ -374,11 +391,9 @@ def body_factor(
     k: int, dt: float, noise: NoiseParams, std: FloatArray | None = None
 ) -> gtsam.LinearContainerFactor:
     """Gauss–Markov body b_k = a·b_{k-1} + w over ``dt`` with stationary std ``std`` (rad,
-    pitch and roll; None: the model's; ``body_scale.body_transition``'s decay and variance):
+    pitch and roll; None: the model's; ``model.body_transition``'s decay and variance):
     an exactly linear factor, so gtsam evaluates it without Python."""
-    if std is None:
-        std = np.full(2, math.radians(noise.body_std_deg))
-    decay, var = body_transition(float(dt), std, noise)
+    decay, var = M.body_transition(float(dt), noise, std)
     kp, kc = key("B", k - 1), key("B", k)
     jf = gtsam.JacobianFactor(
         kp, -np.diag(decay), kc, np.eye(2), np.zeros(2),

@@ -193,14 +193,18 @@ class NoiseParams:
 # --- process model --------------------------------------------------------------------------
 
 
-def body_decay(dt: float, tau: float) -> float:
-    """Gauss–Markov factor exp(-dt/τ) over ``dt`` seconds."""
-    return float(np.exp(-dt / tau))
-
-
-def body_process_var(dt: float, tau: float, std: float) -> float:
-    """Variance added to a Gauss–Markov state of stationary ``std`` over ``dt`` seconds."""
-    return float(std**2 * (1.0 - np.exp(-2.0 * dt / tau)))
+def body_transition(
+    dt: float, noise: NoiseParams, std: FloatArray | None = None
+) -> tuple[FloatArray, FloatArray]:
+    """Decay a and process variance (rad²) of the Gauss–Markov body (pitch, roll) over ``dt``
+    s with stationary std ``std`` (rad, per axis; None: ``body_std_deg``):
+    b_k = a·b_{k-1} + w. A larger std comes with a shorter time constant,
+    τ = ``body_tau_s`` · (σ₀/σ)², so the body's low-frequency power 2σ²τ, what competes with
+    the slow mount, stays the model's (``filters.body_scale``: the std adapted to the data)."""
+    std0 = math.radians(noise.body_std_deg)
+    std = np.full(2, std0) if std is None else np.asarray(std, dtype=float)
+    decay = np.exp(-dt * (std / std0) ** 2 / noise.body_tau_s)
+    return decay, std**2 * (1.0 - decay**2)
 
 
 def propagate_pose(
@@ -240,13 +244,13 @@ def transition(
     v, om, psi = s[SPEED], s[YAW_RATE], s[HEADING]
     a = psi + 0.5 * om * dt
     sa, ca = np.sin(a), np.cos(a)
-    decay = body_decay(dt, noise.body_tau_s)
+    decay, bvar = body_transition(dt, noise)
     out = s.copy()
     out[BODY] *= decay
     out[POS_X], out[POS_Y], out[HEADING] = propagate_pose(s[POS_X], s[POS_Y], psi, v, om, dt)
 
     f = np.eye(n)
-    f[BODY, BODY] = np.eye(2) * decay
+    f[BODY, BODY] = np.diag(decay)
     f[POS_X, SPEED] = dt * sa
     f[POS_Y, SPEED] = dt * ca
     f[POS_X, HEADING] = v * dt * ca
@@ -261,8 +265,7 @@ def transition(
     q[MOUNT_PITCH, MOUNT_PITCH] = q[MOUNT_ROLL, MOUNT_ROLL] = ang
     q[MOUNT_HEIGHT, MOUNT_HEIGHT] = noise.mount_height_rw_m_per_sqrt_s**2 * dt
     q[MOUNT_YAW, MOUNT_YAW] = np.radians(noise.mount_yaw_rw_deg_per_sqrt_s) ** 2 * dt
-    bvar = body_process_var(dt, noise.body_tau_s, np.radians(noise.body_std_deg))
-    q[BODY_PITCH, BODY_PITCH] = q[BODY_ROLL, BODY_ROLL] = bvar
+    q[BODY_PITCH, BODY_PITCH], q[BODY_ROLL, BODY_ROLL] = bvar
     # white acceleration (speed random walk) integrated into the along-track position
     qa = noise.speed_rw_mps_per_sqrt_s**2
     u = np.array([sa, ca])

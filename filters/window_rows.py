@@ -27,9 +27,8 @@ from vipm_track.measurement import PairMeasurement
 
 from . import factors as F
 from . import model as M
-from .body_scale import body_transition
 from .compiled import kernel
-from .factors import robust_weight
+from .factors import lower_inverse_cholesky, robust_weight
 from .model import NoiseParams
 
 FloatArray = NDArray[np.float64]
@@ -119,9 +118,7 @@ def pair_constants(
     d = FRAME_DIM
     wq, process_jac, lin_static = _frame_constants(float(dt), noise, float(cross_track_std_m))
     lin = lin_static.copy()
-    if body_std is None:
-        body_std = np.full(2, math.radians(noise.body_std_deg))
-    decay, var = body_transition(float(dt), body_std, noise)
+    decay, var = M.body_transition(float(dt), noise, body_std)
     for i, col in enumerate((9, 10)):  # body: b_k − a·b_{k-1}
         isig = 1.0 / math.sqrt(var[i])
         lin[5 + i, col], lin[5 + i, d + col] = -isig * decay[i], isig
@@ -195,22 +192,6 @@ def stacked_rows(
 @kernel
 def _wrap(a: float) -> float:
     return (a + np.pi) % (2.0 * np.pi) - np.pi
-
-
-@kernel
-def _lower_inverse_cholesky(cov, out):  # pragma: no cover (compiled)
-    """out = L⁻¹ for the 3×3 ``cov`` = L·Lᵀ (the whitener of ``whitener``)."""
-    l00 = math.sqrt(cov[0, 0])
-    l10 = cov[1, 0] / l00
-    l20 = cov[2, 0] / l00
-    l11 = math.sqrt(cov[1, 1] - l10 * l10)
-    l21 = (cov[2, 1] - l20 * l10) / l11
-    l22 = math.sqrt(cov[2, 2] - l20 * l20 - l21 * l21)
-    out[0, 0], out[0, 1], out[0, 2] = 1.0 / l00, 0.0, 0.0
-    out[1, 0], out[1, 1], out[1, 2] = -l10 / (l00 * l11), 1.0 / l11, 0.0
-    out[2, 1] = -l21 / (l11 * l22)
-    out[2, 0] = -(l20 * out[0, 0] + l21 * out[1, 0]) / l22
-    out[2, 2] = 1.0 / l22
 
 
 @kernel
@@ -294,7 +275,7 @@ def _rows(  # pragma: no cover (compiled)
             for j in range(3):
                 cov[i, j] = motion_cov[k, i, j] - w_pose * given_red[k, i, j]
         if motion_cov[k, 0, 0] > 0.0:
-            _lower_inverse_cholesky(cov, w_motion)
+            lower_inverse_cholesky(cov, w_motion)
         else:
             w_motion[:, :] = 0.0
         for i in range(3):
