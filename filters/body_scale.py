@@ -13,11 +13,11 @@ window's median).
 from __future__ import annotations
 
 import math
-from collections import deque
 
 import numpy as np
 from numpy.typing import NDArray
 
+from .compiled import kernel
 from .model import NoiseParams
 
 FloatArray = NDArray[np.float64]
@@ -33,26 +33,43 @@ class BodyScale:
         self._floor = np.full(2, math.radians(noise.body_std_deg))
         self._window_s = float(window_s)
         self._min_pairs = int(min_pairs)
-        #: (t, body pitch, body roll, their measurement variances), s / rad / rad²
-        self._seen: deque[tuple[float, float, float, float, float]] = deque()
+        #: rows (t, body pitch, body roll, their measurement variances), s / rad / rad²,
+        #: of the window: self._seen[self._start:self._end]
+        self._seen = np.empty((64, 5))
+        self._start = self._end = 0
 
     def add(self, t: float, body: FloatArray, var: FloatArray) -> None:
         """One pair's measured body (pitch, roll, rad) and its measurement variances (rad²)
         at time ``t`` (s, increasing); drops what left the window."""
         if self._window_s <= 0:
             return
-        self._seen.append((float(t), float(body[0]), float(body[1]),
-                           float(var[0]), float(var[1])))
-        while self._seen and self._seen[0][0] < t - self._window_s:
-            self._seen.popleft()
+        if self._end == len(self._seen):  # full: move the window to the front, or grow
+            n = self._end - self._start
+            if n > len(self._seen) // 2:
+                self._seen = np.concatenate([self._seen, np.empty_like(self._seen)])
+            self._seen[:n] = self._seen[self._start:self._end]
+            self._start, self._end = 0, n
+        self._seen[self._end] = (t, body[0], body[1], var[0], var[1])
+        self._end += 1
+        self._start += int(np.searchsorted(self._seen[self._start:self._end, 0],
+                                           t - self._window_s))
 
     def std(self) -> FloatArray:
         """Stationary body std (pitch, roll), rad: the model's, or the robust scale of the
         window's body less its measurement noise where that is larger."""
-        if self._window_s <= 0 or len(self._seen) < self._min_pairs:
+        if self._window_s <= 0 or self._end - self._start < self._min_pairs:
             return self._floor.copy()
-        seen = np.array(self._seen)
-        b, r = seen[:, 1:3], seen[:, 3:5]
-        mad = np.median(np.abs(b - np.median(b, axis=0)), axis=0)
-        var = (1.4826 * mad) ** 2 - np.median(r, axis=0)
-        return np.sqrt(np.maximum(self._floor**2, var))
+        out = np.empty(2)
+        _matched_std(self._seen[self._start:self._end], self._floor, out)
+        return out
+
+
+@kernel
+def _matched_std(seen: FloatArray, floor: FloatArray, out: FloatArray) -> None:
+    """out = max(floor, √((1.4826·MAD)² − median variance)) per axis of the window ``seen``
+    (rows t, body pitch, roll, their variances)."""
+    for axis in range(2):
+        b = seen[:, 1 + axis]
+        mad = np.median(np.abs(b - np.median(b)))
+        var = (1.4826 * mad) ** 2 - np.median(seen[:, 3 + axis])
+        out[axis] = math.sqrt(max(floor[axis] ** 2, var))

@@ -26,7 +26,8 @@ Factors, each the model's equation with its noise:
   vehicle stands) are gtsam's built-in factors.
 
 Python ``CustomFactor`` callbacks are limited to the three nonlinear or robust pair/process
-terms. They must be linearised with Python-owned ``gtsam.Values`` (see ``smoother``): gtsam's
+terms; the process and the motion evaluate in one compiled call each (``filters.residuals``,
+shared with the window rows). They must be linearised with Python-owned ``gtsam.Values`` (see ``smoother``): gtsam's
 own nonlinear optimisers hand callbacks a copy of every value, which is quadratic in the
 drive length.
 
@@ -46,8 +47,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import model as M
-from .compiled import kernel
 from .model import NoiseParams
+from .residuals import motion_factor_eval, process_factor_eval
 
 FloatArray = NDArray[np.float64]
 
@@ -81,11 +82,6 @@ def tangent_jacobian(psi: float | FloatArray) -> FloatArray:
     return t
 
 
-def wrap(a: float) -> float:
-    """Angle wrapped to (-π, π]."""
-    return float((a + math.pi) % (2.0 * math.pi) - math.pi)
-
-
 #: robust losses of the pair factors (gtsam M-estimators), 'none' for plain least squares
 LOSSES: tuple[str, ...] = ("huber", "cauchy", "geman-mcclure", "tukey", "none")
 #: threshold multipliers that give a loss Cauchy's weight on inliers: Geman–McClure's IRLS
@@ -98,41 +94,9 @@ LOSS_K_SCALE: dict[str, float] = {"geman-mcclure": math.sqrt(2.0)}
 LOSS_CODE: dict[str, int] = {"none": 0, "huber": 1, "cauchy": 2, "geman-mcclure": 3, "tukey": 4}
 
 
-@kernel
-def robust_weight(norm: float, code: int, k: float) -> float:
-    """IRLS weight of gtsam's M-estimator (``LOSS_CODE``) of threshold ``k`` at a whitened
-    block norm (what ``noiseModel.Robust`` multiplies the squared rows by)."""
-    if code == 1:
-        return 1.0 if norm <= k else k / max(norm, 1e-300)
-    if code == 2:
-        return k * k / (k * k + norm * norm)
-    if code == 3:
-        return k**4 / (k * k + norm * norm) ** 2
-    if code == 4:
-        return (1.0 - (norm / k) ** 2) ** 2 if norm <= k else 0.0
-    return 1.0
-
-
 def whitener(cov: FloatArray) -> FloatArray:
     """L⁻¹ of cov = L·Lᵀ (…, n, n): whitened residual = L⁻¹ · residual."""
     return np.linalg.inv(np.linalg.cholesky(np.asarray(cov, dtype=float)))
-
-
-@kernel
-def lower_inverse_cholesky(cov: FloatArray, out: FloatArray) -> None:
-    """out = L⁻¹ for a 3×3 ``cov`` = L·Lᵀ: ``whitener`` of a 3×3 covariance, compiled (the
-    motion blocks' whitener in the compiled rows and the motion factor)."""
-    l00 = math.sqrt(cov[0, 0])
-    l10 = cov[1, 0] / l00
-    l20 = cov[2, 0] / l00
-    l11 = math.sqrt(cov[1, 1] - l10 * l10)
-    l21 = (cov[2, 1] - l20 * l10) / l11
-    l22 = math.sqrt(cov[2, 2] - l20 * l20 - l21 * l21)
-    out[0, 0], out[0, 1], out[0, 2] = 1.0 / l00, 0.0, 0.0
-    out[1, 0], out[1, 1], out[1, 2] = -l10 / (l00 * l11), 1.0 / l11, 0.0
-    out[2, 1] = -l21 / (l11 * l22)
-    out[2, 0] = -(l20 * out[0, 0] + l21 * out[1, 0]) / l22
-    out[2, 2] = 1.0 / l22
 
 
 def robust(base: gtsam.noiseModel.Base, kind: str, k: float) -> gtsam.noiseModel.Base:
@@ -167,6 +131,8 @@ _H_PAIR = M.pair_measurement(_PROBE, 1.0)[1]
 J_POSE_MOUNT = _H_PAIR[0:4][:, [M.MOUNT_PITCH, M.MOUNT_ROLL]].copy()
 J_POSE_BPREV = _H_PAIR[0:4][:, [M.PREV_BODY_PITCH, M.PREV_BODY_ROLL]].copy()
 J_POSE_BCURR = _H_PAIR[0:4][:, [M.BODY_PITCH, M.BODY_ROLL]].copy()
+#: the three side by side: ∂(angles)/∂(pitch_m, roll_m, b_{k-1}, b_k)
+J_POSE = np.hstack([J_POSE_MOUNT, J_POSE_BPREV, J_POSE_BCURR])
 
 
 def pose_pair_factor(
@@ -193,8 +159,7 @@ def _pose_keys(k: int) -> list[int]:
 
 def _pose_residual(v: gtsam.Values, keys: list[int], z4: FloatArray) -> FloatArray:
     """The pair's angles (m + b_{k-1}, m + b_k) at ``v`` (``keys``: ``_pose_keys``) minus z4."""
-    return (J_POSE_MOUNT @ v.atVector(keys[0]) + J_POSE_BPREV @ v.atVector(keys[1])
-            + J_POSE_BCURR @ v.atVector(keys[2]) - z4)
+    return J_POSE @ np.concatenate([v.atVector(k) for k in keys]) - z4
 
 
 @dataclass(frozen=True)
@@ -229,7 +194,7 @@ def motion_pair_factor(
     given_pose: GivenPose | None = None,
 ) -> gtsam.CustomFactor:
     """Factor of the pair's motion (tx, tz at the assumed height, m; yaw, rad) on X_{k-1},
-    X_k, H_k, Y_k: ``model.pair_measurement`` rows 4–6.
+    X_k, H_k, Y_k: ``model.pair_measurement`` rows 4–6 (``residuals.motion_residual``).
 
     ``metric=False`` (no wheel speed near this frame) drops the derivative w.r.t. the height,
     as the EKF does: scale is then unobservable and the motion prior alone would shrink it
@@ -241,61 +206,46 @@ def motion_pair_factor(
     conditional of ``model.motion_given_pose``; 0, angles rejected: the motion's own); the
     factor then also acts on M_k, B_{k-1}, B_k and whitens itself (w held fixed in the
     Jacobian, as IRLS holds a robust weight)."""
-    z3 = np.asarray(z3, dtype=float).copy()
-    cov3 = np.asarray(cov3, dtype=float)
+    z = np.zeros(7)
+    z[4:] = np.asarray(z3, dtype=float)
+    cov3 = np.ascontiguousarray(cov3, dtype=float)
     keys = [key("X", k - 1), key("X", k), key("H", k), key("Y", k)]
+    given = given_pose is not None
     if given_pose is None:
         noise = robust(_gaussian(cov3), loss, loss_k)
+        gain, reduction, pose_whitener = _NO_GAIN, _NO_REDUCTION, _NO_WHITENER
+        pose_loss, pose_k = 0, 1.0
     else:
         noise = robust(gtsam.noiseModel.Unit.Create(3), loss, loss_k)
-        gp = given_pose
         keys += _pose_keys(k)
-        j_pose = [gp.gain @ J_POSE_MOUNT, gp.gain @ J_POSE_BPREV, gp.gain @ J_POSE_BCURR]
-        pose_loss = LOSS_CODE[gp.loss]
-        wm = np.empty((3, 3))  # the whitener at the current pose weight
+        z[:4] = given_pose.z4
+        gain, reduction = given_pose.gain, given_pose.reduction
+        pose_whitener = given_pose.pose_whitener
+        pose_loss, pose_k = LOSS_CODE[given_pose.loss], given_pose.loss_k
     h0 = float(height_assumed)
-    zero31 = np.zeros((3, 1))
+    s = np.zeros(14)
+    out = np.empty((3, 15))
+    blocks = ((1, 4), (4, 7), (7, 8), (8, 9), (9, 11), (11, 13), (13, 15))[: len(keys)]
 
     def error(this: gtsam.CustomFactor, v: gtsam.Values, jac: list | None) -> FloatArray:
-        # model.expected_pair rows 4-6 written out with scalars (a test holds them equal): the
-        # Python callback runs for every frame and iteration
         p0, p1 = v.atPose2(keys[0]), v.atPose2(keys[1])
-        psi0, psi1 = p0.theta(), p1.theta()
-        dx, dy = p1.y() - p0.y(), p1.x() - p0.x()
-        h = float(v.atVector(keys[2])[0])
-        g = psi0 + float(v.atVector(keys[3])[0])
-        c, s = math.cos(g), math.sin(g)
-        sc = h0 / h
-        tx, tz = sc * (c * dx - s * dy), sc * (s * dx + c * dy)
-        e = np.array([tx - z3[0], tz - z3[1], wrap(psi1 - psi0 - z3[2])])
-        if given_pose is not None:
-            pose_res = _pose_residual(v, keys[4:], gp.z4)
-            w = robust_weight(float(np.linalg.norm(gp.pose_whitener @ pose_res)), pose_loss,
-                              gp.loss_k)
-            lower_inverse_cholesky(cov3 - w * gp.reduction, wm)
-            e = wm @ (e - w * gp.gain @ pose_res)
+        s[0], s[1], s[2] = p0.y(), p0.x(), p0.theta()
+        s[3], s[4], s[5] = p1.y(), p1.x(), p1.theta()
+        s[6], s[7] = v.atVector(keys[2])[0], v.atVector(keys[3])[0]
+        if given:
+            s[8:10], s[10:12], s[12:14] = (v.atVector(kk) for kk in keys[4:])
+        motion_factor_eval(s, h0, z, metric, cov3, given, gain, reduction, J_POSE,
+                           pose_whitener, pose_loss, pose_k, out)
         if jac is not None:
-            # ∂/∂(x, y, ψ) of (tx, tz, yaw) times the Pose2 tangent Jacobian (tangent_jacobian)
-            # of either frame; the heading enters tx, tz through g = ψ_{k-1} + yaw_m
-            tg_x, tg_z = -tz, tx
-            s0, c0 = math.sin(psi0), math.cos(psi0)
-            s1, c1 = math.sin(psi1), math.cos(psi1)
-            # rows of ∂(tx, tz)/∂(x, y) = sc · [[c, -s], [s, c]] times [[s_, c_], [c_, -s_]]
-            a00, a01 = sc * (c * s1 - s * c1), sc * (c * c1 + s * s1)
-            a10, a11 = sc * (s * s1 + c * c1), sc * (s * c1 - c * s1)
-            b00, b01 = sc * (c * s0 - s * c0), sc * (c * c0 + s * s0)
-            b10, b11 = sc * (s * s0 + c * c0), sc * (s * c0 - c * s0)
-            jac[0] = np.array([[-b00, -b01, tg_x], [-b10, -b11, tg_z], [0.0, 0.0, -1.0]])
-            jac[1] = np.array([[a00, a01, 0.0], [a10, a11, 0.0], [0.0, 0.0, 1.0]])
-            jac[2] = np.array([[-tx / h], [-tz / h], [0.0]]) if metric else zero31
-            jac[3] = np.array([[tg_x], [tg_z], [0.0]])
-            if given_pose is not None:
-                for i in range(4):
-                    jac[i] = wm @ jac[i]
-                jac[4], jac[5], jac[6] = (-w * wm @ j for j in j_pose)
-        return e
+            for i, (lo, hi) in enumerate(blocks):
+                jac[i] = out[:, lo:hi]
+        return out[:, 0].copy()
 
     return gtsam.CustomFactor(noise, keys, error)
+
+
+# placeholders of motion_factor_eval's given-pose arguments when there is none
+_NO_GAIN, _NO_REDUCTION, _NO_WHITENER = np.zeros((3, 4)), np.zeros((3, 3)), np.zeros((4, 4))
 
 
 # --- process factors ------------------------------------------------------------------------
@@ -341,48 +291,26 @@ def process_factor(
 ) -> gtsam.CustomFactor:
     """Factor of the planar motion from frame k-1 to k over ``dt`` s: X_k, V_k, W_k against
     ``model.propagate_pose`` of X_{k-1}, V_{k-1}, W_{k-1}, with the residual position
-    expressed along / across the mid-point heading (the model's noise has no side slip;
-    ``cross_track_std_m`` keeps the factor full rank)."""
+    expressed along / across the mid-point heading (``residuals.process_residual``; the
+    model's noise has no side slip; ``cross_track_std_m`` keeps the factor full rank)."""
     base = _process_noise_model(float(dt), noise, float(cross_track_std_m))
     keys = [key(c, j) for j in (k - 1, k) for c in "XVW"]
-
-    j_v0 = np.array([[-dt], [0.0], [0.0], [-1.0], [0.0]])
-    j_v1 = np.array([[0.0], [0.0], [0.0], [1.0], [0.0]])
-    j_w1 = np.array([[0.0], [0.0], [0.0], [0.0], [1.0]])
+    dt = float(dt)
+    s = np.zeros(10)
+    out = np.empty((5, 11))
+    blocks = ((1, 4), (4, 5), (5, 6), (6, 9), (9, 10), (10, 11))
 
     def error(this: gtsam.CustomFactor, v: gtsam.Values, jac: list | None) -> FloatArray:
         p0, p1 = v.atPose2(keys[0]), v.atPose2(keys[3])
-        y0, x0, psi0 = p0.x(), p0.y(), p0.theta()
-        y1, x1, psi1 = p1.x(), p1.y(), p1.theta()
-        v0, w0 = float(v.atVector(keys[1])[0]), float(v.atVector(keys[2])[0])
-        v1, w1 = float(v.atVector(keys[4])[0]), float(v.atVector(keys[5])[0])
-        # model.propagate_pose, inlined with scalars (a test holds them equal)
-        a = psi0 + 0.5 * w0 * dt
-        sa, ca = math.sin(a), math.cos(a)
-        dx, dy = x1 - (x0 + v0 * dt * sa), y1 - (y0 + v0 * dt * ca)
-        along = sa * dx + ca * dy
-        cross = ca * dx - sa * dy
-        e = np.array([along, cross, wrap(psi1 - psi0 - w0 * dt), v1 - v0, w1 - w0])
+        s[0], s[1], s[2] = p0.y(), p0.x(), p0.theta()
+        s[3], s[4] = v.atVector(keys[1])[0], v.atVector(keys[2])[0]
+        s[5], s[6], s[7] = p1.y(), p1.x(), p1.theta()
+        s[8], s[9] = v.atVector(keys[4])[0], v.atVector(keys[5])[0]
+        process_factor_eval(s, dt, out)
         if jac is not None:
-            # ∂(along, cross, heading)/∂(x, y, ψ) of either frame times the Pose2 tangent
-            # Jacobian (tangent_jacobian); the mid-point heading a moves with ψ0 and ω0
-            d_psi = -along - v0 * dt  # ∂cross/∂a (∂along/∂a = cross)
-            s0, c0 = math.sin(psi0), math.cos(psi0)
-            s1, c1 = math.sin(psi1), math.cos(psi1)
-            jac[0] = np.array([
-                [-(sa * s0 + ca * c0), ca * s0 - sa * c0, cross],
-                [sa * c0 - ca * s0, -(ca * c0 + sa * s0), d_psi],
-                [0.0, 0.0, -1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0],
-            ])
-            jac[1] = j_v0
-            jac[2] = np.array([[0.5 * dt * cross], [0.5 * dt * d_psi], [-dt], [0.0], [-1.0]])
-            jac[3] = np.array([
-                [sa * s1 + ca * c1, sa * c1 - ca * s1, 0.0],
-                [ca * s1 - sa * c1, ca * c1 + sa * s1, 0.0],
-                [0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0],
-            ])
-            jac[4], jac[5] = j_v1, j_w1
-        return e
+            for i, (lo, hi) in enumerate(blocks):
+                jac[i] = out[:, lo:hi]
+        return out[:, 0].copy()
 
     return gtsam.CustomFactor(base, keys, error)
 

@@ -5,7 +5,8 @@ joins the two frames — process, body, mount walks, pose pair, motion pair, whe
 standstill — as whitened, robustly weighted residuals (n, 21) and Jacobians (n, 21, 22) in
 model coordinates (additive, no Pose2 tangent); a test holds them equal to the gtsam factors.
 The rows that are linear in the state come whitened from ``pair_constants`` (once per pair);
-the rest are evaluated per call by one compiled loop (numba): the sliding window calls this
+the rest are evaluated per call by one compiled loop (numba; the process and motion residuals
+are ``filters.residuals``', as in the gtsam factors): the sliding window calls this
 twice per frame on a few dozen pairs, where numpy's per-operation cost dominated.
 
 Variables of a frame (``FRAME_DIM``): x, y (m), ψ (rad), v (m/s), ω (rad/s), pitch_m,
@@ -28,8 +29,8 @@ from vipm_track.measurement import PairMeasurement
 from . import factors as F
 from . import model as M
 from .compiled import kernel
-from .factors import lower_inverse_cholesky, robust_weight
 from .model import NoiseParams
+from .residuals import lower_inverse_cholesky, motion_residual, process_residual, robust_weight
 
 FloatArray = NDArray[np.float64]
 
@@ -190,11 +191,6 @@ def stacked_rows(
 
 
 @kernel
-def _wrap(a: float) -> float:
-    return (a + np.pi) % (2.0 * np.pi) - np.pi
-
-
-@kernel
 def _rows(  # pragma: no cover (compiled)
     prev, curr, dt_, z, h0, motion_cov, given_red, given_jac, given_b, metric, w_process,
     process_jac, lin_jac, lin_b, loss, k4, k3, speed_loss, k_speed, r, jac, norms,
@@ -203,6 +199,8 @@ def _rows(  # pragma: no cover (compiled)
     d = FRAME_DIM
     cols = 2 * d
     dyn_cols = (0, 1, 2, 4, _CURR, _CURR + 1)
+    motion_cols = (0, 1, 2, _CURR, _CURR + 1, _CURR + 2, _CURR + 7, _CURR + 8)
+    jm = np.empty((3, 8))
     both = np.empty(cols)
     dyn = np.empty((2, 6))
     e = np.empty(5)
@@ -220,25 +218,10 @@ def _rows(  # pragma: no cover (compiled)
                 jac[k, i, c] = lin_jac[k, i, c]
                 acc += lin_jac[k, i, c] * both[c]
             r[k, i] = acc
-        x0, y0, psi0, v0, w0 = prev[k, 0], prev[k, 1], prev[k, 2], prev[k, 3], prev[k, 4]
-        x1, y1, psi1, v1, w1 = curr[k, 0], curr[k, 1], curr[k, 2], curr[k, 3], curr[k, 4]
-        h, yaw_m = curr[k, 7], curr[k, 8]
-        dt = dt_[k]
         # process: model.propagate_pose, residual along / across the mid-point heading
-        a = psi0 + 0.5 * w0 * dt
-        sa, ca = math.sin(a), math.cos(a)
-        dx = x1 - (x0 + v0 * dt * sa)
-        dy = y1 - (y0 + v0 * dt * ca)
-        along, cross = sa * dx + ca * dy, ca * dx - sa * dy
-        d_psi = -along - v0 * dt  # ∂cross/∂(mid-point heading); ∂along/∂ it is cross
-        e[0], e[1], e[2] = along, cross, _wrap(psi1 - psi0 - w0 * dt)
-        e[3], e[4] = v1 - v0, w1 - w0
-        hdt = 0.5 * dt
-        # ∂(along, cross)/∂ (x0, y0, ψ0, ω0, x1, y1)
-        dyn[0, 0], dyn[0, 1], dyn[0, 2], dyn[0, 3], dyn[0, 4], dyn[0, 5] = (
-            -sa, -ca, cross, hdt * cross, sa, ca)
-        dyn[1, 0], dyn[1, 1], dyn[1, 2], dyn[1, 3], dyn[1, 4], dyn[1, 5] = (
-            -ca, sa, d_psi, hdt * d_psi, ca, -sa)
+        process_residual(prev[k, 0], prev[k, 1], prev[k, 2], prev[k, 3], prev[k, 4],
+                         curr[k, 0], curr[k, 1], curr[k, 2], curr[k, 3], curr[k, 4], dt_[k],
+                         e, dyn)
         for i in range(5):
             acc = 0.0
             for j in range(5):
@@ -251,18 +234,11 @@ def _rows(  # pragma: no cover (compiled)
                     w_process[k, i, 0] * dyn[0, j] + w_process[k, i, 1] * dyn[1, j]
                 )
         # motion pair: displacement in G_{k-1} scaled by h0 / h_m
-        g = psi0 + yaw_m
-        sc = h0[k] / h
-        scg, ssg = sc * math.cos(g), sc * math.sin(g)
-        ddx, ddy = x1 - x0, y1 - y0
-        tx, tz = scg * ddx - ssg * ddy, ssg * ddx + scg * ddy
-        e[0], e[1], e[2] = tx - z[k, 4], tz - z[k, 5], _wrap(psi1 - psi0 - z[k, 6])
-        dh = 1.0 / h if metric[k] else 0.0  # the EKF's rule: without wheel speed, h stays
-        j3[0, _CURR], j3[0, _CURR + 1], j3[1, _CURR], j3[1, _CURR + 1] = scg, -ssg, ssg, scg
-        j3[0, 0], j3[0, 1], j3[1, 0], j3[1, 1] = -scg, ssg, -ssg, -scg
-        j3[0, 2], j3[0, _CURR + 8], j3[1, 2], j3[1, _CURR + 8] = -tz, -tz, tx, tx
-        j3[0, _CURR + 7], j3[1, _CURR + 7] = -tx * dh, -tz * dh
-        j3[2, 2], j3[2, _CURR + 2] = -1.0, 1.0
+        motion_residual(prev[k, 0], prev[k, 1], prev[k, 2], curr[k, 0], curr[k, 1], curr[k, 2],
+                        curr[k, 7], curr[k, 8], h0[k], z[k], metric[k], e, jm)
+        for i in range(3):
+            for j in range(8):
+                j3[i, motion_cols[j]] = jm[i, j]
         # the motion given the angles as far as the pose block is trusted: its robust weight w
         # inflates the angles' covariance by 1/w, which scales A by w and gives back w·(the
         # covariance the angles explained)
