@@ -68,8 +68,9 @@ class SmootherConfig:
     #: correlated ~−0.95 with its pitch, so a smoothed frame pose better than the pair's own
     #: corrects the pair's motion, as far as the robust loss trusts the pair's angles
     #: (``factors.GivenPose``). KITTI 07: distance error median 2.92 → 2.49 % (fixed-lag 2 s),
-    #: 2.86 % (batch). Off by default: the batch's Python factor then whitens per call (batch
-    #: 660 → 280 frames/s) and the rendered car's trajectory was 12 % worse (docs/filters.md)
+    #: 2.86 % (batch). Off by default: the batch's factor then acts on seven variables
+    #: instead of four (batch 623 → 469 frames/s on a 120 s drive, below #7's 500) and the
+    #: rendered car's trajectory was 12 % worse (docs/filters.md)
     motion_given_pose: bool = False
     #: adaptive body shaking, as the EKF's (``body_scale``): each frame's body std is the
     #: larger of the model's ``body_std_deg`` and the robust spread of the pairs' pitch/roll

@@ -48,8 +48,16 @@ def main(argv: list[str] | None = None) -> int:
     sp = speeds_at_frames(ms, run.speed)
     n = len(ms)
     rows = []
-    for marg in (True, False):
-        cfg = SmootherConfig(height_m=1.5, noise=run.config.noise, marginals=marg)
+    #: (marginals, motion given the angles): the default, without marginals, with the option
+    variants = ((True, False), (False, False), (True, True))
+
+    def label(base: str, marg: bool, given: bool) -> str:
+        return (base + ("" if marg else " (no marginals)")
+                + (", `--motion-given-pose`" if given else ""))
+
+    for marg, given in variants:
+        cfg = SmootherConfig(height_m=1.5, noise=run.config.noise, marginals=marg,
+                             motion_given_pose=given)
         stages: dict[str, list[float]] = {}
         totals, iters = [], []
         for _ in range(args.repeats):
@@ -63,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
         detail = ", ".join(f"{k} {1e3 * np.median(v) / n:.3f}" for k, v in stages.items())
         rows.append(
             (
-                f"batch{'' if marg else ' (no marginals)'}",
+                label("batch", marg, given),
                 n,
                 med,
                 n / med,
@@ -74,12 +82,13 @@ def main(argv: list[str] | None = None) -> int:
     n_lag = min(round(60 * args.lag_minutes * run.config.fps) + 1, n)
     lag_ms = ms[:n_lag]
     for lag in (2.0, 5.0):
-        for marg in (True, False):
+        for marg, given in variants if lag == 2.0 else variants[:2]:
             totals = []
             for _ in range(args.repeats):
                 t0 = time.perf_counter()
                 sm = FixedLagSmoother(
-                    SmootherConfig(height_m=1.5, noise=run.config.noise, lag_s=lag, marginals=marg)
+                    SmootherConfig(height_m=1.5, noise=run.config.noise, lag_s=lag, marginals=marg,
+                                   motion_given_pose=given)
                 )
                 for m, v in zip(lag_ms, sp[:n_lag], strict=True):
                     sm.step(m, float(v))
@@ -88,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
             med = float(np.median(totals))
             rows.append(
                 (
-                    f"fixed-lag {lag:g} s{'' if marg else ' (no marginals)'}",
+                    label(f"fixed-lag {lag:g} s", marg, given),
                     n_lag,
                     med,
                     n_lag / med,
