@@ -27,9 +27,9 @@ Factors, each the model's equation with its noise:
 
 Python ``CustomFactor`` callbacks are limited to the three nonlinear or robust pair/process
 terms; the process and the motion evaluate in one compiled call each (``filters.residuals``,
-shared with the window rows). They must be linearised with Python-owned ``gtsam.Values`` (see ``smoother``): gtsam's
-own nonlinear optimisers hand callbacks a copy of every value, which is quadratic in the
-drive length.
+shared with the window rows). They must be linearised with Python-owned ``gtsam.Values``
+(see ``smoother``): gtsam's own nonlinear optimisers hand callbacks a copy of every value,
+which is quadratic in the drive length.
 
 ``filters.window_rows`` evaluates the same factors for many consecutive pairs at once
 (whitened, robustly weighted residuals and Jacobians in model coordinates): the sliding-window
