@@ -236,8 +236,8 @@ def test_block_marginals_equal_gtsams():
     captured = {}
     original = S._gauss_newton
 
-    def spy(graph, values, ordering, a, b, **kw):
-        out = original(graph, values, ordering, a, b, **kw)
+    def spy(graph, values, ordering, *args, **kw):
+        out = original(graph, values, ordering, *args, **kw)
         captured["graph"], captured["values"], captured["lin"] = graph, out[0], out[4]
         return out
 
@@ -250,12 +250,12 @@ def test_block_marginals_equal_gtsams():
         S._gauss_newton = original
     graph, values = captured["graph"], captured["values"]
     # the frames' covariances are gtsam's marginals of the last linearisation, and that is
-    # (up to the last, converged step) the linearisation at the estimate
+    # (up to the last step, of < 0.1 χ²: ~1e-4 relative here) the linearisation at the estimate
     ref = gtsam.Marginals(captured["lin"], values)
     at_estimate = gtsam.Marginals(graph.linearize(values), values)
     for k in (1, 40, len(frames) - 1):
         got = frames[k].covariance
-        for marginals, tol in ((ref, 1e-6), (at_estimate, 1e-4)):
+        for marginals, tol in ((ref, 1e-6), (at_estimate, 1e-3)):
             joint = marginals.jointMarginalCovariance(_marginal_keys(k))
             want = _state_covariance(joint, frames[k].state)
             scale = np.sqrt(np.outer(np.diag(want), np.diag(want)))
@@ -768,9 +768,9 @@ def test_fixed_lag_longer_than_the_drive_is_the_batch(start):
         profile = DriveProfile((0.0, 3.0, 5.0), (0.0, 0.0, 1.0), (0.1, 0.1, 0.1))
         run = simulate_drive(DriveConfig.preset(
             "cart", duration_s=8.0, height_m=0.714, height_assumed_m=0.7), 4, profile)
-    cfg = SmootherConfig(height_m=run.config.h0, noise=run.config.noise)
+    # both converged to the end (the defaults stop at steps below 0.1 χ², ~0.4 σ)
+    cfg = SmootherConfig(height_m=run.config.h0, noise=run.config.noise, tolerance_chi2=0.0)
     batch, _ = smooth_batch(run.measurements, speeds_at_frames(run.measurements, run.speed), cfg)
-    # converged to the end (the default stops at steps below 0.01 χ², ~0.1 σ)
     tight = replace(cfg, lag_s=100.0, lag_tolerance_chi2=1e-10, lag_max_iterations=30)
     window = smooth(run.measurements, run.speed, tight)
     # the first frame's 3°-wide mount prior is centred on the median of the pairs each has at
