@@ -90,7 +90,7 @@ LOSSES: tuple[str, ...] = ("huber", "cauchy", "geman-mcclure", "tukey", "none")
 LOSS_K_SCALE: dict[str, float] = {"geman-mcclure": math.sqrt(2.0)}
 
 
-#: the losses as the compiled code's codes (``robust_weight``, ``window_rows``)
+#: the losses as the compiled code's codes (``residuals.robust_weight``, ``window_rows``)
 LOSS_CODE: dict[str, int] = {"none": 0, "huber": 1, "cauchy": 2, "geman-mcclure": 3, "tukey": 4}
 
 

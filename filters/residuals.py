@@ -5,7 +5,8 @@ forward, ψ > 0 right; ``filters.model``), called by the gtsam factors (``filter
 through ``process_factor_eval`` / ``motion_factor_eval``, which also apply the Pose2
 tangent and, for the motion given the angles, the pose block's weight and the whitening)
 and by the sliding window's rows (``filters.window_rows``). The Python factor callbacks run
-for every frame and Gauss–Newton step, so each is one compiled call.
+for every frame and Gauss–Newton step, so each is one compiled call. The robust weight and
+the 3×3 whitener both use are here too.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ FloatArray = NDArray[np.float64]
 
 @kernel
 def robust_weight(norm: float, code: int, k: float) -> float:
-    """IRLS weight of gtsam's M-estimator (``LOSS_CODE``) of threshold ``k`` at a whitened
+    """IRLS weight of gtsam's M-estimator (``factors.LOSS_CODE``) of threshold ``k`` at a whitened
     block norm (what ``noiseModel.Robust`` multiplies the squared rows by)."""
     if code == 1:
         return 1.0 if norm <= k else k / max(norm, 1e-300)
