@@ -64,8 +64,7 @@ def process_residual(x0, y0, psi0, v0, w0, x1, y1, psi1, v1, w1, dt, e, dyn):  #
     """Constant-velocity process from frame k-1 to k over ``dt`` s (``model.propagate_pose``)
     into ``e`` (5,): the position residual along / across the mid-point heading (m), the
     heading's (rad), Δv (m/s), Δω (rad/s); into ``dyn`` (2, 6): ∂(along, cross)/∂(x0, y0, ψ0,
-    ω0, x1, y1). The rest of the Jacobian is constant: ∂along/∂v0 = −dt; heading: −1 (ψ0),
-    −dt (ω0), +1 (ψ1); Δv, Δω: ∓1."""
+    ω0, x1, y1). The rest of the Jacobian is constant: ``process_constant_jacobian``."""
     a = psi0 + 0.5 * w0 * dt
     sa, ca = math.sin(a), math.cos(a)
     dx = x1 - (x0 + v0 * dt * sa)
@@ -79,6 +78,17 @@ def process_residual(x0, y0, psi0, v0, w0, x1, y1, psi1, v1, w1, dt, e, dyn):  #
         -sa, -ca, cross, hdt * cross, sa, ca)
     dyn[1, 0], dyn[1, 1], dyn[1, 2], dyn[1, 3], dyn[1, 4], dyn[1, 5] = (
         -ca, sa, d_psi, hdt * d_psi, ca, -sa)
+
+
+@kernel
+def process_constant_jacobian(dt, out):  # pragma: no cover
+    """The part of ``process_residual``'s Jacobian that does not depend on the state, into
+    ``out`` (5, 10) over (x0, y0, ψ0, v0, ω0, x1, y1, ψ1, v1, ω1): ∂along/∂v0 = −dt; heading:
+    −1 (ψ0), −dt (ω0), +1 (ψ1); Δv, Δω: ∓1. ``dyn`` adds to along / cross."""
+    out[:, :] = 0.0
+    out[0, 3] = -dt
+    out[2, 2], out[2, 4], out[2, 7] = -1.0, -dt, 1.0
+    out[3, 3], out[3, 8], out[4, 4], out[4, 9] = -1.0, 1.0, -1.0, 1.0
 
 
 @kernel
@@ -121,18 +131,16 @@ def process_factor_eval(s, dt, out):  # pragma: no cover
     e = np.empty(5)
     dyn = np.empty((2, 6))
     process_residual(s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7], s[8], s[9], dt, e, dyn)
-    jm = np.zeros((5, 6))  # (x0, y0, ψ0, x1, y1, ψ1)
+    jm = np.empty((5, 10))  # model coordinates, columns as s
+    process_constant_jacobian(dt, jm)
     for i in range(2):
-        jm[i, 0], jm[i, 1], jm[i, 2], jm[i, 3], jm[i, 4] = (
-            dyn[i, 0], dyn[i, 1], dyn[i, 2], dyn[i, 4], dyn[i, 5])
-    jm[2, 2], jm[2, 5] = -1.0, 1.0
-    out[:, :] = 0.0
+        for j, col in enumerate((0, 1, 2, 4, 5, 6)):
+            jm[i, col] += dyn[i, j]
     out[:, 0] = e
     _to_tangent(jm, 0, s[2], out, 1)
-    _to_tangent(jm, 3, s[7], out, 6)
-    out[0, 4] = -dt  # ∂along/∂v0
-    out[0, 5], out[1, 5], out[2, 5], out[4, 5] = dyn[0, 3], dyn[1, 3], -dt, -1.0  # ω0
-    out[3, 4], out[3, 9], out[4, 10] = -1.0, 1.0, 1.0
+    out[:, 4], out[:, 5] = jm[:, 3], jm[:, 4]
+    _to_tangent(jm, 5, s[7], out, 6)
+    out[:, 9], out[:, 10] = jm[:, 8], jm[:, 9]
 
 
 @kernel

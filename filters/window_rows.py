@@ -30,7 +30,13 @@ from . import factors as F
 from . import model as M
 from .compiled import kernel
 from .model import NoiseParams
-from .residuals import lower_inverse_cholesky, motion_residual, process_residual, robust_weight
+from .residuals import (
+    lower_inverse_cholesky,
+    motion_residual,
+    process_constant_jacobian,
+    process_residual,
+    robust_weight,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -55,10 +61,10 @@ def _frame_constants(dt: float, noise: NoiseParams, cross_track_std_m: float) ->
     d = FRAME_DIM
     q = F.process_noise(dt, noise)
     w = F.whitener(F.process_covariance(dt, noise, cross_track_std_m))
+    const = np.empty((5, 10))  # over (x, y, ψ, v, ω) of frame k-1, then of frame k
+    process_constant_jacobian(dt, const)
     static = np.zeros((5, 2 * d))
-    static[0, 3] = -dt  # along: -v0·dt
-    static[2, 2], static[2, 4], static[2, d + 2] = -1.0, -dt, 1.0
-    static[3, 3], static[3, d + 3], static[4, 4], static[4, d + 4] = -1.0, 1.0, -1.0, 1.0
+    static[:, :5], static[:, d : d + 5] = const[:, :5], const[:, 5:]
     walk = 1.0 / np.sqrt(np.diag(q)[[M.MOUNT_PITCH, M.MOUNT_ROLL, M.MOUNT_HEIGHT, M.MOUNT_YAW]])
     lin = np.zeros((PAIR_ROWS, 2 * d))
     for i, col in enumerate((5, 6, 7, 8)):  # mount walks: m_k − m_{k-1}
