@@ -214,12 +214,15 @@ def motion_pair_factor(
     if given_pose is None:
         noise = robust(_gaussian(cov3), loss, loss_k)
         gain, reduction, pose_whitener = _NO_GAIN, _NO_REDUCTION, _NO_WHITENER
+        given_jac = _NO_GIVEN_JAC
         pose_loss, pose_k = 0, 1.0
     else:
         noise = robust(gtsam.noiseModel.Unit.Create(3), loss, loss_k)
         keys += _pose_keys(k)
         z[:4] = given_pose.z4
         gain, reduction = given_pose.gain, given_pose.reduction
+        given_jac = np.zeros((3, 14))  # A·∂(angles)/∂(M, B_{k-1}, B_k) in the output's columns
+        given_jac[:, 8:] = gain @ J_POSE
         pose_whitener = given_pose.pose_whitener
         pose_loss, pose_k = LOSS_CODE[given_pose.loss], given_pose.loss_k
     h0 = float(height_assumed)
@@ -234,7 +237,7 @@ def motion_pair_factor(
         s[6], s[7] = v.atVector(keys[2])[0], v.atVector(keys[3])[0]
         if given:
             s[8:10], s[10:12], s[12:14] = (v.atVector(kk) for kk in keys[4:])
-        motion_factor_eval(s, h0, z, metric, cov3, given, gain, reduction, J_POSE,
+        motion_factor_eval(s, h0, z, metric, cov3, given, gain, reduction, given_jac, J_POSE,
                            pose_whitener, pose_loss, pose_k, out)
         if jac is not None:
             for i, (lo, hi) in enumerate(blocks):
@@ -246,6 +249,7 @@ def motion_pair_factor(
 
 # placeholders of motion_factor_eval's given-pose arguments when there is none
 _NO_GAIN, _NO_REDUCTION, _NO_WHITENER = np.zeros((3, 4)), np.zeros((3, 3)), np.zeros((4, 4))
+_NO_GIVEN_JAC = np.zeros((3, 14))
 
 
 # --- process factors ------------------------------------------------------------------------

@@ -144,16 +144,44 @@ def process_factor_eval(s, dt, out):  # pragma: no cover
 
 
 @kernel
-def motion_factor_eval(s, h0, z, metric, cov3, given, gain, reduction, j_pose, pose_whitener,
-                       pose_loss, pose_k, out):  # pragma: no cover
+def whiten_motion_given_pose(  # pragma: no cover (compiled)
+    e, jm, a_res, a_jac, w, cov3, reduction, r_out, j_out
+):
+    """The motion rows given the angles as far as the pose block is trusted
+    (``factors.GivenPose``): r_out (3,) = L⁻¹·(e − w·a_res), j_out (3, n) = L⁻¹·(jm − w·a_jac),
+    L·Lᵀ = cov3 − w·reduction. ``e``, ``jm``: the motion's residual and Jacobian; ``a_res``,
+    ``a_jac``: A times the pose residual and its Jacobian (same columns); w: the pose block's
+    robust weight (its 1/w inflation of the angles' covariance scales A and what A explains by
+    w; reduction 0: the motion's own rows, whitened). ``j_out`` may be ``jm``."""
+    cov = np.empty((3, 3))
+    for i in range(3):
+        for c in range(3):
+            cov[i, c] = cov3[i, c] - w * reduction[i, c]
+    wm = np.empty((3, 3))
+    lower_inverse_cholesky(cov, wm)
+    for i in range(2, -1, -1):  # wm is lower triangular: rows j > i are written first
+        acc = 0.0
+        for j in range(i + 1):
+            acc += wm[i, j] * (e[j] - w * a_res[j])
+        r_out[i] = acc
+        for c in range(jm.shape[1]):
+            acc = 0.0
+            for j in range(i + 1):
+                acc += wm[i, j] * (jm[j, c] - w * a_jac[j, c])
+            j_out[i, c] = acc
+
+
+@kernel
+def motion_factor_eval(s, h0, z, metric, cov3, given, gain, reduction, given_jac, j_pose,
+                       pose_whitener, pose_loss, pose_k, out):  # pragma: no cover
     """``factors.motion_pair_factor`` at s = (x0, y0, ψ0, x1, y1, ψ1, h, yaw_m, then the pose
     block's variables: pitch_m, roll_m, b_{k-1} (2), b_k (2)): out (3, 15) = [residual |
     X_{k-1} (tangent) | X_k | H | Y | M | B_{k-1} | B_k].
 
     Without ``given`` the residual is the motion's (gtsam whitens it with ``cov3``); with
-    it, the motion given the angles as far as the pose block is trusted: w (the pose block's
-    robust weight, ``pose_loss`` / ``pose_k``, at its whitened norm) scales ``gain`` (A) and
-    the covariance it explains, and the result is whitened here by cov3 − w·reduction."""
+    it, the motion given the angles (``whiten_motion_given_pose``; ``gain`` A, ``given_jac``
+    A·∂(angles) in out's columns 1–14, the pose block's robust weight from ``pose_loss`` /
+    ``pose_k`` at its norm whitened by ``pose_whitener``)."""
     e = np.empty(3)
     jm = np.empty((3, 8))
     motion_residual(s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7], h0, z, metric, e, jm)
@@ -166,41 +194,23 @@ def motion_factor_eval(s, h0, z, metric, cov3, given, gain, reduction, j_pose, p
     if not given:
         return
     pose_res = np.empty(4)
-    sq = 0.0
     for i in range(4):
         acc = -z[i]
         for c in range(6):
             acc += j_pose[i, c] * s[8 + c]
         pose_res[i] = acc
+    sq = 0.0
     for i in range(4):
         acc = 0.0
         for c in range(4):
             acc += pose_whitener[i, c] * pose_res[c]
         sq += acc * acc
     w = robust_weight(math.sqrt(sq), pose_loss, pose_k)
-    cov = np.empty((3, 3))
+    a_res = np.empty(3)
     for i in range(3):
-        for c in range(3):
-            cov[i, c] = cov3[i, c] - w * reduction[i, c]
-    wm = np.empty((3, 3))
-    lower_inverse_cholesky(cov, wm)
-    # rows before whitening: the motion's minus w·A·(pose residual) and their Jacobian
-    pre = np.zeros((3, 15))
-    for i in range(3):
-        acc = e[i]
+        acc = 0.0
         for c in range(4):
-            acc -= w * gain[i, c] * pose_res[c]
-        pre[i, 0] = acc
-        for c in range(1, 9):
-            pre[i, c] = out[i, c]
-        for c in range(6):
-            acc = 0.0
-            for j in range(4):
-                acc += gain[i, j] * j_pose[j, c]
-            pre[i, 9 + c] = -w * acc
-    for i in range(3):  # wm is lower triangular
-        for c in range(15):
-            acc = 0.0
-            for j in range(i + 1):
-                acc += wm[i, j] * pre[j, c]
-            out[i, c] = acc
+            acc += gain[i, c] * pose_res[c]
+        a_res[i] = acc
+    whiten_motion_given_pose(e, out[:, 1:], a_res, given_jac, w, cov3, reduction, out[:, 0],
+                             out[:, 1:])

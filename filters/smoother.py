@@ -68,7 +68,7 @@ class SmootherConfig:
     #: correlated ~−0.95 with its pitch, so a smoothed frame pose better than the pair's own
     #: corrects the pair's motion, as far as the robust loss trusts the pair's angles
     #: (``factors.GivenPose``). KITTI 07: distance error median 2.92 → 2.49 % (fixed-lag 2 s),
-    #: 2.86 % (batch). Off by default: the batch's factor then acts on seven variables
+    #: 2.85 % (batch). Off by default: the batch's factor then acts on seven variables
     #: instead of four (batch 623 → 469 frames/s on a 120 s drive, below #7's 500) and the
     #: rendered car's trajectory was 12 % worse (docs/filters.md)
     motion_given_pose: bool = False

@@ -31,11 +31,11 @@ from . import model as M
 from .compiled import kernel
 from .model import NoiseParams
 from .residuals import (
-    lower_inverse_cholesky,
     motion_residual,
     process_constant_jacobian,
     process_residual,
     robust_weight,
+    whiten_motion_given_pose,
 )
 
 FloatArray = NDArray[np.float64]
@@ -211,8 +211,6 @@ def _rows(  # pragma: no cover (compiled)
     dyn = np.empty((2, 6))
     e = np.empty(5)
     j3 = np.zeros((3, cols))
-    cov = np.empty((3, 3))
-    w_motion = np.zeros((3, 3))
     given = np.empty(3)
     for k in range(prev.shape[0]):
         both[:d] = prev[k]
@@ -253,28 +251,17 @@ def _rows(  # pragma: no cover (compiled)
             pose_sq += r[k, i] * r[k, i]
         norms[k, 0] = math.sqrt(pose_sq)
         w_pose = robust_weight(norms[k, 0], loss, k4)
-        for i in range(3):
-            for j in range(3):
-                cov[i, j] = motion_cov[k, i, j] - w_pose * given_red[k, i, j]
         if motion_cov[k, 0, 0] > 0.0:
-            lower_inverse_cholesky(cov, w_motion)
-        else:
-            w_motion[:, :] = 0.0
-        for i in range(3):
-            acc = -given_b[k, i]
-            for c in range(cols):
-                acc += given_jac[k, i, c] * both[c]
-            given[i] = e[i] - w_pose * acc
-        for i in range(3):
-            acc = 0.0
-            for j in range(3):
-                acc += w_motion[i, j] * given[j]
-            r[k, 15 + i] = acc
-            for c in range(cols):
-                acc = 0.0
-                for j in range(3):
-                    acc += w_motion[i, j] * (j3[j, c] - w_pose * given_jac[k, j, c])
-                jac[k, 15 + i, c] = acc
+            for i in range(3):
+                acc = -given_b[k, i]
+                for c in range(cols):
+                    acc += given_jac[k, i, c] * both[c]
+                given[i] = acc
+            whiten_motion_given_pose(e, j3, given, given_jac[k], w_pose, motion_cov[k],
+                                     given_red[k], r[k, 15:18], jac[k, 15:18])
+        else:  # no pair: no rows
+            r[k, 15:18] = 0.0
+            jac[k, 15:18] = 0.0
         # robust weights (IRLS, as gtsam's noiseModel.Robust) of the pair blocks and the speed
         motion_sq = r[k, 15] ** 2 + r[k, 16] ** 2 + r[k, 17] ** 2
         norms[k, 1] = math.sqrt(motion_sq)
