@@ -7,6 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vipm_track import geometry as g
+from vipm_track import ipm
 
 K = np.array([[729.0, 0.0, 400.0], [0.0, 729.0, 300.0], [0.0, 0.0, 1.0]])
 
@@ -55,6 +56,22 @@ def test_composition_matches_matrix_product(a, b):
     np.testing.assert_allclose(
         g.motion_matrix(ab), g.motion_matrix(b) @ g.motion_matrix(a), atol=1e-12
     )
+
+
+@settings(max_examples=200, deadline=None)
+@given(motions, st.floats(0.002, 0.05))
+def test_moved_ipm_pixels_follow_the_ground_motion(motion, mpp):
+    grid = g.IpmGrid.from_extent(-4.0, 4.0, 1.0, 9.0, mpp)
+    q = np.random.default_rng(1).uniform(0, [grid.width, grid.height], size=(20, 2))
+    moved = g.apply_homography(ipm.moved_pixels_matrix(grid, motion), q)
+    pointwise = grid.pixel_from_ground(g.transform_ground(motion, grid.ground_from_pixel(q)))
+    np.testing.assert_allclose(moved, pointwise, atol=1e-7)
+    # the rigid map of transform_ground, written out
+    c, s = np.cos(motion.yaw), np.sin(motion.yaw)
+    x, z = grid.ground_from_pixel(q).T
+    dx, dz = x - motion.tx, z - motion.tz
+    np.testing.assert_allclose(g.transform_ground(motion, grid.ground_from_pixel(q)),
+                               np.stack([c * dx - s * dz, s * dx + c * dz], axis=1), atol=1e-12)
 
 
 @settings(max_examples=200, deadline=None)

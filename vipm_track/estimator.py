@@ -135,6 +135,14 @@ class EstimatorConfig:
         forward-looking ones (measured on KITTI 07: median distance error 2.8 % → 3.6 %,
         frames ok 96 % → 93 %; the far field of a level camera is not modelled by the
         noise model's single magnification term).
+    moved_ipm : refinements warp frame k onto frame k-1's IPM plane moved by the current
+        motion estimate, so that the patches match with no offset and no rotation (in a
+        turn the rotation within a patch biases POC); off: each frame on its own plane with
+        the patch windows offset by the predicted displacement (the paper's). None
+        (default): on for steep cameras (cart turning 1.5°/frame: pitch/roll error 0.04° /
+        0.12° → 0.005° / 0.006°), off for forward-looking ones (KITTI 07: frames ok 96 → 99 %
+        with the turn at frames 138-143, but on the frames ok either way mean distance error
+        3.8 → 4.2 % and p95 10 → 13 %, three seeds).
     seed : seed of the subset sampler (runs are deterministic).
     keep_images : keep the last refinement's IPM images in the result.
     """
@@ -176,6 +184,7 @@ class EstimatorConfig:
     weight_patches: bool | None = None
     recentre_windows: bool | None = None
     inlier_median_factor: float | None = None
+    moved_ipm: bool | None = None
     seed: int = 0
     keep_images: bool = False
 
@@ -364,6 +373,7 @@ class TwoFrameEstimator:
             "refinements": 1 if self.steep else 2,
             "stage_median": not self.steep,
             "pose_prior_deg": 0.0 if self.steep else 2.0,
+            "moved_ipm": self.steep,
             **REFINEMENT_WEIGHTING["noise" if self.steep else "uniform"],
         }
         self.config = dataclasses.replace(self.config, **{
@@ -528,8 +538,12 @@ class TwoFrameEstimator:
 
     def _cold_start_ipm(self, prev: NDArray, curr: NDArray, result: PairResult) -> FloatArray:
         """Cold start of a forward camera: both frames on the nominal pose's ground plane,
-        where the motion is nearly one translation; its median over the patches (downsampled
-        POC, ``coarse_scale``) gives (tx, tz) at the nominal pose (yaw 0)."""
+        where the motion is nearly one translation (tx, tz) at the nominal pose (yaw 0).
+
+        On the downsampled planes (``coarse_scale``) one POC over the whole visible ground
+        finds the translation however far the vehicle moved (a fast car moves further per
+        frame than a patch is long); the patches, their windows offset by it, then give
+        its median (robust to a turn and to what is not ground)."""
         cfg = self.config
         pitch0, roll0 = cfg.initial_pose
         x0 = np.array([pitch0, roll0, pitch0, roll0, 0.0, 0.0, 0.0])
@@ -544,22 +558,34 @@ class TwoFrameEstimator:
                              interpolation=cv2.INTER_AREA)
         small_c = cv2.resize(ipm.warp(curr, self.k, self.nominal, grid), size,
                              interpolation=cv2.INTER_AREA)
+        polygon = ipm.visible_polygon(self.k, self.nominal, grid,
+                                      (self.camera.width, self.camera.height),
+                                      self._horizon_margin_px)
         result.timings["warp"] += time.perf_counter() - t0
         q = grid.pixel_from_ground(back_project(self.k, self.nominal, self.centres))
         q = q[np.all(np.isfinite(q), axis=1)]
         patch = int(min(cfg.coarse_patch, (min(size) - 2) // 16 * 16))
         if len(q) == 0 or patch < 16:
             return x0
+        t0 = time.perf_counter()
+        shift = _global_shift(small_p, small_c, (polygon - (s - 1) / 2) / s, cfg.min_peak)
         half = patch / 2
         centres = np.round(np.clip((q - (s - 1) / 2) / s, [half, half],
                                    [size[0] - 1 - half, size[1] - 1 - half]))
-        t0 = time.perf_counter()
+        # Windows at zero offset (slow motion) or at the global shift (fast): the global one
+        # only where its windows correlate clearly better (twice the upper-quartile peak),
+        # since in sharp turns neither is a translation and the zero offset fails safer.
         disp, peaks = poc.match_patches(small_p, small_c, centres, patch)
+        if np.any(np.round(shift)):
+            moved = poc.match_patches(small_p, small_c, centres, patch, np.round(shift))
+            if _upper_quartile(moved[1]) > 2.0 * _upper_quartile(peaks):
+                disp, peaks = moved
         result.timings["poc"] += time.perf_counter() - t0
         good = peaks >= max(cfg.min_peak, cfg.coarse_peak_ratio * float(np.max(peaks)))
         if not good.any():
             return x0
-        du, dv = np.median(disp[good], axis=0) * s * grid.metres_per_pixel
+        shift = np.median(disp[good], axis=0)
+        du, dv = shift * s * grid.metres_per_pixel
         # Ground content moves by -t in the new frame: IPM u grows with X, v shrinks with Z.
         x0[4], x0[5] = -du, dv
         return x0
@@ -624,16 +650,25 @@ class TwoFrameEstimator:
         grid = ipm.choose_grid(self.k, pose_p, motion, self.centres, cfg.patch_ipm,
                                cfg.ipm_resolution_scale, cfg.ipm_max_side)
         ipm_p = ipm.warp(prev, self.k, pose_p, grid)
-        ipm_c = ipm.warp(curr, self.k, pose_c, grid)
         # Patch centres: interest points on the previous virtual IPM plane, on whole pixels.
         q_p = np.round(grid.pixel_from_ground(back_project(self.k, pose_p, self.centres)))
         valid = np.all(np.isfinite(q_p), axis=1)
         q_p = np.where(valid[:, None], q_p, 0.0)
         pred = grid.pixel_from_ground(transform_ground(motion, grid.ground_from_pixel(q_p))) - q_p
-        offsets = np.round(pred)
         size_img = (self.camera.width, self.camera.height)
         poly_p = ipm.visible_polygon(self.k, pose_p, grid, size_img, self._horizon_margin_px)
         poly_c = ipm.visible_polygon(self.k, pose_c, grid, size_img, self._horizon_margin_px)
+        if cfg.moved_ipm:
+            # Frame k's plane moved onto frame k-1's by the estimate: the patches match
+            # with no offset and no rotation between them (POC assumes a translation; a
+            # turn's rotation within a patch biased its shift by the texture's layout).
+            moved = ipm.moved_pixels_matrix(grid, motion)
+            ipm_c = ipm.warp(curr, self.k, pose_c, grid, motion)
+            poly_c = apply_homography(np.linalg.inv(moved), poly_c)
+            offsets = np.zeros_like(q_p)
+        else:
+            ipm_c = ipm.warp(curr, self.k, pose_c, grid)
+            offsets = np.round(pred)
         sizes = ipm.patch_sizes(grid, poly_p, poly_c, q_p, offsets, cfg.patch_ipm,
                                 cfg.min_patch_ipm)
         sizes[~valid] = 0
@@ -645,6 +680,8 @@ class TwoFrameEstimator:
         # (about 2 % of the gap, i.e. of the previous estimate's error)
         disp, peaks = _match_grouped(ipm_p, ipm_c, q_p, sizes, offsets,
                                      recentre=cfg.recentre_windows)
+        if cfg.moved_ipm:
+            disp = apply_homography(moved, q_p + disp) - q_p
         result.timings["poc"] += time.perf_counter() - t0
 
         usable = (sizes > 0) & (peaks >= cfg.min_peak)
@@ -810,3 +847,43 @@ def _match_grouped(
         disp[sel] = d
         peaks[sel] = p
     return disp, peaks
+
+
+def _global_shift(prev: NDArray, curr: NDArray, polygon: FloatArray, min_peak: float,
+                  levels: int = 2) -> FloatArray:
+    """Translation (dx, dy), pixels, of the content from ``prev`` to ``curr`` by one POC
+    over both whole images, outside ``polygon`` (the visible ground, pixels) filled with
+    the mean grey so that the border of the view, fixed in both, does not pull the peak to
+    zero. Tried at ``levels`` scales (1, 1/2, …): a pose off the nominal one stretches the
+    far ground unevenly, which a coarser plane tolerates better; the highest peak wins.
+    Zero where no peak reaches ``min_peak``."""
+    h, w = prev.shape[:2]
+    mask = np.zeros((h, w), np.uint8)
+    if len(polygon) >= 3:
+        cv2.fillConvexPoly(mask, np.round(polygon).astype(np.int32), 1)
+    planes = []
+    for image in (prev, curr):
+        plane = np.array(image, np.float32)
+        inside = mask.astype(bool)
+        if inside.sum() < 256:
+            return np.zeros(2)
+        plane[~inside] = float(plane[inside].mean())
+        planes.append(plane)
+    best, best_peak = np.zeros(2), min_peak
+    for level in range(levels):
+        f = 2 ** level
+        size = (w // f // 2 * 2, h // f // 2 * 2)
+        if min(size) < 16:
+            break
+        pair = [cv2.resize(plane, size, interpolation=cv2.INTER_AREA) for plane in planes]
+        shift, peak = poc.phase_correlate(pair[0], pair[1])
+        if peak >= best_peak:
+            best, best_peak = np.asarray(shift, float) * np.array([w, h]) / size, peak
+    return best
+
+
+def _upper_quartile(peaks: FloatArray) -> float:
+    """75th percentile of the POC peaks of the patches that were measured (peak > 0): how
+    well the better windows correlate; 0 where none was."""
+    measured = peaks[peaks > 0]
+    return float(np.percentile(measured, 75)) if measured.size else 0.0

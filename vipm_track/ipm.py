@@ -21,6 +21,7 @@ from .geometry import (
     homography_jacobian,
     image_from_ipm_homography,
     ipm_from_image_homography,
+    motion_matrix,
     rotation_ground_from_camera,
     transform_ground,
 )
@@ -72,13 +73,28 @@ def choose_grid(
     return IpmGrid.from_extent(lo[0] - pad, hi[0] + pad, lo[1] - pad, hi[1] + pad, mpp)
 
 
-def warp(image: NDArray, k: FloatArray, pose: GroundPose, grid: IpmGrid) -> NDArray[np.float32]:
-    """Virtual IPM image (grid.height, grid.width) float32 of a grey image for ``pose``."""
+def warp(image: NDArray, k: FloatArray, pose: GroundPose, grid: IpmGrid,
+         motion: PlanarMotion | None = None) -> NDArray[np.float32]:
+    """Virtual IPM image (grid.height, grid.width) float32 of a grey image for ``pose``.
+
+    With ``motion`` (frame k-1 → k), the image is frame k's and ``grid`` lies on frame
+    k-1's ground: each pixel shows the ground point of G_{k-1} moved into G_k, so frame k's
+    plane lines up with frame k-1's (no rotation left between them in a turn) wherever
+    ``motion`` is right."""
     h = image_from_ipm_homography(k, pose, grid)
+    if motion is not None:
+        h = h @ moved_pixels_matrix(grid, motion)
     return cv2.warpPerspective(
         image, h, (grid.width, grid.height),
         flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT,
     )
+
+
+def moved_pixels_matrix(grid: IpmGrid, motion: PlanarMotion) -> FloatArray:
+    """3×3 affine map of IPM pixels of a ground point in G_{k-1} to the IPM pixels of the same
+    point in G_k (both on ``grid``)."""
+    to_ground = grid.ground_from_pixel_matrix()
+    return np.linalg.inv(to_ground) @ motion_matrix(motion) @ to_ground
 
 
 def visible_polygon(
