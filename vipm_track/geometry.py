@@ -247,10 +247,12 @@ def motion_matrix(motion: PlanarMotion) -> FloatArray:
 
 
 def transform_ground(motion: PlanarMotion, ground_xz: ArrayLike) -> FloatArray:
-    """Ground points (..., 2) of G_{k-1} expressed in G_k."""
-    m = motion_matrix(motion)
-    return np.asarray(ground_xz, dtype=float) @ m[:2, :2].T + m[:2, 2]
-
+    """Ground points (..., 2) of G_{k-1} expressed in G_k (``motion_matrix`` applied
+    point-wise; written out, as the tracking runs are sensitive to its last bits)."""
+    g = np.asarray(ground_xz, dtype=float)
+    c, s = np.cos(motion.yaw), np.sin(motion.yaw)
+    dx, dz = g[..., 0] - motion.tx, g[..., 1] - motion.tz
+    return np.stack([c * dx - s * dz, s * dx + c * dz], axis=-1)
 
 
 def compose_motion(first: PlanarMotion, second: PlanarMotion) -> PlanarMotion:
