@@ -558,9 +558,6 @@ class TwoFrameEstimator:
                              interpolation=cv2.INTER_AREA)
         small_c = cv2.resize(ipm.warp(curr, self.k, self.nominal, grid), size,
                              interpolation=cv2.INTER_AREA)
-        polygon = ipm.visible_polygon(self.k, self.nominal, grid,
-                                      (self.camera.width, self.camera.height),
-                                      self._horizon_margin_px)
         result.timings["warp"] += time.perf_counter() - t0
         q = grid.pixel_from_ground(back_project(self.k, self.nominal, self.centres))
         q = q[np.all(np.isfinite(q), axis=1)]
@@ -568,6 +565,9 @@ class TwoFrameEstimator:
         if len(q) == 0 or patch < 16:
             return x0
         t0 = time.perf_counter()
+        polygon = ipm.visible_polygon(self.k, self.nominal, grid,
+                                      (self.camera.width, self.camera.height),
+                                      self._horizon_margin_px)
         shift = _global_shift(small_p, small_c, (polygon - (s - 1) / 2) / s, cfg.min_peak)
         half = patch / 2
         centres = np.round(np.clip((q - (s - 1) / 2) / s, [half, half],
@@ -861,12 +861,12 @@ def _global_shift(prev: NDArray, curr: NDArray, polygon: FloatArray, min_peak: f
     mask = np.zeros((h, w), np.uint8)
     if len(polygon) >= 3:
         cv2.fillConvexPoly(mask, np.round(polygon).astype(np.int32), 1)
+    inside = mask.astype(bool)
+    if inside.sum() < 256:
+        return np.zeros(2)
     planes = []
     for image in (prev, curr):
         plane = np.array(image, np.float32)
-        inside = mask.astype(bool)
-        if inside.sum() < 256:
-            return np.zeros(2)
         plane[~inside] = float(plane[inside].mean())
         planes.append(plane)
     best, best_peak = np.zeros(2), min_peak
