@@ -38,10 +38,35 @@ def test_forward_and_mid_cameras_get_their_pitch(tmp_path, pitch_deg):
     assert "--pitch" in found.line()
 
 
-def test_steep_camera_keeps_the_default(tmp_path):
-    preset, camera, _ = _render(tmp_path, "cart", 3)
+def test_camera_near_the_default_pitch_keeps_it(tmp_path):
+    preset, camera, _ = _render(tmp_path, "cart", 3, 58.0)
     assert search_nominal_pose(open_source(images=tmp_path / "images"), camera,
                                preset.height_m, EstimatorConfig()) is None
+
+
+def test_camera_far_from_the_default_that_converges_gets_its_own_nominal(tmp_path, capsys):
+    # a camera 36° down (shaking to 34°) converges from 60° on its first pair, but its pose
+    # leaves the plausible window (max_deviation_deg 25° around the nominal) when it shakes
+    # below 35°: with the nominal kept at 60° those pairs were rejected; moved to where the
+    # first pair converged, none is
+    from vipm_track.cli import main
+    from vipm_track.table import read_table
+
+    preset, camera, traj = _render(tmp_path, "cart", 12, 36.0)
+    found = search_nominal_pose(open_source(images=tmp_path / "images"), camera,
+                                preset.height_m, EstimatorConfig())
+    assert found is not None and not found.default_failed
+    assert found.start_pitch_deg == found.default_pitch_deg == 60.0
+    assert abs(found.pitch_deg - 36.0) < 1.0
+    assert "the cold start from 60° on frames 0-1 converged" in found.line()
+    out = tmp_path / "est.csv"
+    assert main(["estimate", "--images", str(tmp_path / "images"), "--camera",
+                 str(tmp_path / "camera.yaml"), "--height", str(preset.height_m),
+                 "--out", str(out)]) == 0
+    assert "nominal pose now pitch 3" in capsys.readouterr().err
+    est = read_table(out)
+    assert list(est["status"][1:]) == ["ok"] * 11
+    assert np.max(np.abs(est["pitch_deg"][1:] - np.degrees(traj.pitch[1:]))) < 0.1
 
 
 def test_cli_without_pitch_estimates_a_forward_camera_as_with_it(tmp_path, capsys):

@@ -1,17 +1,20 @@
 """The nominal pose for the cold start when the user gives none (no ``--pitch``).
 
 The estimator starts cold from a nominal pitch (``EstimatorConfig.initial_pitch_deg``, the
-paper's 60°), which also decides its region of interest and its steep/forward-camera
-defaults. A forward-looking camera (a car's, pitch ~0–5°) does not converge from 60°. Before
-a run without ``--pitch``, :func:`search_nominal_pose` cold-starts the first pair with motion
-from the configured pitch; only if that fails does it try the pair from each of
-``CANDIDATE_PITCHES_DEG`` and keep the converged estimate with the smallest residual (a wrong
-start that converges — a steep pitch with a short travel on a level camera, the second
-minimum of issue 5 — fits the patches worse). Its pose is settled on the next few pairs
-(the median pose of pairs started from it, repeated until it stops moving) and becomes the
-run's nominal pose, exactly as if given with ``--pitch/--roll`` — but for a roll within
-``CAMBER_ROLL_DEG`` of level, which the first frames' road camber explains as well as the
-camera, so the nominal roll stays 0 there.
+paper's 60°), which also decides its region of interest, its steep/forward-camera defaults
+and the window of plausible poses (``max_deviation_deg`` around it). A forward-looking camera
+(a car's, pitch ~0–5°) does not converge from 60°. Before a run without ``--pitch``,
+:func:`search_nominal_pose` cold-starts the first pair with motion from the configured pitch;
+only if that fails does it try the pair from each of ``CANDIDATE_PITCHES_DEG`` and keep the
+converged estimate with the smallest residual (a wrong start that converges — a steep pitch
+with a short travel on a level camera, the second minimum of issue 5 — fits the patches
+worse). A default start that converges far (more than ``SETTLE_PITCH_DEG``) from the
+configured pitch is kept too: a camera 35° down converges from 60° but sits on the edge of
+the plausible window, and half its frames would be rejected as implausible. The pose is
+settled on the next few pairs (the median pose of pairs started from it, repeated until it
+stops moving) and becomes the run's nominal pose, exactly as if given with
+``--pitch/--roll`` — but for a roll within ``CAMBER_ROLL_DEG`` of level, which the first
+frames' road camber explains as well as the camera, so the nominal roll stays 0 there.
 """
 
 from __future__ import annotations
@@ -34,13 +37,17 @@ CANDIDATE_PITCHES_DEG: tuple[float, ...] = (40.0, 25.0, 12.0, 5.0, 1.0)
 #: a found roll within this of level is the road's camber over the first frames, not the
 #: camera's (KITTI 07 starts at 1.5°); the nominal roll stays 0 [deg]
 CAMBER_ROLL_DEG = 3.0
+#: a default cold start that converges more than this from the configured pitch moves the
+#: nominal pose to where it converged [deg]
+SETTLE_PITCH_DEG = 5.0
 
 
 @dataclass(frozen=True)
 class NominalSearch:
     """A nominal pose found on the pair (``frames``) [deg], from the start ``start_pitch_deg``
-    (the configured ``default_pitch_deg`` failed there). ``roll_deg`` is the nominal roll:
-    the ``measured_roll_deg``, or 0 where that is within ``CAMBER_ROLL_DEG`` of level."""
+    (the configured ``default_pitch_deg`` failed there, or converged far from it:
+    ``default_failed`` False). ``roll_deg`` is the nominal roll: the ``measured_roll_deg``,
+    or 0 where that is within ``CAMBER_ROLL_DEG`` of level."""
 
     pitch_deg: float
     measured_roll_deg: float
@@ -48,17 +55,21 @@ class NominalSearch:
     default_pitch_deg: float
     frames: tuple[int, int]
     pairs: int = 1  # pairs whose median it is
+    default_failed: bool = True
 
     @property
     def roll_deg(self) -> float:
         return self.measured_roll_deg if abs(self.measured_roll_deg) > CAMBER_ROLL_DEG else 0.0
 
     def line(self) -> str:
-        return (f"no --pitch given and the cold start from {self.default_pitch_deg:g}° failed on "
-                f"frames {self.frames[0]}-{self.frames[1]}; from {self.start_pitch_deg:g}° it "
-                f"converged to pitch {self.pitch_deg:.1f}°, roll {self.measured_roll_deg:.1f}° "
-                f"(median of {self.pairs} pairs); nominal pose now pitch {self.pitch_deg:.1f}°, "
-                f"roll {self.roll_deg:.1f}° (give --pitch/--roll to set it)")
+        frames = f"frames {self.frames[0]}-{self.frames[1]}"
+        start = (f"the cold start from {self.default_pitch_deg:g}° failed on {frames}; from "
+                 f"{self.start_pitch_deg:g}° it" if self.default_failed else
+                 f"the cold start from {self.default_pitch_deg:g}° on {frames}")
+        return (f"no --pitch given and {start} converged to pitch {self.pitch_deg:.1f}°, roll "
+                f"{self.measured_roll_deg:.1f}° (median of {self.pairs} pairs); nominal pose "
+                f"now pitch {self.pitch_deg:.1f}°, roll {self.roll_deg:.1f}° (give "
+                f"--pitch/--roll to set it)")
 
 
 def search_nominal_pose(
@@ -75,9 +86,10 @@ def search_nominal_pose(
     The pose from the start that converges best on the first failing pair is then settled
     on up to ``confirm_pairs`` pairs from there (``_settle``): a single pair's pitch is noisy
     (±1° on KITTI's first frames), and a forward camera's pose prior pulls each cold start
-    towards its nominal. None where the configured pitch converges on the first pair with
-    motion (nothing to change), or where no start converges on ``max_failed_pairs`` pairs
-    (the run then goes as configured and reports its failures)."""
+    towards its nominal. None where the configured pitch converges within
+    ``SETTLE_PITCH_DEG`` of itself on the first pair with motion (nothing to change), or where
+    no start converges on ``max_failed_pairs`` pairs (the run then goes as configured and
+    reports its failures)."""
     from .estimator import STATUS_NO_MOTION, STATUS_OK, TwoFrameEstimator
     from .pipeline import config_with, estimate_pair
 
@@ -86,6 +98,15 @@ def search_nominal_pose(
     failed = 0
     for i, (frames, before, image) in enumerate(pairs):
         result = estimate_pair(default, before, image, None)
+        if result.status == STATUS_OK and result.pose_curr is not None:
+            if abs(math.degrees(result.pose_curr.pitch)
+                   - config.initial_pitch_deg) <= SETTLE_PITCH_DEG:
+                return None
+            pitch, roll, n = _settle(camera, height, config, pairs[i:i + confirm_pairs],
+                                     result.pose_curr.pitch, result.pose_curr.roll)
+            return NominalSearch(round(math.degrees(pitch), 1), round(math.degrees(roll), 1),
+                                 config.initial_pitch_deg, config.initial_pitch_deg, frames, n,
+                                 default_failed=False)
         if result.status == STATUS_OK:
             return None
         if result.status == STATUS_NO_MOTION:
