@@ -65,6 +65,15 @@ class EkfConfig:
     #: KITTI 07 with 15: median travel error 4.3 %, p95 27 %; with 5: 3.4 % / 12 %). An
     #: outlier run that long is rare (10 % outliers: 1e-5 per frame)
     max_consecutive_motion_gated: int = 5
+    #: wheel speeds gated in a row that restart the speed from the reading (and the height
+    #: from its prior): braking or pulling away faster than the speed random walk expects leaves the
+    #: state behind, and a gate against a lost state would reject the wheels for good (cart
+    #: stopping within 1 s: every later reading gated, the height frozen 26 % low)
+    max_consecutive_speed_gated: int = 3
+    #: a wheel speed beyond the gate but within this factor of it is applied with its
+    #: variance inflated by NIS / gate (the pose/motion blocks' soft gate): the wheels are
+    #: rarely wrong, the speed random walk often is when braking
+    speed_soft_gate_factor: float = 10.0
     max_mount_angle_std_deg: float = 10.0
     default_dt_s: float = 0.05  # frame interval assumed before the first frame time is known
     init_pairs: int = 5  # good pairs whose medians start (and restart) the filter
@@ -201,6 +210,7 @@ class ExtrinsicsEKF:
         self._t: float | None = None
         self._pose_gated_run = 0
         self._motion_gated_run = 0
+        self._speed_gated_run = 0
         self._motion_note = ""
         self._pending_reset = ""
         #: bootstrap frames: (usable pair or None, wheel speed, dt, pair status)
@@ -347,7 +357,7 @@ class ExtrinsicsEKF:
         kf.x, kf.P = x, p
         kf.body_std = self._body.std()
         self._kf = kf
-        self._pose_gated_run = self._motion_gated_run = 0
+        self._pose_gated_run = self._motion_gated_run = self._speed_gated_run = 0
 
     def _update_pair(self, m: PairMeasurement, dt: float) -> tuple[float, str]:
         """Gate and apply a pair; returns its 7-dof NIS and the rejected blocks
@@ -446,11 +456,33 @@ class ExtrinsicsEKF:
         r = np.array([[self._cfg.noise.speed_meas_var(speed)]])
         s = (h @ kf.P @ h.T + r).item()
         nis = float((speed - zp[0]) ** 2 / s)
-        if nis > self._speed_gate:
-            return nis, True
+        if self._speed_gate < nis <= self._cfg.speed_soft_gate_factor * self._speed_gate:
+            r *= nis / self._speed_gate  # braking/accelerating beyond the model: down-weight
+        elif nis > self._speed_gate:
+            self._speed_gated_run += 1
+            if self._speed_gated_run < self._cfg.max_consecutive_speed_gated:
+                return nis, True
+            self._restart_speed(speed)
+        self._speed_gated_run = 0
         kf.update(np.array([speed]), lambda _x: h, lambda _x: zp, R=r)
         self._last_speed_t = self._t
         return nis, False
+
+    def _restart_speed(self, speed: float) -> None:
+        """Restart the speed at the wheels' reading ``speed`` (m/s, with its noise) and the
+        height at its prior: pairs fused against the lost speed have bent it."""
+        kf = self._kf
+        assert kf is not None
+        nz = self._cfg.noise
+        x, p = kf.x.copy(), kf.P.copy()
+        x[M.SPEED], x[M.MOUNT_HEIGHT] = speed, self._cfg.height_m
+        for i, var in ((M.SPEED, nz.speed_meas_var(speed)),
+                       (M.MOUNT_HEIGHT, (nz.prior_height_std_rel * self._cfg.height_m) ** 2)):
+            p[i, :] = p[:, i] = 0.0
+            p[i, i] = var
+        kf.x, kf.P = x, p
+        note = f"speed/height re-opened after {self._speed_gated_run} wheel speeds gated"
+        self._motion_note = "; ".join(r for r in (self._motion_note, note) if r)
 
     def _update_standstill(self, states: tuple[int, ...]) -> None:
         """Apply the standstill pseudo-measurement (``states`` = 0); no gate: the wheel speed
@@ -497,7 +529,7 @@ class ExtrinsicsEKF:
             prior = (self._cfg.noise.prior_height_std_rel * self._cfg.height_m) ** 2
             self._height = (float(kf.x[M.MOUNT_HEIGHT]), var if 0 < var < prior else prior)
         self._kf = None
-        self._pose_gated_run = self._motion_gated_run = 0
+        self._pose_gated_run = self._motion_gated_run = self._speed_gated_run = 0
         self._pending_reset = reason
 
     def _state(

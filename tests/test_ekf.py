@@ -188,6 +188,27 @@ def test_heading_does_not_drift_during_a_stop(speed):
     assert abs(drift[False]) > 5.0  # the last yaw rate integrated over the stop
 
 
+def test_hard_braking_and_pulling_away_keep_the_wheel_speed():
+    # a cart braking from 1.2 m/s to a stop within 1 s and pulling away as fast: beyond the
+    # preset's speed random walk (0.1 m/s/√s), so a hard gate rejected the wheels while the
+    # pairs, soft-gated, bent the height; once the state was lost, every later reading was
+    # gated and the height froze ~26 % off (rendered stop-and-go)
+    from filters.drive_sim import DriveProfile
+
+    profile = DriveProfile((0.0, 8.0, 9.0, 12.0, 13.0), (1.2, 1.2, 0.0, 0.0, 1.2),
+                           (0.0, 0.0, 0.0, 0.0, 0.0))
+    cfg = DriveConfig.preset("cart", duration_s=25.0, height_m=0.7, failure_fraction=0.0)
+    run = simulate_drive(cfg, 0, profile)
+    states = run_filter(run.measurements, run.speed, EkfConfig(height_m=cfg.h0, noise=cfg.noise))
+    t = run.truth.t
+    h = np.array([s.mount[2] for s in states])
+    v = np.array([s.speed for s in states])
+    after = t > 15.0
+    assert np.max(np.abs(h[after] / 0.7 - 1.0)) < 0.01
+    assert np.max(np.abs(v[t > 5.0] - run.truth.speed[t > 5.0])) < 0.1
+    assert not any(s.speed_gated for s in states[-50:])
+
+
 @pytest.mark.parametrize("preset", ["car", "cart"])
 def test_an_outlier_first_pair_does_not_turn_the_heading(preset):
     # the first good pair's yaw is 1.3° off: started with the model's wide yaw-rate prior the
