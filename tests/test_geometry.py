@@ -106,6 +106,33 @@ def test_homographies_agree_with_pointwise_maps(pose, motion):
     )
 
 
+@settings(max_examples=200, deadline=None)
+@given(poses, st.floats(-0.05, 0.05), st.floats(-0.05, 0.05))
+def test_rotation_parallax_vanishes_without_translation(pose, d_pitch, d_roll):
+    # a camera turning in place: a pure rotation maps every pixel, with no parallax
+    px = _ground_pixels(pose)
+    if len(px) < 3:
+        return
+    pose2 = g.GroundPose(pose.pitch + d_pitch, pose.roll + d_roll, pose.height)
+    moved = g.predict_pixels(K, pose, pose2, g.PlanarMotion(0.0, 0.0, 0.0), px)
+    ok = np.all(np.isfinite(moved), axis=1)
+    residual, angle = g.rotation_parallax(K, px[ok], moved[ok])
+    assert np.max(residual) < 1e-6
+    r1 = g.rotation_ground_from_camera(pose.pitch, pose.roll)
+    r2 = g.rotation_ground_from_camera(pose2.pitch, pose2.roll)
+    expected = np.arccos(np.clip(0.5 * (np.trace(r1.T @ r2) - 1.0), -1.0, 1.0))
+    assert abs(angle - expected) < 1e-6
+
+
+def test_rotation_parallax_shows_translation():
+    pose = g.GroundPose(np.radians(45.0), 0.0, 0.7)
+    px = _ground_pixels(pose)
+    for step, low, high in ((0.001, 0.05, 1.0), (0.05, 5.0, 100.0)):  # metres: px of parallax
+        moved = g.predict_pixels(K, pose, pose, g.PlanarMotion(0.0, step, 0.01), px)
+        residual, _ = g.rotation_parallax(K, px, moved)
+        assert low < np.median(residual) < high
+
+
 def test_signs_follow_conventions():
     # Straight down: the principal point sees the ground point under the camera.
     down = g.GroundPose(np.pi / 2, 0.0, 1.0)

@@ -41,6 +41,7 @@ from .geometry import (
     image_from_ipm_homography,
     ipm_from_image_homography,
     predict_pixels,
+    rotation_parallax,
     transform_ground,
 )
 from .measurement import PairMeasurement
@@ -511,6 +512,7 @@ class TwoFrameEstimator:
                 "motion the pose against the ground is unobservable",
             )
         usable &= mag <= cfg.max_displacement_factor * median_mag + cfg.patch_image / 8
+        self._check_parallax(disp, usable)
         model = DisplacementModel(self.k, self.height, self.centres, self.centres + disp,
                                   **self._prior(cfg.inlier_px_image))
         fit = self._fit(model, x0, usable, cfg.n_subsets, cfg.inlier_px_image, rng, result)
@@ -589,6 +591,26 @@ class TwoFrameEstimator:
         # Ground content moves by -t in the new frame: IPM u grows with X, v shrinks with Z.
         x0[4], x0[5] = -du, dv
         return x0
+
+    def _check_parallax(self, disp: NDArray, usable: NDArray[np.bool_]) -> None:
+        """"No motion" where a pure rotation explains the matched field (``disp`` (N, 2) of
+        the ``usable`` patches) to within ``min_motion_px`` (median): a standing vehicle's
+        camera still pitches and rolls (engine, passengers, wind), which moves the image by
+        pixels, but without translation the pose against the ground is unobservable and the
+        fit diverges."""
+        use = usable & np.isfinite(disp).all(axis=1)
+        if use.sum() < 3:
+            return
+        centres = self.centres[use]
+        residual, angle = rotation_parallax(self.k, centres, centres + disp[use])
+        parallax = float(np.median(residual))
+        if parallax < self.config.min_motion_px:
+            raise _StageFailure(
+                STATUS_NO_MOTION,
+                f"a rotation of {np.degrees(angle):.2f}° explains the image motion to "
+                f"{parallax:.2f} px < {self.config.min_motion_px} px (median): without "
+                "translation the pose against the ground is unobservable",
+            )
 
     def _coarse(
         self, prev: NDArray, curr: NDArray, x0: FloatArray, rng: np.random.Generator,

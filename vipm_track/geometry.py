@@ -164,6 +164,37 @@ def apply_homography(h: ArrayLike, points: ArrayLike) -> FloatArray:
     return out
 
 
+def rotation_parallax(
+    k: ArrayLike, pixels_prev: ArrayLike, pixels_curr: ArrayLike
+) -> tuple[FloatArray, float]:
+    """What a pure camera rotation leaves of a matched displacement field.
+
+    Fits the rotation R whose infinite homography ``K R K⁻¹`` best maps ``pixels_prev``
+    (N, 2) onto ``pixels_curr`` (N, 2) (least squares on the unit rays, refitted on the better
+    half against outliers) and returns each match's distance to it in pixels (N,) and the
+    rotation angle [rad]. Translation shows only in this parallax: without it the pose
+    against the ground is unobservable."""
+    kk = np.asarray(k, dtype=float)
+    k_inv = np.linalg.inv(kk)
+    prev = np.asarray(pixels_prev, dtype=float)
+    curr = np.asarray(pixels_curr, dtype=float)
+
+    def rays(p: FloatArray) -> FloatArray:
+        r = np.concatenate([p, np.ones((len(p), 1))], axis=1) @ k_inv.T
+        return r / np.linalg.norm(r, axis=1, keepdims=True)
+
+    a, b = rays(prev), rays(curr)
+    use = np.ones(len(a), bool)
+    for _ in range(2):
+        u, _s, vt = np.linalg.svd(a[use].T @ b[use])
+        d = np.sign(np.linalg.det(u @ vt))
+        rot = (u @ np.diag([1.0, 1.0, d]) @ vt).T  # b ≈ rot · a (Kabsch)
+        residual = np.linalg.norm(apply_homography(kk @ rot @ k_inv, prev) - curr, axis=1)
+        use = residual <= np.median(residual)
+    angle = float(np.arccos(np.clip(0.5 * (np.trace(rot) - 1.0), -1.0, 1.0)))
+    return residual, angle
+
+
 def homography_jacobian(h: ArrayLike, points: ArrayLike) -> FloatArray:
     """Jacobians (..., 2, 2) of the map of a 3×3 homography at points (..., 2):
     d(output)/d(input), rows the output coordinates; NaN where a point maps to infinity."""
