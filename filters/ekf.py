@@ -19,15 +19,16 @@ or ``run_filter(measurements, speed_series, config)`` for a whole sequence.
   and the motion block (tx, tz, yaw) of a pair are each rejected when their normalised
   innovation squared exceeds the chi-square quantile ``gate_probability`` (4 / 3 dof), so an
   unexpected manoeuvre costs the motion only; the same for a speed reading (1 dof). Between
-  the gate and ``pose_soft_gate_factor`` / ``motion_soft_gate_factor`` times it a block is
-  applied down-weighted (covariance × NIS / gate) instead. ``nis`` reports the whole pair's
-  7-dof value.
+  the gate and ``pose_soft_gate_factor`` / ``motion_soft_gate_factor`` /
+  ``speed_soft_gate_factor`` times it a block (or reading) is applied down-weighted
+  (covariance × NIS / gate) instead. ``nis`` reports the whole pair's 7-dof value.
 - It never diverges silently: after each step the covariance must be finite, symmetric,
   positive semi-definite and its mount angle std below ``max_mount_angle_std_deg``; after
   ``max_consecutive_gated`` pairs in a row gated on pitch/roll the filter no longer agrees with
   the data. Either way it re-initialises from the next good pair (keeping the height estimate)
   and says why in ``reset_reason``. ``max_consecutive_motion_gated`` motion-gated pairs in a
-  row restart only the speed, yaw rate, height and mount yaw.
+  row restart only the speed, yaw rate, height and mount yaw; ``max_consecutive_speed_gated``
+  wheel speeds gated in a row restart the speed at the reading and the height at its prior.
 """
 
 from __future__ import annotations

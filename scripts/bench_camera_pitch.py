@@ -81,7 +81,8 @@ def main(argv: list[str] | None = None) -> int:
         "run as `vipm-track estimate --images DIR --camera CAMERA.yaml --height H` "
         "(tracking), without and with `--pitch` (the preset's pitch). Errors: max over the "
         "pairs with status ok. *nominal found*: the pose the search settled on where the "
-        "default cold start (60°) failed (empty: it did not).",
+        "default cold start (60°) failed or converged more than 5° from 60° (empty: it "
+        "converged near 60°).",
         "",
         header, "|" + " --- |" * 10,
     ]

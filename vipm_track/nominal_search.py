@@ -33,7 +33,7 @@ if TYPE_CHECKING:
     from .sources import FrameSource
 
 #: cold-start pitches tried when the configured one fails [deg], steep to level
-CANDIDATE_PITCHES_DEG: tuple[float, ...] = (40.0, 25.0, 12.0, 5.0, 1.0)
+CANDIDATE_PITCHES_DEG: tuple[float, ...] = (75.0, 40.0, 25.0, 12.0, 5.0, 1.0)
 #: a found roll within this of level is the road's camber over the first frames, not the
 #: camera's (KITTI 07 starts at 1.5°); the nominal roll stays 0 [deg]
 CAMBER_ROLL_DEG = 3.0
