@@ -55,8 +55,8 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
                        "file (x y per line) or a mask image (non-zero = ground); "
                        "default: the estimator's")
     group.add_argument("--refinements", type=int, default=None, metavar="N",
-                       help="virtual-IPM refinement passes (default: the estimator's, 1 for steep "
-                       "cameras, 2 for forward-looking ones)")
+                       help="virtual-IPM refinement passes (default: the estimator's, 2 for level "
+                       "cameras (horizon in view, pitch < 10°), 1 for all others)")
     group.add_argument("--grid", default=None, metavar="COLSxROWS",
                        help="patch grid, e.g. 11x9 (default: the estimator's)")
     group.add_argument("--patch-size", type=int, default=None, metavar="PX",
@@ -71,7 +71,8 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
                        help="standard deviation of a prior on pitch and roll around "
                        "--pitch/--roll inside the fit, degrees; resolves the pitch/travel "
                        "ambiguity of near-level cameras; 0 turns it off (default: the "
-                       "estimator's, 2 for forward-looking cameras, off for steep ones)")
+                       "estimator's, 2 for level cameras (horizon in view, pitch < 10°), off for "
+                       "others)")
     group.add_argument("--no-vertical-motion", action="store_true",
                        help="do not estimate the camera's vertical motion within a pair "
                        "(steadier on level, forward-looking cameras such as KITTI's)")
@@ -84,8 +85,8 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
                        help="virtual-IPM patches in the refinement fit: 'noise' weights each "
                        "by its modelled noise, re-centres the POC windows on the measured "
                        "shift and tightens the inlier threshold to the residuals; 'uniform' "
-                       "is the paper's (all alike); 'auto' (default): noise for steep "
-                       "cameras, uniform for forward-looking ones")
+                       "is the paper's (all alike); 'auto' (default): uniform for level "
+                       "cameras (horizon in view, pitch < 10°), noise for all others")
 
 
 def add_run_options(parser: argparse.ArgumentParser) -> None:
