@@ -67,9 +67,9 @@ class EkfConfig:
     #: outlier run that long is rare (10 % outliers: 1e-5 per frame)
     max_consecutive_motion_gated: int = 5
     #: wheel speeds gated in a row that restart the speed from the reading (and the height
-    #: from its prior): braking or pulling away faster than the speed random walk expects leaves the
-    #: state behind, and a gate against a lost state would reject the wheels for good (cart
-    #: stopping within 1 s: every later reading gated, the height frozen 26 % low)
+    #: from its prior): braking or pulling away faster than the speed random walk expects
+    #: leaves the state behind, and a gate against a lost state would reject the wheels for
+    #: good (cart stopping within 1 s: every later reading gated, the height frozen 26 % off)
     max_consecutive_speed_gated: int = 3
     #: a wheel speed beyond the gate but within this factor of it is applied with its
     #: variance inflated by NIS / gate (the pose/motion blocks' soft gate): the wheels are

@@ -57,13 +57,13 @@ STATUS_NOT_CONVERGED = "did not converge"
 STATUS_DEGENERATE = "degenerate"
 
 
-#: The refinement's patch weighting, as EstimatorConfig fields: "noise" (the steep-camera
-#: default: modelled patch noise, re-centred windows, self-tightening inlier threshold) or
-#: "uniform" (the paper's: every patch alike).
 #: nominal pitch below which a camera with the horizon in view gets the forward-looking
 #: (level-camera) defaults of ``EstimatorConfig`` [deg]
 LEVEL_MAX_PITCH_DEG = 10.0
 
+#: The refinement's patch weighting, as EstimatorConfig fields: "noise" (the steep-camera
+#: default: modelled patch noise, re-centred windows, self-tightening inlier threshold) or
+#: "uniform" (the paper's: every patch alike).
 REFINEMENT_WEIGHTING: dict[str, dict[str, bool | float]] = {
     "noise": {"weight_patches": True, "recentre_windows": True, "inlier_median_factor": 6.0},
     "uniform": {"weight_patches": False, "recentre_windows": False, "inlier_median_factor": 0.0},
@@ -607,11 +607,11 @@ class TwoFrameEstimator:
         return x0
 
     def _check_parallax(self, disp: NDArray, usable: NDArray[np.bool_]) -> None:
-        """"No motion" where a pure rotation explains the matched field (``disp`` (N, 2) of
-        the ``usable`` patches) to within ``min_motion_px`` (median): a standing vehicle's
-        camera still pitches and rolls (engine, passengers, wind), which moves the image by
-        pixels, but without translation the pose against the ground is unobservable and the
-        fit diverges."""
+        """Fail the pair as "no motion" where a pure rotation explains the matched field
+        (``disp`` (N, 2) of the ``usable`` patches) to within ``min_motion_px`` (median): a
+        standing vehicle's camera still pitches and rolls (engine, passengers, wind), which
+        moves the image by pixels, but without translation the pose against the ground is
+        unobservable and the fit diverges."""
         use = usable & np.isfinite(disp).all(axis=1)
         if use.sum() < 3:
             return

@@ -85,8 +85,7 @@ def with_searched_nominal(
     """``config`` with the nominal pose ``nominal_search.search_nominal_pose`` finds on the
     first frames of ``source`` where the user gave no ``--pitch`` and the cold start from the
     default pitch fails (a forward-looking camera) or converges far from it (a camera 35°
-    down); unchanged otherwise. Says so on stderr
-    unless ``--quiet``."""
+    down); unchanged otherwise. Says so on stderr unless ``--quiet``."""
     from ..estimator import EstimatorConfig
     from ..nominal_search import search_nominal_pose
     from ..pipeline import config_with
