@@ -431,24 +431,25 @@ class ExtrinsicsEKF:
         kf = self._kf
         assert kf is not None
         nz = self._cfg.noise
-        x, p = kf.x.copy(), kf.P.copy()
-        x[M.SPEED], x[M.YAW_RATE] = M.pair_rates(m.z, x[M.MOUNT_HEIGHT], m.height_assumed, dt)
+        speed, yaw_rate = M.pair_rates(m.z, kf.x[M.MOUNT_HEIGHT], m.height_assumed, dt)
         h_prior = (nz.prior_height_std_rel * self._cfg.height_m) ** 2
         yaw_prior = np.radians(nz.prior_mount_yaw_std_deg) ** 2
         # a wrong height or mount yaw also makes every translation disagree (the yaw turns
         # the predicted (tx, tz) off the measured direction): let the next pairs move them
-        for i, var in ((M.SPEED, nz.prior_speed_std_mps**2),
-                       (M.YAW_RATE, np.radians(nz.prior_yaw_rate_std_dps) ** 2),
-                       (M.MOUNT_HEIGHT, max(h_prior, float(p[M.MOUNT_HEIGHT, M.MOUNT_HEIGHT]))),
-                       (M.MOUNT_YAW, max(yaw_prior, float(p[M.MOUNT_YAW, M.MOUNT_YAW])))):
-            p[i, :] = p[:, i] = 0.0
-            p[i, i] = var
-        kf.x, kf.P = x, p
-        self._motion_note = (
-            f"speed/yaw rate/height/mount yaw re-opened after {self._motion_gated_run} pairs "
-            "gated on motion"
-        )
+        _reopen(kf, {M.SPEED: speed, M.YAW_RATE: yaw_rate}, {
+            M.SPEED: nz.prior_speed_std_mps**2,
+            M.YAW_RATE: np.radians(nz.prior_yaw_rate_std_dps) ** 2,
+            M.MOUNT_HEIGHT: max(h_prior, float(kf.P[M.MOUNT_HEIGHT, M.MOUNT_HEIGHT])),
+            M.MOUNT_YAW: max(yaw_prior, float(kf.P[M.MOUNT_YAW, M.MOUNT_YAW])),
+        })
+        self._add_motion_note(f"speed/yaw rate/height/mount yaw re-opened after "
+                              f"{self._motion_gated_run} pairs gated on motion")
         self._motion_gated_run = 0
+
+    def _add_motion_note(self, note: str) -> None:
+        """Add ``note`` to this frame's ``reset_reason`` (a speed and a motion restart can
+        both happen within one frame)."""
+        self._motion_note = "; ".join(r for r in (self._motion_note, note) if r)
 
     def _update_speed(self, speed: float) -> tuple[float, bool]:
         kf = self._kf
@@ -475,15 +476,13 @@ class ExtrinsicsEKF:
         kf = self._kf
         assert kf is not None
         nz = self._cfg.noise
-        x, p = kf.x.copy(), kf.P.copy()
-        x[M.SPEED], x[M.MOUNT_HEIGHT] = speed, self._cfg.height_m
-        for i, var in ((M.SPEED, nz.speed_meas_var(speed)),
-                       (M.MOUNT_HEIGHT, (nz.prior_height_std_rel * self._cfg.height_m) ** 2)):
-            p[i, :] = p[:, i] = 0.0
-            p[i, i] = var
-        kf.x, kf.P = x, p
-        note = f"speed/height re-opened after {self._speed_gated_run} wheel speeds gated"
-        self._motion_note = "; ".join(r for r in (self._motion_note, note) if r)
+        h = self._cfg.height_m
+        _reopen(kf, {M.SPEED: speed, M.MOUNT_HEIGHT: h}, {
+            M.SPEED: nz.speed_meas_var(speed),
+            M.MOUNT_HEIGHT: (nz.prior_height_std_rel * h) ** 2,
+        })
+        self._add_motion_note(
+            f"speed/height re-opened after {self._speed_gated_run} wheel speeds gated")
 
     def _update_standstill(self, states: tuple[int, ...]) -> None:
         """Apply the standstill pseudo-measurement (``states`` = 0); no gate: the wheel speed
@@ -608,6 +607,18 @@ def speed_at(series: SpeedSource, times: FloatArray, clock_offset_s: float = 0.0
     exact = np.isin(tt, ts)
     out[exact] = np.interp(tt[exact], ts, vs)
     return out
+
+
+def _reopen(kf: _ClonedEKF, values: dict[int, float], variances: dict[int, float]) -> None:
+    """Restart part of ``kf``'s state: the states of ``values`` take those values, those of
+    ``variances`` that variance, uncorrelated with the rest (indices of ``filters.model``)."""
+    x, p = kf.x.copy(), kf.P.copy()
+    for i, value in values.items():
+        x[i] = value
+    for i, var in variances.items():
+        p[i, :] = p[:, i] = 0.0
+        p[i, i] = var
+    kf.x, kf.P = x, p
 
 
 def run_filter(

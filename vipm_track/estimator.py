@@ -600,8 +600,7 @@ class TwoFrameEstimator:
         good = peaks >= max(cfg.min_peak, cfg.coarse_peak_ratio * float(np.max(peaks)))
         if not good.any():
             return x0
-        shift = np.median(disp[good], axis=0)
-        du, dv = shift * s * grid.metres_per_pixel
+        du, dv = np.median(disp[good], axis=0) * s * grid.metres_per_pixel
         # Ground content moves by -t in the new frame: IPM u grows with X, v shrinks with Z.
         x0[4], x0[5] = -du, dv
         return x0

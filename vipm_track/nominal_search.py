@@ -91,49 +91,58 @@ def search_nominal_pose(
     no start converges on ``max_failed_pairs`` pairs (the run then goes as configured and
     reports its failures)."""
     from .estimator import STATUS_NO_MOTION, STATUS_OK, TwoFrameEstimator
-    from .pipeline import config_with, estimate_pair
+    from .pipeline import estimate_pair
 
     pairs = _pairs(source, camera, max_frames)
     default = TwoFrameEstimator(camera, height, config)
     failed = 0
     for i, (frames, before, image) in enumerate(pairs):
         result = estimate_pair(default, before, image, None)
-        if result.status == STATUS_OK and result.pose_curr is not None:
-            if abs(math.degrees(result.pose_curr.pitch)
-                   - config.initial_pitch_deg) <= SETTLE_PITCH_DEG:
-                return None
-            pitch, roll, n = _settle(camera, height, config, pairs[i:i + confirm_pairs],
-                                     result.pose_curr.pitch, result.pose_curr.roll)
-            return NominalSearch(round(math.degrees(pitch), 1), round(math.degrees(roll), 1),
-                                 config.initial_pitch_deg, config.initial_pitch_deg, frames, n,
-                                 default_failed=False)
-        if result.status == STATUS_OK:
-            return None
         if result.status == STATUS_NO_MOTION:
             continue
-        failed += 1
-        best: tuple[float, PairResult] | None = None
-        for start in CANDIDATE_PITCHES_DEG:
-            if abs(start - config.initial_pitch_deg) < 1.0:
-                continue
-            try:
-                estimator = TwoFrameEstimator(camera, height,
-                                              config_with(config, initial_pitch_deg=start))
-            except InputError:  # too few interest points from this start
-                continue
-            r = estimate_pair(estimator, before, image, None)
-            if r.status == STATUS_OK and r.pose_curr is not None and (
-                    best is None or r.residual_px < best[1].residual_px):
-                best = start, r
-        if best is not None:
-            start, r = best
+        if result.status == STATUS_OK:
+            if result.pose_curr is None or abs(math.degrees(result.pose_curr.pitch)
+                                               - config.initial_pitch_deg) <= SETTLE_PITCH_DEG:
+                return None
+            found: tuple[float, PairResult] | None = (config.initial_pitch_deg, result)
+        else:
+            failed += 1
+            found = _best_start(camera, height, config, before, image)
+        if found is not None:
+            start, r = found
             pitch, roll, n = _settle(camera, height, config, pairs[i:i + confirm_pairs],
                                      r.pose_curr.pitch, r.pose_curr.roll)
             return NominalSearch(round(math.degrees(pitch), 1), round(math.degrees(roll), 1),
-                                 start, config.initial_pitch_deg, frames, n)
+                                 start, config.initial_pitch_deg, frames, n,
+                                 default_failed=r is not result)
         if failed >= max_failed_pairs:
             break
     return None
+
+
+def _best_start(
+    camera: CameraModel, height: float, config: EstimatorConfig, before: np.ndarray,
+    image: np.ndarray,
+) -> tuple[float, PairResult] | None:
+    """The start of ``CANDIDATE_PITCHES_DEG`` (deg) whose cold start on the pair converges
+    with the smallest residual, with its result; None where none converges."""
+    from .estimator import STATUS_OK, TwoFrameEstimator
+    from .pipeline import config_with, estimate_pair
+
+    best: tuple[float, PairResult] | None = None
+    for start in CANDIDATE_PITCHES_DEG:
+        if abs(start - config.initial_pitch_deg) < 1.0:
+            continue
+        try:
+            estimator = TwoFrameEstimator(camera, height,
+                                          config_with(config, initial_pitch_deg=start))
+        except InputError:  # too few interest points from this start
+            continue
+        r = estimate_pair(estimator, before, image, None)
+        if r.status == STATUS_OK and r.pose_curr is not None and (
+                best is None or r.residual_px < best[1].residual_px):
+            best = start, r
+    return best
 
 
 def _settle(
