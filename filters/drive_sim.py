@@ -416,4 +416,4 @@ def _speed_samples(cfg: DriveConfig, tr: DriveTruth, rng: np.random.Generator) -
     if cfg.speed_quantum_kmh > 0:
         q = cfg.speed_quantum_kmh / 3.6
         v = np.round(v / q) * q
-    return SpeedSamples(t=t_cam - cfg.speed_clock_offset_s, speed_mps=np.maximum(v, 0.0))
+    return SpeedSamples(t=t_cam - cfg.speed_clock_offset_s, speed_mps=np.abs(v))

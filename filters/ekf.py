@@ -212,6 +212,7 @@ class ExtrinsicsEKF:
         self._pose_gated_run = 0
         self._motion_gated_run = 0
         self._speed_gated_run = 0
+        self._direction = 1.0  # of travel, model.travel_direction
         self._motion_note = ""
         self._pending_reset = ""
         #: bootstrap frames: (usable pair or None, wheel speed, dt, pair status)
@@ -304,7 +305,10 @@ class ExtrinsicsEKF:
         self._kf.predict_dt(dt)
         speed_nis, speed_gated = float("nan"), False
         if speed is not None and np.isfinite(speed):
-            speed_nis, speed_gated = self._update_speed(float(speed))
+            self._direction = M.travel_direction(self._direction, float(speed),
+                                                 None if m is None else m.z)
+            speed = M.signed_speed(float(speed), self._direction)
+            speed_nis, speed_gated = self._update_speed(speed)
         # a gated wheel speed says nothing, about standstill either
         still = M.standstill_states(
             None if speed_gated else speed, pair_status, self._cfg.noise
@@ -331,8 +335,10 @@ class ExtrinsicsEKF:
         zs = np.array([m.z for m, _ in pairs])
         dts = np.array([d for _, d in pairs])
         h0s = np.array([m.height_assumed for m, _ in pairs])
-        travel = np.hypot(zs[:, 4], zs[:, 5]) * h_mean / h0s
-        speeds = np.array([v for _, v, _, _ in boot if v is not None and np.isfinite(v)])
+        travel = M.travel_sign(zs) * np.hypot(zs[:, 4], zs[:, 5]) * h_mean / h0s
+        self._direction = M.initial_direction(zs)
+        speeds = np.array([M.signed_speed(v, self._direction)
+                           for _, v, _, _ in boot if v is not None and np.isfinite(v)])
         x = np.zeros(M.STATE_DIM)
         x[M.MOUNT_PITCH] = float(np.median(0.5 * (zs[:, 0] + zs[:, 2])))
         x[M.MOUNT_ROLL] = float(np.median(0.5 * (zs[:, 1] + zs[:, 3])))

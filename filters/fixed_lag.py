@@ -151,6 +151,7 @@ class FixedLagSmoother:
         self._started = False
         self._t_last = -math.inf
         self._last_speed_t = -math.inf
+        self._direction = 1.0  # of travel, model.travel_direction
         self._still: dict[int, bool] = {}  # frame → standstill, until the frame is emitted
         self._clear()
 
@@ -215,7 +216,6 @@ class FixedLagSmoother:
         if math.isfinite(speed):
             self._last_speed_t = m.t
         metric = m.t - self._last_speed_t <= self._cfg.speed_timeout_s
-        self._push_pair(m, dt, speed, metric, body_std)
         new = prev.copy()
         if m.ok:
             # the pair's own motion, as the batch's initial guess: a prediction from the last
@@ -227,10 +227,13 @@ class FixedLagSmoother:
         else:
             new[0:3] = M.propagate_pose(prev[0], prev[1], prev[2], prev[3], prev[4], dt)
             new[9:11] = 0.0
+        self._direction = M.travel_direction(self._direction, speed, m.z if m.ok else None)
+        speed = M.signed_speed(speed, self._direction)
         if math.isfinite(speed):
             new[3] = speed
         for i in M.standstill_states(speed, m.status, self._cfg.noise):
             new[3 if i == M.SPEED else 4] = 0.0  # standing: start from the pseudo-measurement
+        self._push_pair(m, dt, speed, metric, body_std)
         self._ms.append(m)
         self._x = np.vstack([self._x, new])
         self._last = None
@@ -256,6 +259,7 @@ class FixedLagSmoother:
         t = np.array([b.t for b in ms])
         dts = np.concatenate([[0.0], np.diff(t)])
         g = _initial_guess(ms, sp, dts, cfg.height_m, self._start_pose, cfg.noise)
+        sp, self._direction = g.wheel_speed, g.direction
         self._clear()
         self._started = True
         x = np.zeros((len(ms), _D))

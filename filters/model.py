@@ -215,12 +215,51 @@ def propagate_pose(
     return x + v * dt * np.sin(a), y + v * dt * np.cos(a), psi + omega * dt
 
 
+def travel_sign(z: FloatArray) -> FloatArray:
+    """Direction of travel of pair motions ``z`` (..., 7; rows 4–5: tx, tz): +1 forward along
+    the camera's ground z, −1 backward (reversing, or a camera that faces backward)."""
+    return np.where(np.asarray(z, dtype=float)[..., 5] < 0, -1.0, 1.0)
+
+
 def pair_rates(
     z: FloatArray, height_m: float, height_assumed: float, dt: float
 ) -> tuple[float, float]:
-    """Speed (m/s) and yaw rate (rad/s) that a pair's motion ``z`` (rows 4–6: tx, tz at the
-    assumed height h0, m; yaw, rad) implies over ``dt`` s at mount height ``height_m``."""
-    return math.hypot(z[4], z[5]) * height_m / height_assumed / dt, z[6] / dt
+    """Speed (m/s, signed: < 0 reversing) and yaw rate (rad/s) that a pair's motion ``z``
+    (rows 4–6: tx, tz at the assumed height h0, m; yaw, rad) implies over ``dt`` s at mount
+    height ``height_m``."""
+    speed = float(travel_sign(z)) * math.hypot(z[4], z[5]) * height_m / height_assumed / dt
+    return speed, z[6] / dt
+
+
+#: highest wheel speed (m/s) at which the direction of travel may change (a vehicle reverses
+#: only through a stop; above it, a pair that seems to go the other way is an outlier)
+REVERSAL_MAX_SPEED_MPS = 1.0
+
+
+def initial_direction(z: FloatArray) -> float:
+    """Direction of travel (+1 / −1, ``travel_sign``) of a drive's first pair motions ``z``
+    (n, 7): the sign of their median tz; +1 without any."""
+    z = np.asarray(z, dtype=float).reshape(-1, 7)
+    return float(travel_sign(np.median(z, axis=0))) if len(z) else 1.0
+
+
+def travel_direction(previous: float, reading: float, z: FloatArray | None) -> float:
+    """Direction of travel (+1 / −1) at a frame with wheel-speed ``reading`` (m/s; NaN: none)
+    and pair motion ``z`` (None: no usable pair): −1 on a negative reading (a source that
+    signs its speed); else ``previous`` unless the reading is at most
+    ``REVERSAL_MAX_SPEED_MPS`` and the pair says otherwise (``travel_sign``)."""
+    if reading < 0.0:
+        return -1.0
+    if z is None or not reading <= REVERSAL_MAX_SPEED_MPS:
+        return previous
+    return float(travel_sign(z))
+
+
+def signed_speed(reading: float, direction: float) -> float:
+    """A wheel-speed ``reading`` (m/s) as the state's signed speed v: most vehicles' wheel
+    speed is a magnitude, so a non-negative reading takes the ``direction`` of travel
+    (``travel_direction``); a negative one is taken as it is, NaN stays NaN."""
+    return direction * reading if reading >= 0.0 else reading
 
 
 def transition(

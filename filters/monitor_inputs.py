@@ -107,9 +107,10 @@ def input_arrays(
         j = np.clip(np.searchsorted(ts, t), 1, max(1, len(ts) - 1))
         spacing = ts[j] - ts[j - 1] if len(ts) > 1 else np.full(n, np.inf)
         dist[spacing > max_speed_gap_s] = np.nan
-        v_now = np.interp(t, ts, vs, left=np.nan, right=np.nan)
+        # magnitudes: a source that signs its speed says < 0 when reversing
+        v_now = np.abs(np.interp(t, ts, vs, left=np.nan, right=np.nan))
         d_wheel = np.full(n, np.nan)
-        d_wheel[1:] = np.where(consecutive[1:], dist[1:] - dist[:-1], np.nan)
+        d_wheel[1:] = np.where(consecutive[1:], np.abs(dist[1:] - dist[:-1]), np.nan)
         rate = (len(ts) - 1) / (ts[-1] - ts[0]) if len(ts) > 1 and ts[-1] > ts[0] else 1.0
         n_samples = np.maximum(1.0, np.nan_to_num(dt) * rate)
         with np.errstate(invalid="ignore", divide="ignore"):

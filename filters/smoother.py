@@ -200,6 +200,8 @@ class _Guess:
     speed: FloatArray  # (n,)
     yaw_rate: FloatArray  # (n,)
     pose: FloatArray  # (n, 3) x, y, psi
+    wheel_speed: FloatArray  # (n,) the readings as signed speeds (model.signed_speed), NaN: none
+    direction: float  # direction of travel at the last frame (model.travel_direction)
 
 
 def _interp_missing(values: FloatArray, fallback: float = 0.0) -> FloatArray:
@@ -233,16 +235,26 @@ def _initial_guess(
         mount = np.zeros(2)
     travel = np.hypot(z[:, 4], z[:, 5]) / h0  # in heights
     moving = ok & (travel > 1e-3)
-    sel = moving & np.isfinite(speeds) & (speeds > 0.5)
+    magnitude = np.abs(speeds)
+    sel = moving & np.isfinite(speeds) & (magnitude > 0.5)
     sel[0] = False
-    height = float(np.median(speeds[sel] * dts[sel] / travel[sel])) if sel.sum() >= 3 else h_nominal
+    height = (float(np.median(magnitude[sel] * dts[sel] / travel[sel])) if sel.sum() >= 3
+              else h_nominal)
     if not 0.5 * h_nominal < height < 2.0 * h_nominal:
         height = h_nominal
-    yaw_m = float(np.median(np.arctan2(-z[moving, 4], z[moving, 5]))) if np.any(moving) else 0.0
+    # the camera's heading off the axis of travel, either way along it (reversing)
+    sign = M.travel_sign(z)
+    yaw_m = (float(np.median(np.arctan2(-sign[moving] * z[moving, 4], np.abs(z[moving, 5]))))
+             if np.any(moving) else 0.0)
     body = np.where(ok[:, None], z[:, 2:4] - mount, 0.0)
     safe_dt = np.where(dts > 0, dts, np.nan)
-    v = _interp_missing(np.where(ok, travel * height / safe_dt, np.nan))
-    v = np.where(np.isfinite(speeds), speeds, v)
+    v = _interp_missing(np.where(ok, sign * travel * height / safe_dt, np.nan))
+    direction = M.initial_direction(z[ok][:10])
+    wheel = np.empty(n)
+    for k, reading in enumerate(speeds):
+        direction = M.travel_direction(direction, float(reading), z[k] if ok[k] else None)
+        wheel[k] = M.signed_speed(float(reading), direction)
+    v = np.where(np.isfinite(wheel), wheel, v)
     w = _interp_missing(np.where(ok, z[:, 6] / safe_dt, np.nan))
     if noise is not None:
         for k, m in enumerate(ms):
@@ -257,7 +269,7 @@ def _initial_guess(
             pose[k] = dead_reckoned((x, y, psi), height, yaw_m, ms[k])
         else:
             pose[k] = M.propagate_pose(x, y, psi, v[k - 1], w[k - 1], dts[k])
-    return _Guess(mount, height, yaw_m, body, v, w, pose)
+    return _Guess(mount, height, yaw_m, body, v, w, pose, wheel, direction)
 
 
 def dead_reckoned(
@@ -659,6 +671,7 @@ def smooth_batch(
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     guess = _initial_guess(ms, sp, dts, cfg.height_m, noise=cfg.noise)
+    sp = guess.wheel_speed
     metric = _metric_frames(t, sp, cfg.speed_timeout_s)
     body = BodyTracker(cfg)
     graph = gtsam.NonlinearFactorGraph()

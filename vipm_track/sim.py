@@ -308,7 +308,7 @@ def wheel_speed_samples(
     if quantum_kmh > 0:
         q = quantum_kmh / 3.6
         v = np.round(v / q) * q
-    return t, np.maximum(v, 0.0)
+    return t, np.abs(v)
 
 
 def write_wheel_speed_csv(
