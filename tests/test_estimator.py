@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 from functools import cache
 
+import cv2
 import numpy as np
 import pytest
 
@@ -28,6 +29,7 @@ from vipm_track.sim import (
     preset_texture,
     render_trajectory_frame,
 )
+from vipm_track.static_content import static_pixels
 
 
 @cache
@@ -322,6 +324,54 @@ def test_obstacle_patches_are_outliers():
 
 
 # --- failures ----------------------------------------------------------------------------
+
+
+def _with_hood(images: tuple[np.ndarray, ...], share: float) -> list[np.ndarray]:
+    """Dashcam frames: a car hood fixed over the bottom ``share`` of the view (curved edge,
+    faint static texture) and a text overlay, the same in every frame."""
+    h, w = images[0].shape[:2]
+    yy, xx = np.mgrid[0:h, 0:w]
+    hood = yy > h * (1 - share) + 0.6 * share * h * ((xx - w / 2) / (w / 2)) ** 2
+    rng = np.random.default_rng(0)
+    paint = (40 + 20 * rng.random((h // 8, w // 8))).astype(np.uint8)
+    paint = cv2.resize(paint, (w, h), interpolation=cv2.INTER_CUBIC)
+    out = []
+    for image in images:
+        frame = image.copy()
+        frame[hood] = paint[hood]
+        cv2.putText(frame, "2026/11/23 12:00:00  52 km/h", (20, h - 20),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.8, 255, 2)
+        out.append(frame)
+    return out
+
+
+def test_static_pixels_mark_content_fixed_to_the_camera():
+    _, imgs, cam = _sequence("car", "static", 2)
+    frames = _with_hood(imgs, 0.3)
+    static = static_pixels(frames[0].astype(np.float32), frames[1].astype(np.float32))
+    h = cam.height
+    assert static[int(0.9 * h):].mean() > 0.8  # the hood
+    assert not static[int(0.55 * h):int(0.7 * h)].any()  # the road ahead
+    # a standing vehicle: everything is fixed, nothing is marked ("no motion" says it)
+    assert not static_pixels(frames[0].astype(np.float32), frames[0].astype(np.float32)).any()
+
+
+def test_a_hood_over_the_near_road_is_not_taken_for_the_ground():
+    # a hood over the bottom 30 % of a dashcam's view (its texture static, POC matches it
+    # perfectly at zero shift): the cold start found no travel and tracking locked onto it —
+    # every pair "ok" with zero travel (99.9 % distance error)
+    traj, imgs, cam = _sequence("car", "static", 3)
+    frames = _with_hood(imgs, 0.3)
+    config = EstimatorConfig(initial_pitch_deg=PRESETS["car"].pitch_deg)
+    est = TwoFrameEstimator(cam, float(traj.height[0]), config)
+    guess = None
+    for k in (1, 2):
+        result = est.estimate(frames[k - 1], frames[k], guess)
+        assert result.ok, result.reason
+        err = _errors(traj, k, result.pose_prev, result.pose_curr, result.motion)
+        assert err["dist_mm"] / (traj.motion(k).distance * 1e3) < 0.02, err
+        assert err["pitch"] < 0.3 and err["roll"] < 0.3, err
+        guess = PairGuess.from_previous(result)
 
 
 def test_uniform_images_report_no_texture():

@@ -46,6 +46,7 @@ from .geometry import (
 )
 from .measurement import PairMeasurement
 from .roi import RoiSpec, interest_points, roi_mask, shrink_to_image
+from .static_content import PATCH_MAX_SHARE, on_static, static_pixels, static_share
 
 FloatArray = NDArray[np.float64]
 
@@ -365,6 +366,8 @@ class TwoFrameEstimator:
             self.config.roi_max_lateral_h * self.height, margin,
         )
         self.roi = mask
+        # share of content fixed to the camera around each pixel, of the pair in hand
+        self._static = np.zeros(mask.shape, np.float32)
         self.centres, self.sizes = interest_points(
             camera, mask, self.config.grid, self.config.patch_image,
             self.config.min_patch_image, self.nominal, self._horizon_margin_px,
@@ -432,6 +435,7 @@ class TwoFrameEstimator:
         result = PairResult(status=STATUS_OK, timings=timings, height=self.height)
         prev = self._prepare(prev_img, "previous frame")
         curr = self._prepare(curr_img, "current frame")
+        self._static = static_share(static_pixels(prev, curr), self.config.patch_image // 2)
         rng = np.random.default_rng(self.config.seed)
         self._prior_mean, self._prior_sigma = self._pose_prior(guess)
         try:
@@ -509,7 +513,7 @@ class TwoFrameEstimator:
         disp, peaks = _match_grouped(prev, curr, self.centres, sizes, offsets)
         result.timings["poc"] += time.perf_counter() - t0
 
-        usable = (sizes > 0) & (peaks >= cfg.min_peak)
+        usable = (sizes > 0) & (peaks >= cfg.min_peak) & ~on_static(self._static, self.centres)
         n_textured = int(usable.sum())
         if n_textured < cfg.min_inliers:
             raise _StageFailure(
@@ -576,7 +580,8 @@ class TwoFrameEstimator:
                              interpolation=cv2.INTER_AREA)
         result.timings["warp"] += time.perf_counter() - t0
         q = grid.pixel_from_ground(back_project(self.k, self.nominal, self.centres))
-        q = q[np.all(np.isfinite(q), axis=1)]
+        seen = np.all(np.isfinite(q), axis=1)
+        q, static = q[seen], on_static(self._static, self.centres[seen])
         patch = int(min(cfg.coarse_patch, (min(size) - 2) // 16 * 16))
         if len(q) == 0 or patch < 16:
             return x0
@@ -584,7 +589,11 @@ class TwoFrameEstimator:
         polygon = ipm.visible_polygon(self.k, self.nominal, grid,
                                       (self.camera.width, self.camera.height),
                                       self._horizon_margin_px)
-        shift = _global_shift(small_p, small_c, (polygon - (s - 1) / 2) / s, cfg.min_peak)
+        inside = _polygon_mask(size, (polygon - (s - 1) / 2) / s)
+        # content fixed to the camera (hood, overlay) left out: it pulls the shift to zero
+        fixed = cv2.resize(ipm.warp(self._static, self.k, self.nominal, grid), size,
+                           interpolation=cv2.INTER_AREA) > PATCH_MAX_SHARE
+        shift = _global_shift(small_p, small_c, inside & ~fixed, cfg.min_peak)
         half = patch / 2
         centres = np.round(np.clip((q - (s - 1) / 2) / s, [half, half],
                                    [size[0] - 1 - half, size[1] - 1 - half]))
@@ -592,8 +601,10 @@ class TwoFrameEstimator:
         # only where its windows correlate clearly better (twice the upper-quartile peak),
         # since in sharp turns neither is a translation and the zero offset fails safer.
         disp, peaks = poc.match_patches(small_p, small_c, centres, patch)
+        peaks = np.where(static, 0.0, peaks)
         if np.any(np.round(shift)):
             moved = poc.match_patches(small_p, small_c, centres, patch, np.round(shift))
+            moved = (moved[0], np.where(static, 0.0, moved[1]))
             if _upper_quartile(moved[1]) > 2.0 * _upper_quartile(peaks):
                 disp, peaks = moved
         result.timings["poc"] += time.perf_counter() - t0
@@ -719,10 +730,10 @@ class TwoFrameEstimator:
             disp = apply_homography(moved, q_p + disp) - q_p
         result.timings["poc"] += time.perf_counter() - t0
 
-        usable = (sizes > 0) & (peaks >= cfg.min_peak)
+        pixels_prev = apply_homography(image_from_ipm_homography(self.k, pose_p, grid), q_p)
+        usable = (sizes > 0) & (peaks >= cfg.min_peak) & ~on_static(self._static, pixels_prev)
         dev = np.linalg.norm(disp - pred, axis=1)
         usable &= dev <= cfg.refine_outlier_px * (3.0 if loose else 1.0)
-        pixels_prev = apply_homography(image_from_ipm_homography(self.k, pose_p, grid), q_p)
         plane_from_image = ipm_from_image_homography(self.k, pose_c, grid)
         whitening = (ipm.patch_noise_whitening(plane_from_image, q_p + disp, sizes, cfg.patch_ipm)
                      if cfg.weight_patches else None)
@@ -884,19 +895,24 @@ def _match_grouped(
     return disp, peaks
 
 
-def _global_shift(prev: NDArray, curr: NDArray, polygon: FloatArray, min_peak: float,
+def _polygon_mask(size: tuple[int, int], polygon: FloatArray) -> NDArray[np.bool_]:
+    """Pixels (height, width) of an image of ``size`` (width, height) inside the convex
+    ``polygon`` (pixels)."""
+    mask = np.zeros((size[1], size[0]), np.uint8)
+    if len(polygon) >= 3:
+        cv2.fillConvexPoly(mask, np.round(polygon).astype(np.int32), 1)
+    return mask.astype(bool)
+
+
+def _global_shift(prev: NDArray, curr: NDArray, inside: NDArray[np.bool_], min_peak: float,
                   levels: int = 2) -> FloatArray:
     """Translation (dx, dy), pixels, of the content from ``prev`` to ``curr`` by one POC
-    over both whole images, outside ``polygon`` (the visible ground, pixels) filled with
+    over both whole images, outside ``inside`` (the visible moving ground) filled with
     the mean grey so that the border of the view, fixed in both, does not pull the peak to
     zero. Tried at ``levels`` scales (1, 1/2, …): a pose off the nominal one stretches the
     far ground unevenly, which a coarser plane tolerates better; the highest peak wins.
     Zero where no peak reaches ``min_peak``."""
     h, w = prev.shape[:2]
-    mask = np.zeros((h, w), np.uint8)
-    if len(polygon) >= 3:
-        cv2.fillConvexPoly(mask, np.round(polygon).astype(np.int32), 1)
-    inside = mask.astype(bool)
     if inside.sum() < 256:
         return np.zeros(2)
     planes = []
