@@ -414,28 +414,34 @@ class TwoFrameEstimator:
         fails, the image-plane cold start of steep cameras is tried too (a camera ~10° down
         on a fast car: the near field's IPM is too stretched to match from the nominal pose).
         """
+        t_start = time.perf_counter()
+        prev = self._prepare(prev_img, "previous frame")
+        curr = self._prepare(curr_img, "current frame")
+        # content fixed to the camera, once per pair (both cold starts leave it out)
+        self._static = static_share(static_pixels(prev, curr), self.config.patch_image // 2)
+        prepared_s = time.perf_counter() - t_start
         ipm_start = guess is None and not self.steep and self.config.cold_start_ipm
-        result = self._estimate(prev_img, curr_img, guess, ipm_start)
+        result = self._estimate(prev, curr, guess, ipm_start)
         if ipm_start and result.status not in (STATUS_OK, STATUS_NO_MOTION):
-            plain = self._estimate(prev_img, curr_img, None, False)
+            plain = self._estimate(prev, curr, None, False)
             if plain.status == STATUS_OK:
                 plain.reason = (f"cold start from the nominal-pose IPM failed ({result.reason}); "
                                 "image-plane cold start")
                 for key, seconds in result.timings.items():
                     plain.timings[key] = plain.timings.get(key, 0.0) + seconds
-                return plain
+                result = plain
+        result.timings["total"] += prepared_s
         return result
 
     def _estimate(
-        self, prev_img: NDArray, curr_img: NDArray, guess: PairGuess | None, ipm_start: bool
+        self, prev: NDArray[np.float32], curr: NDArray[np.float32], guess: PairGuess | None,
+        ipm_start: bool,
     ) -> PairResult:
-        """:meth:`estimate` with the cold start chosen by ``ipm_start``."""
+        """:meth:`estimate` on the prepared images (``_prepare``) with the cold start chosen
+        by ``ipm_start``."""
         t_start = time.perf_counter()
         timings = {"poc": 0.0, "warp": 0.0, "lm": 0.0}
         result = PairResult(status=STATUS_OK, timings=timings, height=self.height)
-        prev = self._prepare(prev_img, "previous frame")
-        curr = self._prepare(curr_img, "current frame")
-        self._static = static_share(static_pixels(prev, curr), self.config.patch_image // 2)
         rng = np.random.default_rng(self.config.seed)
         self._prior_mean, self._prior_sigma = self._pose_prior(guess)
         try:
@@ -580,8 +586,8 @@ class TwoFrameEstimator:
                              interpolation=cv2.INTER_AREA)
         result.timings["warp"] += time.perf_counter() - t0
         q = grid.pixel_from_ground(back_project(self.k, self.nominal, self.centres))
-        seen = np.all(np.isfinite(q), axis=1)
-        q, static = q[seen], on_static(self._static, self.centres[seen])
+        # content fixed to the camera (hood, overlay) correlates at zero shift: left out
+        q = q[np.all(np.isfinite(q), axis=1) & ~on_static(self._static, self.centres)]
         patch = int(min(cfg.coarse_patch, (min(size) - 2) // 16 * 16))
         if len(q) == 0 or patch < 16:
             return x0
@@ -590,7 +596,7 @@ class TwoFrameEstimator:
                                       (self.camera.width, self.camera.height),
                                       self._horizon_margin_px)
         inside = _polygon_mask(size, (polygon - (s - 1) / 2) / s)
-        # content fixed to the camera (hood, overlay) left out: it pulls the shift to zero
+        # and out of the global shift, which it pulls to zero
         fixed = cv2.resize(ipm.warp(self._static, self.k, self.nominal, grid), size,
                            interpolation=cv2.INTER_AREA) > PATCH_MAX_SHARE
         shift = _global_shift(small_p, small_c, inside & ~fixed, cfg.min_peak)
@@ -601,10 +607,8 @@ class TwoFrameEstimator:
         # only where its windows correlate clearly better (twice the upper-quartile peak),
         # since in sharp turns neither is a translation and the zero offset fails safer.
         disp, peaks = poc.match_patches(small_p, small_c, centres, patch)
-        peaks = np.where(static, 0.0, peaks)
         if np.any(np.round(shift)):
             moved = poc.match_patches(small_p, small_c, centres, patch, np.round(shift))
-            moved = (moved[0], np.where(static, 0.0, moved[1]))
             if _upper_quartile(moved[1]) > 2.0 * _upper_quartile(peaks):
                 disp, peaks = moved
         result.timings["poc"] += time.perf_counter() - t0
