@@ -127,10 +127,12 @@ def _best_start(
     """The start of ``CANDIDATE_PITCHES_DEG`` (deg) whose cold start on the pair converges
     with the smallest residual, with its result; None where none converges.
 
-    Every start is fitted alike (seven parameters, patches weighted alike, the fixed inlier
-    threshold) so that the residuals compare: with the per-camera defaults a steep start had
-    an eighth parameter and a self-tightening threshold, and on KITTI 07 the 12° start beat
-    the level ones by that alone (settling at 13°: distance error 47 %)."""
+    The settings that shape the residual itself are the same for every start (seven
+    parameters, patches weighted alike, the fixed inlier threshold): with the per-camera
+    defaults a steep start had an eighth parameter and a self-tightening threshold, and on
+    KITTI 07 the 12° start beat the level ones by that alone (settling at 13°: distance error
+    47 %). The region of interest, the number of refinements and the pose prior still follow
+    each start's camera type."""
     from .estimator import REFINEMENT_WEIGHTING, STATUS_OK, TwoFrameEstimator
     from .pipeline import config_with, estimate_pair
 
