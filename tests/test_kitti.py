@@ -66,14 +66,15 @@ KITTI_ESTIMATES = Path(__file__).parent / "data" / "kitti07_estimates.csv"
 
 @pytest.mark.parametrize(
     ("method", "median_pct", "p95_pct"),
-    [("ekf", 3.5, 11.0), ("fixed-lag 2 s", 3.3, 9.0), ("batch", 3.3, 9.0)],
+    [("ekf", 3.0, 12.0), ("fixed-lag 2 s", 2.5, 9.0), ("batch", 2.5, 9.0)],
 )
 def test_filters_follow_the_real_kitti_drive(method: str, median_pct: float, p95_pct: float):
     # Real driving: a turn at 30°/s from standstill, then hard acceleration. The camera sits
     # ahead of the axle the car turns about, and the estimator's covariance is optimistic,
     # so a filter that trusts its motion model gates the pairs after the turn and keeps the
     # old motion (fixed lag before: median travel error 27 %, EKF 7 %, p95 39 %). The
-    # filtered motion must stay as good as the pairs it is built from (3.3 %, p95 10 %).
+    # filtered motion must stay as good as the pairs it is built from (2.6 %, p95 9.3 %;
+    # p95 9–13 % over sampler seeds); today EKF 2.5 / 11 %, smoothers 1.7 / 7.3 %.
     from filters.ekf import EkfConfig, run_filter
     from filters.smoother import SmootherConfig, smooth
     from filters.track import track_row
@@ -103,8 +104,8 @@ def test_filters_follow_the_real_kitti_drive(method: str, median_pct: float, p95
 def test_smoothed_summary_interval_is_honest_on_the_real_drive():
     # On KITTI 07 the measured pitch/roll wander by 1–2° over seconds (road camber and
     # slope, the front end's tracking correlation): 1 s means scatter 10–20× more than the
-    # model says. The model alone gives ±0.09° for the drive's mean mount; the data's batch
-    # means widen it (±0.4–0.5°), which is what a 16 s drive can tell.
+    # model says. The model alone gives about ±0.1° for the drive's mean mount; the data's
+    # batch means widen it (±0.4–0.5°), which is what a 16 s drive can tell.
     from filters.smoother import SmootherConfig, smooth, summarize_mount
     from vipm_track.measurement import measurements_from_table
 
@@ -114,7 +115,7 @@ def test_smoothed_summary_interval_is_honest_on_the_real_drive():
     for axis in ("pitch", "roll"):
         d = s[axis]
         assert d["interval_from"] == "data"
-        assert d["std_model"] < 0.06 and d["std_data"] > 3 * d["std_model"]
+        assert d["std_model"] < 0.08 and d["std_data"] > 3 * d["std_model"]
         assert 0.3 < (d["ci95"][1] - d["ci95"][0]) / 2 < 1.0
 
 
