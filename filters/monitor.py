@@ -35,7 +35,7 @@ the test uses all the information the data hold about Δ. Innovations are clippe
 Real roads add a slow term g_k to d_k that is not a calibration change either: camber and
 slope changes, load, and the front end's tracking correlation (on KITTI 07 the 1 s means of
 the measured roll scatter 10–20× more than b + n explain, and the test above, told only of
-b + n, flags a correctly mounted camera within a second). ``road_std_deg`` / ``road_tau_s``
+b + n, flags a correctly mounted camera within seconds). ``road_std_deg`` / ``road_tau_s``
 model it as a second Gauss–Markov process whose long-run variance σ_g²(1 + a_g)/(1 − a_g) is
 added to w_k (and σ_g² to the clipping variance): slow excursions then count for what they
 are worth, at the price of a longer delay for small steps (``scripts/bench_monitor.py``,

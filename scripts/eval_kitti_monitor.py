@@ -104,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     lines += [
         "",
         "The flat-ground monitor (the default; right for renders and test tracks) takes the "
-        "road's slow excursions for a moved camera within a second. Told of them "
+        "road's slow excursions for a moved camera within 1–2.5 s. Told of them "
         "(`--road-std 0.5 --road-tau 2`, what `scripts/bench_monitor.py`'s road rows "
         "simulate) it raises no RECALIBRATE on this drive; what that costs in delay is in "
         "`bench_monitor.md`.",
