@@ -260,6 +260,29 @@ def test_car_camera_10deg_down_starts_cold(ipm_start):
     assert err["dist_mm"] / (traj.motion(1).distance * 1e3) < 0.02, err
 
 
+@pytest.mark.parametrize("ipm_start", [True, False])
+def test_fast_cart_starts_cold_from_the_nominal_pose_ipm(ipm_start):
+    # The cart at 4 m/s and 10 fps: 0.4 m per frame from ~1 m above the ground, so the image
+    # scales by a third between the frames and the image-plane cold start matched nothing
+    # (2 of 99 patches). On the nominal pose's bird's-eye plane the motion is a translation:
+    # a steep camera falls back to that start (cold_start_ipm, the default).
+    p = PRESETS["cart"]
+    traj, imgs, cam = _sequence("cart", "gradual", 2, fps=10.0, speed=4.0)
+    assert traj.motion(1).distance > 0.35
+    config = EstimatorConfig(initial_pitch_deg=p.pitch_deg, cold_start_ipm=ipm_start)
+    est = TwoFrameEstimator(cam, p.height_m, config)
+    assert est.steep
+    result = est.estimate(imgs[0], imgs[1])
+    if not ipm_start:
+        assert not result.ok
+        return
+    assert result.ok, result.reason
+    assert "cold start from the nominal-pose IPM" in result.reason, result.reason
+    err = _errors(traj, 1, result.pose_prev, result.pose_curr, result.motion)
+    assert err["pitch"] < 0.05 and err["roll"] < 0.05, err
+    assert err["dist_mm"] / (traj.motion(1).distance * 1e3) < 0.005, err
+
+
 def test_fast_car_starts_cold_from_the_whole_plane_shift():
     # 2 m per frame (72 km/h at 10 fps): further than a coarse IPM patch is long, so the
     # patches alone matched nothing (the pair failed, or converged to a steep pitch with no
@@ -551,8 +574,17 @@ def test_failed_image_stage_falls_back_to_the_guess():
     assert cold.ok and "nominal-pose IPM" in cold.reason, cold.reason
     err = _errors(traj, 1, cold.pose_prev, cold.pose_curr, cold.motion)
     assert err["pitch"] < 0.25 and err["roll"] < 0.25, err
-    steep = TwoFrameEstimator(*_sequence()[2:], 0.7, EstimatorConfig(inlier_px_image=1e-4))
-    assert steep.estimate(*_sequence()[1]).status == "too few inliers"  # no start to fall to
+    # A steep camera falls back to the nominal-pose IPM start (60° against the cart's 45°)
+    cart, cart_imgs, cart_cam = _sequence()
+    steep = TwoFrameEstimator(cart_cam, 0.7, EstimatorConfig(inlier_px_image=1e-4))
+    fallback = steep.estimate(*cart_imgs)
+    assert fallback.ok and "cold start from the nominal-pose IPM" in fallback.reason
+    err = _errors(cart, 1, fallback.pose_prev, fallback.pose_curr, fallback.motion)
+    assert err["pitch"] < 0.05 and err["roll"] < 0.05 and err["dist_mm"] < 0.1, err
+    # ... and without it has no start to fall to
+    alone = dataclasses.replace(steep.config, cold_start_ipm=False)
+    assert TwoFrameEstimator(cart_cam, 0.7, alone).estimate(*cart_imgs).status == (
+        "too few inliers")
     off = np.radians(0.3)
     guess = PairGuess(geometry.GroundPose(tp.pitch + off, tp.roll, tp.height),
                       geometry.GroundPose(tc.pitch + off, tc.roll, tc.height),

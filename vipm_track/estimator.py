@@ -119,8 +119,9 @@ class EstimatorConfig:
         previous estimate are outliers, IPM pixels.
     min_inliers : fewer inliers than this fail the pair.
     min_motion_px : a median image displacement below this is "no motion", pixels.
-    cold_start_ipm : forward cameras start cold from the median translation on the nominal
-        pose's virtual IPM (else from the coarse image-plane pass, as steep cameras do).
+    cold_start_ipm : a cold start also tries the median translation on the nominal pose's
+        virtual IPM: forward cameras first (then the coarse image-plane pass), steep ones
+        where the coarse image-plane pass fails (off: the image-plane pass alone).
     max_deviation_deg : estimates whose pitch or roll differ from the initial (nominal) pose
         by more than this are rejected ("did not converge").
     ipm_resolution_scale : IPM metres per pixel as a multiple of the interest points'
@@ -423,9 +424,13 @@ class TwoFrameEstimator:
 
         Images are grey or BGR arrays of the camera's size. ``guess`` (tracking mode) seeds
         the optimisation and offsets the patch windows by the displacements it predicts.
-        A forward camera's cold start goes from the nominal pose's virtual IPM; where that
-        fails, the image-plane cold start of steep cameras is tried too (a camera ~10° down
-        on a fast car: the near field's IPM is too stretched to match from the nominal pose).
+        Cold, both starts are tried (with ``cold_start_ipm``), the second where the first
+        fails: a forward camera first from the nominal pose's virtual IPM, then from the
+        coarse image-plane pass (a camera ~10° down on a fast car: the near field's IPM is
+        too stretched to match from the nominal pose); a steep camera the other way round
+        (moving a third of its distance to the ground per frame, the image scales by a third
+        between the frames, which the image-plane patches cannot match but the bird's-eye
+        plane turns into a translation).
         """
         t_start = time.perf_counter()
         prev = self._prepare(prev_img, "previous frame")
@@ -433,16 +438,20 @@ class TwoFrameEstimator:
         # content fixed to the camera, once per pair (both cold starts leave it out)
         self._static = static_share(static_pixels(prev, curr), self.config.patch_image // 2)
         prepared_s = time.perf_counter() - t_start
-        ipm_start = guess is None and not self.steep and self.config.cold_start_ipm
-        result = self._estimate(prev, curr, guess, ipm_start)
-        if ipm_start and result.status not in (STATUS_OK, STATUS_NO_MOTION):
-            plain = self._estimate(prev, curr, None, False)
-            if plain.status == STATUS_OK:
-                plain.reason = (f"cold start from the nominal-pose IPM failed ({result.reason}); "
-                                "image-plane cold start")
+        if guess is not None or not self.config.cold_start_ipm:
+            starts = [False]
+        else:
+            starts = [False, True] if self.steep else [True, False]
+        result = self._estimate(prev, curr, guess, starts[0])
+        if len(starts) > 1 and result.status not in (STATUS_OK, STATUS_NO_MOTION):
+            second = self._estimate(prev, curr, None, starts[1])
+            if second.status == STATUS_OK:
+                names = {True: "from the nominal-pose IPM", False: "on the image plane"}
+                second.reason = (f"cold start {names[starts[0]]} failed ({result.reason}); "
+                                 f"cold start {names[starts[1]]}")
                 for key, seconds in result.timings.items():
-                    plain.timings[key] = plain.timings.get(key, 0.0) + seconds
-                result = plain
+                    second.timings[key] = second.timings.get(key, 0.0) + seconds
+                result = second
         result.timings["total"] += prepared_s
         return result
 
