@@ -7,6 +7,14 @@ every pair "ok" with zero travel).
 ``static_share`` marks the textured pixels that did not change between two frames while the
 rest of the view moved, as a share per patch-sized neighbourhood; the estimator leaves out
 the patches on them.
+
+"Did not change" allows for sensor noise: two frames of a static hood differ by the noise
+of both (mean |change| 1.13 σ), which a noise-free test (normal flow ≤ 0.1 px) took for
+motion at σ = 1 grey level already, so the hood won every pair again ("no motion", or 99 %
+short). The noise σ is measured on each frame's flattest parts (``noise_sigma``); a pixel
+whose change noise explains counts as static only where the two frames also correlate at
+zero shift (weak texture that moved by pixels changes by little more than the noise, but no
+longer correlates with itself).
 """
 
 from __future__ import annotations
@@ -26,23 +34,71 @@ FLOW_MAX_PX = 0.1
 STANDSTILL_SHARE = 0.9
 #: a patch whose window is more than this share static is left out
 PATCH_MAX_SHARE = 0.25
+#: a static pixel's mean |change| may exceed what the noise alone gives (1.128 σ) by this
+#: factor (the spread of a 5×5 mean of noise is about ±0.17 σ)
+NOISE_MARGIN = 1.3
+#: neighbourhood (pixels) of the two frames' zero-shift correlation
+CORRELATION_WINDOW_PX = 9
+#: least zero-shift correlation of a pixel whose change the noise explains, for it to count
+#: as static (a static texture of variance s² under noise σ² correlates at s²/(s² + σ²))
+MIN_CORRELATION = 0.3
+#: Immerkær's noise mask ("Fast noise variance estimation", 1996), scaled to unit noise gain:
+#: it cancels the image's linear structure and passes white noise of σ as σ
+NOISE_MASK = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32) / 6.0
+#: neighbourhood (pixels) of the local mean |mask response| behind the noise estimate
+NOISE_WINDOW_PX = 7
+#: percentile of those local means taken for the noise: the flattest parts of the view
+NOISE_PERCENTILE = 5.0
+#: that percentile for white noise of unit σ: E|N(0, 1)| = 0.798 times 0.7145, the 5th
+#: percentile of 7×7 means of it relative to their mean (measured on 1280×720 noise)
+NOISE_PERCENTILE_UNIT = 0.7979 * 0.7145
+
+
+def noise_sigma(image: NDArray) -> float:
+    """Standard deviation of a grey image's sensor noise, grey levels, from its flattest
+    parts (``NOISE_PERCENTILE`` of the local mean response to ``NOISE_MASK``); texture
+    raises it, so it is an upper bound where no part of the view is flat."""
+    response = np.abs(cv2.filter2D(np.asarray(image, np.float32), cv2.CV_32F, NOISE_MASK))
+    r = NOISE_WINDOW_PX // 2
+    local = cv2.blur(response, (NOISE_WINDOW_PX, NOISE_WINDOW_PX))[r:-r, r:-r]
+    if local.size == 0:
+        return 0.0
+    return float(np.percentile(local, NOISE_PERCENTILE)) / NOISE_PERCENTILE_UNIT
 
 
 def static_pixels(prev: NDArray, curr: NDArray) -> NDArray[np.bool_]:
-    """Pixels (H, W) of two grey images of one size that are textured and did not move
-    (normal flow ≤ ``FLOW_MAX_PX``); none where they are ``STANDSTILL_SHARE`` of the
-    textured pixels or more."""
+    """Pixels (H, W) of two grey images of one size that are textured and did not move:
+    mean |change| within the normal flow ``FLOW_MAX_PX`` plus what the frames' noise
+    explains, and where noise explains some of it, a zero-shift correlation of at least
+    ``MIN_CORRELATION``; none where they are ``STANDSTILL_SHARE`` of the textured pixels or
+    more."""
     p = np.asarray(prev, np.float32)
     c = np.asarray(curr, np.float32)
     size = (WINDOW_PX, WINDOW_PX)
     grad = cv2.blur(np.abs(cv2.Sobel(p, cv2.CV_32F, 1, 0, ksize=3))
                     + np.abs(cv2.Sobel(p, cv2.CV_32F, 0, 1, ksize=3)), size) / 8.0
     change = cv2.blur(np.abs(c - p), size)
+    sigma = 0.5 * (noise_sigma(p) + noise_sigma(c))
     textured = grad >= TEXTURE_MIN
-    static = textured & (change <= FLOW_MAX_PX * grad)
+    # the change of pure noise in both frames: |N(0, 2σ²)| has mean 2σ/√π = 1.128 σ
+    static = textured & (change <= FLOW_MAX_PX * grad + NOISE_MARGIN * 1.128 * sigma)
+    if sigma > 0:
+        static &= _zero_shift_correlation(p, c, CORRELATION_WINDOW_PX) >= MIN_CORRELATION
     if static.sum() >= STANDSTILL_SHARE * max(int(textured.sum()), 1):
         return np.zeros(p.shape, bool)
     return static
+
+
+def _zero_shift_correlation(p: NDArray[np.float32], c: NDArray[np.float32],
+                            window: int) -> NDArray[np.float32]:
+    """Normalised cross-correlation (H, W) of two images at zero shift over the ``window``²
+    neighbourhood of each pixel."""
+    size = (window, window)
+    mp, mc = cv2.blur(p, size), cv2.blur(c, size)
+    var_p = cv2.blur(p * p, size) - mp * mp
+    var_c = cv2.blur(c * c, size) - mc * mc
+    cov = cv2.blur(p * c, size) - mp * mc
+    return cov / np.sqrt(np.maximum(var_p * var_c, 1e-6))
 
 
 def static_share(static: NDArray[np.bool_], window: int) -> NDArray[np.float32]:

@@ -1,0 +1,101 @@
+"""How far per frame the vehicle may move for `vipm-track estimate`, with and without ``--pitch``.
+
+Renders a short sequence per preset, profile and speed (``vipm_track.sim``: the preset's
+camera, height and pitch; frame rate and speed changed) and runs the issue's command line on
+it, without ``--pitch`` (the nominal pose searched where the default cold start fails) and
+with the preset's pitch, then scores every pair against the rendered truth (the same score as
+``bench_camera_pitch.py``).
+
+    python scripts/bench_motion_range.py [--frames 8] [--out scripts/results/bench_motion_range.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from bench_camera_pitch import score  # noqa: E402
+
+from vipm_track.sim import PRESETS, simulate_sequence  # noqa: E402
+
+#: (preset, profile, frame rate [Hz], speed [m/s]) per row
+ROWS: tuple[tuple[str, str, float, float], ...] = (
+    ("cart", "gradual", 10.0, 1.2),
+    ("cart", "gradual", 10.0, 2.4),
+    ("cart", "gradual", 10.0, 3.6),
+    ("cart", "gradual", 10.0, 4.8),
+    ("cart", "gradual", 10.0, 6.0),
+    ("cart", "shaking", 10.0, 1.2),
+    ("cart", "shaking", 10.0, 3.0),
+    ("cart", "shaking", 5.0, 1.2),
+    ("car", "gradual", 20.0, 12.0),
+    ("car", "gradual", 20.0, 25.0),
+    ("car", "gradual", 20.0, 40.0),
+    ("car", "gradual", 10.0, 25.0),
+    ("car", "shaking", 20.0, 12.0),
+    ("car", "shaking", 20.0, 25.0),
+    ("car", "shaking", 10.0, 12.0),
+)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=8, help="frames per sequence")
+    ap.add_argument("--out", default=str(ROOT / "scripts" / "results" / "bench_motion_range.md"))
+    args = ap.parse_args(argv)
+    t0 = time.perf_counter()
+    header = ("| preset | profile | fps | speed m/s | m/frame | travel / height | "
+              "no --pitch: ok | max pitch err ° | max distance err % | nominal found ° | "
+              "--pitch: ok | max pitch err ° | max distance err % |")
+    lines = [
+        "# Motion per frame that `vipm-track estimate` handles",
+        "",
+        f"One rendered sequence of {args.frames} frames per row (`vipm_track.sim` preset, "
+        "seed 5, with the frame rate and speed of the row: cart 800×600, h 0.7 m, pitch 45°; "
+        "car 1280×720, h 1.5 m, pitch 3°), run as `vipm-track estimate --images DIR --camera "
+        "CAMERA.yaml --height H` (tracking), without and with `--pitch` (the preset's pitch). "
+        "Errors: max over the pairs with status ok. *nominal found*: the pose the search "
+        "settled on where the default cold start (60°) failed or converged more than 5° from "
+        "60° (empty: it converged near 60°). *shaking* moves pitch and roll by up to ±2.4° / "
+        "±1.8° at 1–3 Hz (the paper's cart): at 10 fps that is up to ~4° between frames.",
+        "",
+        header, "|" + " --- |" * 13,
+    ]
+    print(header)
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, profile, fps, speed in ROWS:
+            preset = PRESETS[name]
+            folder = Path(tmp) / f"{name}_{profile}_{fps:g}_{speed:g}"
+            traj = simulate_sequence(preset, args.frames, folder, seed=5, profile=profile,
+                                     fps=fps, speed=speed)
+            step = float(np.median([traj.motion(k).distance for k in range(1, len(traj))]))
+            auto = score(folder, preset, traj, [])
+            given = score(folder, preset, traj, ["--pitch", f"{preset.pitch_deg:g}"])
+            row = (f"| {name} | {profile} | {fps:g} | {speed:g} | {step:.2f} | "
+                   f"{step / preset.height_m:.2f} | {' | '.join(auto)} | "
+                   f"{' | '.join(given[:3])} |")
+            print(row, flush=True)
+            lines.append(row)
+    lines += [
+        "",
+        f"Wall time {time.perf_counter() - t0:.0f} s on a shared 2-core machine.",
+        "",
+        "Command: `python scripts/bench_motion_range.py`.",
+    ]
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text("\n".join(lines) + "\n")
+    print(f"wrote {out}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
