@@ -288,6 +288,27 @@ def test_refinement_weights_option_sets_the_estimator(choice: str, steep: bool,
     assert got == expected
 
 
+@pytest.mark.parametrize(("flag", "steep", "expected"), [
+    ([], True, True), ([], False, False),
+    (["--vertical-motion"], False, True), (["--no-vertical-motion"], True, False),
+])
+def test_vertical_motion_option_sets_the_estimator(flag: list[str], steep: bool,
+                                                   expected: bool) -> None:
+    import argparse
+
+    from vipm_track.commands.estimate import add_estimator_options, build_config
+    from vipm_track.estimator import TwoFrameEstimator
+    from vipm_track.sim import PRESETS
+
+    parser = argparse.ArgumentParser()
+    add_estimator_options(parser)
+    preset = PRESETS["cart" if steep else "car"]
+    args = parser.parse_args([*flag, "--pitch", str(preset.pitch_deg)])
+    camera = preset.camera()
+    est = TwoFrameEstimator(camera, preset.height_m, build_config(args, camera))
+    assert est.config.vertical_motion is expected
+
+
 def test_estimates_table_keeps_the_full_covariance(tmp_path: Path) -> None:
     from vipm_track.measurement import measurement_row
     from vipm_track.table import CORRELATION_COLUMNS, ESTIMATE_COLUMNS, read_table, write_table

@@ -73,9 +73,13 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
                        "ambiguity of near-level cameras; 0 turns it off (default: the "
                        "estimator's, 2 for level cameras (horizon in view, pitch < 10°), off for "
                        "others)")
-    group.add_argument("--no-vertical-motion", action="store_true",
-                       help="do not estimate the camera's vertical motion within a pair "
-                       "(steadier on level, forward-looking cameras such as KITTI's)")
+    group.add_argument("--vertical-motion", action=argparse.BooleanOptionalAction,
+                       default=None,
+                       help="estimate the camera's vertical motion within a pair (an 8th "
+                       "parameter; default: on for steep cameras, off for level ones, where "
+                       "it trades against pitch: on KITTI 07 median distance error 2.6 -> "
+                       "2.9 %%; on rendered cars whose body bounces 2 cm per frame pitch "
+                       "error 0.18-0.54 -> 0.02 deg RMS)")
     group.add_argument("--subset-seed", type=int, default=None, metavar="N",
                        help="seed of the random-subset sampler (default: the estimator's, 0); "
                        "a run is deterministic for a given seed, and another seed shows how "
@@ -160,7 +164,7 @@ def build_config(args: argparse.Namespace, camera: CameraModel):
         initial_pitch_deg=pitch,
         initial_roll_deg=roll,
         roi=roi,
-        vertical_motion=False if args.no_vertical_motion else None,
+        vertical_motion=args.vertical_motion,
         pose_prior_deg=prior,
         seed=seed,
         **REFINEMENT_WEIGHTS[getattr(args, "refinement_weights", "auto")],
