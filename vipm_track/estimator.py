@@ -68,12 +68,12 @@ LEVEL_MAX_PITCH_DEG = 10.0
 #: RMS, distance 0.33 → 0.10 % median; KITTI 07: median distance error 3.28 → 2.62 %,
 #: three seeds; 8 h was better on renders, worse in KITTI's tail; docs/kitti.md)
 LEVEL_ROI_RANGE_H = 10.0
-#: a steep camera's fallback cold start from the nominal-pose IPM (``TwoFrameEstimator.
-#: estimate``) is kept only where at least this share of its last stage's measured patches
-#: are inliers: far from the true pose, with the frames a third of the view apart, it can
-#: converge to a wrong minimum that a fifth of the patches agree with (rendered cart, 0.6 m
-#: per frame: 22-28 % inliers and 90 % short; right ones 100 %)
-FALLBACK_MIN_INLIER_SHARE = 0.5
+#: a steep camera's cold start (either start) is kept only where at least this share of its
+#: last stage's measured patches are inliers: far from the true pose, with the frames half a
+#: view apart, it can converge to a wrong minimum that a quarter of the patches agree with
+#: (rendered cart at 0.6 m per frame: 22-29 % inliers and 90 % short); right ones have
+#: 74-100 %, 78-82 % with an obstacle over a fifth of the view
+COLD_MIN_INLIER_SHARE = 0.4
 
 #: The refinement's patch weighting, as EstimatorConfig fields: "noise" (the steep-camera
 #: default: modelled patch noise, re-centred windows, self-tightening inlier threshold) or
@@ -449,13 +449,12 @@ class TwoFrameEstimator:
         else:
             starts = [False, True] if self.steep else [True, False]
         result = self._estimate(prev, curr, guess, starts[0])
+        if guess is None:
+            self._reject_wrong_minimum(result)
         if len(starts) > 1 and result.status not in (STATUS_OK, STATUS_NO_MOTION):
             second = self._estimate(prev, curr, None, starts[1])
-            if second.status == STATUS_OK and self.steep and (
-                    share := self._inlier_share(second)) < FALLBACK_MIN_INLIER_SHARE:
-                result.reason += (f"; the cold start from the nominal-pose IPM converged with "
-                                  f"{share:.0%} of its patches inliers (a wrong minimum)")
-            elif second.status == STATUS_OK:
+            self._reject_wrong_minimum(second)
+            if second.status == STATUS_OK:
                 names = {True: "from the nominal-pose IPM", False: "on the image plane"}
                 second.reason = (f"cold start {names[starts[0]]} failed ({result.reason}); "
                                  f"cold start {names[starts[1]]}")
@@ -515,18 +514,23 @@ class TwoFrameEstimator:
                 result.pose_prev, result.pose_curr, result.motion = unpack(
                     np.median(stack, axis=0), self.height)
         except _StageFailure as failure:
-            result.status, result.reason = failure.status, failure.reason
-            result.pose_prev = result.pose_curr = result.motion = None
-            result.covariance = np.full((7, 7), np.nan)
+            _mark_failed(result, failure.status, failure.reason)
         timings["total"] = time.perf_counter() - t_start
         return result
 
-    def _inlier_share(self, result: PairResult) -> float:
-        """Share of the last stage's measured patches (visible in both frames, POC peak at
-        least ``min_peak``) that are inliers; 0 where none was measured."""
+    def _reject_wrong_minimum(self, result: PairResult) -> None:
+        """Fail a steep camera's cold-start ``result`` whose last stage has fewer than
+        ``COLD_MIN_INLIER_SHARE`` of its measured patches (visible in both frames, POC peak
+        at least ``min_peak``) as inliers: a wrong minimum."""
+        if not self.steep or result.status != STATUS_OK or not result.stages:
+            return
         stage = result.stages[-1]
         measured = (stage.sizes > 0) & (stage.peaks >= self.config.min_peak)
-        return float(np.sum(stage.inliers & measured) / max(int(measured.sum()), 1))
+        share = float(np.sum(stage.inliers & measured) / max(int(measured.sum()), 1))
+        if share < COLD_MIN_INLIER_SHARE:
+            _mark_failed(result, STATUS_FEW_INLIERS,
+                         f"cold start converged with {share:.0%} of the measured patches "
+                         f"inliers (need {COLD_MIN_INLIER_SHARE:.0%}): a wrong minimum")
 
     # --- stages -----------------------------------------------------------------------------
 
@@ -917,6 +921,13 @@ class TwoFrameEstimator:
             out = cv2.remap(out, self._maps[0], self._maps[1], cv2.INTER_LINEAR)
         self._cache = (image, out)
         return out
+
+
+def _mark_failed(result: PairResult, status: str, reason: str) -> None:
+    """Make ``result`` a failed pair: ``status`` and ``reason``, no estimate."""
+    result.status, result.reason = status, reason
+    result.pose_prev = result.pose_curr = result.motion = None
+    result.covariance = np.full((7, 7), np.nan)
 
 
 def _match_grouped(
