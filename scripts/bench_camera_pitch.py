@@ -103,7 +103,9 @@ def main(argv: list[str] | None = None) -> int:
         "",
         "Near nadir (pitch → 90°) the conventions' pose angles degenerate: roll is a rotation "
         "about the optical axis, which there is the vertical, the same rotation as the pair's "
-        "yaw, and a sideways tilt has no angle; the estimator is not built for it.",
+        "yaw, and a sideways tilt has no angle. Down to 86° the pairs converge (pitch and "
+        "travel checked here; the roll there is nearly the pair's yaw and is not checked); "
+        "at 90° itself the estimator is not built for it.",
         "",
         f"Wall time {time.perf_counter() - t0:.0f} s on a shared 2-core machine.",
         "",
