@@ -106,16 +106,20 @@ def main(argv: list[str] | None = None) -> int:
         "yaw, and a sideways tilt has no angle. Down to 86° the pairs converge (pitch and "
         "travel checked here; the roll there is nearly the pair's yaw and is not checked); "
         "at 90° itself the estimator is not built for it.",
-        "",
-        f"Wall time {time.perf_counter() - t0:.0f} s on a shared 2-core machine.",
-        "",
-        "Command: `python scripts/bench_camera_pitch.py`.",
     ]
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("\n".join(lines) + "\n")
-    print(f"wrote {out}", file=sys.stderr)
+    write_report(lines, args.out, t0, "python scripts/bench_camera_pitch.py")
     return 0
+
+
+def write_report(lines: list[str], out: str | Path, t0: float, command: str) -> None:
+    """Write a results document: ``lines``, the wall time since ``t0``
+    (``time.perf_counter``) and the ``command`` that made it."""
+    lines = [*lines, "", f"Wall time {time.perf_counter() - t0:.0f} s on a shared 2-core machine.",
+             "", f"Command: `{command}`."]
+    path = Path(out)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n")
+    print(f"wrote {path}", file=sys.stderr)
 
 
 if __name__ == "__main__":
