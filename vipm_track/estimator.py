@@ -454,13 +454,16 @@ class TwoFrameEstimator:
         if len(starts) > 1 and result.status not in (STATUS_OK, STATUS_NO_MOTION):
             second = self._estimate(prev, curr, None, starts[1])
             self._reject_wrong_minimum(second)
+            names = {True: "from the nominal-pose IPM", False: "on the image plane"}
             if second.status == STATUS_OK:
-                names = {True: "from the nominal-pose IPM", False: "on the image plane"}
                 second.reason = (f"cold start {names[starts[0]]} failed ({result.reason}); "
                                  f"cold start {names[starts[1]]}")
                 for key, seconds in result.timings.items():
                     second.timings[key] = second.timings.get(key, 0.0) + seconds
                 result = second
+            else:
+                result.reason = (f"cold start {names[starts[0]]}: {result.reason}; "
+                                 f"{names[starts[1]]}: {second.reason}")
         result.timings["total"] += prepared_s
         return result
 
