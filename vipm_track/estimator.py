@@ -46,7 +46,13 @@ from .geometry import (
 )
 from .measurement import PairMeasurement
 from .roi import RoiSpec, interest_points, roi_mask, shrink_to_image
-from .static_content import PATCH_MAX_SHARE, on_static, static_pixels, static_share
+from .static_content import (
+    PATCH_MAX_SHARE,
+    noise_sigma,
+    on_static,
+    static_pixels,
+    static_share,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -419,6 +425,7 @@ class TwoFrameEstimator:
             )
         self._maps = camera.undistortion_maps() if camera.has_distortion else None
         self._cache: tuple[int, NDArray] | None = None
+        self._noise: tuple[NDArray, float] | None = None  # the last prepared image's noise
         self._prior_mean, self._prior_sigma = self._pose_prior(None)
 
     # --- public -----------------------------------------------------------------------------
@@ -442,7 +449,8 @@ class TwoFrameEstimator:
         prev = self._prepare(prev_img, "previous frame")
         curr = self._prepare(curr_img, "current frame")
         # content fixed to the camera, once per pair (both cold starts leave it out)
-        self._static = static_share(static_pixels(prev, curr), self.config.patch_image // 2)
+        noise = (self._noise_sigma(prev), self._noise_sigma(curr))
+        self._static = static_share(static_pixels(prev, curr, noise), self.config.patch_image // 2)
         prepared_s = time.perf_counter() - t_start
         if guess is not None or not self.config.cold_start_ipm:
             starts = [False]
@@ -903,6 +911,13 @@ class TwoFrameEstimator:
         pose_p, pose_c, motion = unpack(x, self.height)
         d = predict_pixels(self.k, pose_p, pose_c, motion, self.centres) - self.centres
         return np.where(np.isfinite(d), d, 0.0)
+
+    def _noise_sigma(self, prepared: NDArray[np.float32]) -> float:
+        """``noise_sigma`` of a prepared image; the last one is cached (in a sequence a frame
+        is the current one of a pair and the previous one of the next)."""
+        if self._noise is None or self._noise[0] is not prepared:
+            self._noise = (prepared, noise_sigma(prepared))
+        return self._noise[1]
 
     def _prepare(self, image: NDArray, name: str) -> NDArray[np.float32]:
         """Grey float32 undistorted image; the last one is cached (tracking reuses it)."""

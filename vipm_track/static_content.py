@@ -66,19 +66,22 @@ def noise_sigma(image: NDArray) -> float:
     return float(np.percentile(local, NOISE_PERCENTILE)) / NOISE_PERCENTILE_UNIT
 
 
-def static_pixels(prev: NDArray, curr: NDArray) -> NDArray[np.bool_]:
+def static_pixels(prev: NDArray, curr: NDArray,
+                  noise: tuple[float, float] | None = None) -> NDArray[np.bool_]:
     """Pixels (H, W) of two grey images of one size that are textured and did not move:
     mean |change| within the normal flow ``FLOW_MAX_PX`` plus what the frames' noise
     explains, and where noise explains some of it, a zero-shift correlation of at least
     ``MIN_CORRELATION``; none where they are ``STANDSTILL_SHARE`` of the textured pixels or
-    more."""
+    more. ``noise``: the two frames' ``noise_sigma`` where the caller has them already (a
+    sequence's frame is the current one of a pair and the previous one of the next)."""
     p = np.asarray(prev, np.float32)
     c = np.asarray(curr, np.float32)
     size = (WINDOW_PX, WINDOW_PX)
     grad = cv2.blur(np.abs(cv2.Sobel(p, cv2.CV_32F, 1, 0, ksize=3))
                     + np.abs(cv2.Sobel(p, cv2.CV_32F, 0, 1, ksize=3)), size) / 8.0
     change = cv2.blur(np.abs(c - p), size)
-    sigma = 0.5 * (noise_sigma(p) + noise_sigma(c))
+    sigma_p, sigma_c = noise if noise is not None else (noise_sigma(p), noise_sigma(c))
+    sigma = 0.5 * (sigma_p + sigma_c)
     textured = grad >= TEXTURE_MIN
     # the change of pure noise in both frames: |N(0, 2σ²)| has mean 2σ/√π = 1.128 σ
     static = textured & (change <= FLOW_MAX_PX * grad + NOISE_MARGIN * 1.128 * sigma)
