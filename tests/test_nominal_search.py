@@ -103,3 +103,51 @@ def test_kitti_without_pitch_finds_a_level_camera():
     assert found is not None and found.default_failed
     assert 0.0 < found.pitch_deg < 3.0
     assert found.roll_deg == 0.0
+
+
+def _level_wide_rig():
+    # a wide level camera high up (1280×960, 89° across, 2.29 m, pitch 1.3°): the 60° start's
+    # patches cover the whole view, half of it sky that stands still while the ground moves
+    return replace(PRESETS["car"], name="wide", height=960, fx=651.0, pitch_deg=1.3,
+                   height_m=2.29, fps=15.0, speed_mps=14.4, metres_per_texel=0.01)
+
+
+def test_default_start_calling_a_moving_view_still_is_a_failed_start(tmp_path):
+    from vipm_track.estimator import STATUS_NO_MOTION, TwoFrameEstimator
+    from vipm_track.pipeline import estimate_pair, prepare_image
+
+    preset = _level_wide_rig()
+    traj = simulate_sequence(preset, 3, tmp_path, seed=12, profile="gradual")
+    camera = preset.camera()
+    frames = list(open_source(images=tmp_path / "images"))
+    before, image = (prepare_image(f, camera) for f in frames[:2])
+    default = estimate_pair(TwoFrameEstimator(camera, preset.height_m, EstimatorConfig()),
+                            before, image, None)
+    assert default.status == STATUS_NO_MOTION  # what made the search skip every pair
+    found = search_nominal_pose(open_source(images=tmp_path / "images"), camera,
+                                preset.height_m, EstimatorConfig())
+    assert found is not None and found.default_failed and found.frames == (0, 1)
+    assert abs(found.pitch_deg - math.degrees(traj.pitch[1])) < 0.5
+
+
+def test_search_starts_where_a_drive_that_starts_standing_moves(tmp_path):
+    # 20 frames standing (the first frame under fresh sensor noise each time), then moving:
+    # the search looked at the first 12 frames only, found "no motion" in each and left the
+    # run at the 60° default (every pair failed)
+    import cv2
+
+    preset, camera, traj = _render(tmp_path / "render", "car", 4, profile="gradual")
+    rendered = sorted((tmp_path / "render" / "images").glob("*.png"))
+    first = cv2.imread(str(rendered[0]), cv2.IMREAD_GRAYSCALE).astype(np.float32)
+    folder = tmp_path / "images"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for k in range(20):
+        noisy = np.clip(first + rng.normal(0.0, 2.0, first.shape), 0, 255).astype(np.uint8)
+        cv2.imwrite(str(folder / f"{k:06d}.png"), noisy)
+    for k, path in enumerate(rendered[1:], start=20):
+        (folder / f"{k:06d}.png").write_bytes(path.read_bytes())
+    found = search_nominal_pose(open_source(images=folder, fps=preset.fps), camera,
+                                preset.height_m, EstimatorConfig())
+    assert found is not None and found.frames == (19, 20)
+    assert abs(found.pitch_deg - math.degrees(traj.pitch[1])) < 0.5

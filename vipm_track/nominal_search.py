@@ -4,8 +4,10 @@ The estimator starts cold from a nominal pitch (``EstimatorConfig.initial_pitch_
 paper's 60°), which also decides its region of interest, its steep/forward-camera defaults
 and the window of plausible poses (``max_deviation_deg`` around it). A forward-looking camera
 (a car's, pitch ~0–5°) does not converge from 60°. Before a run without ``--pitch``,
-:func:`search_nominal_pose` cold-starts the first pair with motion from the configured pitch;
-only if that fails does it try the pair from each of ``CANDIDATE_PITCHES_DEG`` and keep the
+:func:`search_nominal_pose` cold-starts the first pair in which the view moves (pixels, not
+patches: a drive may start standing) from the configured pitch; only if that fails — "no
+motion" included, since the 60° start's patches on a level camera sit partly on the sky,
+which stands still — does it try the pair from each of ``CANDIDATE_PITCHES_DEG`` and keep the
 converged estimate with the smallest residual (a wrong start that converges — a steep pitch
 with a short travel on a level camera, the second minimum of issue 5 — fits the patches
 worse). A default start that converges far (more than ``SETTLE_PITCH_DEG``) from the
@@ -77,11 +79,14 @@ def search_nominal_pose(
     camera: CameraModel,
     height: float,
     config: EstimatorConfig,
-    max_frames: int = 12,
+    max_pairs: int = 11,
+    max_frames: int = 300,
     max_failed_pairs: int = 3,
     confirm_pairs: int = 6,
 ) -> NominalSearch | None:
-    """Find a nominal pose on the first ``max_frames`` frames of ``source`` (module doc).
+    """Find a nominal pose on the first ``max_pairs`` pairs of ``source`` in which the view
+    moves, within its first ``max_frames`` frames (module doc; a drive that starts standing
+    is searched from where it moves).
 
     The pose from the start that converges best on the first failing pair is then settled
     on up to ``confirm_pairs`` pairs from there (``_settle``): a single pair's pitch is noisy
@@ -89,25 +94,29 @@ def search_nominal_pose(
     towards its nominal. None where the configured pitch converges within
     ``SETTLE_PITCH_DEG`` of itself on the first pair with motion (nothing to change), or where
     no start converges on ``max_failed_pairs`` pairs (the run then goes as configured and
-    reports its failures)."""
+    reports its failures). A pair the default start calls "no motion" although the view
+    moved is a failing pair; one that every start calls so (traffic past a standing
+    vehicle) is skipped."""
     from .estimator import STATUS_NO_MOTION, STATUS_OK, TwoFrameEstimator
     from .pipeline import estimate_pair
 
-    pairs = _pairs(source, camera, max_frames)
+    pairs = _moving_pairs(source, camera, max_pairs, max_frames)
     default = TwoFrameEstimator(camera, height, config)
     failed = 0
     for i, (frames, before, image) in enumerate(pairs):
         result = estimate_pair(default, before, image, None)
-        if result.status == STATUS_NO_MOTION:
-            continue
         if result.status == STATUS_OK:
             if result.pose_curr is None or abs(math.degrees(result.pose_curr.pitch)
                                                - config.initial_pitch_deg) <= SETTLE_PITCH_DEG:
                 return None
             found: tuple[float, PairResult] | None = (config.initial_pitch_deg, result)
         else:
-            failed += 1
+            # "no motion" included: the view moved (``_moving_pairs``), so the default
+            # start's patches sat on what did not (a level camera's sky)
             found = _best_start(camera, height, config, before, image)
+            if found is None and result.status == STATUS_NO_MOTION:
+                continue  # nothing moved in any start's view either: traffic past a standing car
+            failed += 1
         if found is not None:
             start, r = found
             pitch, roll, n = _settle(camera, height, config, pairs[i:i + confirm_pairs],
@@ -183,22 +192,27 @@ def _settle(
     return pitch, roll, n
 
 
-def _pairs(
-    source: FrameSource, camera: CameraModel, max_frames: int
+def _moving_pairs(
+    source: FrameSource, camera: CameraModel, max_pairs: int, max_frames: int,
 ) -> list[tuple[tuple[int, int], np.ndarray, np.ndarray]]:
-    """Consecutive readable pairs ``((k-1, k), image k-1, image k)`` of the first
-    ``max_frames`` frames (an unreadable or wrong-size frame breaks the chain)."""
+    """Consecutive readable pairs ``((k-1, k), image k-1, image k)`` in which the view moved
+    (``static_content.stands_still``: a drive that starts at a standstill), the first
+    ``max_pairs`` of them within the first ``max_frames`` frames (an unreadable or
+    wrong-size frame breaks the chain)."""
     from .pipeline import prepare_image
+    from .static_content import noise_sigma, stands_still
 
     out, prev = [], None
     for n, frame in enumerate(source):
-        if n >= max_frames:
+        if n >= max_frames or len(out) >= max_pairs:
             break
         try:
             image = None if frame.image is None else prepare_image(frame, camera)
         except ValueError:
             image = None
-        if image is not None and prev is not None:
+        current = None if image is None else (frame.index, image, noise_sigma(image))
+        if current is not None and prev is not None and not stands_still(
+                prev[1], image, (prev[2], current[2])):
             out.append(((prev[0], frame.index), prev[1], image))
-        prev = None if image is None else (frame.index, image)
+        prev = current
     return out

@@ -32,6 +32,9 @@ FLOW_MAX_PX = 0.1
 #: share of the textured pixels beyond which all content stands still: the vehicle stands
 #: (the pair's own checks then say "no motion"), and nothing is marked
 STANDSTILL_SHARE = 0.9
+#: mean gradient (as measured for ``TEXTURE_MIN``) of white noise of unit σ: |Sobel| of it
+#: has mean 0.798·√12, two of them over 8
+NOISE_GRADIENT = 0.798 * 12 ** 0.5 / 4.0
 #: a patch whose window is more than this share static is left out
 PATCH_MAX_SHARE = 0.25
 #: a static pixel's mean |change| may exceed what the noise alone gives (1.128 σ) by this
@@ -71,9 +74,36 @@ def static_pixels(prev: NDArray, curr: NDArray,
     """Pixels (H, W) of two grey images of one size that are textured and did not move:
     mean |change| within the normal flow ``FLOW_MAX_PX`` plus what the frames' noise
     explains, and where noise explains some of it, a zero-shift correlation of at least
-    ``MIN_CORRELATION``; none where they are ``STANDSTILL_SHARE`` of the textured pixels or
-    more. ``noise``: the two frames' ``noise_sigma`` where the caller has them already (a
-    sequence's frame is the current one of a pair and the previous one of the next)."""
+    ``MIN_CORRELATION``; none where the vehicle stands (``stands_still``). ``noise``: the two
+    frames' ``noise_sigma`` where the caller has them already (a sequence's frame is the
+    current one of a pair and the previous one of the next)."""
+    static, clearly_textured = _static_and_textured(prev, curr, noise)
+    if _still(static, clearly_textured):
+        return np.zeros(static.shape, bool)
+    return static
+
+
+def stands_still(prev: NDArray, curr: NDArray,
+                 noise: tuple[float, float] | None = None) -> bool:
+    """Whether all content of two grey images stood still between them: ``STANDSTILL_SHARE``
+    of the pixels textured clearly above the noise are static (a standing vehicle; a passing
+    car or pedestrian is the rest). Unlike a pair's "no motion", which asks whether its
+    patches moved, this asks every pixel: a level camera's sky or a far field that the
+    patches of a wrong nominal pose sit on stands still while the ground below moves."""
+    return _still(*_static_and_textured(prev, curr, noise))
+
+
+def _still(static: NDArray[np.bool_], clearly_textured: NDArray[np.bool_]) -> bool:
+    return bool((static & clearly_textured).sum()
+                >= STANDSTILL_SHARE * max(int(clearly_textured.sum()), 1))
+
+
+def _static_and_textured(
+    prev: NDArray, curr: NDArray, noise: tuple[float, float] | None,
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """The static pixels (module doc) and the pixels textured clearly above the noise (the
+    mean gradient of white noise σ alone is ``NOISE_GRADIENT`` σ: flat parts of a noisy
+    frame would count as texture that "moved", since noise does not correlate)."""
     p = np.asarray(prev, np.float32)
     c = np.asarray(curr, np.float32)
     size = (WINDOW_PX, WINDOW_PX)
@@ -87,9 +117,7 @@ def static_pixels(prev: NDArray, curr: NDArray,
     static = textured & (change <= FLOW_MAX_PX * grad + NOISE_MARGIN * 1.128 * sigma)
     if sigma > 0:
         static &= _zero_shift_correlation(p, c, CORRELATION_WINDOW_PX) >= MIN_CORRELATION
-    if static.sum() >= STANDSTILL_SHARE * max(int(textured.sum()), 1):
-        return np.zeros(p.shape, bool)
-    return static
+    return static, grad >= TEXTURE_MIN + 2.0 * NOISE_GRADIENT * sigma
 
 
 def _zero_shift_correlation(p: NDArray[np.float32], c: NDArray[np.float32],
