@@ -98,10 +98,11 @@ def search_nominal_pose(
     moved is a failing pair; one that every start calls so (traffic past a standing
     vehicle) is skipped."""
     from .estimator import STATUS_NO_MOTION, STATUS_OK, TwoFrameEstimator
-    from .pipeline import estimate_pair
+    from .pipeline import config_with, estimate_pair
 
     pairs = _moving_pairs(source, camera, max_pairs, max_frames)
-    default = TwoFrameEstimator(camera, height, config)
+    # the default start alone: a forward camera fails from 60° however its pitch is stepped
+    default = TwoFrameEstimator(camera, height, config_with(config, cold_pitch_steps_deg=()))
     failed = 0
     for i, (frames, before, image) in enumerate(pairs):
         result = estimate_pair(default, before, image, None)
@@ -147,18 +148,24 @@ def _best_start(
 
     alike = {"vertical_motion": False, **REFINEMENT_WEIGHTING["uniform"]}
     best: tuple[float, PairResult] | None = None
-    for start in CANDIDATE_PITCHES_DEG:
-        if abs(start - config.initial_pitch_deg) < 1.0:
-            continue
-        try:
-            estimator = TwoFrameEstimator(
-                camera, height, config_with(config, initial_pitch_deg=start, **alike))
-        except InputError:  # too few interest points from this start
-            continue
-        r = estimate_pair(estimator, before, image, None)
-        if r.status == STATUS_OK and r.pose_curr is not None and (
-                best is None or r.residual_px < best[1].residual_px):
-            best = start, r
+    # each start alone first; stepped off its pitch (``cold_pitch_steps_deg``) only where none
+    # converges (fast motion: a start must be within ~5° of the truth), at three times the cost
+    passes = [()] if config.cold_pitch_steps_deg == () else [(), config.cold_pitch_steps_deg]
+    for steps in passes:
+        if best is not None:
+            break
+        for start in CANDIDATE_PITCHES_DEG:
+            if abs(start - config.initial_pitch_deg) < 1.0:
+                continue
+            try:
+                estimator = TwoFrameEstimator(camera, height, config_with(
+                    config, initial_pitch_deg=start, cold_pitch_steps_deg=steps, **alike))
+            except InputError:  # too few interest points from this start
+                continue
+            r = estimate_pair(estimator, before, image, None)
+            if r.status == STATUS_OK and r.pose_curr is not None and (
+                    best is None or r.residual_px < best[1].residual_px):
+                best = start, r
     return best
 
 
