@@ -80,17 +80,18 @@ LEVEL_ROI_RANGE_H = 10.0
 #: (rendered cart at 0.6 m per frame: 22-29 % inliers and 90 % short); right ones have
 #: 74-100 %, 78-82 % with an obstacle over a fifth of the view
 COLD_MIN_INLIER_SHARE = 0.4
-#: pitch steps from the nominal pose [deg] of the cold starts tried, in turn, where the
-#: nominal one fails (too few inliers, no convergence): the further the vehicle moves per
-#: frame, the closer to the true pitch a cold start must begin (a level car at 2.5 m per frame
-#: converges from 0.9° off but not from 1.5°; a steep cart at 0.8 camera heights per frame
-#: from 5° off but not from 6°), and the road's slope alone puts a car 2° off its nominal
 #: share of the measured patches that a cold start off the nominal pitch must have as inliers
 #: in its last stage: more starts, more wrong minima to land in (the cart at 0.6 m per frame
 #: from 65°: 43 % of the patches and 89 % short; KITTI 07 in a sharp turn from 2° below its
 #: nominal: 29 % and 46 % long), while the starts that find the truth there have 100 %. Right
 #: pairs of real scenes can have less (KITTI's 28-59 %): those stay failed, as without it
 RETRY_MIN_INLIER_SHARE = 0.6
+#: pitch steps from the nominal pose [deg] of the cold starts tried, in turn, where the
+#: nominal one fails (too few inliers, no convergence): the further the vehicle moves per
+#: frame, the closer to the true pitch a cold start must begin (a level car at 2.5 m per frame
+#: converges from its true pitch but not from 1.5° off; a camera 45.8° down at 0.55 camera
+#: heights per frame from 50° and 52°, not from 40° or 60°), and the road's slope alone puts a
+#: car 2° off its nominal
 COLD_PITCH_STEPS_DEG: dict[str, tuple[float, ...]] = {
     "level": (2.0, -2.0),
     "steep": (5.0, -5.0),
