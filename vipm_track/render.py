@@ -18,6 +18,7 @@ radians (> 0 turned right). That is the planar motion W → G, so geometry's
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -31,7 +32,6 @@ from .geometry import (
     apply_homography,
     ground_from_image_homography,
     motion_matrix,
-    pair_homography,
     rotation_ground_from_camera,
 )
 from .texture import TEXTURES, GroundTexture
@@ -54,8 +54,9 @@ class Effects:
         Number of specular blobs fixed in the IMAGE (ceiling lights reflected on a
         polished floor); they do not move with the ground.
     motion_blur : float
-        Exposure time as a fraction of the frame interval; the image is blurred with a
-        centred line kernel along the ground's image motion (needs ``blur_motion``).
+        Exposure time as a fraction of the frame interval: the frame is the average of the
+        ground rendered at sub-frame poses across an exposure centred on the frame's time
+        (needs ``exposure``), so each pixel is blurred along its own image motion.
     obstacle : bool
         A non-ground region (a textured wall/obstacle) fixed in the image's lower right.
     sky_level : float
@@ -74,6 +75,9 @@ class Effects:
     seed: int = 0
 
 
+#: A sub-frame pose for motion blur: pose against the ground, world (x, z) [m], heading [rad].
+ExposurePose = tuple[GroundPose, tuple[float, float] | NDArray, float]
+
 #: Obstacle quadrilateral in normalised image coordinates (x/width, y/height).
 OBSTACLE_POLYGON = np.array([[0.66, 0.42], [0.94, 0.36], [0.97, 1.0], [0.63, 1.0]])
 
@@ -88,7 +92,7 @@ def render_frame(
     *,
     t: float = 0.0,
     frame_index: int = 0,
-    blur_motion: tuple[GroundPose, PlanarMotion] | None = None,
+    exposure: Sequence[ExposurePose] | None = None,
     supersample: int = 2,
 ) -> NDArray[np.uint8]:
     """Grey uint8 image (camera.height × camera.width) of the textured ground.
@@ -108,16 +112,19 @@ def render_frame(
         Photometric effects; ``None`` renders the clean image.
     t, frame_index : float, int
         Frame time [s] (exposure drift) and index (noise seed).
-    blur_motion : (GroundPose, PlanarMotion), optional
-        Pose of the previous frame and the motion previous → this frame, for motion blur.
+    exposure : sequence of (GroundPose, world_xz, world_heading), optional
+        Sub-frame poses across the exposure (``sim.exposure_poses``), for motion blur.
     supersample : int
         Supersampling factor per axis (≥ 1).
     """
     fx = effects or Effects()
-    h_img = _pixel_to_texel_homography(texture, camera, pose, world_xz, world_heading)
-    img = _render_ground(texture, camera, h_img, pose, supersample, fx.sky_level)
-    if fx.motion_blur > 0 and blur_motion is not None:
-        img = _motion_blur(img, camera, blur_motion[0], pose, blur_motion[1], fx.motion_blur)
+    path = list(exposure) if fx.motion_blur > 0 and exposure else []
+    path = path or [(pose, world_xz, world_heading)]
+    img = np.zeros((camera.height, camera.width), np.float32)
+    for sub_pose, sub_xz, sub_heading in path:
+        h_img = _pixel_to_texel_homography(texture, camera, sub_pose, sub_xz, sub_heading)
+        img += _render_ground(texture, camera, h_img, sub_pose, supersample, fx.sky_level)
+    img /= len(path)
     if fx.obstacle:
         img = _draw_obstacle(img, fx.seed)
     if fx.highlights > 0:
@@ -244,35 +251,6 @@ def _mip_level(h_ss: NDArray, width: int, height: int, ss: int, n_levels: int) -
                         interpolation=cv2.INTER_LINEAR)
     off = step // 2
     return coarse[off:off + height, off:off + width]
-
-
-def _motion_blur(
-    img: NDArray[np.float32], camera: CameraModel, pose_prev: GroundPose, pose: GroundPose,
-    motion: PlanarMotion, exposure: float,
-) -> NDArray[np.float32]:
-    """Centred line blur along the image motion of the ground at the lower-middle pixel
-    (centred, so the image still shows the frame's pose: no shift of the ground truth)."""
-    p = np.array([camera.width / 2.0, camera.height * 0.75])
-    h = pair_homography(camera.k, pose_prev, pose, motion)
-    d = (apply_homography(h, p) - p) * exposure
-    length = float(np.hypot(*d))
-    if not np.isfinite(length) or length < 0.5:
-        return img
-    half = int(np.ceil(length / 2)) + 1
-    size = 2 * half + 1
-    kernel = np.zeros((size, size), np.float32)
-    steps = np.linspace(-0.5, 0.5, max(3, int(np.ceil(length * 2)) + 1))
-    xs, ys = half + steps * d[0], half + steps * d[1]
-    # Bilinear splat of a line of samples: sub-pixel-accurate, symmetric kernel.
-    for x, y in zip(xs, ys, strict=True):
-        x0, y0 = int(np.floor(x)), int(np.floor(y))
-        fx_, fy_ = x - x0, y - y0
-        kernel[y0, x0] += (1 - fx_) * (1 - fy_)
-        kernel[y0, x0 + 1] += fx_ * (1 - fy_)
-        kernel[y0 + 1, x0] += (1 - fx_) * fy_
-        kernel[y0 + 1, x0 + 1] += fx_ * fy_
-    kernel /= kernel.sum()
-    return cv2.filter2D(img, -1, kernel, borderType=cv2.BORDER_REFLECT)
 
 
 def _draw_obstacle(img: NDArray[np.float32], seed: int) -> NDArray[np.float32]:

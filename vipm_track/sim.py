@@ -30,8 +30,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .camera import CameraModel, write_ros_yaml
-from .geometry import GroundPose, PlanarMotion, compose_motion, invert_motion
-from .render import Effects, render_frame, world_pose_motion
+from .geometry import (
+    GroundPose,
+    PlanarMotion,
+    below_horizon,
+    compose_motion,
+    invert_motion,
+    predict_pixels,
+)
+from .render import Effects, ExposurePose, render_frame, world_pose_motion
 from .table import TableWriter
 from .texture import TEXTURES, GroundTexture, load_texture
 
@@ -258,11 +265,59 @@ def render_trajectory_frame(
     texture: GroundTexture, camera: CameraModel, traj: Trajectory, k: int,
     effects: Effects | None = None,
 ) -> NDArray[np.uint8]:
-    """Image of frame k of a trajectory (motion blur from the motion k-1 → k)."""
-    blur = (traj.pose(k - 1), traj.motion(k)) if k > 0 else None
+    """Image of frame k of a trajectory (motion blur over the exposure centred on its time)."""
+    exposure = None
+    if effects is not None and effects.motion_blur > 0:
+        exposure = exposure_poses(traj, k, effects.motion_blur, camera)
     return render_frame(texture, camera, traj.pose(k), traj.world_xz[k],
                         float(traj.world_heading[k]), effects, t=float(traj.t[k]),
-                        frame_index=k, blur_motion=blur)
+                        frame_index=k, exposure=exposure)
+
+
+def exposure_poses(
+    traj: Trajectory, k: int, exposure: float, camera: CameraModel,
+    max_step_px: float = 1.0, max_poses: int = 48,
+) -> list[ExposurePose]:
+    """Sub-frame poses of frame k across an exposure of ``exposure`` frame intervals centred on
+    its time: the pose and world pose interpolated linearly between frames (extrapolated
+    from the nearest interval at the ends, so the first frame is blurred too), as many as
+    keep the ground's image motion between neighbours ≤ ``max_step_px`` pixels (at most
+    ``max_poses``). One pose (no blur) for a one-frame trajectory or no exposure."""
+    if len(traj) < 2 or exposure <= 0:
+        return [_pose_at(traj, float(k))]
+    ends = [_pose_at(traj, k - exposure / 2), _pose_at(traj, k + exposure / 2)]
+    n = int(np.clip(np.ceil(_max_image_motion(camera, *ends) / max_step_px) + 1, 2, max_poses))
+    return [_pose_at(traj, u) for u in np.linspace(k - exposure / 2, k + exposure / 2, n)]
+
+
+def _pose_at(traj: Trajectory, u: float) -> ExposurePose:
+    """Pose at fractional frame index u, linear between the frames around it."""
+    i = int(np.clip(np.floor(u), 0, max(len(traj) - 2, 0)))
+    j = min(i + 1, len(traj) - 1)
+    f = u - i
+
+    def lerp(a: NDArray) -> float:
+        return float(a[i] + f * (a[j] - a[i]))
+
+    xz = traj.world_xz[i] + f * (traj.world_xz[j] - traj.world_xz[i])
+    pose = GroundPose(lerp(traj.pitch), lerp(traj.roll), lerp(traj.height))
+    return pose, xz, lerp(traj.world_heading)
+
+
+def _max_image_motion(camera: CameraModel, a: ExposurePose, b: ExposurePose) -> float:
+    """Largest image motion [px] of ground seen between poses a and b, over a 16×16 grid of
+    pixels that see the ground ≥ 1° below the horizon in a (and land in the image in b)."""
+    u, v = np.meshgrid(np.linspace(0, camera.width - 1, 16), np.linspace(0, camera.height - 1, 16))
+    pixels = np.stack([u.ravel(), v.ravel()], axis=1)
+    pixels = pixels[below_horizon(camera.k, a[0], pixels, margin=np.radians(1.0))]
+    if not len(pixels):
+        return 0.0
+    motion = compose_motion(invert_motion(world_pose_motion(a[1], a[2])),
+                            world_pose_motion(b[1], b[2]))
+    moved = predict_pixels(camera.k, a[0], b[0], motion, pixels)
+    inside = np.all(np.isfinite(moved), axis=1) & (moved[:, 0] >= 0) & (moved[:, 1] >= 0) \
+        & (moved[:, 0] < camera.width) & (moved[:, 1] < camera.height)
+    return float(np.max(np.linalg.norm(moved - pixels, axis=1)[inside], initial=0.0))
 
 
 def gt_rows(traj: Trajectory) -> list[dict]:
