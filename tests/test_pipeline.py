@@ -52,7 +52,7 @@ class _FakeEstimator:
     def __init__(self) -> None:
         self.guesses: list = []
 
-    def estimate(self, prev, curr, guess=None):
+    def estimate(self, prev, curr, guess=None, frame_interval_s=None):
         self.guesses.append(guess)
         d = float(curr.mean()) - float(prev.mean())
         status = "ok" if d != 0 else "too few inliers"

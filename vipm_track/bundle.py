@@ -17,6 +17,14 @@ One residual model serves both planes of the paper (section III):
 
 So a model is the prediction followed by a fixed homography ``plane_from_image`` (the
 identity on the image plane, ``ipm_from_image_homography(k, Θ̂_c, grid)`` on the IPM).
+
+Rolling shutter (``rows_to_frames`` > 0): row v of a frame is exposed ``v · rows_to_frames``
+frame intervals after its row 0, so ground seen on row v_p of frame k-1 and row v_c of
+frame k moved ``1 + (v_c − v_p) · rows_to_frames`` times the frame's motion Ψ (the motion
+between the same rows of both frames; constant velocity across the pair, the poses constant
+within a frame). v_c depends on the prediction itself: three fixed-point steps, each
+shrinking the error by ``rows_to_frames · ∂v_c/∂s`` (≲ 0.15 for a readout of a whole frame
+interval).
 """
 
 from __future__ import annotations
@@ -80,6 +88,8 @@ class DisplacementModel:
         (``W · (predicted − measured)``): the inverse square root of the point's noise
         covariance relative to a typical point's, so that a weighted least-squares fit and
         its inlier thresholds stay in typical plane pixels (``ipm.patch_noise_whitening``).
+    rows_to_frames : rolling shutter: frame intervals per image row between the exposures of
+        successive rows (readout time / (frame interval · image rows)); 0: global shutter.
 
     The prediction is the pair homography ``A · π(Θ_c) · T(Ψ) · π⁻¹(Θ_p)`` of geometry.py
     (exact for ground points), evaluated for a batch of parameter vectors at once so that
@@ -94,6 +104,7 @@ class DisplacementModel:
     prior_mean: FloatArray | None = None
     prior_scale: float | FloatArray = 0.0
     point_whitening: FloatArray | None = None
+    rows_to_frames: float = 0.0
 
     def _whiten(self, r: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:
         """Per-point residual vectors (..., n, 2) times their whitening matrices."""
@@ -143,12 +154,33 @@ class DisplacementModel:
         g_from_i, out_from_g = pair_homographies(self.k, self.height, xs)
         ground = np.einsum("bij,nj->bni", g_from_i, m)  # (B, n, 3); w > 0 on the ground
         img = np.einsum("bij,bnj->bni", out_from_g, ground)  # w > 0 in front of camera k
+        if self.rows_to_frames:
+            img = self._rolling_shutter(xs, ground, img, pix[:, 1])
         plane = img @ a.T
         with np.errstate(divide="ignore", invalid="ignore"):
             out = plane[..., :2] / plane[..., 2:3]
         bad = ~((ground[..., 2] > 0) & (img[..., 2] > 0))
         out[bad] = np.nan
         return out
+
+    def _rolling_shutter(
+        self, xs: FloatArray, ground: FloatArray, img: FloatArray, rows_prev: FloatArray
+    ) -> FloatArray:
+        """Homogeneous frame-k pixels (B, n, 3) of the ground points (B, n, 3) with each
+        point's motion scaled by its rows' exposure times (module doc), from the global-
+        shutter pixels ``img``."""
+        _, image_from_g = pair_homographies(self.k, self.height, xs, with_motion=False)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            gx, gz = ground[..., 0] / ground[..., 2], ground[..., 1] / ground[..., 2]
+            for _ in range(3):
+                scale = 1.0 + (img[..., 1] / img[..., 2] - rows_prev) * self.rows_to_frames
+                scale = np.where(np.isfinite(scale), scale, 1.0)
+                yaw = scale * xs[:, 6:7]
+                dx, dz = gx - scale * xs[:, 4:5], gz - scale * xs[:, 5:6]
+                cy, sy = np.cos(yaw), np.sin(yaw)
+                moved = np.stack([cy * dx - sy * dz, sy * dx + cy * dz, np.ones_like(dx)], -1)
+                img = np.einsum("bij,bnj->bni", image_from_g, moved)
+        return img
 
     def predict(self, x: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:
         """Predicted positions (n, 2) on the measurement plane; NaN where undefined."""
@@ -200,14 +232,15 @@ class DisplacementModel:
 
 
 def pair_homographies(
-    k: FloatArray, height: float, xs: FloatArray
+    k: FloatArray, height: float, xs: FloatArray, with_motion: bool = True
 ) -> tuple[FloatArray, FloatArray]:
     """Batched factors of geometry's pair homography for parameter vectors ``xs`` (B, 7).
 
     Returns ``ground_from_image(Θ_p)`` (B, 3, 3) and ``image_from_ground(Θ_c) · T(Ψ)``
-    (B, 3, 3), equal to geometry's ``ground_from_image_homography``,
-    ``image_from_ground_homography`` and ``motion_matrix`` (checked by the tests) but built
-    for the whole batch at once: R_GC = Rx(-pitch)·Rz(roll), lift (X, Z) → (X, h, Z).
+    (B, 3, 3) (without ``T(Ψ)`` unless ``with_motion``), equal to geometry's
+    ``ground_from_image_homography``, ``image_from_ground_homography`` and ``motion_matrix``
+    (checked by the tests) but built for the whole batch at once: R_GC = Rx(-pitch)·Rz(roll),
+    lift (X, Z) → (X, h, Z).
     """
     xs = np.asarray(xs, dtype=float)
     kinv = np.linalg.inv(k)
@@ -218,6 +251,8 @@ def pair_homographies(
     r_p = _rotations(xs[:, 0], xs[:, 1])
     r_c = _rotations(xs[:, 2], xs[:, 3])
     g_from_i = lift_inv @ r_p @ kinv
+    if not with_motion:
+        return g_from_i, k @ np.swapaxes(r_c, 1, 2) @ lift
     cy, sy = np.cos(xs[:, 6]), np.sin(xs[:, 6])
     t = np.zeros((len(xs), 3, 3))
     t[:, 0, 0], t[:, 0, 1], t[:, 1, 0], t[:, 1, 1], t[:, 2, 2] = cy, -sy, sy, cy, 1.0

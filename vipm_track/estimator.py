@@ -40,9 +40,7 @@ from .geometry import (
     horizon_row,
     image_from_ipm_homography,
     ipm_from_image_homography,
-    predict_pixels,
     rotation_parallax,
-    transform_ground,
 )
 from .measurement import PairMeasurement
 from .roi import RoiSpec, interest_points, roi_mask, shrink_to_image
@@ -154,6 +152,10 @@ class EstimatorConfig:
         they are tried again from the nominal pose with its pitch moved by each of these in
         turn [deg]; the first that succeeds is the result. Default per camera
         (``COLD_PITCH_STEPS_DEG``: ±2° level, ±5° others); ``()`` disables it.
+    readout_s : rolling shutter: time from the exposure of the image's first row to its
+        last [s] (0: global shutter); the residual model then moves each patch by the motion
+        over its rows' exposure times (``bundle`` module doc), given each pair's frame
+        interval (:meth:`TwoFrameEstimator.estimate`).
     max_deviation_deg : estimates whose pitch or roll differ from the initial (nominal) pose
         by more than this are rejected ("did not converge").
     ipm_resolution_scale : IPM metres per pixel as a multiple of the interest points'
@@ -231,6 +233,7 @@ class EstimatorConfig:
     max_deviation_deg: float = 25.0
     cold_start_ipm: bool = True
     cold_pitch_steps_deg: tuple[float, ...] | None = None
+    readout_s: float = 0.0
     ipm_resolution_scale: float = 1.0
     ipm_max_side: int = 3000
     vertical_motion: bool | None = None
@@ -451,17 +454,21 @@ class TwoFrameEstimator:
         self._maps = camera.undistortion_maps() if camera.has_distortion else None
         self._cache: tuple[int, NDArray] | None = None
         self._noise: tuple[NDArray, float] | None = None  # the last prepared image's noise
+        self._rows_to_frames = 0.0  # rolling shutter of the pair in hand (estimate())
         self._prior_mean, self._prior_sigma = self._pose_prior(None)
 
     # --- public -----------------------------------------------------------------------------
 
     def estimate(
-        self, prev_img: NDArray, curr_img: NDArray, guess: PairGuess | None = None
+        self, prev_img: NDArray, curr_img: NDArray, guess: PairGuess | None = None,
+        frame_interval_s: float | None = None,
     ) -> PairResult:
         """Estimate both poses and the motion from frame k-1 (``prev_img``) to k.
 
         Images are grey or BGR arrays of the camera's size. ``guess`` (tracking mode) seeds
         the optimisation and offsets the patch windows by the displacements it predicts.
+        ``frame_interval_s`` [s], the time between the frames, is needed with a rolling
+        shutter (``EstimatorConfig.readout_s``) and unused otherwise.
         Cold, both starts are tried (with ``cold_start_ipm``), the second where the first
         fails: a forward camera first from the nominal pose's virtual IPM, then from the
         coarse image-plane pass (a camera ~10° down on a fast car: the near field's IPM is
@@ -471,6 +478,7 @@ class TwoFrameEstimator:
         plane turns into a translation).
         """
         t_start = time.perf_counter()
+        self._rows_to_frames = self._shutter_rows_to_frames(frame_interval_s)
         prev = self._prepare(prev_img, "previous frame")
         curr = self._prepare(curr_img, "current frame")
         # content fixed to the camera, once per pair (both cold starts leave it out)
@@ -643,7 +651,7 @@ class TwoFrameEstimator:
         usable &= mag <= cfg.max_displacement_factor * median_mag + cfg.patch_image / 8
         self._check_parallax(disp, usable)
         model = DisplacementModel(self.k, self.height, self.centres, self.centres + disp,
-                                  **self._prior(cfg.inlier_px_image))
+                                  **self._model_args(cfg.inlier_px_image))
         fit = self._fit(model, x0, usable, cfg.n_subsets, cfg.inlier_px_image, rng, result)
         result.stages.append(PatchField("image", self.centres, disp, peaks, fit.inliers, sizes))
         self._accept(fit, result, "initial estimate")
@@ -789,7 +797,7 @@ class TwoFrameEstimator:
         if usable.sum() < cfg.min_inliers:
             return x0, np.zeros_like(self.centres)
         model = SteadyPoseModel(self.k, self.height, pix, pix + disp * s,
-                                **self._prior(cfg.coarse_inlier_px))
+                                **self._model_args(cfg.coarse_inlier_px))
         fit = self._fit(model, SteadyPoseModel.reduce(x0), usable, cfg.n_subsets,
                         cfg.coarse_inlier_px, rng, result)
         if fit.inliers.sum() < cfg.min_inliers or not fit.converged:
@@ -815,7 +823,11 @@ class TwoFrameEstimator:
         q_p = np.round(grid.pixel_from_ground(back_project(self.k, pose_p, self.centres)))
         valid = np.all(np.isfinite(q_p), axis=1)
         q_p = np.where(valid[:, None], q_p, 0.0)
-        pred = grid.pixel_from_ground(transform_ground(motion, grid.ground_from_pixel(q_p))) - q_p
+        pixels_prev = apply_homography(image_from_ipm_homography(self.k, pose_p, grid), q_p)
+        plane_from_image = ipm_from_image_homography(self.k, pose_c, grid)
+        pred = DisplacementModel(self.k, self.height, pixels_prev, q_p, plane_from_image,
+                                 rows_to_frames=self._rows_to_frames).predict(x) - q_p
+        pred = np.where(np.isfinite(pred), pred, 0.0)
         size_img = (self.camera.width, self.camera.height)
         poly_p = ipm.visible_polygon(self.k, pose_p, grid, size_img, self._horizon_margin_px)
         poly_c = ipm.visible_polygon(self.k, pose_c, grid, size_img, self._horizon_margin_px)
@@ -826,7 +838,8 @@ class TwoFrameEstimator:
             moved = ipm.moved_pixels_matrix(grid, motion)
             ipm_c = ipm.warp(curr, self.k, pose_c, grid, motion)
             poly_c = apply_homography(np.linalg.inv(moved), poly_c)
-            offsets = np.zeros_like(q_p)
+            # zero but for the rolling shutter's part of the motion
+            offsets = np.round(apply_homography(np.linalg.inv(moved), q_p + pred) - q_p)
         else:
             ipm_c = ipm.warp(curr, self.k, pose_c, grid)
             offsets = np.round(pred)
@@ -845,16 +858,14 @@ class TwoFrameEstimator:
             disp = apply_homography(moved, q_p + disp) - q_p
         result.timings["poc"] += time.perf_counter() - t0
 
-        pixels_prev = apply_homography(image_from_ipm_homography(self.k, pose_p, grid), q_p)
         usable = (sizes > 0) & (peaks >= cfg.min_peak) & ~on_static(self._static, pixels_prev)
         dev = np.linalg.norm(disp - pred, axis=1)
         usable &= dev <= cfg.refine_outlier_px * (3.0 if loose else 1.0)
-        plane_from_image = ipm_from_image_homography(self.k, pose_c, grid)
         whitening = (ipm.patch_noise_whitening(plane_from_image, q_p + disp, sizes, cfg.patch_ipm)
                      if cfg.weight_patches else None)
         model = DisplacementModel(
             self.k, self.height, pixels_prev, q_p + disp, plane_from_image=plane_from_image,
-            point_whitening=whitening, **self._prior(cfg.inlier_px_ipm),
+            point_whitening=whitening, **self._model_args(cfg.inlier_px_ipm),
         )
         if usable.sum() < cfg.min_inliers:
             raise _StageFailure(
@@ -891,6 +902,23 @@ class TwoFrameEstimator:
             mean[:2] = (w_n * mean[:2] + w_t * tracked) / (w_n + w_t)
             std[:2] = 1.0 / np.sqrt(w_n + w_t)
         return mean, std
+
+    def _shutter_rows_to_frames(self, frame_interval_s: float | None) -> float:
+        """Frame intervals per image row of the rolling shutter (``bundle.DisplacementModel``)
+        for a pair ``frame_interval_s`` seconds apart; 0 for a global shutter."""
+        readout = self.config.readout_s
+        if not readout:
+            return 0.0
+        if frame_interval_s is None or not (np.isfinite(frame_interval_s)
+                                            and frame_interval_s > 0):
+            raise ValueError(f"a rolling-shutter readout of {readout} s needs the pair's frame "
+                             f"interval, got {frame_interval_s}")
+        return readout / frame_interval_s / self.camera.height
+
+    def _model_args(self, inlier_px: float) -> dict:
+        """Arguments of a residual model for the pair in hand: the pose prior
+        (:meth:`_prior`) and the rolling shutter's row timing."""
+        return {**self._prior(inlier_px), "rows_to_frames": self._rows_to_frames}
 
     def _prior(self, inlier_px: float) -> dict:
         """Pose-prior arguments of a residual model whose inlier threshold is ``inlier_px``
@@ -965,8 +993,9 @@ class TwoFrameEstimator:
     def _predicted_displacements(self, x: FloatArray) -> FloatArray:
         """Image displacements (N, 2) the parameters predict at the interest points (0 where
         undefined)."""
-        pose_p, pose_c, motion = unpack(x, self.height)
-        d = predict_pixels(self.k, pose_p, pose_c, motion, self.centres) - self.centres
+        model = DisplacementModel(self.k, self.height, self.centres, self.centres,
+                                  rows_to_frames=self._rows_to_frames)
+        d = model.predict(x) - self.centres
         return np.where(np.isfinite(d), d, 0.0)
 
     def _noise_sigma(self, prepared: NDArray[np.float32]) -> float:

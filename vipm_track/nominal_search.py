@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -74,6 +74,16 @@ class NominalSearch:
                 f"--pitch/--roll to set it)")
 
 
+class MovingPair(NamedTuple):
+    """Two consecutive frames in which the view moved: indices, prepared images, and the
+    time between them [s]."""
+
+    frames: tuple[int, int]
+    before: np.ndarray
+    image: np.ndarray
+    interval_s: float
+
+
 def search_nominal_pose(
     source: FrameSource,
     camera: CameraModel,
@@ -104,8 +114,9 @@ def search_nominal_pose(
     # the default start alone: a forward camera fails from 60° however its pitch is stepped
     default = TwoFrameEstimator(camera, height, config_with(config, cold_pitch_steps_deg=()))
     failed = 0
-    for i, (frames, before, image) in enumerate(pairs):
-        result = estimate_pair(default, before, image, None)
+    for i, pair in enumerate(pairs):
+        frames = pair.frames
+        result = estimate_pair(default, pair.before, pair.image, None, pair.interval_s)
         if result.status == STATUS_OK:
             if result.pose_curr is None or abs(math.degrees(result.pose_curr.pitch)
                                                - config.initial_pitch_deg) <= SETTLE_PITCH_DEG:
@@ -114,7 +125,7 @@ def search_nominal_pose(
         else:
             # "no motion" included: the view moved (``_moving_pairs``), so the default
             # start's patches sat on what did not (a level camera's sky)
-            found = _best_start(camera, height, config, before, image)
+            found = _best_start(camera, height, config, pair)
             if found is None and result.status == STATUS_NO_MOTION:
                 continue  # nothing moved in any start's view either: traffic past a standing car
             failed += 1
@@ -131,8 +142,7 @@ def search_nominal_pose(
 
 
 def _best_start(
-    camera: CameraModel, height: float, config: EstimatorConfig, before: np.ndarray,
-    image: np.ndarray,
+    camera: CameraModel, height: float, config: EstimatorConfig, pair: MovingPair,
 ) -> tuple[float, PairResult] | None:
     """The start of ``CANDIDATE_PITCHES_DEG`` (deg) whose cold start on the pair converges
     with the smallest residual, with its result; None where none converges.
@@ -162,7 +172,7 @@ def _best_start(
                     config, initial_pitch_deg=start, cold_pitch_steps_deg=steps, **alike))
             except InputError:  # too few interest points from this start
                 continue
-            r = estimate_pair(estimator, before, image, None)
+            r = estimate_pair(estimator, pair.before, pair.image, None, pair.interval_s)
             if r.status == STATUS_OK and r.pose_curr is not None and (
                     best is None or r.residual_px < best[1].residual_px):
                 best = start, r
@@ -171,7 +181,7 @@ def _best_start(
 
 def _settle(
     camera: CameraModel, height: float, config: EstimatorConfig,
-    pairs: list[tuple[tuple[int, int], np.ndarray, np.ndarray]],
+    pairs: list[MovingPair],
     pitch: float, roll: float, rounds: int = 3, tolerance_deg: float = 0.3,
 ) -> tuple[float, float, int]:
     """Fixed point of "nominal → median pose of the pairs cold-started from it" (radians),
@@ -185,8 +195,9 @@ def _settle(
         estimator = TwoFrameEstimator(camera, height, config_with(
             config, initial_pitch_deg=round(math.degrees(pitch), 1),
             initial_roll_deg=round(math.degrees(roll), 1)))
-        poses = [r.pose_curr for _, b, c in pairs
-                 if (r := estimate_pair(estimator, b, c, None)).status == STATUS_OK
+        poses = [r.pose_curr for p in pairs
+                 if (r := estimate_pair(estimator, p.before, p.image, None, p.interval_s)
+                     ).status == STATUS_OK
                  and r.pose_curr is not None]
         if not poses:
             break
@@ -201,8 +212,8 @@ def _settle(
 
 def _moving_pairs(
     source: FrameSource, camera: CameraModel, max_pairs: int, max_frames: int,
-) -> list[tuple[tuple[int, int], np.ndarray, np.ndarray]]:
-    """Consecutive readable pairs ``((k-1, k), image k-1, image k)`` in which the view moved
+) -> list[MovingPair]:
+    """Consecutive readable pairs in which the view moved
     (``static_content.stands_still``: a drive that starts at a standstill), the first
     ``max_pairs`` of them within the first ``max_frames`` frames (an unreadable or
     wrong-size frame breaks the chain)."""
@@ -217,9 +228,9 @@ def _moving_pairs(
             image = None if frame.image is None else prepare_image(frame, camera)
         except ValueError:
             image = None
-        current = None if image is None else (frame.index, image, noise_sigma(image))
+        current = None if image is None else (frame.index, image, noise_sigma(image), frame.t)
         if current is not None and prev is not None and not stands_still(
                 prev[1], image, (prev[2], current[2])):
-            out.append(((prev[0], frame.index), prev[1], image))
+            out.append(MovingPair((prev[0], frame.index), prev[1], image, frame.t - prev[3]))
         prev = current
     return out

@@ -134,9 +134,9 @@ def run_sequence(
         if tracking and previous_ok is not None:
             guess = predict_guess(previous_ok, prev_dt, dt)
         start = time.perf_counter()
-        result = estimate_pair(estimator, prev_image, image, guess)
+        result = estimate_pair(estimator, prev_image, image, guess, dt)
         if guess is not None and result.status != "ok" and retry_cold:
-            result = estimate_pair(estimator, prev_image, image, None)
+            result = estimate_pair(estimator, prev_image, image, None, dt)
             guess = None
         seconds = time.perf_counter() - start
         previous_ok = result if result.status == "ok" else None
@@ -145,11 +145,13 @@ def run_sequence(
 
 
 def estimate_pair(
-    estimator: TwoFrameEstimator, prev: NDArray, curr: NDArray, guess: PairGuess | None
+    estimator: TwoFrameEstimator, prev: NDArray, curr: NDArray, guess: PairGuess | None,
+    frame_interval_s: float | None = None,
 ) -> PairResult:
-    """One pair; an exception inside the estimator becomes a failed result, not a dead run."""
+    """One pair ``frame_interval_s`` seconds apart; an exception inside the estimator becomes
+    a failed result, not a dead run."""
     try:
-        return estimator.estimate(prev, curr, guess)
+        return estimator.estimate(prev, curr, guess, frame_interval_s)
     except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
         return _FailedResult(f"estimator error: {type(exc).__name__}: {exc}"[:200])
 
