@@ -9,6 +9,8 @@ from functools import cache
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from vipm_track import bundle, geometry
 from vipm_track.errors import InputError
@@ -109,6 +111,38 @@ def test_model_residual_is_zero_at_truth_and_jacobian_matches():
     rng = np.random.default_rng(0)
     w = np.eye(2) + 0.3 * rng.normal(size=(len(pix), 2, 2))
     _assert_jacobian_matches_differences(dataclasses.replace(model, point_whitening=w), x)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    pitch=st.floats(0.0, 1.2), roll=st.floats(-0.05, 0.05), tx=st.floats(-0.2, 0.2),
+    tz=st.floats(0.05, 1.0), yaw=st.floats(-0.05, 0.05), readout=st.floats(0.05, 1.0),
+)
+def test_rolling_shutter_prediction_moves_each_point_over_its_rows_times(
+        pitch, roll, tx, tz, yaw, readout):
+    """A point seen on row v_p of frame k-1 is predicted where the motion scaled by its rows'
+    exposure times, 1 + (v_c − v_p)·readout/rows, takes it (geometry's own prediction, within
+    1e-3 px, where it lands in the image), and a readout of 0 is the global shutter's
+    model."""
+    cam = PRESETS["cart"].camera()
+    pose = geometry.GroundPose(pitch, roll, 0.7)
+    motion = geometry.PlanarMotion(tx * 0.7 / 1.5, tz * 0.7 / 1.5, yaw)
+    pix = np.stack(np.meshgrid(np.linspace(50, 750, 5), np.linspace(300, 590, 4)), -1)
+    pix = pix.reshape(-1, 2)
+    model = bundle.DisplacementModel(cam.k, 0.7, pix, pix, readout_frames=readout,
+                                     image_rows=cam.height)
+    x = bundle.pack(pose, pose, motion)
+    pred = model.predict(x)
+    ok = np.all(np.isfinite(pred), axis=1) & (pred[:, 1] >= 0) & (pred[:, 1] < cam.height)
+    for p_prev, p_curr in zip(pix[ok], pred[ok], strict=True):
+        s = 1.0 + (p_curr[1] - p_prev[1]) * readout / cam.height
+        scaled = geometry.PlanarMotion(s * motion.tx, s * motion.tz, s * motion.yaw)
+        np.testing.assert_allclose(
+            geometry.predict_pixels(cam.k, pose, pose, scaled, p_prev[None])[0], p_curr,
+            atol=1e-3)
+    np.testing.assert_allclose(
+        dataclasses.replace(model, readout_frames=0.0).predict(x),
+        geometry.predict_pixels(cam.k, pose, pose, motion, pix), atol=1e-9)
 
 
 def test_pose_prior_residuals_jacobian_and_pull():

@@ -221,11 +221,9 @@ def test_motion_blur_follows_each_pixels_image_motion():
         blurred = render_trajectory_frame(tex, camera, traj, k, Effects(motion_blur=0.5))
         blurred = blurred.astype(float)
 
-        def grad_ratio(rows: slice) -> float:
-            return np.abs(np.diff(blurred[rows], axis=0)).mean() / np.abs(
-                np.diff(sharp[rows], axis=0)).mean()
-
-        near, far = grad_ratio(np.s_[450:600]), grad_ratio(np.s_[0:150])
+        near, far = (np.abs(np.diff(blurred[rows], axis=0)).mean()
+                     / np.abs(np.diff(sharp[rows], axis=0)).mean()
+                     for rows in (np.s_[450:600], np.s_[0:150]))
         assert near < 0.75 and near < far - 0.1, (k, near, far)
         # Centred: the sharp frame's patches match the blurred frame where they were taken
         # (plain correlation: a box blur's spectrum changes sign, which misleads POC here).

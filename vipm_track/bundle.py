@@ -18,13 +18,14 @@ One residual model serves both planes of the paper (section III):
 So a model is the prediction followed by a fixed homography ``plane_from_image`` (the
 identity on the image plane, ``ipm_from_image_homography(k, Θ̂_c, grid)`` on the IPM).
 
-Rolling shutter (``rows_to_frames`` > 0): row v of a frame is exposed ``v · rows_to_frames``
-frame intervals after its row 0, so ground seen on row v_p of frame k-1 and row v_c of
-frame k moved ``1 + (v_c − v_p) · rows_to_frames`` times the frame's motion Ψ (the motion
+Rolling shutter (``readout_frames`` > 0, the readout over the frame interval, of an image of
+``image_rows`` rows): row v of a frame is exposed ``v · readout_frames / image_rows`` frame
+intervals after its row 0, so ground seen on row v_p of frame k-1 and row v_c of frame k
+moved ``1 + (v_c − v_p) · readout_frames / image_rows`` times the frame's motion Ψ (the motion
 between the same rows of both frames; constant velocity across the pair, the poses constant
-within a frame). v_c depends on the prediction itself: three fixed-point steps, each
-shrinking the error by ``rows_to_frames · ∂v_c/∂s`` (≲ 0.15 for a readout of a whole frame
-interval).
+within a frame). v_c depends on the prediction itself: the scale is solved per point by
+Newton's method (``_SHUTTER_STEPS``; two or three steps where a point moves a tenth of the
+rows per frame at a readout of half a frame interval).
 """
 
 from __future__ import annotations
@@ -88,8 +89,8 @@ class DisplacementModel:
         (``W · (predicted − measured)``): the inverse square root of the point's noise
         covariance relative to a typical point's, so that a weighted least-squares fit and
         its inlier thresholds stay in typical plane pixels (``ipm.patch_noise_whitening``).
-    rows_to_frames : rolling shutter: frame intervals per image row between the exposures of
-        successive rows (readout time / (frame interval · image rows)); 0: global shutter.
+    readout_frames, image_rows : rolling shutter: the time from the exposure of the first
+        row to the last, in frame intervals (0: global shutter), and the image's rows.
 
     The prediction is the pair homography ``A · π(Θ_c) · T(Ψ) · π⁻¹(Θ_p)`` of geometry.py
     (exact for ground points), evaluated for a batch of parameter vectors at once so that
@@ -104,7 +105,8 @@ class DisplacementModel:
     prior_mean: FloatArray | None = None
     prior_scale: float | FloatArray = 0.0
     point_whitening: FloatArray | None = None
-    rows_to_frames: float = 0.0
+    readout_frames: float = 0.0
+    image_rows: int = 0
 
     def _whiten(self, r: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:
         """Per-point residual vectors (..., n, 2) times their whitening matrices."""
@@ -154,7 +156,7 @@ class DisplacementModel:
         g_from_i, out_from_g = pair_homographies(self.k, self.height, xs)
         ground = np.einsum("bij,nj->bni", g_from_i, m)  # (B, n, 3); w > 0 on the ground
         img = np.einsum("bij,bnj->bni", out_from_g, ground)  # w > 0 in front of camera k
-        if self.rows_to_frames:
+        if self.readout_frames:
             img = self._rolling_shutter(xs, ground, img, pix[:, 1])
         plane = img @ a.T
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -167,20 +169,40 @@ class DisplacementModel:
         self, xs: FloatArray, ground: FloatArray, img: FloatArray, rows_prev: FloatArray
     ) -> FloatArray:
         """Homogeneous frame-k pixels (B, n, 3) of the ground points (B, n, 3) with each
-        point's motion scaled by its rows' exposure times (module doc), from the global-
-        shutter pixels ``img``."""
+        point's motion scaled by its rows' exposure times (module doc); ``img``: the
+        global-shutter pixels."""
         _, image_from_g = pair_homographies(self.k, self.height, xs, with_motion=False)
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             gx, gz = ground[..., 0] / ground[..., 2], ground[..., 1] / ground[..., 2]
-            for _ in range(3):
-                scale = 1.0 + (img[..., 1] / img[..., 2] - rows_prev) * self.rows_to_frames
-                scale = np.where(np.isfinite(scale), scale, 1.0)
+
+            def pixels(scale: FloatArray) -> FloatArray:
                 yaw = scale * xs[:, 6:7]
                 dx, dz = gx - scale * xs[:, 4:5], gz - scale * xs[:, 5:6]
                 cy, sy = np.cos(yaw), np.sin(yaw)
                 moved = np.stack([cy * dx - sy * dz, sy * dx + cy * dz, np.ones_like(dx)], -1)
-                img = np.einsum("bij,bnj->bni", image_from_g, moved)
-        return img
+                return np.einsum("bij,bnj->bni", image_from_g, moved)
+
+            per_row = self.readout_frames / self.image_rows
+
+            def excess(scale: FloatArray, img: FloatArray) -> FloatArray:
+                return 1.0 + (img[..., 1] / img[..., 2] - rows_prev) * per_row - scale
+
+            # a point seen within a frame's rows moved by a scale within ±(readout / interval)
+            # of 1; the search keeps to twice that
+            bound = 2.0 * self.readout_frames
+            scale = np.ones(gx.shape)
+            for _ in range(_SHUTTER_STEPS):
+                f = excess(scale, img)
+                slope = (excess(scale + _SHUTTER_FD, pixels(scale + _SHUTTER_FD)) - f) / _SHUTTER_FD
+                step = np.where(np.isfinite(f / slope), -f / slope, 0.0)
+                new = np.clip(scale + step, 1.0 - bound, 1.0 + bound)
+                step, scale = new - scale, new
+                img = pixels(scale)
+                if np.max(np.abs(step), initial=0.0) < 1e-12:
+                    break
+            # no root: the point outruns the shutter out of the frame (undefined, NaN)
+            unsolved = ~(np.abs(excess(scale, img)) < 1e-9)
+        return np.where(unsolved[..., None], np.nan, img)
 
     def predict(self, x: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:
         """Predicted positions (n, 2) on the measurement plane; NaN where undefined."""
@@ -289,6 +311,11 @@ class SteadyPoseModel(DisplacementModel):
         """(pitch, roll, tx, tz, yaw) of a 7-vector (its current-frame pose)."""
         return np.concatenate([x[2:4], x[4:7]])
 
+
+#: Most Newton steps of the rolling shutter's row times (module doc), and their
+#: finite-difference step in the motion's scale.
+_SHUTTER_STEPS = 8
+_SHUTTER_FD = 1e-6
 
 #: Central-difference step of the Jacobian, radians / metres.
 _FD_STEP = 1e-6

@@ -454,7 +454,7 @@ class TwoFrameEstimator:
         self._maps = camera.undistortion_maps() if camera.has_distortion else None
         self._cache: tuple[int, NDArray] | None = None
         self._noise: tuple[NDArray, float] | None = None  # the last prepared image's noise
-        self._rows_to_frames = 0.0  # rolling shutter of the pair in hand (estimate())
+        self._readout_frames = 0.0  # rolling shutter of the pair in hand (estimate())
         self._prior_mean, self._prior_sigma = self._pose_prior(None)
 
     # --- public -----------------------------------------------------------------------------
@@ -478,7 +478,7 @@ class TwoFrameEstimator:
         plane turns into a translation).
         """
         t_start = time.perf_counter()
-        self._rows_to_frames = self._shutter_rows_to_frames(frame_interval_s)
+        self._readout_frames = self._shutter_readout_frames(frame_interval_s)
         prev = self._prepare(prev_img, "previous frame")
         curr = self._prepare(curr_img, "current frame")
         # content fixed to the camera, once per pair (both cold starts leave it out)
@@ -826,7 +826,7 @@ class TwoFrameEstimator:
         pixels_prev = apply_homography(image_from_ipm_homography(self.k, pose_p, grid), q_p)
         plane_from_image = ipm_from_image_homography(self.k, pose_c, grid)
         pred = DisplacementModel(self.k, self.height, pixels_prev, q_p, plane_from_image,
-                                 rows_to_frames=self._rows_to_frames).predict(x) - q_p
+                                 **self._shutter()).predict(x) - q_p
         pred = np.where(np.isfinite(pred), pred, 0.0)
         size_img = (self.camera.width, self.camera.height)
         poly_p = ipm.visible_polygon(self.k, pose_p, grid, size_img, self._horizon_margin_px)
@@ -903,9 +903,9 @@ class TwoFrameEstimator:
             std[:2] = 1.0 / np.sqrt(w_n + w_t)
         return mean, std
 
-    def _shutter_rows_to_frames(self, frame_interval_s: float | None) -> float:
-        """Frame intervals per image row of the rolling shutter (``bundle.DisplacementModel``)
-        for a pair ``frame_interval_s`` seconds apart; 0 for a global shutter."""
+    def _shutter_readout_frames(self, frame_interval_s: float | None) -> float:
+        """The rolling shutter's readout in frame intervals of a pair ``frame_interval_s``
+        seconds apart (``bundle.DisplacementModel``); 0 for a global shutter."""
         readout = self.config.readout_s
         if not readout:
             return 0.0
@@ -913,12 +913,16 @@ class TwoFrameEstimator:
                                             and frame_interval_s > 0):
             raise ValueError(f"a rolling-shutter readout of {readout} s needs the pair's frame "
                              f"interval, got {frame_interval_s}")
-        return readout / frame_interval_s / self.camera.height
+        return readout / frame_interval_s
 
     def _model_args(self, inlier_px: float) -> dict:
         """Arguments of a residual model for the pair in hand: the pose prior
         (:meth:`_prior`) and the rolling shutter's row timing."""
-        return {**self._prior(inlier_px), "rows_to_frames": self._rows_to_frames}
+        return {**self._prior(inlier_px), **self._shutter()}
+
+    def _shutter(self) -> dict:
+        """Rolling-shutter arguments of a residual model for the pair in hand."""
+        return {"readout_frames": self._readout_frames, "image_rows": self.camera.height}
 
     def _prior(self, inlier_px: float) -> dict:
         """Pose-prior arguments of a residual model whose inlier threshold is ``inlier_px``
@@ -994,7 +998,7 @@ class TwoFrameEstimator:
         """Image displacements (N, 2) the parameters predict at the interest points (0 where
         undefined)."""
         model = DisplacementModel(self.k, self.height, self.centres, self.centres,
-                                  rows_to_frames=self._rows_to_frames)
+                                  **self._shutter())
         d = model.predict(x) - self.centres
         return np.where(np.isfinite(d), d, 0.0)
 

@@ -57,6 +57,10 @@ class Effects:
         Exposure time as a fraction of the frame interval: the frame is the average of the
         ground rendered at sub-frame poses across an exposure centred on the frame's time
         (needs ``exposure``), so each pixel is blurred along its own image motion.
+    rolling_shutter : float
+        Readout time (first row's exposure to the last's) as a fraction of the frame
+        interval: row v is exposed ``v / rows · rolling_shutter`` intervals after the frame's
+        time (row 0), rendered in bands of rows (needs ``exposure``); 0: global shutter.
     obstacle : bool
         A non-ground region (a textured wall/obstacle) fixed in the image's lower right.
     sky_level : float
@@ -70,6 +74,7 @@ class Effects:
     vignetting: float = 0.0
     highlights: int = 0
     motion_blur: float = 0.0
+    rolling_shutter: float = 0.0
     obstacle: bool = False
     sky_level: float = 215.0
     seed: int = 0
@@ -77,6 +82,8 @@ class Effects:
 
 #: A sub-frame pose for motion blur: pose against the ground, world (x, z) [m], heading [rad].
 ExposurePose = tuple[GroundPose, tuple[float, float] | NDArray, float]
+#: Image rows [r0, r1) and the sub-frame poses they are exposed over (averaged).
+ExposureBand = tuple[int, int, Sequence[ExposurePose]]
 
 #: Obstacle quadrilateral in normalised image coordinates (x/width, y/height).
 OBSTACLE_POLYGON = np.array([[0.66, 0.42], [0.94, 0.36], [0.97, 1.0], [0.63, 1.0]])
@@ -92,7 +99,7 @@ def render_frame(
     *,
     t: float = 0.0,
     frame_index: int = 0,
-    exposure: Sequence[ExposurePose] | None = None,
+    exposure: Sequence[ExposureBand] | None = None,
     supersample: int = 2,
 ) -> NDArray[np.uint8]:
     """Grey uint8 image (camera.height × camera.width) of the textured ground.
@@ -112,19 +119,24 @@ def render_frame(
         Photometric effects; ``None`` renders the clean image.
     t, frame_index : float, int
         Frame time [s] (exposure drift) and index (noise seed).
-    exposure : sequence of (GroundPose, world_xz, world_heading), optional
-        Sub-frame poses across the exposure (``sim.exposure_poses``), for motion blur.
+    exposure : sequence of (r0, r1, [(GroundPose, world_xz, world_heading), ...]), optional
+        Bands of rows covering the image and the sub-frame poses each is exposed over
+        (``sim.exposure_bands``), for motion blur and rolling shutter; used where either
+        effect is on, else the whole image shows ``pose``.
     supersample : int
         Supersampling factor per axis (≥ 1).
     """
     fx = effects or Effects()
-    path = list(exposure) if fx.motion_blur > 0 and exposure else []
-    path = path or [(pose, world_xz, world_heading)]
+    bands = list(exposure) if (fx.motion_blur > 0 or fx.rolling_shutter > 0) and exposure \
+        else [(0, camera.height, [(pose, world_xz, world_heading)])]
     img = np.zeros((camera.height, camera.width), np.float32)
-    for sub_pose, sub_xz, sub_heading in path:
-        h_img = _pixel_to_texel_homography(texture, camera, sub_pose, sub_xz, sub_heading)
-        img += _render_ground(texture, camera, h_img, sub_pose, supersample, fx.sky_level)
-    img /= len(path)
+    for r0, r1, poses in bands:
+        rows = _rows_camera(camera, r0, r1)
+        for sub_pose, sub_xz, sub_heading in poses:
+            h_img = _pixel_to_texel_homography(texture, rows, sub_pose, sub_xz, sub_heading)
+            img[r0:r1] += _render_ground(texture, rows, h_img, sub_pose, supersample,
+                                         fx.sky_level, (r0, camera.height))
+        img[r0:r1] /= len(poses)
     if fx.obstacle:
         img = _draw_obstacle(img, fx.seed)
     if fx.highlights > 0:
@@ -179,9 +191,22 @@ def _ground_ray_normal(camera: CameraModel, pose: GroundPose) -> NDArray:
     return n / np.linalg.norm(n[:2])
 
 
+def _rows_camera(camera: CameraModel, r0: int, r1: int) -> CameraModel:
+    """The ideal pinhole camera whose image is rows [r0, r1) of ``camera``'s."""
+    if (r0, r1) == (0, camera.height):
+        return camera
+    k = camera.k.copy()
+    k[1, 2] -= r0
+    return CameraModel(k, camera.width, r1 - r0)
+
+
 def _render_ground(
-    texture: GroundTexture, camera: CameraModel, h: NDArray, pose: GroundPose, ss: int, sky: float
+    texture: GroundTexture, camera: CameraModel, h: NDArray, pose: GroundPose, ss: int,
+    sky: float, rows: tuple[int, int] = (0, 0),
 ) -> NDArray[np.float32]:
+    """The ground (and sky) in ``camera``'s image through the pixel → texel homography ``h``;
+    ``rows``: (first row, rows of the whole image) where ``camera`` images a band of rows
+    (for the sky's gradient)."""
     width, height = camera.width, camera.height
     ss = max(1, int(ss))
     # Supersampled pixel p_s → output pixel (p_s + 0.5)/ss - 0.5 (INTER_AREA's pixel centres).
@@ -219,7 +244,8 @@ def _render_ground(
     if horizon_visible:
         mask = ((n[0] * us[None, :] + n[1] * vs[:, None] + n[2]) > 1e-9).astype(np.float32)
         alpha = cv2.resize(mask, (width, height), interpolation=cv2.INTER_AREA) if ss > 1 else mask
-        sky_col = (sky - 35.0 * np.arange(height, dtype=np.float32) / height)[:, None]
+        row0, total = rows if rows[1] else (0, height)
+        sky_col = (sky - 35.0 * (row0 + np.arange(height, dtype=np.float32)) / total)[:, None]
         out += (1.0 - alpha) * sky_col
     return out
 

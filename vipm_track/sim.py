@@ -38,7 +38,7 @@ from .geometry import (
     invert_motion,
     predict_pixels,
 )
-from .render import Effects, ExposurePose, render_frame, world_pose_motion
+from .render import Effects, ExposureBand, ExposurePose, render_frame, world_pose_motion
 from .table import TableWriter
 from .texture import TEXTURES, GroundTexture, load_texture
 
@@ -265,29 +265,54 @@ def render_trajectory_frame(
     texture: GroundTexture, camera: CameraModel, traj: Trajectory, k: int,
     effects: Effects | None = None,
 ) -> NDArray[np.uint8]:
-    """Image of frame k of a trajectory (motion blur over the exposure centred on its time)."""
+    """Image of frame k of a trajectory (motion blur over the exposure centred on its time;
+    with a rolling shutter, each band of rows at its own time)."""
     exposure = None
-    if effects is not None and effects.motion_blur > 0:
-        exposure = exposure_poses(traj, k, effects.motion_blur, camera)
+    if effects is not None and (effects.motion_blur > 0 or effects.rolling_shutter > 0):
+        exposure = exposure_bands(traj, k, effects, camera)
     return render_frame(texture, camera, traj.pose(k), traj.world_xz[k],
                         float(traj.world_heading[k]), effects, t=float(traj.t[k]),
                         frame_index=k, exposure=exposure)
 
 
+def exposure_bands(
+    traj: Trajectory, k: int, effects: Effects, camera: CameraModel,
+    max_step_px: float = 0.5, max_bands: int = 360,
+) -> list[ExposureBand]:
+    """Bands of rows of frame k and the sub-frame poses each is exposed over
+    (:func:`exposure_poses`): one band for a global shutter; with a rolling shutter
+    (``effects.rolling_shutter``, the readout as a fraction of the frame interval) row v is
+    exposed ``v / rows · rolling_shutter`` intervals after frame k's time, in bands thin enough
+    that the ground moves ≤ ``max_step_px`` pixels between neighbours (at most ``max_bands``)."""
+    readout = effects.rolling_shutter
+    if readout <= 0 or len(traj) < 2:
+        return [(0, camera.height, exposure_poses(traj, k, effects.motion_blur, camera))]
+    per_frame = _max_image_motion(camera, _pose_at(traj, k - 0.5), _pose_at(traj, k + 0.5))
+    rows = max(int(max_step_px * camera.height / max(readout * per_frame, 1e-9)),
+               -(-camera.height // max_bands), 1)
+    bands = []
+    for r0 in range(0, camera.height, rows):
+        r1 = min(r0 + rows, camera.height)
+        centre = k + readout * (0.5 * (r0 + r1 - 1)) / camera.height
+        bands.append((r0, r1, exposure_poses(traj, centre, effects.motion_blur, camera)))
+    return bands
+
+
 def exposure_poses(
-    traj: Trajectory, k: int, exposure: float, camera: CameraModel,
+    traj: Trajectory, centre: float, exposure: float, camera: CameraModel,
     max_step_px: float = 1.0, max_poses: int = 48,
 ) -> list[ExposurePose]:
-    """Sub-frame poses of frame k across an exposure of ``exposure`` frame intervals centred on
-    its time: the pose and world pose interpolated linearly between frames (extrapolated
-    from the nearest interval at the ends, so the first frame is blurred too), as many as
-    keep the ground's image motion between neighbours ≤ ``max_step_px`` pixels (at most
-    ``max_poses``). One pose (no blur) for a one-frame trajectory or no exposure."""
+    """Sub-frame poses across an exposure of ``exposure`` frame intervals centred on the
+    fractional frame index ``centre``: the pose and world pose interpolated linearly between
+    frames (extrapolated from the nearest interval at the ends, so the first frame is blurred
+    too), as many as keep the ground's image motion between neighbours ≤ ``max_step_px``
+    pixels (at most ``max_poses``). One pose (no blur) for a one-frame trajectory or no
+    exposure."""
     if len(traj) < 2 or exposure <= 0:
-        return [_pose_at(traj, float(k))]
-    ends = [_pose_at(traj, k - exposure / 2), _pose_at(traj, k + exposure / 2)]
+        return [_pose_at(traj, float(centre))]
+    ends = [_pose_at(traj, centre - exposure / 2), _pose_at(traj, centre + exposure / 2)]
     n = int(np.clip(np.ceil(_max_image_motion(camera, *ends) / max_step_px) + 1, 2, max_poses))
-    return [_pose_at(traj, u) for u in np.linspace(k - exposure / 2, k + exposure / 2, n)]
+    return [_pose_at(traj, u) for u in np.linspace(centre - exposure / 2, centre + exposure / 2, n)]
 
 
 def _pose_at(traj: Trajectory, u: float) -> ExposurePose:

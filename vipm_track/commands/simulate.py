@@ -45,6 +45,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     fx.add_argument("--motion-blur", type=float, nargs="?", const=0.3, default=0.0,
                     metavar="EXPOSURE", help="exposure as a fraction of the frame interval "
                     "(0.3 if given)")
+    fx.add_argument("--readout-time", type=float, default=0.0, metavar="SECONDS",
+                    help="rolling shutter: time from the first row's exposure to the last's, "
+                    "seconds (row 0 at the frame's time; default 0: global shutter); "
+                    "estimate with the same --readout-time")
     fx.add_argument("--obstacle", action="store_true",
                     help="a non-ground region (wall) fixed in the image's lower right")
     p.set_defaults(handler=run)
@@ -59,10 +63,14 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--{name} must be > 0, got {value}")
     if args.noise < 0 or not 0 <= args.vignetting <= 1 or args.motion_blur < 0:
         raise InputError("--noise and --motion-blur must be ≥ 0 and --vignetting in [0, 1]")
+    fps = args.fps or PRESETS[args.preset].fps
+    if not 0 <= args.readout_time * fps <= 1:
+        raise InputError(f"--readout-time must be in [0, 1/fps] = [0, {1 / fps:g}] s, got "
+                         f"{args.readout_time}")
     effects = Effects(
         noise_sigma=args.noise, exposure_drift=args.exposure_drift, vignetting=args.vignetting,
-        highlights=args.highlights, motion_blur=args.motion_blur, obstacle=args.obstacle,
-        seed=args.seed,
+        highlights=args.highlights, motion_blur=args.motion_blur,
+        rolling_shutter=args.readout_time * fps, obstacle=args.obstacle, seed=args.seed,
     )
     traj = simulate_sequence(
         args.preset, args.frames, args.out, seed=args.seed, profile=args.profile,
