@@ -17,7 +17,8 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from .compiled import kernel
+from vipm_track.compiled import kernel
+
 from .model import NoiseParams
 
 FloatArray = NDArray[np.float64]

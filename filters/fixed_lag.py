@@ -37,11 +37,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 
+from vipm_track.compiled import kernel
 from vipm_track.measurement import PairMeasurement
 
 from . import model as M
 from . import window_rows as W
-from .compiled import kernel
 from .smoother import (
     BodyTracker,
     SmoothedFrame,

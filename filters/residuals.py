@@ -16,7 +16,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from .compiled import kernel
+from vipm_track.compiled import kernel
 
 FloatArray = NDArray[np.float64]
 

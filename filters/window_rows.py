@@ -24,11 +24,11 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import NDArray
 
+from vipm_track.compiled import kernel
 from vipm_track.measurement import PairMeasurement
 
 from . import factors as F
 from . import model as M
-from .compiled import kernel
 from .model import NoiseParams
 from .residuals import (
     motion_residual,

@@ -1,10 +1,10 @@
-"""The compiled kernels' decorator (filters.compiled)."""
+"""The compiled kernels' decorator (vipm_track.compiled)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from filters.compiled import kernel
+from vipm_track.compiled import kernel
 
 
 def _generated(name: str, body: str):

@@ -20,12 +20,13 @@ identity on the image plane, ``ipm_from_image_homography(k, Θ̂_c, grid)`` on t
 
 Rolling shutter (``readout_frames`` > 0, the readout over the frame interval, of an image of
 ``image_rows`` rows): row v of a frame is exposed ``v · readout_frames / image_rows`` frame
-intervals after its row 0, so ground seen on row v_p of frame k-1 and row v_c of frame k
-moved ``1 + (v_c − v_p) · readout_frames / image_rows`` times the frame's motion Ψ (the motion
-between the same rows of both frames; constant velocity across the pair, the poses constant
-within a frame). v_c depends on the prediction itself: the scale is solved per point by
-Newton's method (``_SHUTTER_STEPS``; two or three steps where a point moves a tenth of the
-rows per frame at a readout of half a frame interval).
+intervals after its row 0, so ground seen at time a (its row) of frame k-1 and time b of
+frame k travelled from k-1+a to k+b: ``(1 + b − a)·Ψ`` at constant velocity (Ψ the motion
+between the same rows of both frames, i.e. over the frame interval), plus
+``(b² − a² + a + b)/2 · (Ψ − Ψ₋₁)`` at a constant acceleration, Ψ₋₁ being the previous
+interval's motion (``previous_motion``, where known; the motion's three components are
+scaled alike, and the poses are constant within a frame). b depends on the prediction
+itself: it is solved per point by the secant method (``shutter.moved_pixels``, compiled).
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from .geometry import GroundPose, PlanarMotion, compose_motion, invert_motion
+from .shutter import moved_pixels
 
 FloatArray = NDArray[np.float64]
 N_PARAMS = 7
@@ -91,6 +93,10 @@ class DisplacementModel:
         its inlier thresholds stay in typical plane pixels (``ipm.patch_noise_whitening``).
     readout_frames, image_rows : rolling shutter: the time from the exposure of the first
         row to the last, in frame intervals (0: global shutter), and the image's rows.
+    previous_motion : (3,) optional (tx, tz, yaw) over the frame interval before the pair,
+        scaled to this pair's interval (the previous pair's estimate): with a rolling shutter
+        the vehicle's acceleration then enters each point's travel (module doc); None:
+        constant velocity.
 
     The prediction is the pair homography ``A · π(Θ_c) · T(Ψ) · π⁻¹(Θ_p)`` of geometry.py
     (exact for ground points), evaluated for a batch of parameter vectors at once so that
@@ -107,6 +113,7 @@ class DisplacementModel:
     point_whitening: FloatArray | None = None
     readout_frames: float = 0.0
     image_rows: int = 0
+    previous_motion: FloatArray | None = None
 
     def _whiten(self, r: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:
         """Per-point residual vectors (..., n, 2) times their whitening matrices."""
@@ -157,7 +164,7 @@ class DisplacementModel:
         ground = np.einsum("bij,nj->bni", g_from_i, m)  # (B, n, 3); w > 0 on the ground
         img = np.einsum("bij,bnj->bni", out_from_g, ground)  # w > 0 in front of camera k
         if self.readout_frames:
-            img = self._rolling_shutter(xs, ground, img, pix[:, 1])
+            img = self._rolling_shutter(xs, ground, pix[:, 1])
         plane = img @ a.T
         with np.errstate(divide="ignore", invalid="ignore"):
             out = plane[..., :2] / plane[..., 2:3]
@@ -166,43 +173,20 @@ class DisplacementModel:
         return out
 
     def _rolling_shutter(
-        self, xs: FloatArray, ground: FloatArray, img: FloatArray, rows_prev: FloatArray
+        self, xs: FloatArray, ground: FloatArray, rows_prev: FloatArray
     ) -> FloatArray:
-        """Homogeneous frame-k pixels (B, n, 3) of the ground points (B, n, 3) with each
-        point's motion scaled by its rows' exposure times (module doc); ``img``: the
-        global-shutter pixels."""
+        """Homogeneous frame-k pixels (B, n, 3) of the ground points (B, n, 3), each moved
+        over its rows' exposure times (module doc; ``shutter.moved_pixels``)."""
         _, image_from_g = pair_homographies(self.k, self.height, xs, with_motion=False)
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        per_row = self.readout_frames / self.image_rows
+        motion = np.ascontiguousarray(xs[:, 4:7], dtype=float)
+        change = (np.zeros_like(motion) if self.previous_motion is None
+                  else motion - np.asarray(self.previous_motion, dtype=float))
+        with np.errstate(divide="ignore", invalid="ignore"):
             gx, gz = ground[..., 0] / ground[..., 2], ground[..., 1] / ground[..., 2]
-
-            def pixels(scale: FloatArray) -> FloatArray:
-                yaw = scale * xs[:, 6:7]
-                dx, dz = gx - scale * xs[:, 4:5], gz - scale * xs[:, 5:6]
-                cy, sy = np.cos(yaw), np.sin(yaw)
-                moved = np.stack([cy * dx - sy * dz, sy * dx + cy * dz, np.ones_like(dx)], -1)
-                return np.einsum("bij,bnj->bni", image_from_g, moved)
-
-            per_row = self.readout_frames / self.image_rows
-
-            def excess(scale: FloatArray, img: FloatArray) -> FloatArray:
-                return 1.0 + (img[..., 1] / img[..., 2] - rows_prev) * per_row - scale
-
-            # a point seen within a frame's rows moved by a scale within ±(readout / interval)
-            # of 1; the search keeps to twice that
-            bound = 2.0 * self.readout_frames
-            scale = np.ones(gx.shape)
-            for _ in range(_SHUTTER_STEPS):
-                f = excess(scale, img)
-                slope = (excess(scale + _SHUTTER_FD, pixels(scale + _SHUTTER_FD)) - f) / _SHUTTER_FD
-                step = np.where(np.isfinite(f / slope), -f / slope, 0.0)
-                new = np.clip(scale + step, 1.0 - bound, 1.0 + bound)
-                step, scale = new - scale, new
-                img = pixels(scale)
-                if np.max(np.abs(step), initial=0.0) < 1e-12:
-                    break
-            # no root: the point outruns the shutter out of the frame (undefined, NaN)
-            unsolved = ~(np.abs(excess(scale, img)) < 1e-9)
-        return np.where(unsolved[..., None], np.nan, img)
+        return moved_pixels(image_from_g, gx, gz, motion, change,
+                            np.ascontiguousarray(rows_prev * per_row, dtype=float), per_row,
+                            float(self.readout_frames))
 
     def predict(self, x: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:
         """Predicted positions (n, 2) on the measurement plane; NaN where undefined."""
@@ -311,11 +295,6 @@ class SteadyPoseModel(DisplacementModel):
         """(pitch, roll, tx, tz, yaw) of a 7-vector (its current-frame pose)."""
         return np.concatenate([x[2:4], x[4:7]])
 
-
-#: Most Newton steps of the rolling shutter's row times (module doc), and their
-#: finite-difference step in the motion's scale.
-_SHUTTER_STEPS = 8
-_SHUTTER_FD = 1e-6
 
 #: Central-difference step of the Jacobian, radians / metres.
 _FD_STEP = 1e-6

@@ -455,6 +455,7 @@ class TwoFrameEstimator:
         self._cache: tuple[int, NDArray] | None = None
         self._noise: tuple[NDArray, float] | None = None  # the last prepared image's noise
         self._readout_frames = 0.0  # rolling shutter of the pair in hand (estimate())
+        self._previous_motion: FloatArray | None = None
         self._prior_mean, self._prior_sigma = self._pose_prior(None)
 
     # --- public -----------------------------------------------------------------------------
@@ -468,7 +469,9 @@ class TwoFrameEstimator:
         Images are grey or BGR arrays of the camera's size. ``guess`` (tracking mode) seeds
         the optimisation and offsets the patch windows by the displacements it predicts.
         ``frame_interval_s`` [s], the time between the frames, is needed with a rolling
-        shutter (``EstimatorConfig.readout_s``) and unused otherwise.
+        shutter (``EstimatorConfig.readout_s``) and unused otherwise; there the ``guess``'s
+        motion (the previous pair's, scaled to this interval) also gives the vehicle's
+        acceleration.
         Cold, both starts are tried (with ``cold_start_ipm``), the second where the first
         fails: a forward camera first from the nominal pose's virtual IPM, then from the
         coarse image-plane pass (a camera ~10° down on a fast car: the near field's IPM is
@@ -479,6 +482,9 @@ class TwoFrameEstimator:
         """
         t_start = time.perf_counter()
         self._readout_frames = self._shutter_readout_frames(frame_interval_s)
+        # the interval before's motion (tracking), for the rolling shutter's acceleration
+        self._previous_motion = None if guess is None else np.array(
+            [guess.motion.tx, guess.motion.tz, guess.motion.yaw])
         prev = self._prepare(prev_img, "previous frame")
         curr = self._prepare(curr_img, "current frame")
         # content fixed to the camera, once per pair (both cold starts leave it out)
@@ -922,7 +928,8 @@ class TwoFrameEstimator:
 
     def _shutter(self) -> dict:
         """Rolling-shutter arguments of a residual model for the pair in hand."""
-        return {"readout_frames": self._readout_frames, "image_rows": self.camera.height}
+        return {"readout_frames": self._readout_frames, "image_rows": self.camera.height,
+                "previous_motion": self._previous_motion}
 
     def _prior(self, inlier_px: float) -> dict:
         """Pose-prior arguments of a residual model whose inlier threshold is ``inlier_px``

@@ -21,6 +21,7 @@ trajectory's ``mount_*`` arrays hold the mount part and ``gt.csv`` has ``mount_*
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +29,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from scipy.interpolate import CubicSpline
 
 from .camera import CameraModel, write_ros_yaml
 from .geometry import (
@@ -129,6 +131,21 @@ class Trajectory:
             raise IndexError("frame 0 has no motion")
         m = compose_motion(invert_motion(self.world_pose(k - 1)), self.world_pose(k))
         return PlanarMotion(float(m.tx), float(m.tz), float(m.yaw))
+
+    def pose_at(self, u: float) -> ExposurePose:
+        """Pose against the ground, world (x, z) [m] and heading [rad] at the fractional frame
+        index ``u`` (motion blur, rolling shutter): cubic splines through the frames, which
+        keep a constant acceleration exact between and beyond them."""
+        if len(self) == 1:
+            return self.pose(0), self.world_xz[0].copy(), float(self.world_heading[0])
+        pitch, roll, height, x, z, heading = (float(v) for v in self._splines(u))
+        return GroundPose(pitch, roll, height), np.array([x, z]), heading
+
+    @functools.cached_property
+    def _splines(self) -> CubicSpline:
+        values = np.column_stack([self.pitch, self.roll, self.height, self.world_xz,
+                                  self.world_heading])
+        return CubicSpline(np.arange(len(self)), values, axis=0)
 
     @property
     def poses(self) -> list[GroundPose]:
@@ -287,7 +304,7 @@ def exposure_bands(
     readout = effects.rolling_shutter
     if readout <= 0 or len(traj) < 2:
         return [(0, camera.height, exposure_poses(traj, k, effects.motion_blur, camera))]
-    per_frame = _max_image_motion(camera, _pose_at(traj, k - 0.5), _pose_at(traj, k + 0.5))
+    per_frame = _max_image_motion(camera, traj.pose_at(k - 0.5), traj.pose_at(k + 0.5))
     rows = max(int(max_step_px * camera.height / max(readout * per_frame, 1e-9)),
                -(-camera.height // max_bands), 1)
     bands = []
@@ -309,24 +326,10 @@ def exposure_poses(
     pixels (at most ``max_poses``). One pose (no blur) for a one-frame trajectory or no
     exposure."""
     if len(traj) < 2 or exposure <= 0:
-        return [_pose_at(traj, float(centre))]
-    ends = [_pose_at(traj, centre - exposure / 2), _pose_at(traj, centre + exposure / 2)]
+        return [traj.pose_at(float(centre))]
+    ends = [traj.pose_at(centre - exposure / 2), traj.pose_at(centre + exposure / 2)]
     n = int(np.clip(np.ceil(_max_image_motion(camera, *ends) / max_step_px) + 1, 2, max_poses))
-    return [_pose_at(traj, u) for u in np.linspace(centre - exposure / 2, centre + exposure / 2, n)]
-
-
-def _pose_at(traj: Trajectory, u: float) -> ExposurePose:
-    """Pose at fractional frame index u, linear between the frames around it."""
-    i = int(np.clip(np.floor(u), 0, max(len(traj) - 2, 0)))
-    j = min(i + 1, len(traj) - 1)
-    f = u - i
-
-    def lerp(a: NDArray) -> float:
-        return float(a[i] + f * (a[j] - a[i]))
-
-    xz = traj.world_xz[i] + f * (traj.world_xz[j] - traj.world_xz[i])
-    pose = GroundPose(lerp(traj.pitch), lerp(traj.roll), lerp(traj.height))
-    return pose, xz, lerp(traj.world_heading)
+    return [traj.pose_at(u) for u in np.linspace(centre - exposure / 2, centre + exposure / 2, n)]
 
 
 def _max_image_motion(camera: CameraModel, a: ExposurePose, b: ExposurePose) -> float:

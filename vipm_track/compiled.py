@@ -1,4 +1,4 @@
-"""The decorator of the filters' compiled kernels (numba)."""
+"""The decorator of the compiled kernels (numba): the filters' and the rolling-shutter solve."""
 
 from __future__ import annotations
 
