@@ -85,8 +85,8 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
                        "to its last, seconds (a CMOS dashcam's is 10-35 ms; see the sensor's "
                        "datasheet or measure it); the fit then gives each patch the motion "
                        "over its rows' exposure times. Default 0: global shutter (on a "
-                       "rendered car at 0.6 m per frame a 30 ms readout left unmodelled "
-                       "biases pitch by -0.5 deg and distance by +7 %%)")
+                       "rendered car at 0.6 m per frame a 33 ms readout left unmodelled "
+                       "biases pitch by -0.4 deg and distance by +6.5 %%)")
     group.add_argument("--subset-seed", type=int, default=None, metavar="N",
                        help="seed of the random-subset sampler (default: the estimator's, 0); "
                        "a run is deterministic for a given seed, and another seed shows how "
