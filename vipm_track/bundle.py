@@ -20,12 +20,13 @@ identity on the image plane, ``ipm_from_image_homography(k, Θ̂_c, grid)`` on t
 
 Rolling shutter (``readout_frames`` > 0, the readout over the frame interval, of an image of
 ``image_rows`` rows): row v of a frame is exposed ``v · readout_frames / image_rows`` frame
-intervals after its row 0, so ground seen at time a (its row) of frame k-1 and time b of
-frame k travelled from k-1+a to k+b: ``(1 + b − a)·Ψ`` at constant velocity (Ψ the motion
-between the same rows of both frames, i.e. over the frame interval), plus
-``(b² − a² + a + b)/2 · (Ψ − Ψ₋₁)`` at a constant acceleration, Ψ₋₁ being the previous
-interval's motion (``previous_motion``, where known; the motion's three components are
-scaled alike, and the poses are constant within a frame). b depends on the prediction
+intervals after its row 0 (the time the frame's pose refers to). Ground seen at time a (its
+row) of frame k-1 is back-projected with the pose at k-1+a, travels to time b of frame k,
+``(1 + b − a)·Ψ`` at constant velocity (Ψ the motion over the frame interval) plus
+``(b² − a² + a + b)/2 · (Ψ − Ψ₋₁)`` at a constant acceleration (Ψ₋₁ the previous interval's
+motion, ``previous_motion``, where known; the motion's three components scaled alike), and
+is projected with the pose at k+b: the poses change at the pair's own rate (frame k's minus
+frame k-1's per interval; a shaking rig turns by up to 15°/s). b depends on the prediction
 itself: it is solved per point by the secant method (``shutter.moved_pixels``, compiled).
 """
 
@@ -164,7 +165,7 @@ class DisplacementModel:
         ground = np.einsum("bij,nj->bni", g_from_i, m)  # (B, n, 3); w > 0 on the ground
         img = np.einsum("bij,bnj->bni", out_from_g, ground)  # w > 0 in front of camera k
         if self.readout_frames:
-            img = self._rolling_shutter(xs, ground, pix[:, 1])
+            img = self._rolling_shutter(xs, pix)
         plane = img @ a.T
         with np.errstate(divide="ignore", invalid="ignore"):
             out = plane[..., :2] / plane[..., 2:3]
@@ -172,20 +173,17 @@ class DisplacementModel:
         out[bad] = np.nan
         return out
 
-    def _rolling_shutter(
-        self, xs: FloatArray, ground: FloatArray, rows_prev: FloatArray
-    ) -> FloatArray:
-        """Homogeneous frame-k pixels (B, n, 3) of the ground points (B, n, 3), each moved
-        over its rows' exposure times (module doc; ``shutter.moved_pixels``)."""
-        _, image_from_g = pair_homographies(self.k, self.height, xs, with_motion=False)
-        per_row = self.readout_frames / self.image_rows
-        motion = np.ascontiguousarray(xs[:, 4:7], dtype=float)
+    def _rolling_shutter(self, xs: FloatArray, pixels_prev: FloatArray) -> FloatArray:
+        """Homogeneous frame-k pixels (B, n, 3) of the ground seen at ``pixels_prev`` in frame
+        k-1, each row exposed at its own time (module doc; ``shutter.moved_pixels``)."""
+        params = np.zeros((len(xs), N_PARAMS + 1))
+        params[:, :xs.shape[1]] = xs
+        motion = xs[:, 4:7]
         change = (np.zeros_like(motion) if self.previous_motion is None
                   else motion - np.asarray(self.previous_motion, dtype=float))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            gx, gz = ground[..., 0] / ground[..., 2], ground[..., 1] / ground[..., 2]
-        return moved_pixels(image_from_g, gx, gz, motion, change,
-                            np.ascontiguousarray(rows_prev * per_row, dtype=float), per_row,
+        return moved_pixels(np.asarray(self.k, dtype=float), params, float(self.height),
+                            np.ascontiguousarray(pixels_prev, dtype=float),
+                            np.ascontiguousarray(change), self.readout_frames / self.image_rows,
                             float(self.readout_frames))
 
     def predict(self, x: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:

@@ -18,63 +18,91 @@ TOLERANCE = 1e-12
 
 
 @kernel
-def _row_time_excess(h: FloatArray, x: float, z: float, psi: FloatArray, change: FloatArray,
-                     a: float, b: float, per_row: float) -> tuple[float, float, float, float]:
+def _row_time_excess(k: FloatArray, pose: FloatArray, rate: FloatArray, x: float, z: float,
+                     motion: FloatArray, change: FloatArray, a: float, b: float,
+                     per_row: float) -> tuple[float, float, float, float]:
     """(v·per_row − b, u, v, w): frame k's homogeneous pixel (u, v, w) of ground point (x, z)
-    of frame k-1 seen at time a, moved to time b, and how far b is from its row's time."""
+    of frame k-1 seen at time a, moved to time b (pose (pitch, roll, height) of frame k at
+    row 0 plus ``rate`` per frame interval), and how far b is from its row's time. Scalar
+    arithmetic (no arrays made per call)."""
     s = 1.0 + b - a
     c = 0.5 * (b * b - a * a + a + b)
-    tx = s * psi[0] + c * change[0]
-    tz = s * psi[1] + c * change[1]
-    yaw = s * psi[2] + c * change[2]
+    tx = s * motion[0] + c * change[0]
+    tz = s * motion[1] + c * change[1]
+    yaw = s * motion[2] + c * change[2]
     cy, sy = math.cos(yaw), math.sin(yaw)
     dx, dz = x - tx, z - tz
-    mx, mz = cy * dx - sy * dz, sy * dx + cy * dz
-    u = h[0, 0] * mx + h[0, 1] * mz + h[0, 2]
-    v = h[1, 0] * mx + h[1, 1] * mz + h[1, 2]
-    w = h[2, 0] * mx + h[2, 1] * mz + h[2, 2]
+    gx, gy, gz = cy * dx - sy * dz, pose[2] + b * rate[2], sy * dx + cy * dz
+    cp, sp = math.cos(pose[0] + b * rate[0]), math.sin(pose[0] + b * rate[0])
+    cr, sr = math.cos(pose[1] + b * rate[1]), math.sin(pose[1] + b * rate[1])
+    # camera = R_GCᵀ · ground, R_GC = Rx(−pitch)·Rz(roll) (geometry's convention)
+    cx_ = cr * gx + cp * sr * gy - sp * sr * gz
+    cy_ = -sr * gx + cp * cr * gy - sp * cr * gz
+    cz_ = sp * gy + cp * gz
+    u = k[0, 0] * cx_ + k[0, 1] * cy_ + k[0, 2] * cz_
+    v = k[1, 0] * cx_ + k[1, 1] * cy_ + k[1, 2] * cz_
+    w = k[2, 0] * cx_ + k[2, 1] * cy_ + k[2, 2] * cz_
     return v / w * per_row - b, u, v, w
 
 
 @kernel
-def moved_pixels(image_from_ground: FloatArray, ground_x: FloatArray, ground_z: FloatArray,
-                 motion: FloatArray, change: FloatArray, time_prev: FloatArray,
-                 per_row: float, readout: float) -> FloatArray:
-    """Homogeneous frame-k pixels (B, n, 3) of ground points (``ground_x``/``ground_z``,
-    (B, n), metres in frame k-1's G) seen at times ``time_prev`` (n,) after frame k-1's
-    row 0, each moved over the time to its own row's exposure in frame k.
+def moved_pixels(k: FloatArray, params: FloatArray, height: float, pixels_prev: FloatArray,
+                 change: FloatArray, per_row: float, readout: float) -> FloatArray:
+    """Homogeneous frame-k pixels (B, n, 3) of the ground seen at ``pixels_prev`` (n, 2) in
+    frame k-1, each row exposed at its own time.
 
-    ``image_from_ground`` (B, 3, 3): frame k's ground → image homography per parameter
-    vector; ``motion`` (B, 3): (tx, tz, yaw) over the frame interval; ``change`` (B, 3): its
-    change from the interval before (constant acceleration; zeros: constant velocity);
-    times in frame intervals; ``per_row``: frame intervals per row; ``readout``: first row to
-    last. The row time b solves ``b = v(b)·per_row`` (secant steps from the global
-    shutter's row); NaN where it has no solution within two readouts of ``time_prev`` (the
-    point outruns the shutter out of the frame) or the point is undefined."""
-    n_b, n_p = ground_x.shape
+    ``params`` (B, 8): pitch and roll of frames k-1 and k (at their row 0), tx, tz, yaw over
+    the frame interval and the height change dh [m] (frame k-1 at ``height``); the poses
+    change at the pair's own rate within a frame (constant angular and vertical velocity),
+    the travel at a constant acceleration (``change`` (B, 3): the motion's change from the
+    interval before; zeros: constant velocity). Times in frame intervals; ``per_row``:
+    frame intervals per row; ``readout``: first row to last. The row time b of each point
+    in frame k solves ``b = v(b)·per_row`` (secant steps from its row in frame k-1); NaN
+    where it has no solution within two readouts of it (the point outruns the shutter out of
+    the frame) or the point is above frame k-1's horizon."""
+    n_b, n_p = params.shape[0], pixels_prev.shape[0]
+    kinv = np.linalg.inv(k)
     out = np.full((n_b, n_p, 3), np.nan)
     for i in range(n_b):
-        h = image_from_ground[i]
+        p = params[i]
+        rate = np.array([p[2] - p[0], p[3] - p[1], p[7]])
+        pose_c = np.array([p[2], p[3], height + p[7]])
         for j in range(n_p):
-            x, z, a = ground_x[i, j], ground_z[i, j], time_prev[j]
-            if not (math.isfinite(x) and math.isfinite(z)):
+            a = pixels_prev[j, 1] * per_row
+            # frame k-1's ground point, back-projected with its pose at time a:
+            # ray = R_GC · K⁻¹ · (u, v, 1), R_GC = Rx(−pitch)·Rz(roll)
+            mu, mv = pixels_prev[j, 0], pixels_prev[j, 1]
+            qx = kinv[0, 0] * mu + kinv[0, 1] * mv + kinv[0, 2]
+            qy = kinv[1, 0] * mu + kinv[1, 1] * mv + kinv[1, 2]
+            qz = kinv[2, 0] * mu + kinv[2, 1] * mv + kinv[2, 2]
+            cp, sp = math.cos(p[0] + a * rate[0]), math.sin(p[0] + a * rate[0])
+            cr, sr = math.cos(p[1] + a * rate[1]), math.sin(p[1] + a * rate[1])
+            rx = cr * qx - sr * qy
+            ry = cp * sr * qx + cp * cr * qy + sp * qz
+            rz = -sp * sr * qx - sp * cr * qy + cp * qz
+            if not ry > 0:
                 continue
+            h_a = height + a * rate[2]
+            x, z = h_a * rx / ry, h_a * rz / ry
             low, high = a - 2.0 * readout, a + 2.0 * readout
             b_old = a
-            f_old, u, v, w = _row_time_excess(h, x, z, motion[i], change[i], a, b_old, per_row)
+            f_old, u, v, w = _row_time_excess(k, pose_c, rate, x, z, p[4:7], change[i], a,
+                                              b_old, per_row)
             if not math.isfinite(f_old):
                 continue
             b = min(max(b_old + f_old, low), high)  # a fixed-point step, then secant steps
             f = f_old
             for _ in range(MAX_STEPS):
-                f, u, v, w = _row_time_excess(h, x, z, motion[i], change[i], a, b, per_row)
+                f, u, v, w = _row_time_excess(k, pose_c, rate, x, z, p[4:7], change[i], a, b,
+                                              per_row)
                 if not math.isfinite(f) or f == f_old:
                     break
                 step = -f * (b - b_old) / (f - f_old)
                 b_old, f_old = b, f
                 b = min(max(b + step, low), high)
                 if abs(b - b_old) < TOLERANCE:
-                    f, u, v, w = _row_time_excess(h, x, z, motion[i], change[i], a, b, per_row)
+                    f, u, v, w = _row_time_excess(k, pose_c, rate, x, z, p[4:7], change[i], a,
+                                                  b, per_row)
                     break
             if math.isfinite(f) and abs(f) < 1e-9:
                 out[i, j, 0], out[i, j, 1], out[i, j, 2] = u, v, w
