@@ -236,15 +236,14 @@ class DisplacementModel:
 
 
 def pair_homographies(
-    k: FloatArray, height: float, xs: FloatArray, with_motion: bool = True
+    k: FloatArray, height: float, xs: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
     """Batched factors of geometry's pair homography for parameter vectors ``xs`` (B, 7).
 
     Returns ``ground_from_image(Θ_p)`` (B, 3, 3) and ``image_from_ground(Θ_c) · T(Ψ)``
-    (B, 3, 3) (without ``T(Ψ)`` unless ``with_motion``), equal to geometry's
-    ``ground_from_image_homography``, ``image_from_ground_homography`` and ``motion_matrix``
-    (checked by the tests) but built for the whole batch at once: R_GC = Rx(-pitch)·Rz(roll),
-    lift (X, Z) → (X, h, Z).
+    (B, 3, 3), equal to geometry's ``ground_from_image_homography``,
+    ``image_from_ground_homography`` and ``motion_matrix`` (checked by the tests) but built
+    for the whole batch at once: R_GC = Rx(-pitch)·Rz(roll), lift (X, Z) → (X, h, Z).
     """
     xs = np.asarray(xs, dtype=float)
     kinv = np.linalg.inv(k)
@@ -255,8 +254,6 @@ def pair_homographies(
     r_p = _rotations(xs[:, 0], xs[:, 1])
     r_c = _rotations(xs[:, 2], xs[:, 3])
     g_from_i = lift_inv @ r_p @ kinv
-    if not with_motion:
-        return g_from_i, k @ np.swapaxes(r_c, 1, 2) @ lift
     cy, sy = np.cos(xs[:, 6]), np.sin(xs[:, 6])
     t = np.zeros((len(xs), 3, 3))
     t[:, 0, 0], t[:, 0, 1], t[:, 1, 0], t[:, 1, 1], t[:, 2, 2] = cy, -sy, sy, cy, 1.0
