@@ -243,11 +243,11 @@ def test_rolling_shutter_exposes_each_row_at_its_time():
     readout = 0.5
     rs = render_trajectory_frame(tex, camera, traj, 1, Effects(rolling_shutter=readout))
     rs = rs.astype(float)
+    at_frame_time = render_trajectory_frame(tex, camera, traj, 1).astype(float)
     for v in (40, 300, 560):
         u = readout * v / camera.height
         xz = traj.world_xz[1] + u * (traj.world_xz[2] - traj.world_xz[1])
         at_row_time = render_frame(tex, camera, traj.pose(1), xz, 0.0).astype(float)
-        at_frame_time = render_trajectory_frame(tex, camera, traj, 1).astype(float)
         rows = np.s_[v - 2:v + 3, 100:700]
         err = np.abs(rs[rows] - at_row_time[rows]).mean()  # bands are timed at their centre
         assert err < 3.0 and np.abs(rs[rows] - at_frame_time[rows]).mean() > 5 * err, v

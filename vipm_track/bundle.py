@@ -163,9 +163,10 @@ class DisplacementModel:
         a = np.eye(3) if self.plane_from_image is None else self.plane_from_image
         g_from_i, out_from_g = pair_homographies(self.k, self.height, xs)
         ground = np.einsum("bij,nj->bni", g_from_i, m)  # (B, n, 3); w > 0 on the ground
-        img = np.einsum("bij,bnj->bni", out_from_g, ground)  # w > 0 in front of camera k
-        if self.readout_frames:
+        if self.readout_frames:  # w > 0 in front of camera k
             img = self._rolling_shutter(xs, pix)
+        else:
+            img = np.einsum("bij,bnj->bni", out_from_g, ground)
         plane = img @ a.T
         with np.errstate(divide="ignore", invalid="ignore"):
             out = plane[..., :2] / plane[..., 2:3]
