@@ -568,7 +568,7 @@ def align_to_frames(series: SpeedSeries, frame_times: ArrayLike, clock_offset: f
             f"{series.source or 'speed'}: speed clock [{t0:.3f}, {t1:.3f}] s (offset "
             f"{shifted.clock_offset:+.3f} s) and camera clock [{ft.min():.3f}, {ft.max():.3f}] s "
             "do not overlap; set the clock offset (--clock-offset) to the camera time minus "
-            "the CAN time")
+            "the CAN time, or to 'auto' to find it from the data")
     speed = shifted.speed_at(ft, max_gap=max_gap)
     gaps = shifted.gaps(max_gap)
     gaps = gaps[(gaps[:, 1] >= ft.min()) & (gaps[:, 0] <= ft.max())]
@@ -633,13 +633,15 @@ def speed_from_args(args: argparse.Namespace, progress: bool = True,
     """Speed series [t in the camera clock, m/s] from the shared CLI options
     (``add_speed_options``), or None when neither ``--speed-csv`` nor ``--can`` is given.
 
-    ``--clock-offset`` is already added to ``t`` and ``--speed-scale`` applied; the decode
-    summary is written through ``report`` (default: stderr)."""
+    ``--clock-offset`` is already added to ``t`` (``auto`` adds nothing: the offset is then
+    found against the pairs, ``filters.clock_offset``) and ``--speed-scale`` applied; the
+    decode summary is written through ``report`` (default: stderr)."""
     report = report or (lambda line: print(line, file=sys.stderr))
     speed_csv, log = getattr(args, "speed_csv", None), getattr(args, "can", None)
     dbc, signals = getattr(args, "dbc", None), getattr(args, "signals", None)
     scale = float(getattr(args, "speed_scale", 1.0) or 1.0)
-    offset = float(getattr(args, "clock_offset", 0.0) or 0.0)
+    offset = getattr(args, "clock_offset", 0.0) or 0.0
+    offset = 0.0 if offset == "auto" else float(offset)
     if speed_csv and log:
         raise InputError("give either --speed-csv or --can, not both")
     if not speed_csv and not log:

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..errors import InputError
 from .common import add_can_decoding_options
+from .inputs import read_estimates, speed_on_camera_clock
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -28,6 +29,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--frame-times", metavar="times.txt",
                    help="write the speed at these camera frame times (one per line) instead "
                    "of at the CAN frames; frames without a valid speed are left out")
+    p.add_argument("--estimates", metavar="EST.csv",
+                   help="with --clock-offset auto: the estimates table ('vipm-track estimate') "
+                   "of the same drive, whose pairs' travel fixes the offset")
     p.add_argument("--max-gap", type=float, default=0.5,
                    help="longest spacing of speed samples interpolated across [s] (default 0.5)")
     p.add_argument("--out", required=True, metavar="SPEED.csv", help="t,speed_mps CSV to write")
@@ -75,7 +79,13 @@ def run(args: argparse.Namespace) -> int:
         print(line, file=sys.stderr)
     if len(series) == 0:
         raise InputError(f"{summary.source}: no speed samples decoded")
-    series = series.shifted(args.clock_offset) if args.clock_offset else series
+    if args.clock_offset == "auto":
+        if not args.estimates:
+            raise InputError("--clock-offset auto needs --estimates EST.csv of the same drive "
+                             "(the pairs' travel against the wheel's fixes the offset)")
+        series, _ = speed_on_camera_clock(args, series, read_estimates(args.estimates))
+    elif args.clock_offset:
+        series = series.shifted(args.clock_offset)
     gaps = series.gaps(args.max_gap)
     for a, b in gaps:
         print(f"  speed gap {a:.3f} .. {b:.3f} s ({b - a:.3f} s)", file=sys.stderr)

@@ -93,8 +93,25 @@ def add_can_decoding_options(group: argparse._ActionsContainer, dbc_required: bo
                        help="only use frames from this CAN channel (can0 also matches index 0)")
     group.add_argument("--speed-scale", type=float, default=1.0,
                        help="scale factor on the speed (tyre-radius correction)")
-    group.add_argument("--clock-offset", type=float, default=0.0,
-                       help="seconds added to the speed timestamps to reach the camera clock")
+    group.add_argument("--clock-offset", type=clock_offset_value, default=0.0,
+                       metavar="SECONDS|auto",
+                       help="seconds added to the speed timestamps to reach the camera clock, "
+                       "or 'auto': found from the data (the wheel's distance over each frame "
+                       "interval against the pair's travel; needs the speed to change while "
+                       "the camera runs, and is printed with its uncertainty). Default 0")
+
+
+def clock_offset_value(text: str) -> float | str:
+    """``--clock-offset``: a number of seconds or ``auto``."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds or 'auto', got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number of seconds, got {text!r}")
+    return value
 
 
 def add_rerun_options(parser: argparse.ArgumentParser) -> None:

@@ -19,6 +19,7 @@ from ..errors import InputError
 from ..measurement import PairMeasurement, read_measurements
 
 if TYPE_CHECKING:
+    from filters.clock_offset import ClockOffsetFit
     from filters.wheel_speed import SpeedSeries
 
     from ..estimator import EstimatorConfig
@@ -38,6 +39,53 @@ def load_speed(args: argparse.Namespace) -> SpeedSeries | None:
         if isinstance(exc, InputError):
             raise
         raise InputError(str(exc)) from exc
+
+
+def speed_on_camera_clock(
+    args: argparse.Namespace,
+    speed: SpeedSeries | None,
+    measurements: list[PairMeasurement],
+) -> tuple[SpeedSeries | None, ClockOffsetFit | None]:
+    """``speed`` on the camera clock: with ``--clock-offset auto`` shifted by the offset
+    ``filters.clock_offset`` finds against ``measurements`` (said on stderr unless
+    ``--quiet``), else as :func:`load_speed` gave it; and the fit, or None."""
+    if speed is None:
+        return None, None
+    if getattr(args, "clock_offset", 0.0) != "auto":
+        check_speed_overlap(speed, [m.t for m in measurements], strict=True)
+        return speed, None
+    from filters.clock_offset import estimate_clock_offset
+
+    fit = estimate_clock_offset(measurements, speed)
+    if not getattr(args, "quiet", False):
+        assumed = next((m.height_assumed for m in measurements if m.ok), float("nan"))
+        print(f"vipm-track: {fit.line()}; the wheel speed puts the camera "
+              f"{fit.height_m(assumed):.3f} m above the ground (assumed {assumed:.3f} m)",
+              file=sys.stderr)
+    return speed.shifted(fit.offset_s), fit
+
+
+def check_speed_overlap(speed: SpeedSeries, frame_times: list[float], strict: bool) -> None:
+    """Say when the speed's samples [s, camera clock] cover none of ``frame_times`` (an
+    :class:`InputError` if ``strict``, else a warning on stderr: the frames are already
+    written), or fewer than half of them (a warning)."""
+    times = np.asarray(frame_times, dtype=float)
+    if speed is None or times.size == 0:
+        return
+    covered = int(np.isfinite(speed.speed_at(times)).sum())
+    if covered * 2 >= times.size:
+        return
+    spans = (f"speed {speed.t[0]:.3f} .. {speed.t[-1]:.3f} s (clock offset "
+             f"{speed.clock_offset:+.3f} s), camera {times.min():.3f} .. {times.max():.3f} s")
+    if covered == 0:
+        message = (f"{speed.source or 'wheel speed'}: no frame has a wheel speed: {spans}; set "
+                   "--clock-offset to the camera time minus the speed time, or to 'auto'")
+        if strict:
+            raise InputError(message)
+        print(f"vipm-track: warning: {message}", file=sys.stderr)
+        return
+    print(f"vipm-track: warning: {speed.source or 'wheel speed'}: only {covered} of "
+          f"{times.size} frames have a wheel speed ({spans})", file=sys.stderr)
 
 
 def read_estimates(path: str) -> list[PairMeasurement]:

@@ -29,7 +29,12 @@ from .common import (
     check_output,
 )
 from .estimate import add_estimator_options
-from .inputs import estimator_config, load_speed, measurements_from_args
+from .inputs import (
+    estimator_config,
+    load_speed,
+    measurements_from_args,
+    speed_on_camera_clock,
+)
 
 MONITOR_COLUMNS: tuple[str, ...] = (
     "monitor_state", "reason", "stat_pitch", "stat_roll", "stat_height",
@@ -94,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
     config = None if args.estimates or camera is None else estimator_config(
         args, camera, pitch_deg=nominal.pitch_deg, roll_deg=nominal.roll_deg)
     measurements = measurements_from_args(args, height, config, sink, camera, progress)
+    speed, _ = speed_on_camera_clock(args, speed, measurements)
 
     from filters.ekf import EkfConfig
 

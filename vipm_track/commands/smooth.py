@@ -24,7 +24,7 @@ from .common import (
     check_output,
 )
 from .estimate import add_estimator_options
-from .inputs import load_speed, measurements_from_args
+from .inputs import load_speed, measurements_from_args, speed_on_camera_clock
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -182,6 +182,7 @@ def run(args: argparse.Namespace) -> int:
     sink = sink_from_args(args, "vipm-track smooth")
     measurements = measurements_from_args(args, config.height_m, sink=sink,
                                           progress=not args.quiet)
+    speed, clock_fit = speed_on_camera_clock(args, speed, measurements)
     frames = smooth(measurements, speed, config, progress=not args.quiet)
     speeds = speeds_at_frames(measurements, speed)
     by_frame = {m.frame: (m, v) for m, v in zip(measurements, speeds, strict=True)}
@@ -207,6 +208,8 @@ def run(args: argparse.Namespace) -> int:
         "motion_given_pose": config.motion_given_pose,
         "body_window_s": config.body_window_s,
         "wheel_speed": speed is not None,
+        "clock_offset_s": None if speed is None else speed.clock_offset,
+        "clock_offset_std_s": None if clock_fit is None else clock_fit.std_s,
         "source": _source_name(args),
     }
     path = Path(args.summary) if args.summary else out.with_suffix(".summary.json")

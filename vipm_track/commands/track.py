@@ -17,7 +17,14 @@ from .common import (
     check_output,
 )
 from .estimate import add_estimator_options
-from .inputs import estimate_stream, load_speed, read_estimates
+from .inputs import (
+    check_speed_overlap,
+    estimate_stream,
+    load_speed,
+    measurements_from_args,
+    read_estimates,
+    speed_on_camera_clock,
+)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -57,25 +64,44 @@ def run(args: argparse.Namespace) -> int:
     from ..sinks.rerun_sink import log_track_steps, sink_from_args
 
     sink = sink_from_args(args, "vipm-track track")
-    if args.estimates:
+    if args.clock_offset == "auto" and speed is not None:
+        # the offset is found against every pair, so the estimates come first here
+        measurements = measurements_from_args(args, height, sink=sink, progress=not args.quiet)
+        speed, _ = speed_on_camera_clock(args, speed, measurements)
+        stream: Iterator[PairMeasurement] = iter(measurements)
+        total: int | None = len(measurements)
+    elif args.estimates:
         if args.images or args.video:
             raise InputError("give --estimates or --images/--video, not both")
         measurements = read_estimates(args.estimates)
-        stream: Iterator[PairMeasurement] = iter(measurements)
-        total: int | None = len(measurements)
+        speed, _ = speed_on_camera_clock(args, speed, measurements)
+        stream = iter(measurements)
+        total = len(measurements)
     elif args.images or args.video:
         stream, total = estimate_stream(args, height, sink=sink), None
     else:
         raise InputError("give --images DIR, --video FILE or --estimates EST.csv")
 
+    frame_times: list[float] = []
+    stream = _noting_times(stream, frame_times)
     steps = log_track_steps(sink, track(stream, speed, config))
     if not args.quiet:
         from tqdm import tqdm
 
         steps = tqdm(steps, total=total, desc="track", unit="frame", file=sys.stderr)
     counts = write_track(steps, out, parquet=args.parquet)
+    if speed is not None and not args.quiet:
+        check_speed_overlap(speed, frame_times, strict=False)
     if not args.quiet:
         summary = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
         print(f"vipm-track track: {sum(counts.values())} frames ({summary}) → {args.out}",
               file=sys.stderr)
     return 0
+
+
+def _noting_times(stream: Iterator[PairMeasurement], times: list[float],
+                  ) -> Iterator[PairMeasurement]:
+    """``stream`` unchanged, each measurement's time appended to ``times`` as it passes."""
+    for m in stream:
+        times.append(m.t)
+        yield m
