@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 from vipm_track.errors import InputError
 from vipm_track.measurement import PairMeasurement
 
-from .wheel_speed import SpeedSeries
+from .wheel_speed import SpeedSeries, cumulative_distance
 
 FloatArray = NDArray[np.float64]
 
@@ -179,12 +179,6 @@ def _usable_pairs(measurements: Sequence[PairMeasurement]) -> _Pairs:
     return _Pairs(*(np.asarray(x, dtype=np.float64) for x in (a, b, d, sigma)))
 
 
-def _cumulative_distance(t: FloatArray, v: FloatArray) -> FloatArray:
-    """Wheel distance [m] at each speed sample from the first (trapezoids of |v|)."""
-    v = np.abs(v)
-    return np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
-
-
 def _smoothed_distance(speed: SpeedSeries) -> tuple[FloatArray, FloatArray]:
     """Sample times [s, speed clock] and the wheel distance [m] of the speed averaged twice
     over ``SPEED_SMOOTHING_S`` (a triangle twice as wide; symmetric, so no time shift); the
@@ -198,14 +192,14 @@ def _smoothed_distance(speed: SpeedSeries) -> tuple[FloatArray, FloatArray]:
     t, v = speed.t, np.abs(speed.speed_mps)
     half = 0.5 * SPEED_SMOOTHING_S
     for _ in range(2):
-        cum = _cumulative_distance(t, v)
+        cum = cumulative_distance(t, v)
         mid = t[(t - half >= t[0]) & (t + half <= t[-1])]
         if mid.size < 2:
             raise InputError(f"{speed.source or 'wheel speed'}: clock offset: the speed "
                              f"samples span less than {2 * SPEED_SMOOTHING_S:.1f} s")
         v = (np.interp(mid + half, t, cum) - np.interp(mid - half, t, cum)) / SPEED_SMOOTHING_S
         t = mid
-    return t, _cumulative_distance(t, v)
+    return t, cumulative_distance(t, v)
 
 
 def _wheel_travel(t_speed: FloatArray, cum: FloatArray, a: FloatArray, b: FloatArray,

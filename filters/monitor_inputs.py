@@ -32,6 +32,7 @@ from .monitor import (
     MonitorOutput,
     NominalCalibration,
 )
+from .wheel_speed import cumulative_distance
 
 FloatArray = NDArray[np.float64]
 
@@ -40,8 +41,7 @@ def wheel_distance(t_speed: FloatArray, speed_mps: FloatArray, times: FloatArray
     """Distance travelled (m) from the first speed sample to each of ``times`` (camera clock),
     by trapezoidal integration of the samples; NaN outside the samples."""
     t_speed = np.asarray(t_speed, dtype=float)
-    v = np.asarray(speed_mps, dtype=float)
-    cum = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t_speed))])
+    cum = cumulative_distance(t_speed, speed_mps)
     times = np.asarray(times, dtype=float)
     out = np.interp(times, t_speed, cum)
     out[(times < t_speed[0]) | (times > t_speed[-1])] = np.nan

@@ -546,6 +546,14 @@ def decode_bus(bus, dbc: str | Path | cantools.database.can.Database,
     return decoder.series(), decoder.summary
 
 
+def cumulative_distance(t: ArrayLike, speed_mps: ArrayLike) -> NDArray[np.float64]:
+    """Distance [m] from the first sample to each sample of a speed series (times ``t`` [s],
+    increasing; speeds [m/s], their magnitude taken), by trapezoids."""
+    t = np.asarray(t, dtype=np.float64)
+    v = np.abs(np.asarray(speed_mps, dtype=np.float64))
+    return np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
+
+
 def align_to_frames(series: SpeedSeries, frame_times: ArrayLike, clock_offset: float = 0.0,
                     max_gap: float = DEFAULT_MAX_GAP) -> AlignedSpeed:
     """Speed at each camera frame time [s], from ``series`` shifted by ``clock_offset`` [s].
