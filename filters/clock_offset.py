@@ -64,8 +64,9 @@ PROFILE_HALF_WIDTH_S = 0.3
 PROFILE_MIN_HALF_WIDTH_S = 0.05
 PROFILE_POINTS = 61
 PROFILE_PASSES = 3
-#: the parabola's 1σ is this much too small on simulated drives (RMS of error/σ 1.0–1.4 over
-#: 120 car and cart drives of 30–120 s): the residual's roughness it averages over
+#: the parabola's 1σ is this much too small on simulated drives (with 1.5 the RMS of error/σ
+#: was 0.7–0.93 over 120 car and cart drives of 30–120 s; with 1.2 it is 0.89–1.29 over 240,
+#: scripts/bench_clock_offset.py): what is left of the residual's roughness
 STD_INFLATION = 1.2
 #: pairs whose whitened residual exceeds this many robust σ are outliers
 OUTLIER_SIGMAS = 5.0
