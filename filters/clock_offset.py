@@ -139,7 +139,11 @@ def estimate_clock_offset(
     fits = [f for f in (_refine(pairs, t_speed, cum, s, min_overlap) for s in starts)
             if f is not None]
     if not fits:
-        raise InputError(f"{source}: clock offset: no candidate offset could be fitted")
+        raise InputError(f"{source}: clock offset: at every candidate offset fewer than "
+                         f"{MIN_PAIRS} of the {pairs.d.size} usable pairs (or under "
+                         f"{min_overlap:.0%}) stay inside the speed samples "
+                         f"({t_speed[-1] - t_speed[0]:.1f} s once averaged; the pairs span "
+                         f"{pairs.b[-1] - pairs.a[0]:.1f} s); give --clock-offset SECONDS")
     best, runner, z = _select(fits)
     fit = ClockOffsetFit(offset_s=best.offset, std_s=best.std, scale=best.scale,
                          pairs=best.used, outliers=best.outliers,

@@ -69,6 +69,9 @@ def test_too_few_pairs_and_samples():
     run = simulate_drive(DriveConfig(duration_s=0.5), seed=0)
     with pytest.raises(InputError, match="usable pairs"):
         estimate_clock_offset(run.measurements, _series(run))
+    run = simulate_drive(DriveConfig(duration_s=2.0), seed=0)
+    with pytest.raises(InputError, match="fewer than 20 of the 40 usable pairs"):
+        estimate_clock_offset(run.measurements, _series(run))
     run = simulate_drive(DriveConfig(duration_s=20.0), seed=0)
     short = SpeedSeries(run.speed.t[:10], run.speed.speed_mps[:10], source="short.csv")
     with pytest.raises(InputError, match=r"short\.csv: clock offset: the speed samples span"):
