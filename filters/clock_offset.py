@@ -12,9 +12,10 @@ offset error times the acceleration; at constant speed δ is unobservable (and s
 
 :func:`estimate_clock_offset` scores every offset that keeps at least half of the drive's
 pairs inside the speed samples on a coarse grid (blocks of pairs, the weighted uncentred
-correlation of travel and wheel distance), refines the best few peaks by robust Gauss–Newton
-on (c, δ) over every pair, and keeps the best only if no other offset explains the data
-nearly as well (Δχ² to the runner-up) and the offset is determined to a useful precision.
+correlation of travel and wheel distance), refines the best few peaks by a parabola on the
+residual profile over every pair (outliers dropped), and keeps the best only if no other
+offset explains the pairs nearly as well (a paired test against the runner-up) and the
+offset is determined to a useful precision.
 """
 
 from __future__ import annotations
@@ -335,7 +336,7 @@ def _profile(pairs: _Pairs, t_speed: FloatArray, cum: FloatArray, offsets: Float
     use = keep & np.isfinite(wheel).all(axis=0) & (np.nan_to_num(wheel) > 0).all(axis=0)
     w = 1.0 / pairs.sigma[use] ** 2
     d, wt = pairs.d[use], wheel[:, use]
-    segment = np.floor((pairs.b[use] - pairs.b[0]) / SCALE_SEGMENT_S)
+    segment = _scale_segments(pairs)[use]
     starts = np.flatnonzero(np.concatenate([[True], segment[1:] != segment[:-1]]))
     sdd = np.add.reduceat(w * d * d, starts)
     sdw = np.add.reduceat(w * d * wt, starts, axis=1)
@@ -344,9 +345,14 @@ def _profile(pairs: _Pairs, t_speed: FloatArray, cum: FloatArray, offsets: Float
     return cost, sdw.sum(axis=1) / sww.sum(axis=1), use
 
 
+def _scale_segments(pairs: _Pairs) -> NDArray[np.int64]:
+    """Each pair's ``SCALE_SEGMENT_S`` segment of the drive (0, 1, …; pairs are in time order)."""
+    return np.floor((pairs.b - pairs.b[0]) / SCALE_SEGMENT_S).astype(np.int64)
+
+
 def _local_scale(pairs: _Pairs, wheel: FloatArray, use: NDArray[np.bool_]) -> FloatArray:
     """Each pair's scale: the least-squares one of its ``SCALE_SEGMENT_S`` segment."""
-    segment = np.floor((pairs.b - pairs.b[0]) / SCALE_SEGMENT_S).astype(np.int64)
+    segment = _scale_segments(pairs)
     w = np.where(use, 1.0 / pairs.sigma ** 2, 0.0)
     wheel0 = np.nan_to_num(wheel)
     sdw = np.bincount(segment, w * pairs.d * wheel0)
@@ -364,7 +370,6 @@ def _refine(pairs: _Pairs, t_speed: FloatArray, cum: FloatArray, start: float,
     residual's roughness (``_smoothed_distance``) averages out over the window."""
     keep = np.ones(pairs.d.size, dtype=bool)
     offset, half = start, PROFILE_HALF_WIDTH_S
-    fit: _Fine | None = None
     for _ in range(PROFILE_PASSES):
         offsets = offset + np.linspace(-half, half, PROFILE_POINTS)
         cost, _, use = _profile(pairs, t_speed, cum, offsets, keep)
@@ -385,16 +390,15 @@ def _refine(pairs: _Pairs, t_speed: FloatArray, cum: FloatArray, start: float,
             std = STD_INFLATION * s / np.sqrt(a2)
         else:
             vertex, std = float(offsets[j]), np.inf
-        _, scale_v, used_v = _profile(pairs, t_speed, cum, np.array([vertex]), keep)
-        wheel = _wheel_travel(t_speed, cum, pairs.a, pairs.b, vertex)
-        residual = (pairs.d - _local_scale(pairs, wheel, used_v) * wheel) / pairs.sigma
-        fit = _Fine(offset=vertex, std=float(std), scale=float(scale_v[0]),
-                    used=int(used_v.sum()), outliers=int((~keep).sum()), noise_scale=s,
-                    residual=np.where(np.isfinite(wheel) & (wheel > 0), residual, np.nan))
         # next pass: a window of a few σ around the vertex, where the parabola holds best
         offset = vertex
         half = float(np.clip(4.0 * std, PROFILE_MIN_HALF_WIDTH_S, PROFILE_HALF_WIDTH_S))
-    return fit
+    _, scale_v, used_v = _profile(pairs, t_speed, cum, np.array([offset]), keep)
+    wheel = _wheel_travel(t_speed, cum, pairs.a, pairs.b, offset)
+    residual = (pairs.d - _local_scale(pairs, wheel, used_v) * wheel) / pairs.sigma
+    return _Fine(offset=offset, std=float(std), scale=float(scale_v[0]),
+                 used=int(used_v.sum()), outliers=int((~keep).sum()), noise_scale=s,
+                 residual=np.where(np.isfinite(wheel) & (wheel > 0), residual, np.nan))
 
 
 def _select(fits: list[_Fine]) -> tuple[_Fine, _Fine | None, float]:

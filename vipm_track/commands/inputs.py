@@ -70,7 +70,7 @@ def check_speed_overlap(speed: SpeedSeries, frame_times: list[float], strict: bo
     :class:`InputError` if ``strict``, else a warning on stderr: the frames are already
     written), or fewer than half of them (a warning)."""
     times = np.asarray(frame_times, dtype=float)
-    if speed is None or times.size == 0:
+    if times.size == 0:
         return
     covered = int(np.isfinite(speed.speed_at(times)).sum())
     if covered * 2 >= times.size:
