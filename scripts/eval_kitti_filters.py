@@ -1,5 +1,6 @@
 """The filters on real data: KITTI 07's per-pair estimates through ``vipm-track track`` (EKF)
-and ``vipm-track smooth`` (fixed-lag 2 s and batch), against ``poses.txt``.
+and ``vipm-track smooth`` (fixed-lag 2 s and batch, each also with ``--motion-given-pose``),
+against ``poses.txt``.
 
 Reads the estimates tables ``scripts/eval_kitti.py --seeds N`` writes (one per subset-sampler
 seed), runs each filter through the CLI as a user would (no wheel speed: KITTI 07 has none, so
@@ -35,6 +36,10 @@ METHODS: dict[str, list[str]] = {
     "EKF (`track`)": ["track"],
     "fixed-lag 2 s (`smooth --lag 2`)": ["smooth", "--lag", "2"],
     "batch (`smooth`)": ["smooth"],
+    "fixed-lag 2 s, motion given pose (`smooth --lag 2 --motion-given-pose`)":
+        ["smooth", "--lag", "2", "--motion-given-pose"],
+    "batch, motion given pose (`smooth --motion-given-pose`)":
+        ["smooth", "--motion-given-pose"],
 }
 
 
@@ -65,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
         for i, est in enumerate(ests):
             rows["pairs (`estimate`)"].append(_scored(*evaluate(est, data)))
             for name, cli in METHODS.items():
-                out = Path(tmp) / f"{i}_{cli[0]}_{len(cli)}.csv"
+                out = Path(tmp) / f"{i}_{'_'.join(a.strip('-') for a in cli)}.csv"
                 t0 = time.perf_counter()
                 run_method(cli, est, out)
                 seconds[name] = seconds.get(name, 0.0) + time.perf_counter() - t0

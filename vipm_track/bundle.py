@@ -39,6 +39,7 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from .geometry import GroundPose, PlanarMotion, compose_motion, invert_motion
+from .homography_lsq import homography_normal_equations
 from .shutter import moved_pixels
 
 FloatArray = NDArray[np.float64]
@@ -225,6 +226,56 @@ class DisplacementModel:
         d = (p[:, 0] - p[:, 1]) / (2 * _FD_STEP)  # (B, 7, N, 2)
         return np.where(np.isfinite(d), d, 0.0).transpose(0, 2, 3, 1)
 
+    def normal_equations(
+        self, xs: FloatArray, weights: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Levenberg–Marquardt's terms for parameter vectors ``xs`` (B, n) and point weights
+        (B, N): cost ``Σ w·|r|²`` plus the prior's (B,), JᵀWJ (B, n, n) and JᵀWr (B, n).
+
+        Under a global shutter the prediction is a homography: the compiled kernel forms
+        the sums point by point from it and its central-difference derivative in each
+        parameter; under a rolling shutter from :meth:`residuals_batch` and
+        :meth:`jacobian_batch`."""
+        xs = np.asarray(xs, dtype=float)
+        b, n = xs.shape
+        if self.readout_frames:
+            r = self.residuals_batch(xs).reshape(b, -1, 1)
+            jac = self.jacobian_batch(xs).reshape(b, -1, n)
+            w2 = np.repeat(weights, 2, axis=1)[:, :, None]
+            jw_t = np.swapaxes(jac * w2, 1, 2)
+            cost = np.sum(w2 * r**2, axis=(1, 2))
+            a, g = jw_t @ jac, (jw_t @ r)[..., 0]
+        else:
+            steps = np.eye(n) * _FD_STEP
+            pert = np.concatenate([xs[:, None] + steps[None], xs[:, None] - steps[None]], axis=1)
+            h, ground_w, image_w = self._homographies(np.concatenate([xs, pert.reshape(-1, n)]))
+            hp = h[b:].reshape(b, 2, n, 3, 3)
+            dh = (hp[:, 0] - hp[:, 1]) / (2 * _FD_STEP)
+            whitening = (np.zeros((0, 2, 2)) if self.point_whitening is None
+                         else np.ascontiguousarray(self.point_whitening, dtype=float))
+            cost, a, g = homography_normal_equations(
+                np.ascontiguousarray(h[:b]), np.ascontiguousarray(dh), ground_w[:b],
+                image_w[:b], np.ascontiguousarray(self.pixels_prev, dtype=float),
+                np.ascontiguousarray(self.targets, dtype=float), whitening,
+                np.ascontiguousarray(weights, dtype=float), INVALID_RESIDUAL)
+        if self.n_prior:
+            jp = self.prior_jacobian_batch(xs)  # (B, 4, n)
+            p = self.prior_batch(xs)
+            cost = cost + np.sum(p**2, axis=1)
+            a = a + np.swapaxes(jp, 1, 2) @ jp
+            g = g + (np.swapaxes(jp, 1, 2) @ p[..., None])[..., 0]
+        return cost, a, g
+
+    def _homographies(self, xs: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Global shutter: the plane-from-previous-image homographies (B, 3, 3) of parameter
+        vectors ``xs`` (B, n) and the rows (B, 3) whose product with a homogeneous pixel is
+        positive on the ground of frame k-1 and in front of camera k."""
+        g_from_i, out_from_g = pair_homographies(self.k, self.height, self.full(xs))
+        image_from_prev = out_from_g @ g_from_i
+        a = np.eye(3) if self.plane_from_image is None else self.plane_from_image
+        return (a @ image_from_prev, np.ascontiguousarray(g_from_i[:, 2]),
+                np.ascontiguousarray(image_from_prev[:, 2]))
+
     def errors(self, x: FloatArray) -> FloatArray:
         """Per-point residual norms (N,), plane pixels (inf where undefined)."""
         e = np.linalg.norm(self._whiten(self.predict(x) - self.targets), axis=1)
@@ -358,11 +409,8 @@ def lm_batch(
     n_sets = weights.shape[0]
     n_par = np.shape(x0)[-1]
     x = np.broadcast_to(np.asarray(x0, dtype=float), (n_sets, n_par)).copy()
-    def cost(xs: FloatArray, wts: FloatArray) -> FloatArray:
-        return (np.sum(wts[:, :, None] * model.residuals_batch(xs) ** 2, axis=(1, 2))
-                + np.sum(model.prior_batch(xs) ** 2, axis=1))
-
-    c = cost(x, weights)
+    # The normal equations at each subset's current x, refreshed when a step is accepted.
+    c, a, g = model.normal_equations(x, weights)
     lam = np.full(n_sets, 1e-3)
     active = np.ones(n_sets, bool)
     converged = np.zeros(n_sets, bool)
@@ -371,26 +419,16 @@ def lm_batch(
         idx = np.flatnonzero(active)
         if idx.size == 0:
             break
-        xa = x[idx]
-        r = model.residuals_batch(xa)  # (A, N, 2)
-        jac = model.jacobian_batch(xa)  # (A, N, 2, 7)
-        wa = weights[idx][:, :, None, None]
-        jw = jac * wa
-        a = np.einsum("anki,ankj->aij", jw, jac)
-        g = np.einsum("anki,ank->ai", jw, r)
-        if model.n_prior:
-            jp = model.prior_jacobian_batch(xa)  # (A, 4, n)
-            a = a + np.einsum("aki,akj->aij", jp, jp)
-            g = g + np.einsum("aki,ak->ai", jp, model.prior_batch(xa))
-        diag = np.einsum("aii->ai", a)
+        diag = np.einsum("aii->ai", a[idx])
         damp = (diag + 1e-9 * diag.max(axis=1, keepdims=True) + 1e-12)[:, :, None] * eye
-        step = -np.linalg.solve(a + lam[idx, None, None] * damp, g[..., None])[..., 0]
-        x_new = xa + step
-        c_new = cost(x_new, weights[idx])
+        step = -np.linalg.solve(a[idx] + lam[idx, None, None] * damp, g[idx][..., None])[..., 0]
+        x_new = x[idx] + step
+        c_new, a_new, g_new = model.normal_equations(x_new, weights[idx])
         better = c_new < c[idx]
         rel = (c[idx] - c_new) / np.maximum(c[idx], 1e-300)
-        x[idx[better]] = x_new[better]
-        c[idx[better]] = c_new[better]
+        moved = idx[better]
+        x[moved], c[moved], a[moved], g[moved] = (x_new[better], c_new[better], a_new[better],
+                                                  g_new[better])
         lam[idx] = np.where(better, np.maximum(lam[idx] / 3.0, 1e-9), lam[idx] * 4.0)
         done = (better & (rel < tolerance)) | (lam[idx] > 1e9) | (
             np.max(np.abs(step), axis=1) < 1e-12)

@@ -1,0 +1,108 @@
+"""The bundle adjustment's normal equations: the compiled homography path against the sums
+formed from the model's own residuals and Jacobian, and the batched LM on exact data."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from vipm_track import bundle, geometry
+from vipm_track.sim import PRESETS
+
+
+def _reference(model: bundle.DisplacementModel, xs: np.ndarray, weights: np.ndarray):
+    """Cost, JᵀWJ, JᵀWr from residuals_batch / jacobian_batch / the prior's (numpy)."""
+    b, n = xs.shape
+    r = model.residuals_batch(xs).reshape(b, -1)
+    jac = model.jacobian_batch(xs).reshape(b, -1, n)
+    w2 = np.repeat(weights, 2, axis=1)
+    cost = np.sum(w2 * r**2, axis=1)
+    a = np.einsum("bmi,bm,bmj->bij", jac, w2, jac)
+    g = np.einsum("bmi,bm,bm->bi", jac, w2, r)
+    if model.n_prior:
+        p, jp = model.prior_batch(xs), model.prior_jacobian_batch(xs)
+        cost += np.sum(p**2, axis=1)
+        a += np.einsum("bki,bkj->bij", jp, jp)
+        g += np.einsum("bki,bk->bi", jp, p)
+    return cost, a, g
+
+
+def _cart_model(rng: np.random.Generator, **changes) -> tuple[bundle.DisplacementModel, np.ndarray]:
+    k = PRESETS["cart"].camera().k
+    pp, pc = geometry.GroundPose(0.8, 0.02, 0.7), geometry.GroundPose(0.81, 0.01, 0.7)
+    mo = geometry.PlanarMotion(0.01, 0.1, 0.02)
+    pix = np.stack(np.meshgrid(np.linspace(50, 750, 6), np.linspace(20, 580, 5)), -1).reshape(-1, 2)
+    target = geometry.predict_pixels(k, pp, pc, mo, pix) + rng.normal(0, 0.3, (len(pix), 2))
+    model = bundle.DisplacementModel(k, 0.7, pix, target)
+    return dataclasses.replace(model, **changes), bundle.pack(pp, pc, mo)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), whiten=st.booleans(), prior=st.booleans(),
+       plane=st.booleans(), eighth=st.booleans())
+def test_compiled_normal_equations_equal_the_residual_jacobian_sums(seed, whiten, prior, plane,
+                                                                    eighth):
+    rng = np.random.default_rng(seed)
+    n = 30
+    changes: dict[str, object] = {}
+    if whiten:
+        changes["point_whitening"] = np.eye(2) + 0.3 * rng.normal(size=(n, 2, 2))
+    if prior:
+        changes["prior_mean"] = np.radians([46.0, 1.0, 46.0, 1.0])
+        changes["prior_scale"] = 50.0
+    if plane:
+        changes["plane_from_image"] = np.diag([0.5, 0.7, 1.0]) + 1e-4 * rng.normal(size=(3, 3))
+    model, x = _cart_model(rng, **changes)
+    if eighth:
+        x = np.append(x, 0.002)
+    # a batch around the truth, one of them pitched up so far that the top rows leave the
+    # ground (invalid points: the constant residual, no gradient)
+    xs = x + rng.normal(0, [0.02, 0.01, 0.02, 0.01, 0.01, 0.02, 0.01] + [0.001] * eighth,
+                        (5, len(x)))
+    xs[0, 0] -= 0.6
+    weights = (rng.random((5, n)) < 0.6).astype(float) * rng.uniform(0.5, 2.0, (5, n))
+    cost, a, g = model.normal_equations(xs, weights)
+    ref_cost, ref_a, ref_g = _reference(model, xs, weights)
+    assert np.any(~np.isfinite(model.predict_batch(xs[:1])))  # the invalid points are there
+    np.testing.assert_allclose(cost, ref_cost, rtol=1e-9)
+    scale_a = np.abs(ref_a).max(axis=(1, 2), keepdims=True)
+    np.testing.assert_allclose(a / scale_a, ref_a / scale_a, atol=1e-6)
+    scale_g = np.abs(ref_g).max(axis=1, keepdims=True)
+    np.testing.assert_allclose(g / scale_g, ref_g / scale_g, atol=1e-6)
+
+
+def test_steady_pose_model_normal_equations_use_its_five_parameters():
+    rng = np.random.default_rng(3)
+    full, x = _cart_model(rng)
+    model = bundle.SteadyPoseModel(**{f.name: getattr(full, f.name)
+                                      for f in dataclasses.fields(full)})
+    xs = bundle.SteadyPoseModel.reduce(x) + rng.normal(0, 0.01, (4, 5))
+    weights = np.ones((4, full.n_points))
+    cost, a, g = model.normal_equations(xs, weights)
+    ref = _reference(model, xs, weights)
+    assert a.shape == (4, 5, 5) and g.shape == (4, 5)
+    np.testing.assert_allclose(cost, ref[0], rtol=1e-9)
+    np.testing.assert_allclose(a, ref[1], rtol=1e-5, atol=1e-6 * np.abs(ref[1]).max())
+
+
+@pytest.mark.parametrize("readout", [0.0, 0.4])
+def test_batched_lm_recovers_the_pair_from_exact_displacements(readout):
+    k = PRESETS["car"].camera().k
+    pp, pc = geometry.GroundPose(0.05, 0.01, 1.5), geometry.GroundPose(0.052, 0.008, 1.5)
+    mo = geometry.PlanarMotion(0.02, 0.8, 0.01)
+    pix = np.stack(np.meshgrid(np.linspace(100, 1180, 8), np.linspace(420, 700, 5)),
+                   -1).reshape(-1, 2)
+    x = bundle.pack(pp, pc, mo)
+    model = bundle.DisplacementModel(k, 1.5, pix, pix, readout_frames=readout, image_rows=720)
+    model = dataclasses.replace(model, targets=model.predict(x))
+    rng = np.random.default_rng(0)
+    weights = np.ones((6, len(pix)))
+    weights[1:] = rng.random((5, len(pix))) < 0.6
+    start = x + np.array([0.01, -0.005, 0.01, -0.005, 0.02, 0.05, 0.003])
+    found, converged = bundle.lm_batch(model, start, weights)
+    assert converged.all()
+    np.testing.assert_allclose(found, np.broadcast_to(x, found.shape), atol=1e-7)

@@ -1,0 +1,88 @@
+"""Normal equations of the pair's reprojection residuals under a homography, compiled.
+
+The geometric bundle adjustment (``bundle``) maps each patch centre m of frame k-1 through a
+pair homography H(x) onto frame k's measurement plane; Levenberg–Marquardt needs, for every
+parameter vector x of a batch (one per random subset), the weighted cost Σ w·|r|², JᵀWJ and
+JᵀWr over the points. This kernel forms them point by point from H and its parameter
+derivatives ∂H/∂x (the division by the third coordinate differentiated exactly), without the
+(B, N, 2, n) Jacobian array or the per-point arrays the numpy path builds.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .compiled import kernel
+
+FloatArray = NDArray[np.float64]
+
+
+@kernel
+def homography_normal_equations(
+    h: FloatArray, dh: FloatArray, ground_w: FloatArray, image_w: FloatArray,
+    pixels: FloatArray, targets: FloatArray, whitening: FloatArray, weights: FloatArray,
+    invalid: float,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Cost (B,), JᵀWJ (B, n, n) and JᵀWr (B, n) of the residuals ``W_j·(π(H_b m_j) − t_j)``.
+
+    Parameters
+    ----------
+    h : (B, 3, 3) plane-from-previous-image homography of each parameter vector.
+    dh : (B, n, 3, 3) its derivative with respect to each of the n parameters.
+    ground_w, image_w : (B, 3) rows whose product with a homogeneous pixel must be positive
+        for the point to be valid (on the ground of frame k-1, in front of camera k).
+    pixels, targets : (N, 2) previous-frame pixels and measured plane positions.
+    whitening : (N, 2, 2) per-point matrices W, or an empty (0, 2, 2) array for none.
+    weights : (B, N) point weights; a zero weight skips the point.
+    invalid : residual of each component of an invalid point (its Jacobian is zero).
+    """
+    n_sets, n_par = dh.shape[0], dh.shape[1]
+    whiten = whitening.shape[0] > 0
+    cost = np.zeros(n_sets)
+    a = np.zeros((n_sets, n_par, n_par))
+    g = np.zeros((n_sets, n_par))
+    jx = np.empty(n_par)
+    jy = np.empty(n_par)
+    for b in range(n_sets):
+        for j in range(pixels.shape[0]):
+            w = weights[b, j]
+            if w == 0.0:
+                continue
+            u, v = pixels[j, 0], pixels[j, 1]
+            gw = ground_w[b, 0] * u + ground_w[b, 1] * v + ground_w[b, 2]
+            iw = image_w[b, 0] * u + image_w[b, 1] * v + image_w[b, 2]
+            p0 = h[b, 0, 0] * u + h[b, 0, 1] * v + h[b, 0, 2]
+            p1 = h[b, 1, 0] * u + h[b, 1, 1] * v + h[b, 1, 2]
+            p2 = h[b, 2, 0] * u + h[b, 2, 1] * v + h[b, 2, 2]
+            if not (gw > 0.0 and iw > 0.0 and p2 != 0.0):
+                cost[b] += w * 2.0 * invalid * invalid
+                continue
+            ox, oy = p0 / p2, p1 / p2
+            ex, ey = ox - targets[j, 0], oy - targets[j, 1]
+            for i in range(n_par):
+                d0 = dh[b, i, 0, 0] * u + dh[b, i, 0, 1] * v + dh[b, i, 0, 2]
+                d1 = dh[b, i, 1, 0] * u + dh[b, i, 1, 1] * v + dh[b, i, 1, 2]
+                d2 = dh[b, i, 2, 0] * u + dh[b, i, 2, 1] * v + dh[b, i, 2, 2]
+                jx[i] = (d0 - ox * d2) / p2
+                jy[i] = (d1 - oy * d2) / p2
+            if whiten:
+                w00, w01 = whitening[j, 0, 0], whitening[j, 0, 1]
+                w10, w11 = whitening[j, 1, 0], whitening[j, 1, 1]
+                ex, ey = w00 * ex + w01 * ey, w10 * ex + w11 * ey
+                for i in range(n_par):
+                    jx[i], jy[i] = w00 * jx[i] + w01 * jy[i], w10 * jx[i] + w11 * jy[i]
+            if not (math.isfinite(ex) and math.isfinite(ey)):
+                cost[b] += w * 2.0 * invalid * invalid
+                continue
+            cost[b] += w * (ex * ex + ey * ey)
+            for i in range(n_par):
+                g[b, i] += w * (jx[i] * ex + jy[i] * ey)
+                for k in range(i + 1):
+                    a[b, i, k] += w * (jx[i] * jx[k] + jy[i] * jy[k])
+        for i in range(n_par):
+            for k in range(i):
+                a[b, k, i] = a[b, i, k]
+    return cost, a, g
