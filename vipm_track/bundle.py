@@ -146,10 +146,7 @@ class DisplacementModel:
         b, n = xs.shape
         if not self.n_prior:
             return np.zeros((b, 0, n))
-        steps = np.eye(n) * _FD_STEP
-        pert = np.concatenate([xs[:, None] + steps[None], xs[:, None] - steps[None]], axis=1)
-        p = self.prior_batch(pert.reshape(-1, n)).reshape(b, 2, n, -1)
-        return ((p[:, 0] - p[:, 1]) / (2 * _FD_STEP)).transpose(0, 2, 1)
+        return central_difference(self.prior_batch(central_points(xs)), b).transpose(0, 2, 1)
 
     def full(self, xs: FloatArray) -> FloatArray:
         """The 7- (or 8-) parameter vectors (..., 7|8) of this model's parameters."""
@@ -203,11 +200,9 @@ class DisplacementModel:
     def jacobian(self, x: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:
         """Jacobian (2n, 7) of :meth:`residuals` by central differences (one batched call)."""
         n = len(x)
-        steps = np.eye(n) * _FD_STEP
-        xs = np.concatenate([x + steps, x - steps])
-        p = self._whiten(self.predict_batch(xs, idx), idx)
-        d = (p[:n] - p[n:]) / (2 * _FD_STEP)  # (n_params, n_points, 2)
-        jac = d.reshape(n, -1).T
+        xs = central_points(np.asarray(x, dtype=float)[None])
+        d = central_difference(self._whiten(self.predict_batch(xs, idx), idx), 1)[0]
+        jac = d.reshape(n, -1).T  # d: (n_params, n_points, 2)
         jac = np.where(np.isfinite(jac), jac, 0.0)
         return np.concatenate([jac, self.prior_jacobian_batch(np.asarray(x, float)[None])[0]])
 
@@ -219,11 +214,8 @@ class DisplacementModel:
 
     def jacobian_batch(self, xs: FloatArray) -> FloatArray:
         """Jacobians (B, N, 2, 7) of the residuals for parameter vectors (B, 7)."""
-        b, n = xs.shape
-        steps = np.eye(n) * _FD_STEP
-        pert = np.concatenate([xs[:, None] + steps[None], xs[:, None] - steps[None]], axis=1)
-        p = self._whiten(self.predict_batch(pert.reshape(-1, n))).reshape(b, 2, n, -1, 2)
-        d = (p[:, 0] - p[:, 1]) / (2 * _FD_STEP)  # (B, 7, N, 2)
+        p = self._whiten(self.predict_batch(central_points(xs)))
+        d = central_difference(p, len(xs))  # (B, 7, N, 2)
         return np.where(np.isfinite(d), d, 0.0).transpose(0, 2, 3, 1)
 
     def normal_equations(
@@ -246,11 +238,8 @@ class DisplacementModel:
             cost = np.sum(w2 * r**2, axis=(1, 2))
             a, g = jw_t @ jac, (jw_t @ r)[..., 0]
         else:
-            steps = np.eye(n) * _FD_STEP
-            pert = np.concatenate([xs[:, None] + steps[None], xs[:, None] - steps[None]], axis=1)
-            h, ground_w, image_w = self._homographies(np.concatenate([xs, pert.reshape(-1, n)]))
-            hp = h[b:].reshape(b, 2, n, 3, 3)
-            dh = (hp[:, 0] - hp[:, 1]) / (2 * _FD_STEP)
+            h, ground_w, image_w = self._homographies(np.concatenate([xs, central_points(xs)]))
+            dh = central_difference(h[b:], b)
             whitening = (np.zeros((0, 2, 2)) if self.point_whitening is None
                          else np.ascontiguousarray(self.point_whitening, dtype=float))
             cost, a, g = homography_normal_equations(
@@ -347,6 +336,22 @@ class SteadyPoseModel(DisplacementModel):
 _FD_STEP = 1e-6
 
 
+def central_points(xs: FloatArray) -> FloatArray:
+    """Parameter vectors (B·2n, n) at which central differences evaluate a function of
+    ``xs`` (B, n): for each vector, +:data:`_FD_STEP` along each parameter, then −."""
+    n = xs.shape[1]
+    steps = np.eye(n) * _FD_STEP
+    pert = np.concatenate([xs[:, None] + steps[None], xs[:, None] - steps[None]], axis=1)
+    return pert.reshape(-1, n)
+
+
+def central_difference(values: FloatArray, b: int) -> FloatArray:
+    """Derivatives (B, n, ...) from a function's ``values`` (B·2n, ...) at
+    :func:`central_points` of B parameter vectors."""
+    v = values.reshape(b, 2, -1, *values.shape[1:])
+    return (v[:, 0] - v[:, 1]) / (2 * _FD_STEP)
+
+
 @dataclass(frozen=True)
 class FitResult:
     """A robust fit: parameters, inlier flags over all points, covariance, quality."""
@@ -419,9 +424,10 @@ def lm_batch(
         idx = np.flatnonzero(active)
         if idx.size == 0:
             break
-        diag = np.einsum("aii->ai", a[idx])
+        a_act = a[idx]
+        diag = np.einsum("aii->ai", a_act)
         damp = (diag + 1e-9 * diag.max(axis=1, keepdims=True) + 1e-12)[:, :, None] * eye
-        step = -np.linalg.solve(a[idx] + lam[idx, None, None] * damp, g[idx][..., None])[..., 0]
+        step = -np.linalg.solve(a_act + lam[idx, None, None] * damp, g[idx][..., None])[..., 0]
         x_new = x[idx] + step
         c_new, a_new, g_new = model.normal_equations(x_new, weights[idx])
         better = c_new < c[idx]
