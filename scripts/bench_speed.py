@@ -5,7 +5,9 @@ then runs the sequence runner (the code behind ``vipm-track estimate``) cold-sta
 tracking mode with 0, 1 and 2 virtual-IPM refinements. Reports, as medians over the pairs,
 pairs per second, wall time per pair and the estimator's per-stage breakdown
 (``PairResult.timings``: POC, warps, LM), with the share of pairs ok and the median travel
-distance error against the rendered ground truth.
+distance error against the rendered ground truth. Rows with a readout time are the same
+preset rendered with a rolling shutter (``--readout``, a fraction of the frame interval)
+and estimated with that readout (``--readout-time``), tracking mode.
 
 A second table gives the cost of ``--rerun`` logging (``vipm_track.sinks.rerun_sink``) in
 tracking mode with the estimator's default refinements: the same steps the runner yields,
@@ -14,7 +16,7 @@ image and with every 10th image; overhead = logging time (flush included) / esti
 summed over the pairs (target ≤ 10 %).
 
     python scripts/bench_speed.py [--frames 8] [--repeats 1] [--log-every 1,10]
-                                  [--out FILE.md]
+                                  [--readout 0.66] [--out FILE.md]
 
 Timings on a shared machine are noisy: they are medians over all pairs of all repeats.
 """
@@ -37,6 +39,7 @@ sys.path.insert(0, str(ROOT))
 
 from vipm_track.estimator import EstimatorConfig, TwoFrameEstimator  # noqa: E402
 from vipm_track.pipeline import config_with, run_sequence  # noqa: E402
+from vipm_track.render import Effects  # noqa: E402
 from vipm_track.sim import PRESETS, simulate_sequence  # noqa: E402
 from vipm_track.sinks.rerun_sink import ImageTap, RerunSink  # noqa: E402
 from vipm_track.sources import ArraySource, open_source  # noqa: E402
@@ -46,21 +49,24 @@ STAGES = ("poc", "warp", "lm")
 PROFILE = {"cart": "shaking", "car": "static"}
 
 
-def render(preset: str, frames: int, folder: Path) -> tuple[ArraySource, dict]:
-    """Frames of a preset in memory (rendered once) and their ground-truth table."""
-    simulate_sequence(preset, frames, folder, seed=1, profile=PROFILE[preset])
+def render(preset: str, frames: int, folder: Path, readout: float = 0.0,
+           ) -> tuple[ArraySource, dict]:
+    """Frames of a preset in memory (rendered once; ``readout``: a rolling shutter's, in
+    frame intervals) and their ground-truth table."""
+    simulate_sequence(preset, frames, folder, seed=1, profile=PROFILE[preset],
+                      effects=Effects(rolling_shutter=readout) if readout else None)
     frames_list = list(open_source(images=folder / "images"))
     source = ArraySource([f.image for f in frames_list], [f.t for f in frames_list], preset)
     return source, read_table(folder / "gt.csv")
 
 
 def bench_case(preset: str, source: ArraySource, truth: dict, refinements: int,
-               tracking: bool, repeats: int) -> dict:
-    """Median timings and accuracy of one (preset, refinements, mode) case."""
+               tracking: bool, repeats: int, readout_s: float = 0.0) -> dict:
+    """Median timings and accuracy of one (preset, refinements, mode, readout) case."""
     p = PRESETS[preset]
     camera = p.camera()
     config = config_with(EstimatorConfig(), refinements=refinements,
-                         initial_pitch_deg=p.pitch_deg)
+                         initial_pitch_deg=p.pitch_deg, readout_s=readout_s or None)
     estimator = TwoFrameEstimator(camera, p.height_m, config)
     wall, stages, ok, dist_err = [], {s: [] for s in STAGES}, 0, []
     pairs = 0
@@ -81,7 +87,7 @@ def bench_case(preset: str, source: ArraySource, truth: dict, refinements: int,
     med = float(np.median(wall))
     return {
         "preset": preset, "mode": "tracking" if tracking else "cold", "refinements": refinements,
-        "fps": 1.0 / med, "pair_ms": 1e3 * med,
+        "readout_ms": 1e3 * readout_s, "fps": 1.0 / med, "pair_ms": 1e3 * med,
         **{f"{s}_ms": 1e3 * float(np.nanmedian(stages[s])) for s in STAGES},
         "ok": f"{ok}/{pairs}",
         "dist_err_pct": float(np.median(dist_err)) if dist_err else float("nan"),
@@ -133,12 +139,13 @@ def logging_table(rows: list[dict]) -> str:
 
 
 def table(rows: list[dict]) -> str:
-    head = ("| preset | mode | refinements | pairs/s | ms/pair | POC ms | warp ms | LM ms | ok "
-            "| median distance error % |")
-    lines = [head, "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    head = ("| preset | mode | refinements | readout ms | pairs/s | ms/pair | POC ms | warp ms "
+            "| LM ms | ok | median distance error % |")
+    lines = [head, "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in rows:
+        readout = f"{r['readout_ms']:.0f}" if r["readout_ms"] else "0"
         lines.append(
-            f"| {r['preset']} | {r['mode']} | {r['refinements']} | {r['fps']:.2f} | "
+            f"| {r['preset']} | {r['mode']} | {r['refinements']} | {readout} | {r['fps']:.2f} | "
             f"{r['pair_ms']:.0f} | {r['poc_ms']:.0f} | {r['warp_ms']:.0f} | {r['lm_ms']:.0f} | "
             f"{r['ok']} | {r['dist_err_pct']:.2f} |"
         )
@@ -151,6 +158,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=1, help="passes over the frames")
     parser.add_argument("--presets", default="cart,car")
     parser.add_argument("--refinements", default="0,1,2")
+    parser.add_argument("--readout", type=float, default=0.66,
+                        help="rolling-shutter rows: readout as a fraction of the frame "
+                             "interval (0: none)")
     parser.add_argument("--log-every", default="1,10",
                         help="rerun logging rows: image decimations to time ('' for none)")
     parser.add_argument("--out", type=Path,
@@ -166,6 +176,16 @@ def main(argv: list[str] | None = None) -> int:
                     rows.append(row)
                     print(f"{preset} {row['mode']} r={refinements}: {row['fps']:.2f} pairs/s",
                           file=sys.stderr)
+            if args.readout:
+                readout_s = args.readout / PRESETS[preset].fps
+                rs_source, rs_truth = render(preset, args.frames, Path(tmp) / f"{preset}_rs",
+                                             args.readout)
+                for refinements in (int(r) for r in args.refinements.split(",")):
+                    row = bench_case(preset, rs_source, rs_truth, refinements, True,
+                                     args.repeats, readout_s)
+                    rows.append(row)
+                    print(f"{preset} rolling shutter r={refinements}: {row['fps']:.2f} pairs/s",
+                          file=sys.stderr)
             for every in (int(n) for n in args.log_every.split(",") if n.strip()):
                 row = bench_logging(preset, source, every, args.repeats, Path(tmp))
                 log_rows.append(row)
@@ -178,12 +198,16 @@ def main(argv: list[str] | None = None) -> int:
         "ms/pair is the estimator's wall time per pair (undistortion and I/O excluded, "
         "rendering excluded); stage columns are `PairResult.timings` medians. "
         f"cart: 800×600, {PROFILE['cart']} profile; car: 1280×720, {PROFILE['car']} profile, "
-        "cold start seeded with the preset's nominal pitch. "
+        "cold start seeded with the preset's nominal pitch. Readout ms > 0: the preset rendered "
+        f"with a rolling shutter of {args.readout:g} frame intervals and estimated with that "
+        "`--readout-time` (the cart's shaking pose changes faster than the frame rate "
+        "resolves, which the rolling-shutter model does not cover: its distance error is that "
+        "limitation, see bench_rolling_shutter.md). "
         f"Machine: {platform.processor() or platform.machine()}, "
         f"{platform.python_implementation()} {platform.python_version()}, shared by other "
         "jobs, so timings are noisy.\n\n"
         f"Command: `python scripts/bench_speed.py --frames {args.frames} "
-        f"--repeats {args.repeats}`\n"
+        f"--repeats {args.repeats} --readout {args.readout:g}`\n"
     )
     if log_rows:
         text += (

@@ -27,7 +27,10 @@ row) of frame k-1 is back-projected with the pose at k-1+a, travels to time b of
 motion, ``previous_motion``, where known; the motion's three components scaled alike), and
 is projected with the pose at k+b: the poses change at the pair's own rate (frame k's minus
 frame k-1's per interval; a shaking rig turns by up to 15°/s). b depends on the prediction
-itself: it is solved per point by the secant method (``shutter.moved_pixels``, compiled).
+itself: it is solved per point by the secant method (``shutter.moved_pixels``, compiled). A
+central-difference Jacobian solves its points at the parameters first and starts the
+perturbed solves from those row times; Levenberg–Marquardt's subsets solve only the points
+they weight.
 """
 
 from __future__ import annotations
@@ -155,35 +158,71 @@ class DisplacementModel:
     def predict_batch(self, xs: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:
         """Predicted positions (B, n, 2) for parameter vectors ``xs`` (B, 7); NaN where a
         point is above the horizon of Θ_p or behind the camera of Θ_c."""
+        return self._predict(xs, idx)[0]
+
+    def _predict(
+        self, xs: FloatArray, idx: NDArray[np.intp] | None = None,
+        start: FloatArray | None = None, active: NDArray[np.bool_] | None = None,
+    ) -> tuple[FloatArray, FloatArray | None]:
+        """:meth:`predict_batch`, and under a rolling shutter the row times (B, n) of frame k
+        the points were solved at (None under a global shutter); ``start`` and ``active``
+        as ``shutter.moved_pixels`` (rolling shutter only)."""
         xs = self.full(xs)
         pix = self.pixels_prev if idx is None else self.pixels_prev[idx]
-        m = np.concatenate([pix, np.ones((len(pix), 1))], axis=1)  # (n, 3)
         a = np.eye(3) if self.plane_from_image is None else self.plane_from_image
-        g_from_i, out_from_g = pair_homographies(self.k, self.height, xs)
-        ground = np.einsum("bij,nj->bni", g_from_i, m)  # (B, n, 3); w > 0 on the ground
-        if self.readout_frames:  # w > 0 in front of camera k
-            img = self._rolling_shutter(xs, pix)
+        times = None
+        if self.readout_frames:  # NaN off the ground of frame k-1 (at the row's time)
+            img, times = self._rolling_shutter(xs, pix, start, active)
+            good = img[..., 2] > 0  # in front of camera k
         else:
+            m = np.concatenate([pix, np.ones((len(pix), 1))], axis=1)  # (n, 3)
+            g_from_i, out_from_g = pair_homographies(self.k, self.height, xs)
+            ground = np.einsum("bij,nj->bni", g_from_i, m)  # (B, n, 3); w > 0 on the ground
             img = np.einsum("bij,bnj->bni", out_from_g, ground)
+            good = (ground[..., 2] > 0) & (img[..., 2] > 0)  # and in front of camera k
         plane = img @ a.T
         with np.errstate(divide="ignore", invalid="ignore"):
             out = plane[..., :2] / plane[..., 2:3]
-        bad = ~((ground[..., 2] > 0) & (img[..., 2] > 0))
-        out[bad] = np.nan
-        return out
+        out[~good] = np.nan
+        return out, times
 
-    def _rolling_shutter(self, xs: FloatArray, pixels_prev: FloatArray) -> FloatArray:
+    def _rolling_shutter(
+        self, xs: FloatArray, pixels_prev: FloatArray, start: FloatArray | None = None,
+        active: NDArray[np.bool_] | None = None,
+    ) -> tuple[FloatArray, FloatArray]:
         """Homogeneous frame-k pixels (B, n, 3) of the ground seen at ``pixels_prev`` in frame
-        k-1, each row exposed at its own time (module doc; ``shutter.moved_pixels``)."""
+        k-1, each row exposed at its own time, and their row times (B, n) (module doc;
+        ``shutter.moved_pixels``)."""
         params = np.zeros((len(xs), N_PARAMS + 1))
         params[:, :xs.shape[1]] = xs
         motion = xs[:, 4:7]
         change = (np.zeros_like(motion) if self.previous_motion is None
                   else motion - np.asarray(self.previous_motion, dtype=float))
+        shape = (len(xs), len(pixels_prev))
         return moved_pixels(np.asarray(self.k, dtype=float), params, float(self.height),
                             np.ascontiguousarray(pixels_prev, dtype=float),
                             np.ascontiguousarray(change), self.readout_frames / self.image_rows,
-                            float(self.readout_frames))
+                            float(self.readout_frames),
+                            np.full(shape, np.nan) if start is None
+                            else np.ascontiguousarray(start, dtype=float),
+                            np.ones(shape, bool) if active is None
+                            else np.ascontiguousarray(active, dtype=bool))
+
+    def _perturbed_predictions(
+        self, xs: FloatArray, idx: NDArray[np.intp] | None = None,
+        active: NDArray[np.bool_] | None = None,
+    ) -> tuple[FloatArray | None, FloatArray]:
+        """Predictions at ``xs`` (B, n) — under a rolling shutter only, else None — and at
+        their :func:`central_points` (B·2n, m, 2). A rolling shutter's points are solved at
+        ``xs`` first (``active`` ones only) and the perturbed solves start from those row
+        times: a step of 1e-6 moves them by little, so few secant steps remain."""
+        if not self.readout_frames:
+            return None, self.predict_batch(central_points(xs), idx)
+        base, times = self._predict(xs, idx, active=active)
+        twice = 2 * np.shape(xs)[1]
+        repeat = None if active is None else np.repeat(active, twice, axis=0)
+        return base, self._predict(central_points(xs), idx, np.repeat(times, twice, axis=0),
+                                   repeat)[0]
 
     def predict(self, x: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:
         """Predicted positions (n, 2) on the measurement plane; NaN where undefined."""
@@ -200,8 +239,8 @@ class DisplacementModel:
     def jacobian(self, x: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:
         """Jacobian (2n, 7) of :meth:`residuals` by central differences (one batched call)."""
         n = len(x)
-        xs = central_points(np.asarray(x, dtype=float)[None])
-        d = central_difference(self._whiten(self.predict_batch(xs, idx), idx), 1)[0]
+        pert = self._perturbed_predictions(np.asarray(x, dtype=float)[None], idx)[1]
+        d = central_difference(self._whiten(pert, idx), 1)[0]
         jac = d.reshape(n, -1).T  # d: (n_params, n_points, 2)
         jac = np.where(np.isfinite(jac), jac, 0.0)
         return np.concatenate([jac, self.prior_jacobian_batch(np.asarray(x, float)[None])[0]])
@@ -214,8 +253,11 @@ class DisplacementModel:
 
     def jacobian_batch(self, xs: FloatArray) -> FloatArray:
         """Jacobians (B, N, 2, 7) of the residuals for parameter vectors (B, 7)."""
-        p = self._whiten(self.predict_batch(central_points(xs)))
-        d = central_difference(p, len(xs))  # (B, 7, N, 2)
+        return self._jacobian_of(self._perturbed_predictions(xs)[1], len(xs))
+
+    def _jacobian_of(self, perturbed: FloatArray, b: int) -> FloatArray:
+        """Jacobians (B, N, 2, n) from the predictions at the central points of B vectors."""
+        d = central_difference(self._whiten(perturbed), b)  # (B, n, N, 2)
         return np.where(np.isfinite(d), d, 0.0).transpose(0, 2, 3, 1)
 
     def normal_equations(
@@ -226,13 +268,15 @@ class DisplacementModel:
 
         Under a global shutter the prediction is a homography: the compiled kernel forms
         the sums point by point from it and its central-difference derivative in each
-        parameter; under a rolling shutter from :meth:`residuals_batch` and
-        :meth:`jacobian_batch`."""
+        parameter; under a rolling shutter from the residuals and central-difference Jacobian
+        of the weighted points (as :meth:`residuals_batch`, :meth:`jacobian_batch`)."""
         xs = np.asarray(xs, dtype=float)
         b, n = xs.shape
-        if self.readout_frames:
-            r = self.residuals_batch(xs).reshape(b, -1, 1)
-            jac = self.jacobian_batch(xs).reshape(b, -1, n)
+        if self.readout_frames:  # unweighted points (a subset's unused ones) left unsolved
+            base, perturbed = self._perturbed_predictions(xs, active=weights > 0)
+            r = self._whiten(base - self.targets[None])
+            r = np.where(np.isfinite(r), r, INVALID_RESIDUAL).reshape(b, -1, 1)
+            jac = self._jacobian_of(perturbed, b).reshape(b, -1, n)
             w2 = np.repeat(weights, 2, axis=1)[:, :, None]
             jw_t = np.swapaxes(jac * w2, 1, 2)
             cost = np.sum(w2 * r**2, axis=(1, 2))

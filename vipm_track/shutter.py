@@ -47,7 +47,8 @@ def _row_time_excess(k: FloatArray, pose: FloatArray, rate: FloatArray, x: float
 
 @kernel
 def moved_pixels(k: FloatArray, params: FloatArray, height: float, pixels_prev: FloatArray,
-                 change: FloatArray, per_row: float, readout: float) -> FloatArray:
+                 change: FloatArray, per_row: float, readout: float, start: FloatArray,
+                 active: NDArray[np.bool_]) -> tuple[FloatArray, FloatArray]:
     """Homogeneous frame-k pixels (B, n, 3) of the ground seen at ``pixels_prev`` (n, 2) in
     frame k-1, each row exposed at its own time.
 
@@ -59,15 +60,23 @@ def moved_pixels(k: FloatArray, params: FloatArray, height: float, pixels_prev: 
     frame intervals per row; ``readout``: first row to last. The row time b of each point
     in frame k solves ``b = v(b)·per_row`` (secant steps from its row in frame k-1); NaN
     where it has no solution within two readouts of it (the point outruns the shutter out of
-    the frame) or the point is above frame k-1's horizon."""
+    the frame) or the point is above frame k-1's horizon.
+
+    ``start`` (B, n): where each point's secant steps start (NaN: its row time in frame k-1);
+    a solution for nearby parameters (a central difference's base) saves most of the steps.
+    ``active`` (B, n): the points solved; the others stay NaN (a subset's unused points).
+    Returns the pixels and the row times b (B, n) they were solved at (NaN where none)."""
     n_b, n_p = params.shape[0], pixels_prev.shape[0]
     kinv = np.linalg.inv(k)
     out = np.full((n_b, n_p, 3), np.nan)
+    times = np.full((n_b, n_p), np.nan)
     for i in range(n_b):
         p = params[i]
         rate = np.array([p[2] - p[0], p[3] - p[1], p[7]])
         pose_c = np.array([p[2], p[3], height + p[7]])
         for j in range(n_p):
+            if not active[i, j]:
+                continue
             a = pixels_prev[j, 1] * per_row
             # frame k-1's ground point, back-projected with its pose at time a:
             # ray = R_GC · K⁻¹ · (u, v, 1), R_GC = Rx(−pitch)·Rz(roll)
@@ -85,16 +94,17 @@ def moved_pixels(k: FloatArray, params: FloatArray, height: float, pixels_prev: 
             h_a = height + a * rate[2]
             x, z = h_a * rx / ry, h_a * rz / ry
             low, high = a - 2.0 * readout, a + 2.0 * readout
-            b_old = a
+            b_old = a if math.isnan(start[i, j]) else min(max(start[i, j], low), high)
             f_old, u, v, w = _row_time_excess(k, pose_c, rate, x, z, p[4:7], change[i], a,
                                               b_old, per_row)
             if not math.isfinite(f_old):
                 continue
             b = min(max(b_old + f_old, low), high)  # a fixed-point step, then secant steps
-            f = f_old
+            f, b_f = f_old, b_old  # b_f: the row time that (f, u, v, w) belong to
             for _ in range(MAX_STEPS):
                 f, u, v, w = _row_time_excess(k, pose_c, rate, x, z, p[4:7], change[i], a, b,
                                               per_row)
+                b_f = b
                 if not math.isfinite(f) or f == f_old:
                     break
                 step = -f * (b - b_old) / (f - f_old)
@@ -103,7 +113,9 @@ def moved_pixels(k: FloatArray, params: FloatArray, height: float, pixels_prev: 
                 if abs(b - b_old) < TOLERANCE:
                     f, u, v, w = _row_time_excess(k, pose_c, rate, x, z, p[4:7], change[i], a,
                                                   b, per_row)
+                    b_f = b
                     break
             if math.isfinite(f) and abs(f) < 1e-9:
                 out[i, j, 0], out[i, j, 1], out[i, j, 2] = u, v, w
-    return out
+                times[i, j] = b_f
+    return out, times
