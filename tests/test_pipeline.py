@@ -17,13 +17,14 @@ from vipm_track.measurement import PairMeasurement, read_measurements
 from vipm_track.pipeline import (
     FIRST_FRAME,
     NO_PREVIOUS,
+    UNREADABLE,
     WRONG_SIZE,
     RunSummary,
     estimate_sequence,
     run_sequence,
     step_row,
 )
-from vipm_track.sources import open_source
+from vipm_track.sources import ArraySource, open_source
 from vipm_track.table import read_table
 
 CAMERA = CameraModel(k=np.array([[50.0, 0, 20], [0, 50.0, 15], [0, 0, 1]]), width=40, height=30)
@@ -218,6 +219,9 @@ def test_tracking_seeds_each_pair_from_the_previous_result(cart_sequence: Path) 
         (["--roi", "0,0,9000,10"], "--roi '0,0,9000,10': need 0 <= x0 < x1 <= 800"),
         (["--height", "-2"], "--height must be a positive"),
         (["--start", "50"], "--start 50 but the folder has 5 images"),
+        (["--workers", "0"], "--workers must be >= 1"),
+        (["--chunk-frames", "1"], "--chunk-frames must be >= 2"),
+        (["--workers", "2", "--rerun", "x.rrd"], "--rerun .* use it with --workers 1"),
     ],
 )
 def test_estimate_cli_bad_options_exit_2_with_a_message(
@@ -233,6 +237,41 @@ def test_estimate_cli_bad_options_exit_2_with_a_message(
     err = capsys.readouterr().err
     assert "vipm-track estimate: error:" in err
     assert __import__("re").search(message, err), err
+
+
+def test_chunked_runs_are_the_same_in_one_process_or_two(cart_sequence: Path,
+                                                         tmp_path: Path) -> None:
+    """Chunks of 2 frames (each estimating the pair across its start, cold): every pair of
+    the 5 frames ok and on the truth, rows in frame order, the same file from one process
+    as from two; a chunk whose frame before is unreadable says 'no previous frame'."""
+    from vipm_track.cli import main
+    from vipm_track.evaluate import frame_errors
+
+    base = ["estimate", "--images", str(cart_sequence / "images"), "--camera",
+            str(cart_sequence / "camera.yaml"), "--height", "0.7", "--quiet",
+            "--chunk-frames", "2"]
+    one, two = tmp_path / "one.csv", tmp_path / "two.csv"
+    assert main([*base, "--out", str(one)]) == 0
+    assert main([*base, "--workers", "2", "--out", str(two)]) == 0
+    assert one.read_bytes() == two.read_bytes()
+    est, truth = read_table(two), read_table(cart_sequence / "gt.csv")
+    assert list(est["frame"]) == [0, 1, 2, 3, 4]
+    assert list(est["status"]) == [FIRST_FRAME] + ["ok"] * 4
+    errors = frame_errors(est, truth)
+    assert np.max(np.abs(errors["pitch_deg"])) < 0.1
+    assert np.max(np.abs(errors["distance_pct"])) < 1.0
+
+    images = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+              for p in sorted((cart_sequence / "images").glob("*.png"))]
+    images[1] = None  # the frame before the second chunk (frames 2-3)
+    from vipm_track.camera import load_camera
+    from vipm_track.parallel import run_chunked
+
+    steps = run_chunked(ArraySource(images, truth["t"]), load_camera(cart_sequence / "camera.yaml"),
+                        0.7, None, True, 1, 2)
+    statuses = [s.status for s in steps]
+    assert statuses[1].startswith(UNREADABLE)
+    assert statuses[:1] + statuses[2:] == [FIRST_FRAME, NO_PREVIOUS, "ok", "ok"]
 
 
 def test_estimate_cli_bad_camera_file(cart_sequence: Path, tmp_path: Path,

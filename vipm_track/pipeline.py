@@ -93,12 +93,14 @@ def run_sequence(
     tracking: bool = True,
     estimator: TwoFrameEstimator | None = None,
     retry_cold: bool = True,
+    size_checked: bool = False,
 ) -> Iterator[SequenceStep]:
     """Yield one :class:`SequenceStep` per frame of ``source`` (see module doc).
 
     ``height`` is the assumed camera height [m] that makes the motion metric. Raises
-    :class:`InputError` when the first readable frame's size disagrees with ``camera``;
-    later frames of a wrong size get status ``wrong image size``.
+    :class:`InputError` when the first readable frame's size disagrees with ``camera``
+    (unless ``size_checked``: a later chunk of a run); later frames of a wrong size get
+    status ``wrong image size``.
     """
     if not (np.isfinite(height) and height > 0):
         raise InputError(f"--height must be a positive number of metres, got {height}")
@@ -109,7 +111,7 @@ def run_sequence(
     prev_image: NDArray | None = None
     prev_t = prev_dt = float("nan")
     previous_ok: PairResult | None = None
-    checked_size = False
+    checked_size = size_checked
     for frame in source:
         if frame.image is None:
             prev_image, previous_ok = None, None
@@ -142,6 +144,28 @@ def run_sequence(
         previous_ok = result if result.status == "ok" else None
         prev_image, prev_t, prev_dt = image, frame.t, dt
         yield SequenceStep(frame.index, frame.t, result, result.status, guess is not None, seconds)
+
+
+def sequence_steps(
+    source: FrameSource,
+    camera: CameraModel,
+    height: float,
+    config: EstimatorConfig | None = None,
+    tracking: bool = True,
+    estimator: TwoFrameEstimator | None = None,
+    workers: int = 1,
+    chunk_frames: int | None = None,
+) -> Iterator[SequenceStep]:
+    """:func:`run_sequence`, or, with ``workers`` > 1 or ``chunk_frames`` given, its steps
+    from chunks of ``chunk_frames`` frames (default 500) run in ``workers`` processes
+    (:mod:`vipm_track.parallel`: each chunk's first pair starts cold, and ``estimator`` is
+    then each chunk's own)."""
+    if workers <= 1 and chunk_frames is None:
+        return run_sequence(source, camera, height, config, tracking, estimator)
+    from .parallel import DEFAULT_CHUNK_FRAMES, run_chunked
+
+    return run_chunked(source, camera, height, config, tracking, workers,
+                       chunk_frames or DEFAULT_CHUNK_FRAMES)
 
 
 def estimate_pair(
@@ -237,13 +261,16 @@ def estimate_sequence(
     progress: bool | None = None,
     on_step: Callable[[SequenceStep], None] | None = None,
     estimator: TwoFrameEstimator | None = None,
+    workers: int = 1,
+    chunk_frames: int | None = None,
 ) -> RunSummary:
     """Run ``source`` and stream one row per frame into the CSV ``out`` (and Parquet beside it
     with ``parquet``). Rows are flushed as they come, so an interrupted run keeps them.
 
     ``progress``: show a tqdm bar on stderr (``None``: only when stderr is a terminal).
     ``on_step`` is called with every step (e.g. a live display); ``estimator`` replaces the
-    one built from ``camera``, ``height`` and ``config``."""
+    one built from ``camera``, ``height`` and ``config``; ``workers``, ``chunk_frames``: as
+    :func:`sequence_steps`."""
     from tqdm import tqdm
 
     out = Path(out)
@@ -252,7 +279,8 @@ def estimate_sequence(
         progress = sys.stderr.isatty()
     summary = RunSummary()
     start = time.perf_counter()
-    steps = run_sequence(source, camera, height, config, tracking, estimator)
+    steps = sequence_steps(source, camera, height, config, tracking, estimator, workers,
+                           chunk_frames)
     with (
         TableWriter(out, ROW_COLUMNS, parquet_path) as writer,
         tqdm(total=len(source), disable=not progress, file=sys.stderr, unit="frame") as bar,

@@ -17,6 +17,7 @@ Timestamps, first that applies:
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -70,6 +71,11 @@ class FrameSource:
     def __len__(self) -> int:  # pragma: no cover - interface
         raise NotImplementedError
 
+    def frames(self, position: int, count: int) -> FrameSource:
+        """The source of this one's frames at positions ``position … position + count − 1``
+        (0: its first frame), with their own indices and times: a chunk of a long run."""
+        raise NotImplementedError(f"{type(self).__name__} cannot be split into chunks")
+
 
 def open_source(
     images: str | Path | None = None,
@@ -113,17 +119,25 @@ class ArraySource(FrameSource):
         if t.shape != (len(images),):
             raise SourceError(f"{description}: {len(images)} images but {t.size} timestamps")
         self.images, self.t, self.description = images, t, description
+        self.first_index = 0
 
     def __len__(self) -> int:
         return len(self.images)
 
+    def frames(self, position: int, count: int) -> ArraySource:
+        stop = position + count
+        chunk = ArraySource(self.images[position:stop], self.t[position:stop], self.description)
+        chunk.first_index = self.first_index + position
+        return chunk
+
     def __iter__(self) -> Iterator[Frame]:
-        for i, image in enumerate(self.images):
+        for i, image in enumerate(self.images, start=self.first_index):
             name = f"{self.description}#{i}"
+            i_t = float(self.t[i - self.first_index])
             if image is None:
-                yield Frame(i, float(self.t[i]), None, f"unreadable frame: {name}", name)
+                yield Frame(i, i_t, None, f"unreadable frame: {name}", name)
             else:
-                yield Frame(i, float(self.t[i]), _to_grey(image), None, name)
+                yield Frame(i, i_t, _to_grey(image), None, name)
 
 
 # --- image folders ---------------------------------------------------------------------------
@@ -231,6 +245,11 @@ class ImageFolderSource(FrameSource):
     def __len__(self) -> int:
         return len(self.indices)
 
+    def frames(self, position: int, count: int) -> ImageFolderSource:
+        chunk = copy.copy(self)
+        chunk.indices = self.indices[position:position + count]
+        return chunk
+
     def __iter__(self) -> Iterator[Frame]:
         for i in self.indices:
             path = self.files[i]
@@ -284,6 +303,13 @@ class VideoSource(FrameSource):
     def __len__(self) -> int:
         n = max(self.frame_count - self.start, 0)
         return n if self.max_frames is None else min(n, self.max_frames)
+
+    def frames(self, position: int, count: int) -> VideoSource:
+        """(The frames before the chunk are decoded and dropped: containers seek unreliably.)"""
+        chunk = copy.copy(self)
+        chunk.start = self.start + position
+        chunk.max_frames = max(min(count, len(self) - position), 0)
+        return chunk
 
     def __iter__(self) -> Iterator[Frame]:
         capture = self._open()

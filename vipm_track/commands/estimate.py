@@ -6,6 +6,7 @@ import argparse
 import math
 import sys
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -36,6 +37,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_output_options(parser, "per-frame estimates CSV")
     add_estimator_options(parser)
     add_run_options(parser)
+    add_parallel_options(parser)
     add_rerun_options(parser)
     parser.set_defaults(handler=run)
 
@@ -100,6 +102,35 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
                        "cameras (horizon in view, pitch < 10°), noise for all others")
 
 
+def add_parallel_options(parser: argparse.ArgumentParser) -> None:
+    """``--workers``, ``--chunk-frames``: a long recording estimated in parallel chunks."""
+    group = parser.add_argument_group("parallel (long recordings)")
+    group.add_argument("--workers", type=int, default=1, metavar="N",
+                       help="processes that estimate chunks of the recording in parallel "
+                       "(default 1: one sequential run); results depend on --chunk-frames, "
+                       "not on N")
+    group.add_argument("--chunk-frames", type=int, default=None, metavar="K",
+                       help="frames per chunk (default with --workers > 1: 500; given with "
+                       "--workers 1, the same chunks run one after another); each chunk's "
+                       "first pair starts cold, as after a failed pair")
+
+
+def parallel_settings(args: argparse.Namespace) -> dict[str, Any]:
+    """``workers`` and ``chunk_frames`` of ``args`` for ``estimate_sequence`` /
+    ``sequence_steps``; InputError for unusable values (and for ``--rerun`` with workers)."""
+    from ..sinks.rerun_sink import wants_rerun
+
+    workers = getattr(args, "workers", 1)
+    chunk = getattr(args, "chunk_frames", None)
+    if workers < 1:
+        raise InputError(f"--workers must be >= 1, got {workers}")
+    if chunk is not None and chunk < 2:
+        raise InputError(f"--chunk-frames must be >= 2, got {chunk}")
+    if workers > 1 and wants_rerun(args):
+        raise InputError("--rerun logs the frames as they are estimated: use it with --workers 1")
+    return {"workers": workers, "chunk_frames": chunk}
+
+
 def add_run_options(parser: argparse.ArgumentParser) -> None:
     """``--no-tracking``, ``--start``, ``--max-frames``, ``--quiet``."""
     group = parser.add_argument_group("run")
@@ -124,6 +155,7 @@ def run(args: argparse.Namespace) -> int:
     out = check_output(args.out)
     source = open_source(images=args.images, video=args.video, fps=args.fps,
                          start=args.start, max_frames=args.max_frames)
+    parallel = parallel_settings(args)
     config = with_searched_nominal(args, source, camera, height, config)
     from ..sinks.rerun_sink import run_logging
 
@@ -132,7 +164,7 @@ def run(args: argparse.Namespace) -> int:
         summary = estimate_sequence(
             logging.source, camera, height, out, logging.config, tracking=not args.no_tracking,
             parquet=args.parquet, progress=None if not args.quiet else False,
-            on_step=logging.on_step,
+            on_step=logging.on_step, **parallel,
         )
     finally:
         logging.finish()

@@ -161,11 +161,13 @@ def estimate_stream(
     (tracking mode) at the assumed ``height`` [m]; frames without an estimate carry their
     status and NaNs. With a rerun ``sink`` each pair's images, patches and IPM views are
     logged as they come. ``config`` defaults to :func:`estimator_config` of ``args``."""
-    from ..pipeline import run_sequence
+    from ..pipeline import sequence_steps
     from ..sources import open_source
+    from .estimate import parallel_settings
 
     if not args.camera:
         raise InputError("--images/--video need --camera CAMERA.yaml")
+    parallel = parallel_settings(args)
     camera = camera or load_camera(args.camera)
     config = config or estimator_config(args, camera)
     source = open_source(images=args.images, video=args.video, fps=args.fps)
@@ -176,7 +178,7 @@ def estimate_stream(
         source = ImageTap(source, camera)
         config = replace(config, keep_images=True)
     nan7, nan77 = np.full(7, np.nan), np.full((7, 7), np.nan)
-    for step in run_sequence(source, camera, height, config):
+    for step in sequence_steps(source, camera, height, config, **parallel):
         if sink is not None and step.result is not None:
             sink.log_pair_views(step.frame, step.t, step.result, source.image(step.frame))
         m = step.result.to_measurement(step.frame, step.t) if step.ok else None

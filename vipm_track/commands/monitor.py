@@ -28,7 +28,7 @@ from .common import (
     check_height,
     check_output,
 )
-from .estimate import add_estimator_options
+from .estimate import add_estimator_options, add_parallel_options
 from .inputs import (
     estimator_config,
     load_speed,
@@ -71,6 +71,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="time constant of that tilt (default 2)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars or summary")
     add_estimator_options(parser)
+    add_parallel_options(parser)
     add_rerun_options(parser)
     parser.set_defaults(handler=run)
 

@@ -23,7 +23,7 @@ from .common import (
     check_height,
     check_output,
 )
-from .estimate import add_estimator_options
+from .estimate import add_estimator_options, add_parallel_options
 from .inputs import load_speed, measurements_from_args, speed_on_camera_clock
 
 
@@ -127,6 +127,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     group.add_argument("--quiet", action="store_true", help="no progress bar, no summary print")
     add_estimator_options(parser)
+    add_parallel_options(parser)
     add_rerun_options(parser)
     parser.set_defaults(handler=run)
 

@@ -16,7 +16,7 @@ from .common import (
     check_height,
     check_output,
 )
-from .estimate import add_estimator_options
+from .estimate import add_estimator_options, add_parallel_options
 from .inputs import (
     check_speed_overlap,
     estimate_stream,
@@ -45,6 +45,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        help="chi-square probability of the innovation gate (default 0.999)")
     group.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
     add_estimator_options(parser)
+    add_parallel_options(parser)
     add_rerun_options(parser)
     parser.set_defaults(handler=run)
 

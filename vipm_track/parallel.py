@@ -1,0 +1,91 @@
+"""Chunked runs of the sequence runner in several processes, for long recordings.
+
+A pair's estimate depends only on its two frames and the tracking guess from the pair
+before, so a recording splits into chunks of consecutive frames that run independently: each
+chunk also reads the frame before its first (the pair across the boundary is estimated in
+the chunk, cold-started like a pair after a failure) and its steps are yielded in frame
+order as the chunks finish. The chunks, hence the results, depend on ``chunk_frames`` only,
+not on the number of processes; they differ from one sequential run only in the pairs from
+each chunk's first on, until tracking has forgotten its start (on a steep camera within a
+few pairs; a level camera's run is chaotic in its last bits, see ``docs/kitti.md``).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+from collections.abc import Iterator
+from concurrent.futures import Future, ProcessPoolExecutor
+from typing import TYPE_CHECKING
+
+from .errors import InputError
+from .pipeline import FIRST_FRAME, NO_PREVIOUS, SequenceStep, run_sequence
+
+if TYPE_CHECKING:
+    from .camera import CameraModel
+    from .estimator import EstimatorConfig
+    from .sources import FrameSource
+
+#: Frames per chunk by default: a cold start per 500 frames costs ~0.1 % of a run's time.
+DEFAULT_CHUNK_FRAMES = 500
+#: The fewest frames a chunk may hold.
+MIN_CHUNK_FRAMES = 2
+
+
+def chunk_bounds(n_frames: int, chunk_frames: int) -> list[tuple[int, int]]:
+    """(first position, frames) of each chunk of a source of ``n_frames`` frames."""
+    return [(p, min(chunk_frames, n_frames - p)) for p in range(0, n_frames, chunk_frames)]
+
+
+def run_chunked(
+    source: FrameSource,
+    camera: CameraModel,
+    height: float,
+    config: EstimatorConfig | None,
+    tracking: bool,
+    workers: int,
+    chunk_frames: int,
+) -> Iterator[SequenceStep]:
+    """The steps of :func:`run_sequence` over ``source``, from chunks of ``chunk_frames``
+    frames run in ``workers`` processes (1: in this one), in frame order. A source of unknown
+    length (a video whose container does not say) or of one chunk runs as one sequence."""
+    if chunk_frames < MIN_CHUNK_FRAMES:
+        raise InputError(f"--chunk-frames must be >= {MIN_CHUNK_FRAMES}, got {chunk_frames}")
+    bounds = chunk_bounds(len(source), chunk_frames)
+    if len(bounds) <= 1:
+        yield from run_sequence(source, camera, height, config, tracking)
+        return
+    if workers <= 1:  # the same chunks, one after another in this process
+        for p, n in bounds:
+            yield from run_chunk(source, camera, height, config, tracking, p, n)
+        return
+    context = multiprocessing.get_context("spawn")  # no forked OpenCV / numba thread pools
+    with ProcessPoolExecutor(min(workers, len(bounds)), mp_context=context) as pool:
+        futures: list[Future[list[SequenceStep]]] = [
+            pool.submit(run_chunk, source, camera, height, config, tracking, p, n)
+            for p, n in bounds]
+        try:
+            for future in futures:
+                yield from future.result()
+        finally:
+            for future in futures:
+                future.cancel()
+
+
+def run_chunk(
+    source: FrameSource,
+    camera: CameraModel,
+    height: float,
+    config: EstimatorConfig | None,
+    tracking: bool,
+    position: int,
+    count: int,
+) -> list[SequenceStep]:
+    """The steps of the ``count`` frames from ``position`` on (run in a worker process)."""
+    overlap = 1 if position > 0 else 0
+    chunk = source.frames(position - overlap, count + overlap)
+    steps = list(run_sequence(chunk, camera, height, config, tracking,
+                              size_checked=position > 0))[overlap:]
+    if position > 0:  # the chunk's own first frame is not the run's
+        steps = [s if s.status != FIRST_FRAME else SequenceStep(s.frame, s.t, None, NO_PREVIOUS)
+                 for s in steps]
+    return steps
