@@ -10,7 +10,7 @@ import pytest
 
 from tests.conftest import shared_data
 from vipm_track.errors import InputError
-from vipm_track.sources import SourceError, open_source, read_times
+from vipm_track.sources import ArraySource, SourceError, open_source, read_times
 
 
 def _write_images(
@@ -125,6 +125,30 @@ def test_video_timestamps_grey_frames_and_fps_override(tmp_path: Path) -> None:
     frames = list(open_source(video=path, fps=5.0, start=2, max_frames=2))
     assert [f.index for f in frames] == [2, 3]
     np.testing.assert_allclose([f.t for f in frames], [0.4, 0.6])
+
+
+@pytest.mark.parametrize("fourcc", ["MJPG", "mp4v"])
+def test_chunks_of_sources_are_their_frames(tmp_path: Path, fourcc: str) -> None:
+    """A chunk of a video (seeked to), of an image folder and of arrays yields the same
+    frames — pixels, indices, times — as the whole source does at those positions."""
+    path = tmp_path / f"clip.{'avi' if fourcc == 'MJPG' else 'mp4'}"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), 10.0, (64, 48))
+    rng = np.random.default_rng(1)
+    for _ in range(40):  # textured frames: a wrong frame would not look alike
+        writer.write(rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
+    writer.release()
+    _write_images(tmp_path / "img", 6)
+    (tmp_path / "img" / "times.txt").write_text("".join(f"{0.1 * i}\n" for i in range(6)))
+    arrays = ArraySource([np.full((4, 4), i, np.uint8) for i in range(6)], np.arange(6) * 0.5)
+    for source, position, count in ((open_source(video=path, start=3), 20, 7),
+                                    (open_source(images=tmp_path / "img", start=1), 2, 3),
+                                    (arrays, 2, 3)):
+        whole = list(source)[position:position + count]
+        chunk = list(source.frames(position, count))
+        assert [f.index for f in chunk] == [f.index for f in whole]
+        np.testing.assert_allclose([f.t for f in chunk], [f.t for f in whole])
+        for a, b in zip(chunk, whole, strict=True):
+            np.testing.assert_array_equal(a.image, b.image)
 
 
 def test_unreadable_video_fails_fast(tmp_path: Path) -> None:

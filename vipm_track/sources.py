@@ -305,7 +305,6 @@ class VideoSource(FrameSource):
         return n if self.max_frames is None else min(n, self.max_frames)
 
     def frames(self, position: int, count: int) -> VideoSource:
-        """(The frames before the chunk are decoded and dropped: containers seek unreliably.)"""
         chunk = copy.copy(self)
         chunk.start = self.start + position
         chunk.max_frames = max(min(count, len(self) - position), 0)
@@ -314,15 +313,24 @@ class VideoSource(FrameSource):
     def __iter__(self) -> Iterator[Frame]:
         capture = self._open()
         try:
+            if self.start and not self._seek(capture, self.start):
+                capture.release()
+                capture = self._open()
+                for _ in range(self.start):  # decode up to the first frame instead
+                    if not capture.grab():
+                        return
             yield from self._frames(capture)
         finally:
             capture.release()
 
+    @staticmethod
+    def _seek(capture: cv2.VideoCapture, index: int) -> bool:
+        """Whether the container moved ``capture`` to frame ``index`` (and says so)."""
+        moved = bool(capture.set(cv2.CAP_PROP_POS_FRAMES, index))
+        return moved and round(capture.get(cv2.CAP_PROP_POS_FRAMES)) == index
+
     def _frames(self, capture: cv2.VideoCapture) -> Iterator[Frame]:
         rate = self.fps or self.container_fps
-        for _ in range(self.start):
-            if not capture.grab():
-                return
         index, yielded, failures, last_t = self.start, 0, 0, -math.inf
         while self.max_frames is None or yielded < self.max_frames:
             ok, image = capture.read()

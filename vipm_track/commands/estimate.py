@@ -118,14 +118,15 @@ def add_parallel_options(parser: argparse.ArgumentParser) -> None:
 def parallel_settings(args: argparse.Namespace) -> dict[str, Any]:
     """``workers`` and ``chunk_frames`` of ``args`` for ``estimate_sequence`` /
     ``sequence_steps``; InputError for unusable values (and for ``--rerun`` with workers)."""
+    from ..parallel import MIN_CHUNK_FRAMES
     from ..sinks.rerun_sink import wants_rerun
 
     workers = getattr(args, "workers", 1)
     chunk = getattr(args, "chunk_frames", None)
     if workers < 1:
         raise InputError(f"--workers must be >= 1, got {workers}")
-    if chunk is not None and chunk < 2:
-        raise InputError(f"--chunk-frames must be >= 2, got {chunk}")
+    if chunk is not None and chunk < MIN_CHUNK_FRAMES:
+        raise InputError(f"--chunk-frames must be >= {MIN_CHUNK_FRAMES}, got {chunk}")
     if workers > 1 and wants_rerun(args):
         raise InputError("--rerun logs the frames as they are estimated: use it with --workers 1")
     return {"workers": workers, "chunk_frames": chunk}
