@@ -31,8 +31,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from vipm_track.camera import load_camera  # noqa: E402
+from vipm_track.estimator import EstimatorConfig  # noqa: E402
 from vipm_track.evaluate import frame_errors  # noqa: E402
-from vipm_track.pipeline import estimate_sequence  # noqa: E402
+from vipm_track.pipeline import config_with, estimate_sequence  # noqa: E402
 from vipm_track.sim import PRESETS, simulate_sequence  # noqa: E402
 from vipm_track.sources import open_source  # noqa: E402
 from vipm_track.table import read_table  # noqa: E402
@@ -40,9 +41,6 @@ from vipm_track.table import read_table  # noqa: E402
 
 def run(folder: Path, preset: str, out: Path, workers: int, chunk_frames: int | None) -> dict:
     """One estimate run; its wall time, speed and errors against the truth."""
-    from vipm_track.estimator import EstimatorConfig
-    from vipm_track.pipeline import config_with
-
     p = PRESETS[preset]
     camera = load_camera(folder / "camera.yaml")
     config = config_with(EstimatorConfig(), initial_pitch_deg=p.pitch_deg)

@@ -143,11 +143,10 @@ def table(rows: list[dict]) -> str:
             "| LM ms | ok | median distance error % |")
     lines = [head, "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in rows:
-        readout = f"{r['readout_ms']:.0f}" if r["readout_ms"] else "0"
         lines.append(
-            f"| {r['preset']} | {r['mode']} | {r['refinements']} | {readout} | {r['fps']:.2f} | "
-            f"{r['pair_ms']:.0f} | {r['poc_ms']:.0f} | {r['warp_ms']:.0f} | {r['lm_ms']:.0f} | "
-            f"{r['ok']} | {r['dist_err_pct']:.2f} |"
+            f"| {r['preset']} | {r['mode']} | {r['refinements']} | {r['readout_ms']:.0f} | "
+            f"{r['fps']:.2f} | {r['pair_ms']:.0f} | {r['poc_ms']:.0f} | {r['warp_ms']:.0f} | "
+            f"{r['lm_ms']:.0f} | {r['ok']} | {r['dist_err_pct']:.2f} |"
         )
     return "\n".join(lines)
 

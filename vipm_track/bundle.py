@@ -248,7 +248,12 @@ class DisplacementModel:
     def residuals_batch(self, xs: FloatArray) -> FloatArray:
         """Residuals (B, N, 2) over all points for parameter vectors (B, 7), invalid points
         given :data:`INVALID_RESIDUAL`."""
-        r = self._whiten(self.predict_batch(xs) - self.targets[None])
+        return self._residuals_of(self.predict_batch(xs))
+
+    def _residuals_of(self, predicted: FloatArray) -> FloatArray:
+        """Whitened residuals (B, N, 2) of predictions (B, N, 2) over all points, invalid
+        points given :data:`INVALID_RESIDUAL`."""
+        r = self._whiten(predicted - self.targets[None])
         return np.where(np.isfinite(r), r, INVALID_RESIDUAL)
 
     def jacobian_batch(self, xs: FloatArray) -> FloatArray:
@@ -274,8 +279,7 @@ class DisplacementModel:
         b, n = xs.shape
         if self.readout_frames:  # unweighted points (a subset's unused ones) left unsolved
             base, perturbed = self._perturbed_predictions(xs, active=weights > 0)
-            r = self._whiten(base - self.targets[None])
-            r = np.where(np.isfinite(r), r, INVALID_RESIDUAL).reshape(b, -1, 1)
+            r = self._residuals_of(base).reshape(b, -1, 1)
             jac = self._jacobian_of(perturbed, b).reshape(b, -1, n)
             w2 = np.repeat(weights, 2, axis=1)[:, :, None]
             jw_t = np.swapaxes(jac * w2, 1, 2)

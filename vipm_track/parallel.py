@@ -18,7 +18,7 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from typing import TYPE_CHECKING
 
 from .errors import InputError
-from .pipeline import FIRST_FRAME, NO_PREVIOUS, SequenceStep, run_sequence
+from .pipeline import SequenceStep, run_sequence
 
 if TYPE_CHECKING:
     from .camera import CameraModel
@@ -83,9 +83,5 @@ def run_chunk(
     """The steps of the ``count`` frames from ``position`` on (run in a worker process)."""
     overlap = 1 if position > 0 else 0
     chunk = source.frames(position - overlap, count + overlap)
-    steps = list(run_sequence(chunk, camera, height, config, tracking,
-                              size_checked=position > 0))[overlap:]
-    if position > 0:  # the chunk's own first frame is not the run's
-        steps = [s if s.status != FIRST_FRAME else SequenceStep(s.frame, s.t, None, NO_PREVIOUS)
-                 for s in steps]
-    return steps
+    return list(run_sequence(chunk, camera, height, config, tracking,
+                             continuation=position > 0))[overlap:]

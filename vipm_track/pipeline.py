@@ -93,14 +93,15 @@ def run_sequence(
     tracking: bool = True,
     estimator: TwoFrameEstimator | None = None,
     retry_cold: bool = True,
-    size_checked: bool = False,
+    continuation: bool = False,
 ) -> Iterator[SequenceStep]:
     """Yield one :class:`SequenceStep` per frame of ``source`` (see module doc).
 
     ``height`` is the assumed camera height [m] that makes the motion metric. Raises
-    :class:`InputError` when the first readable frame's size disagrees with ``camera``
-    (unless ``size_checked``: a later chunk of a run); later frames of a wrong size get
-    status ``wrong image size``.
+    :class:`InputError` when the first readable frame's size disagrees with ``camera``;
+    later frames of a wrong size get status ``wrong image size``. ``continuation``: the
+    source continues a run (a later chunk), so none of its frames is the run's first: a
+    frame of a wrong size gets that status, one without a predecessor ``no previous frame``.
     """
     if not (np.isfinite(height) and height > 0):
         raise InputError(f"--height must be a positive number of metres, got {height}")
@@ -111,7 +112,7 @@ def run_sequence(
     prev_image: NDArray | None = None
     prev_t = prev_dt = float("nan")
     previous_ok: PairResult | None = None
-    checked_size = size_checked
+    checked_size = continuation
     for frame in source:
         if frame.image is None:
             prev_image, previous_ok = None, None
@@ -127,7 +128,7 @@ def run_sequence(
             continue
         checked_size = True
         if prev_image is None:
-            status = FIRST_FRAME if np.isnan(prev_t) else NO_PREVIOUS
+            status = FIRST_FRAME if np.isnan(prev_t) and not continuation else NO_PREVIOUS
             prev_image, prev_t, prev_dt, previous_ok = image, frame.t, float("nan"), None
             yield SequenceStep(frame.index, frame.t, None, status)
             continue

@@ -131,13 +131,13 @@ class ArraySource(FrameSource):
         return chunk
 
     def __iter__(self) -> Iterator[Frame]:
-        for i, image in enumerate(self.images, start=self.first_index):
+        for i, (image, t) in enumerate(zip(self.images, self.t, strict=True),
+                                       start=self.first_index):
             name = f"{self.description}#{i}"
-            i_t = float(self.t[i - self.first_index])
             if image is None:
-                yield Frame(i, i_t, None, f"unreadable frame: {name}", name)
+                yield Frame(i, float(t), None, f"unreadable frame: {name}", name)
             else:
-                yield Frame(i, i_t, _to_grey(image), None, name)
+                yield Frame(i, float(t), _to_grey(image), None, name)
 
 
 # --- image folders ---------------------------------------------------------------------------
