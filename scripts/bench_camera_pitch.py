@@ -39,15 +39,18 @@ def render(folder: Path, preset_name: str, pitch_deg: float, frames: int):
     return preset, simulate_sequence(preset, frames, folder, seed=5, profile="gradual")
 
 
-def score(folder: Path, preset, traj, extra: list[str]) -> tuple[str, str, str, str]:
+def score(folder: Path, preset, traj, extra: list[str], stderr: list[str] | None = None,
+          ) -> tuple[str, str, str, str]:
     """Run ``estimate`` (``extra`` options); (ok pairs, max pitch error °, max distance
-    error %, nominal pitch found or '')."""
+    error %, nominal pitch found or ''); its stderr lines appended to ``stderr`` if given."""
     out = folder / "est.csv"
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
         rc = cli_main(["estimate", "--images", str(folder / "images"), "--camera",
                        str(folder / "camera.yaml"), "--height", str(preset.height_m),
                        "--out", str(out), *extra])
+    if stderr is not None:
+        stderr.extend(err.getvalue().splitlines())
     if rc != 0:
         return f"exit {rc}", "", "", ""
     table = read_table(out)

@@ -4,7 +4,8 @@ Renders a short sequence per row (``vipm_track.sim`` preset, ``gradual`` profile
 a rolling shutter (``simulate --readout-time``: row v exposed v/rows · readout after row 0)
 and runs the issue's command line on it with the preset's ``--pitch``, without and with
 ``--readout-time`` (the rendered readout), and without ``--pitch`` but with
-``--readout-time`` (the nominal search under a rolling shutter). Each pair is scored against
+``--readout-time`` (the nominal search under a rolling shutter), and with ``--pitch
+--readout-time auto`` (the readout found from the frames). Each pair is scored against
 the rendered truth: signed median and max |error| of pitch (°) and of the travel distance (%).
 
     python scripts/bench_rolling_shutter.py [--frames 8] [--out FILE.md]
@@ -43,10 +44,11 @@ ROWS: tuple[tuple[str, float, float, float], ...] = (
 )
 
 
-def scored(folder: Path, preset, traj, extra: list[str]) -> list[str]:
+def scored(folder: Path, preset, traj, extra: list[str], stderr: list[str] | None = None,
+           ) -> list[str]:
     """``estimate`` with ``extra`` options: ok pairs, pitch error median (signed) / max |.|
-    [°], distance error median (signed) / max |.| [%]."""
-    ok_pairs, _, _, _ = score(folder, preset, traj, extra)
+    [°], distance error median (signed) / max |.| [%] (its stderr lines into ``stderr``)."""
+    ok_pairs, _, _, _ = score(folder, preset, traj, extra, stderr)
     table = read_table(folder / "est.csv")
     ok = np.asarray(table["status"][1:] == "ok")
     if not ok.any():
@@ -58,6 +60,15 @@ def scored(folder: Path, preset, traj, extra: list[str]) -> list[str]:
             f"{np.median(dist):+.2f} / {np.abs(dist).max():.2f}"]
 
 
+def found_readout(stderr: list[str]) -> str:
+    """The readout ``--readout-time auto`` reported on ``stderr``: "ms ± σ", or why none."""
+    line = next((x for x in stderr if "--readout-time auto:" in x), "")
+    if not line:
+        return "—"
+    said = line.split("--readout-time auto: ")[1]
+    return "not determined" if said.startswith("not determined") else said.split(" ms")[0]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=8, help="frames per sequence")
@@ -65,10 +76,11 @@ def main(argv: list[str] | None = None) -> int:
                     default=str(ROOT / "scripts" / "results" / "bench_rolling_shutter.md"))
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
-    runs = ("--pitch", "--pitch --readout-time", "--readout-time (no --pitch)")
+    runs = ("--pitch", "--pitch --readout-time", "--readout-time (no --pitch)",
+            "--pitch --readout-time auto")
     header = ("| preset | fps | speed m/s | readout ms | readout / frame interval | "
               + " | ".join(f"{r}: ok | pitch err ° median / max | distance err % median / max"
-                           for r in runs) + " |")
+                           for r in runs) + " | auto: readout found ms |")
     lines = [
         "# Rolling shutter",
         "",
@@ -77,9 +89,12 @@ def main(argv: list[str] | None = None) -> int:
         "cart 800×600, h 0.7 m, pitch 45°), run as `vipm-track estimate --images DIR --camera "
         "CAMERA.yaml --height H` (tracking) with `--pitch` (the preset's), without and with "
         "`--readout-time` (the rendered readout), and with `--readout-time` alone (the nominal "
-        "pose searched). Errors over the pairs with status ok: signed median / max |error|.",
+        "pose searched), and with `--pitch --readout-time auto` (the readout found from the "
+        "frames, `vipm_track/readout_search.py`: ± its standard error, 'not determined' where "
+        "the fit's residual shows no trend over the readouts, then run as a global shutter). "
+        "Errors over the pairs with status ok: signed median / max |error|.",
         "",
-        header, "|" + " --- |" * (5 + 3 * len(runs)),
+        header, "|" + " --- |" * (6 + 3 * len(runs)),
     ]
     print(header)
     with tempfile.TemporaryDirectory() as tmp:
@@ -91,9 +106,12 @@ def main(argv: list[str] | None = None) -> int:
                                      effects=Effects(rolling_shutter=readout * fps))
             pitch = ["--pitch", f"{preset.pitch_deg:g}"]
             shutter = ["--readout-time", f"{readout:g}"]
+            said: list[str] = []
             cells = [*scored(folder, preset, traj, pitch),
                      *scored(folder, preset, traj, [*pitch, *shutter]),
-                     *scored(folder, preset, traj, shutter)]
+                     *scored(folder, preset, traj, shutter),
+                     *scored(folder, preset, traj, [*pitch, "--readout-time", "auto"], said),
+                     found_readout(said)]
             row = (f"| {name} | {fps:g} | {speed:g} | {readout * 1e3:g} | {readout * fps:.2f} | "
                    + " | ".join(cells) + " |")
             print(row, flush=True)

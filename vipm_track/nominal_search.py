@@ -110,7 +110,7 @@ def search_nominal_pose(
     from .estimator import STATUS_NO_MOTION, STATUS_OK, TwoFrameEstimator
     from .pipeline import config_with, estimate_pair
 
-    pairs = _moving_pairs(source, camera, max_pairs, max_frames)
+    pairs = moving_pairs(source, camera, max_pairs, max_frames)
     # the default start alone: a forward camera fails from 60° however its pitch is stepped
     default = TwoFrameEstimator(camera, height, config_with(config, cold_pitch_steps_deg=()))
     failed = 0
@@ -123,7 +123,7 @@ def search_nominal_pose(
                 return None
             found: tuple[float, PairResult] | None = (config.initial_pitch_deg, result)
         else:
-            # "no motion" included: the view moved (``_moving_pairs``), so the default
+            # "no motion" included: the view moved (``moving_pairs``), so the default
             # start's patches sat on what did not (a level camera's sky)
             found = _best_start(camera, height, config, pair)
             if found is None and result.status == STATUS_NO_MOTION:
@@ -210,17 +210,19 @@ def _settle(
     return pitch, roll, n
 
 
-def _moving_pairs(
+def moving_pairs(
     source: FrameSource, camera: CameraModel, max_pairs: int, max_frames: int,
+    stride: int = 1,
 ) -> list[MovingPair]:
     """Consecutive readable pairs in which the view moved
     (``static_content.stands_still``: a drive that starts at a standstill), the first
     ``max_pairs`` of them within the first ``max_frames`` frames (an unreadable or
-    wrong-size frame breaks the chain)."""
+    wrong-size frame breaks the chain), each pair's first frame at least ``stride`` frames
+    after the last pair's (1: every pair)."""
     from .pipeline import prepare_image
     from .static_content import noise_sigma, stands_still
 
-    out, prev = [], None
+    out, prev, next_n = [], None, 0
     for n, frame in enumerate(source):
         if n >= max_frames or len(out) >= max_pairs:
             break
@@ -229,8 +231,9 @@ def _moving_pairs(
         except ValueError:
             image = None
         current = None if image is None else (frame.index, image, noise_sigma(image), frame.t)
-        if current is not None and prev is not None and not stands_still(
+        if current is not None and prev is not None and n - 1 >= next_n and not stands_still(
                 prev[1], image, (prev[2], current[2])):
             out.append(MovingPair((prev[0], frame.index), prev[1], image, frame.t - prev[3]))
+            next_n = n - 1 + stride
         prev = current
     return out

@@ -93,7 +93,7 @@ def add_can_decoding_options(group: argparse._ActionsContainer, dbc_required: bo
                        help="only use frames from this CAN channel (can0 also matches index 0)")
     group.add_argument("--speed-scale", type=float, default=1.0,
                        help="scale factor on the speed (tyre-radius correction)")
-    group.add_argument("--clock-offset", type=clock_offset_value, default=0.0,
+    group.add_argument("--clock-offset", type=seconds_or_auto, default=0.0,
                        metavar="SECONDS|auto",
                        help="seconds added to the speed timestamps to reach the camera clock, "
                        "or 'auto': found from the data (the wheel's distance over each frame "
@@ -101,8 +101,8 @@ def add_can_decoding_options(group: argparse._ActionsContainer, dbc_required: bo
                        "the camera runs, and is printed with its uncertainty). Default 0")
 
 
-def clock_offset_value(text: str) -> float | str:
-    """``--clock-offset``: a number of seconds or ``auto``."""
+def seconds_or_auto(text: str) -> float | str:
+    """``--clock-offset``, ``--readout-time``: a number of seconds or ``auto``."""
     if text.strip().lower() == "auto":
         return "auto"
     try:

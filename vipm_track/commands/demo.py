@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputError
+from ..estimator import EstimatorConfig
 from .common import add_rerun_options
 from .estimate import add_estimator_options, build_config
 
@@ -88,7 +89,8 @@ def run_demo(
     rerun_args: argparse.Namespace | None = None,
 ) -> DemoResult:
     """Render, estimate, score and plot the demo sequence into ``out`` (see module doc);
-    ``rerun_args`` (parsed ``--rerun*`` flags) also log the run and its ground truth."""
+    ``rerun_args`` (the parsed options: ``--rerun*`` log the run and its ground truth,
+    ``--readout-time auto`` searches the readout on the rendered frames)."""
     from ..camera import load_camera
     from ..evaluate import error_table, frame_errors
     from ..pipeline import estimate_sequence
@@ -96,6 +98,7 @@ def run_demo(
     from ..sinks.rerun_sink import run_logging
     from ..sources import open_source
     from ..table import read_table
+    from .inputs import with_searched_readout
 
     if progress is None:
         progress = sys.stderr.isatty()
@@ -104,6 +107,9 @@ def run_demo(
     simulate_sequence(DEMO_PRESET, frames, sequence, seed=seed, profile=profile,
                       progress=progress)
     camera = load_camera(sequence / "camera.yaml")
+    if getattr(rerun_args, "readout_time", None) == "auto":
+        config = with_searched_readout(rerun_args, open_source(images=sequence / "images"),
+                                       camera, preset.height_m, config or EstimatorConfig())
     estimates = out / "estimates.csv"
     logging = run_logging(rerun_args or argparse.Namespace(), "vipm-track demo",
                           open_source(images=sequence / "images"), camera, config)

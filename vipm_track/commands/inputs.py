@@ -150,6 +150,58 @@ def with_searched_nominal(
     return config_with(config, initial_pitch_deg=found.pitch_deg, initial_roll_deg=roll)
 
 
+def with_searched_setup(
+    args: argparse.Namespace,
+    source: FrameSource,
+    camera: CameraModel,
+    height: float,
+    config: EstimatorConfig,
+) -> EstimatorConfig:
+    """``config`` with what the user left to the data: the nominal pose
+    (:func:`with_searched_nominal`) and the rolling shutter's readout
+    (:func:`with_searched_readout`, from that nominal pose); where both were searched, the
+    nominal pose is searched again under the readout found."""
+    searched = with_searched_nominal(args, source, camera, height, config)
+    with_readout = with_searched_readout(args, source, camera, height, searched)
+    if searched is config or with_readout.readout_s == searched.readout_s:
+        return with_readout
+    from ..pipeline import config_with
+
+    return with_searched_nominal(args, source, camera, height,
+                                 config_with(config, readout_s=with_readout.readout_s))
+
+
+def with_searched_readout(
+    args: argparse.Namespace,
+    source: FrameSource,
+    camera: CameraModel,
+    height: float,
+    config: EstimatorConfig,
+) -> EstimatorConfig:
+    """With ``--readout-time auto``: ``config`` with the readout that
+    ``readout_search.search_readout`` finds on the first frames of ``source`` that move (said
+    on stderr unless ``--quiet``; where none can be fitted or the frames do not determine it,
+    a warning and a global shutter);
+    otherwise ``config`` itself."""
+    if getattr(args, "readout_time", 0.0) != "auto":
+        return config
+    from ..pipeline import config_with
+    from ..readout_search import search_readout
+
+    found = search_readout(source, camera, height, config)
+    if found is None:
+        print("vipm-track: warning: --readout-time auto: no readout could be fitted (fewer "
+              "than 2 pairs that move were solved at the readouts tried); going on with a "
+              "global shutter (give --readout-time SECONDS)", file=sys.stderr)
+        return config_with(config, readout_s=0.0)
+    if not found.determined:
+        print(f"vipm-track: warning: {found.line()}", file=sys.stderr)
+        return config_with(config, readout_s=0.0)
+    if not getattr(args, "quiet", False):
+        print(f"vipm-track: {found.line()}", file=sys.stderr)
+    return config_with(config, readout_s=found.readout_s)
+
+
 def estimate_stream(
     args: argparse.Namespace,
     height: float,
@@ -171,7 +223,7 @@ def estimate_stream(
     camera = camera or load_camera(args.camera)
     config = config or estimator_config(args, camera)
     source = open_source(images=args.images, video=args.video, fps=args.fps)
-    config = with_searched_nominal(args, source, camera, height, config)
+    config = with_searched_setup(args, source, camera, height, config)
     if sink is not None:
         from ..sinks.rerun_sink import ImageTap
 
