@@ -87,9 +87,10 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
                        metavar="SECONDS|auto",
                        help="rolling shutter: time from the exposure of the image's first row "
                        "to its last, seconds (a CMOS dashcam's is 10-35 ms; see the sensor's "
-                       "datasheet), or 'auto': found from the first frames that move (the "
-                       "readout whose fit leaves the smallest residual, printed with its "
-                       "uncertainty; ~25 s more); the fit then gives each patch the motion "
+                       "datasheet), or 'auto': found from pairs that move in the first 300 "
+                       "frames (the readout whose fit leaves the smallest residual, printed "
+                       "with its uncertainty, ~25 s; where the residual shows no clear dip, a "
+                       "warning and a global shutter); the fit then gives each patch the motion "
                        "over its rows' exposure times. Default 0: global shutter (on a "
                        "rendered car at 0.6 m per frame a 33 ms readout left unmodelled "
                        "biases pitch by -0.4 deg and distance by +6.5 %%)")

@@ -179,10 +179,9 @@ def with_searched_readout(
     config: EstimatorConfig,
 ) -> EstimatorConfig:
     """With ``--readout-time auto``: ``config`` with the readout that
-    ``readout_search.search_readout`` finds on the first frames of ``source`` that move (said
-    on stderr unless ``--quiet``; where none can be fitted or the frames do not determine it,
-    a warning and a global shutter);
-    otherwise ``config`` itself."""
+    ``readout_search.search_readout`` finds on pairs of ``source`` that move (said on stderr
+    unless ``--quiet``; where none can be fitted or the pairs do not determine it, a warning
+    and a global shutter); otherwise ``config`` itself."""
     if getattr(args, "readout_time", 0.0) != "auto":
         return config
     from ..pipeline import config_with
