@@ -8,11 +8,15 @@ error. On rendered car and cart pairs the squared RMS residual grows with the sq
 readout error (car at 12 m/s, 33 ms readout: 0.060 px² at the truth, +0.04 / +0.16 / +0.37 px²
 at 11 / 22 / 33 ms off), so it is a parabola in the readout whose vertex is the readout.
 
-:func:`search_readout` cold-starts the first pairs in which the view moves at each of a grid of
-readouts (fractions of the frame interval, 0 = global shutter to 1 = a whole interval), sums
-the squared residuals of the pairs solved at every readout near the grid's best, and takes the
-vertex of the parabola through them; the spread of the pairs' own vertices gives its standard
-error. A global-shutter camera (KITTI's) gives a vertex near 0.
+:func:`search_readout` cold-starts pairs in which the view moves, spread over the first frames,
+with a global shutter, keeps those that travel furthest (the effect grows with the motion) and
+solves them at each of a grid of readouts (fractions of the frame interval, 0 = global shutter
+to 1 = a whole interval); it sums the squared residuals of the pairs solved at every readout
+near the grid's best and takes the vertex of the parabola through them; the spread of the
+pairs' own vertices gives its standard error. The answer counts only where the profile dips
+clearly (``MIN_DEPTH_Z``, ``MIN_AGREEMENT``): on KITTI 07, whose camera has a global shutter
+and whose ground spans few image rows, the residual only jitters with the readout, and a
+readout fitted to that jitter moved the travel by up to -8 %.
 """
 
 from __future__ import annotations
