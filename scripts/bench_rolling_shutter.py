@@ -91,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
         "`--readout-time` (the rendered readout), and with `--readout-time` alone (the nominal "
         "pose searched), and with `--pitch --readout-time auto` (the readout found from the "
         "frames, `vipm_track/readout_search.py`: ± its standard error, 'not determined' where "
-        "the fit's residual shows no trend over the readouts, then run as a global shutter). "
+        "the fit's residual shows no clear dip over the readouts, then run as a global shutter). "
         "Errors over the pairs with status ok: signed median / max |error|.",
         "",
         header, "|" + " --- |" * (6 + 3 * len(runs)),

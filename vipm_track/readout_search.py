@@ -11,7 +11,7 @@ at 11 / 22 / 33 ms off), so it is a parabola in the readout whose vertex is the 
 :func:`search_readout` cold-starts pairs in which the view moves, spread over the first frames,
 with a global shutter, keeps those that travel furthest (the effect grows with the motion) and
 solves them at each of a grid of readouts (fractions of the frame interval, 0 = global shutter
-to 1 = a whole interval); it sums the squared residuals of the pairs solved at every readout
+to 1 = a whole interval); it averages the squared residuals of the pairs solved at every readout
 near the grid's best and takes the vertex of the parabola through them; the spread of the
 pairs' own vertices gives its standard error. The answer counts only where the profile dips
 clearly (``MIN_DEPTH_Z``, ``MIN_AGREEMENT``): on KITTI 07, whose camera has a global shutter
@@ -42,16 +42,17 @@ FloatArray = NDArray[np.float64]
 CANDIDATE_FRACTIONS: tuple[float, ...] = tuple(np.round(np.linspace(0.0, 1.0, 11), 3))
 #: grid points around the best one that the parabola is fitted through
 PARABOLA_POINTS = 5
-#: a pair enters the fit only if it is solved at every one of those points
+#: fewest pairs solved at every one of those points (only such pairs enter the fit)
 MIN_PAIRS = 2
 #: the readout counts as determined where the pooled cost's dip (its median over the readouts
 #: less its lowest value) is at least this many times its noise (from the jitter of each
 #: pair's profile between neighbouring readouts) ...
 MIN_DEPTH_Z = 6.0
 #: ... and at least this share of the pairs has its own lowest cost within one readout step
-#: of the pooled one. On slow or noisy pairs (KITTI 07's first frames, 0.1 m per frame) the
-#: residual only jitters with the inlier sets: the lowest point is anywhere (z 2-5, 4 of 6
-#: pairs agreeing); a rolling shutter's dip is deep and shared (z 16 and more, every pair)
+#: of the pooled one. Where the residual only jitters with the inlier sets (KITTI 07: its
+#: first frames at 0.1 m per frame z 4.6 with 4 of 6 pairs agreeing, its fastest pairs z 2.2
+#: with 3 of 6) the lowest point is anywhere; the rendered rolling and global shutters dip
+#: deep and shared (z 12-185, every pair)
 MIN_AGREEMENT = 0.8
 
 
@@ -196,8 +197,8 @@ def _dip(cost: FloatArray) -> tuple[float, float]:
 def _pooled_vertex(
     readouts: FloatArray, cost: FloatArray,
 ) -> tuple[float, float, int, FloatArray] | None:
-    """Vertex [s] of the parabola through the summed costs (candidates × pairs, px², NaN =
-    not solved) of the pairs solved at the ``PARABOLA_POINTS`` candidates around the best
+    """Vertex [s] of the parabola through the mean costs (candidates × pairs, px², NaN = not
+    solved) of the pairs solved at the ``PARABOLA_POINTS`` candidates around the best
     median cost; its standard error from the pairs' own vertices (that of a median,
     1.2533 · 1.4826 · MAD / √n; NaN below 3 pairs); the pairs used; the pooled cost per
     candidate (mean over those pairs; NaN where one failed). None without ``MIN_PAIRS``
