@@ -24,14 +24,30 @@ from .model import NoiseParams
 FloatArray = NDArray[np.float64]
 
 
+#: fewer pairs than this in the window tell nothing of the shaking: the 'unknown' std
+_FEWEST_PAIRS = 3
+
+
+def pairs_to_start(init_pairs: int, window_s: float, min_pairs: int) -> int:
+    """Good pairs a filter collects before it starts: its ``init_pairs``, and enough for the
+    body std to be measured (``min_pairs``) where it is adaptive (``window_s`` > 0); the
+    collected pairs are then filtered with that std."""
+    return max(init_pairs, min_pairs if window_s > 0 else 0)
+
+
 class BodyScale:
     """Trailing-window covariance matching of the body std (pitch, roll), rad.
 
-    ``window_s`` ≤ 0 keeps the model's std; fewer than ``min_pairs`` pairs in the window too.
+    ``window_s`` ≤ 0 keeps the model's std. With fewer than ``min_pairs`` pairs in the window
+    the shaking is not known well yet: the std is ``NoiseParams.initial_body_std_deg`` below
+    three pairs, then the upper bound of the spread measured so far. A start that assumed the
+    calm floor would weigh a shaking vehicle's first frames as exact and bias the mount
+    towards them.
     """
 
     def __init__(self, noise: NoiseParams, window_s: float, min_pairs: int) -> None:
         self._floor = np.full(2, math.radians(noise.body_std_deg))
+        self._unknown = np.full(2, math.radians(noise.initial_body_std_deg))
         self._window_s = float(window_s)
         self._min_pairs = int(min_pairs)
         #: rows (t, body pitch, body roll, their measurement variances), s / rad / rad²,
@@ -55,11 +71,26 @@ class BodyScale:
         self._start += int(np.searchsorted(self._seen[self._start:self._end, 0],
                                            t - self._window_s))
 
+    @property
+    def pairs(self) -> int:
+        """Pairs in the window now."""
+        return self._end - self._start
+
     def std(self) -> FloatArray:
         """Stationary body std (pitch, roll), rad: the model's, or the robust scale of the
         window's body less its measurement noise where that is larger."""
-        if self._window_s <= 0 or self._end - self._start < self._min_pairs:
+        if self._window_s <= 0:
             return self._floor.copy()
+        n = self._end - self._start
+        if n < self._min_pairs:
+            if n < _FEWEST_PAIRS:
+                return self._unknown.copy()
+            # few pairs: the spread's upper 95 % bound (a MAD's relative standard error is
+            # about 1.17/√n), so that a few calm-looking pairs of a shaking vehicle are not
+            # taken as exact
+            out = np.empty(2)
+            _matched_std(self._seen[self._start:self._end], self._floor, out)
+            return np.maximum(self._floor, out * (1.0 + 2.0 * 1.17 / math.sqrt(n)))
         out = np.empty(2)
         _matched_std(self._seen[self._start:self._end], self._floor, out)
         return out

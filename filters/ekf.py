@@ -33,6 +33,7 @@ or ``run_filter(measurements, speed_series, config)`` for a whole sequence.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -45,7 +46,7 @@ from scipy.stats import chi2
 from vipm_track.measurement import PairMeasurement
 
 from . import model as M
-from .body_scale import BodyScale
+from .body_scale import BodyScale, pairs_to_start
 from .model import NoiseParams
 
 FloatArray = NDArray[np.float64]
@@ -222,6 +223,10 @@ class ExtrinsicsEKF:
         #: the measured body (pair minus filtered mount) of recent ok pairs
         cfg = self._cfg
         self._body = BodyScale(cfg.noise, cfg.body_window_s, cfg.body_window_min_pairs)
+        self._start_pairs = pairs_to_start(cfg.init_pairs, cfg.body_window_s,
+                                           cfg.body_window_min_pairs)
+        #: pairs up to this time are in the body window already (the bootstrap's)
+        self._body_seen_t = -math.inf
         h0 = self._cfg.height_m
         self._height = (h0, (self._cfg.noise.prior_height_std_rel * h0) ** 2)
 
@@ -260,12 +265,13 @@ class ExtrinsicsEKF:
 
         reason = ""
         if self._kf is None:
-            # bootstrap: collect init_pairs good pairs, start from their medians (robust to an
-            # outlier among them), then run them through the filter like any other frame
+            # bootstrap: collect init_pairs good pairs (and enough to measure the body's
+            # shaking), start from their medians (robust to an outlier among them), then run
+            # them through the filter like any other frame, with the shaking they showed
             if not usable and not self._boot:
                 return self._state(frame, t, "waiting")
             self._boot.append((measurement if usable else None, speed, dt, pair_status))
-            if sum(b[0] is not None for b in self._boot) < self._cfg.init_pairs:
+            if sum(b[0] is not None for b in self._boot) < self._start_pairs:
                 return self._state(frame, t, "waiting")
             if self._pending_reset:
                 reason = f"re-initialised after {self._pending_reset}"
@@ -332,6 +338,9 @@ class ExtrinsicsEKF:
         nz = self._cfg.noise
         h_mean, h_var = self._height
         pairs = [(m, d) for m, _, d, _ in boot if m is not None]
+        for m, _ in pairs:
+            self._body.add(m.t, m.z[2:4], self._body_var(m))
+        self._body_seen_t = pairs[-1][0].t
         zs = np.array([m.z for m, _ in pairs])
         dts = np.array([d for _, d in pairs])
         h0s = np.array([m.height_assumed for m, _ in pairs])
@@ -350,9 +359,9 @@ class ExtrinsicsEKF:
         p[M.MOUNT_PITCH, M.MOUNT_PITCH] = p[M.MOUNT_ROLL, M.MOUNT_ROLL] = ang
         p[M.MOUNT_HEIGHT, M.MOUNT_HEIGHT] = h_var
         p[M.MOUNT_YAW, M.MOUNT_YAW] = np.radians(nz.prior_mount_yaw_std_deg) ** 2
-        body = np.radians(nz.body_std_deg) ** 2
-        for i in (M.BODY_PITCH, M.BODY_ROLL, M.PREV_BODY_PITCH, M.PREV_BODY_ROLL):
-            p[i, i] = body
+        body = self._body.std() ** 2
+        for j, i in enumerate((M.BODY_PITCH, M.BODY_ROLL)):
+            p[i, i] = p[i + 2, i + 2] = body[j]
         cfg = self._cfg
         p[M.SPEED, M.SPEED] = _spread(
             speeds if len(speeds) else travel / dts, cfg.init_speed_std_min_mps,
@@ -389,7 +398,7 @@ class ExtrinsicsEKF:
         # the pairs on both sides, use them (``model.motion_given_pose``)
         r[:4, 4:] = 0.0
         r[4:, :4] = 0.0
-        pitch_roll_var = np.diag(r)[2:4].copy()  # before any soft-gate inflation
+
         y = m.z - zp
         y[6] = _wrap(y[6])
         s = h @ kf.P @ h.T + r
@@ -408,7 +417,7 @@ class ExtrinsicsEKF:
                 # prediction
                 r[np.ix_(block, block)] *= d2 / gate
                 keep.extend(block)
-        self._observe_body(m, pitch_roll_var)
+        self._observe_body(m)
         self._pose_gated_run = 0 if 0 in keep else self._pose_gated_run + 1
         self._motion_gated_run = 0 if 4 in keep else self._motion_gated_run + 1
         if keep:
@@ -424,12 +433,17 @@ class ExtrinsicsEKF:
         rejected = [name for name, rows in (("pose", 0), ("motion", 4)) if rows not in keep]
         return nis, "+".join(rejected)
 
-    def _observe_body(self, m: PairMeasurement, r: FloatArray) -> None:
-        """Add the pair's measured body (its current frame's pitch/roll minus the filtered
-        mount, variances ``r``, rad²) to the window and re-adapt the body std."""
+    def _body_var(self, m: PairMeasurement) -> FloatArray:
+        """Measurement variances (rad²) of the pair's current-frame pitch and roll."""
+        return np.diag(self._cfg.noise.pair_covariance(m.covariance, m.z[6]))[2:4]
+
+    def _observe_body(self, m: PairMeasurement) -> None:
+        """Add the pair's current-frame pitch/roll to the body window (unless the bootstrap
+        put it there) and re-adapt the body std."""
         kf = self._kf
-        assert kf is not None and self._t is not None
-        self._body.add(self._t, m.z[2:4] - kf.x[[M.MOUNT_PITCH, M.MOUNT_ROLL]], r)
+        assert kf is not None
+        if m.t > self._body_seen_t:
+            self._body.add(m.t, m.z[2:4], self._body_var(m))
         kf.body_std = self._body.std()
 
     def _restart_motion(self, m: PairMeasurement, dt: float) -> None:

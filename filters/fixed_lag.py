@@ -42,6 +42,7 @@ from vipm_track.measurement import PairMeasurement
 
 from . import model as M
 from . import window_rows as W
+from .body_scale import pairs_to_start
 from .smoother import (
     BodyTracker,
     SmoothedFrame,
@@ -148,6 +149,8 @@ class FixedLagSmoother:
         #: frames before the window starts: (pair, wheel speed, body std)
         self._boot: list[tuple[PairMeasurement, float, FloatArray]] = []
         self._body = BodyTracker(cfg)
+        self._start_pairs = pairs_to_start(cfg.init_pairs, cfg.body_window_s,
+                                           cfg.body_window_min_pairs)
         self._started = False
         self._t_last = -math.inf
         self._last_speed_t = -math.inf
@@ -167,7 +170,7 @@ class FixedLagSmoother:
         body_std = self._body.observe(m)
         if not self._started:
             self._boot.append((m, speed, body_std))
-            if sum(b.ok for b, _, _ in self._boot[1:]) < self._cfg.init_pairs:
+            if sum(b.ok for b, _, _ in self._boot[1:]) < self._start_pairs:
                 return []
             boot, self._boot = self._boot, []
             with one_blas_thread():
@@ -274,7 +277,8 @@ class FixedLagSmoother:
             if math.isfinite(sp[i]):
                 self._last_speed_t = float(t[i])
             metric = t[i] - self._last_speed_t <= cfg.speed_timeout_s
-            self._push_pair(ms[i], float(dts[i]), float(sp[i]), bool(metric), boot[i][2])
+            # the bootstrap frames with the shaking all of them showed
+            self._push_pair(ms[i], float(dts[i]), float(sp[i]), bool(metric), boot[-1][2])
         if math.isfinite(sp[0]):
             self._last_speed_t = max(self._last_speed_t, float(t[0]))
         try:
@@ -497,7 +501,7 @@ def _first_prior(
         [1e-3, 1e-3, 1e-3, nz.prior_speed_std_mps, math.radians(nz.prior_yaw_rate_std_dps)]
         + [math.radians(nz.prior_mount_angle_std_deg)] * 2
         + [nz.prior_height_std_rel * cfg.height_m, math.radians(nz.prior_mount_yaw_std_deg)]
-        + [math.radians(nz.body_std_deg)] * 2
+        + [math.radians(nz.initial_body_std_deg)] * 2
     )
     info = 1.0 / sig**2
     mu = x0.copy()

@@ -85,6 +85,10 @@ class NoiseParams:
     #: body shaking: first-order Gauss–Markov
     body_tau_s: float = 0.3
     body_std_deg: float = 0.2
+    #: body std assumed while too few pairs have been seen to measure it (``body_scale``): a
+    #: vehicle shaking by a degree (a cart on cobbles, a robot on gravel) is as likely at the
+    #: start as a calm one
+    body_std_unknown_deg: float = 1.5
     #: planar motion random walks (speed in m/s per √s, yaw rate in deg/s per √s): large
     #: enough that speed changes and turn entries rarely trip the motion gate
     speed_rw_mps_per_sqrt_s: float = 0.5
@@ -176,6 +180,12 @@ class NoiseParams:
             return cls(speed_rw_mps_per_sqrt_s=0.1, yaw_rate_rw_dps_per_sqrt_s=5.0)
         raise ValueError(f"unknown preset {preset!r}; expected 'car' or 'cart'")
 
+    @property
+    def initial_body_std_deg(self) -> float:
+        """Body std (deg) before the shaking has been measured: the prior of the first frame's
+        body and the adaptive std's start (``body_scale``)."""
+        return max(self.body_std_unknown_deg, self.body_std_deg)
+
     def speed_meas_var(self, speed_mps: float) -> float:
         """Variance of one wheel-speed reading at ``speed_mps``, (m/s)²."""
         return (self.speed_meas_std_rel * abs(speed_mps)) ** 2 + self.speed_meas_std_abs_mps**2
@@ -245,21 +255,51 @@ def initial_direction(z: FloatArray) -> float:
 
 def travel_direction(previous: float, reading: float, z: FloatArray | None) -> float:
     """Direction of travel (+1 / −1) at a frame with wheel-speed ``reading`` (m/s; NaN: none)
-    and pair motion ``z`` (None: no usable pair): −1 on a negative reading (a source that
-    signs its speed); else ``previous`` unless the reading is at most
-    ``REVERSAL_MAX_SPEED_MPS`` and the pair says otherwise (``travel_sign``)."""
-    if reading < 0.0:
-        return -1.0
-    if z is None or not reading <= REVERSAL_MAX_SPEED_MPS:
+    and pair motion ``z`` (None: no usable pair): ``previous`` unless the reading's magnitude
+    is at most ``REVERSAL_MAX_SPEED_MPS`` and the pair says otherwise (``travel_sign``).
+
+    The reading's sign is not trusted: most wheel speeds are magnitudes, and a signed one
+    whose sign convention is the opposite of ours (or a logger that negates it) would lock
+    every pair out as going the wrong way; ``speed_sign_conflicts`` reports such spans."""
+    if z is None or not abs(reading) <= REVERSAL_MAX_SPEED_MPS:
         return previous
     return float(travel_sign(z))
 
 
 def signed_speed(reading: float, direction: float) -> float:
-    """A wheel-speed ``reading`` (m/s) as the state's signed speed v: most vehicles' wheel
-    speed is a magnitude, so a non-negative reading takes the ``direction`` of travel
-    (``travel_direction``); a negative one is taken as it is, NaN stays NaN."""
-    return direction * reading if reading >= 0.0 else reading
+    """A wheel-speed ``reading`` (m/s) as the state's signed speed v: its magnitude in the
+    ``direction`` of travel (``travel_direction``); NaN stays NaN."""
+    return direction * abs(reading)
+
+
+def speed_sign_conflicts(
+    t: FloatArray, readings: FloatArray, z: FloatArray, min_span_s: float = 2.0
+) -> list[tuple[float, float]]:
+    """Spans (first, last frame time, s) of at least ``min_span_s`` over which the wheel
+    ``readings`` (m/s at frame times ``t``) are negative — a source saying it reverses —
+    while the pairs' motions ``z`` (n, 7; NaN rows: no usable pair) go forward at more than
+    ``REVERSAL_MAX_SPEED_MPS``. Frames without a reading or a pair neither break nor extend
+    a span's evidence; a frame that agrees ends it."""
+    t = np.asarray(t, dtype=float)
+    v = np.asarray(readings, dtype=float)
+    z = np.asarray(z, dtype=float).reshape(-1, 7)
+    known = np.isfinite(v) & np.all(np.isfinite(z[:, 4:6]), axis=1)
+    forward = travel_sign(np.nan_to_num(z)) > 0
+    conflict = known & (v < -REVERSAL_MAX_SPEED_MPS) & forward
+    agree = known & ~conflict
+    spans: list[tuple[float, float]] = []
+    start = last = None
+    for k in range(len(t)):
+        if conflict[k]:
+            start = t[k] if start is None else start
+            last = t[k]
+        elif agree[k] and start is not None:
+            if last - start >= min_span_s:
+                spans.append((float(start), float(last)))
+            start = last = None
+    if start is not None and last - start >= min_span_s:
+        spans.append((float(start), float(last)))
+    return spans
 
 
 def transition(

@@ -81,7 +81,9 @@ from scipy.optimize import brentq
 
 from vipm_track.errors import InputError
 
+from .body_scale import BodyScale
 from .long_run import batch_means
+from .model import NoiseParams
 
 FloatArray = NDArray[np.float64]
 
@@ -91,6 +93,9 @@ STATES: tuple[str, ...] = (
 UNCALIBRATED, CALIBRATED, DRIFTING, RECALIBRATE, INVALID, HOLD = range(6)
 AXES: tuple[str, ...] = ("pitch", "roll", "height")
 _SIEGMUND_SHIFT = 1.166  # Siegmund's correction of the CUSUM threshold for the overshoot
+#: body std over the configured one (σ/σ₀) at which the thresholds are tabulated for a body
+#: std adapted to the data; between them the threshold is interpolated in log σ
+_BODY_SCALES = np.array([1.0, 1.5, 2.0, 3.0, 5.0, 8.0, 13.0, 20.0, 35.0, 60.0])
 
 
 # --- nominal calibration ----------------------------------------------------------------------
@@ -228,6 +233,13 @@ class MonitorConfig:
     #: body shaking (the filter model's Gauss–Markov) on pitch, roll; height has none
     body_tau_s: float = 0.3
     body_std_deg: float = 0.2
+    #: the body std adapted to the data (``filters.body_scale``, as the filters do) over this
+    #: many seconds of usable frames, at least ``body_std_deg``; ``body_std_unknown_deg``
+    #: until ``body_window_min_pairs`` frames were seen; 0 keeps ``body_std_deg``. A body
+    #: shaking beyond the model would otherwise read as a mount far off nominal
+    body_window_s: float = 6.0
+    body_window_min_pairs: int = 10
+    body_std_unknown_deg: float = 1.5
     #: slow road-relative tilt on pitch and roll that is not a calibration change (road camber
     #: and slope, load, the front end's tracking correlation): Gauss–Markov, added to the
     #: long-run variance of the test. 0 = flat ground (test tracks, renders, the issue's
@@ -272,7 +284,14 @@ class MonitorConfig:
     @classmethod
     def from_noise(cls, noise: Any, **overrides: Any) -> MonitorConfig:
         """Config whose body model is that of a ``filters.model.NoiseParams``."""
-        return cls(body_tau_s=noise.body_tau_s, body_std_deg=noise.body_std_deg, **overrides)
+        return cls(body_tau_s=noise.body_tau_s, body_std_deg=noise.body_std_deg,
+                   body_std_unknown_deg=noise.body_std_unknown_deg, **overrides)
+
+    def body_noise(self) -> NoiseParams:
+        """The body part of ``filters.model.NoiseParams`` this config describes (what the
+        adaptive body std, ``body_scale.BodyScale``, reads)."""
+        return NoiseParams(body_tau_s=self.body_tau_s, body_std_deg=self.body_std_deg,
+                           body_std_unknown_deg=self.body_std_unknown_deg)
 
 
 # --- per-frame input and output ---------------------------------------------------------------
@@ -372,6 +391,11 @@ class _Arrays:
 
     body: FloatArray  # (B, 3) body estimate
     body_var: FloatArray  # (B, 3)
+    body_std: FloatArray  # (B, 3) stationary body std (rad, rad, m): the model's or adapted
+    threshold: FloatArray  # (B, 3, D) CUSUM thresholds at that body std
+    invalid_axis: NDArray[np.int64]  # (B,) axis that made the last frame INVALID
+    invalid_dev: FloatArray  # (B,) its deviation from nominal (rad or m)
+    invalid_mount: NDArray[np.bool_]  # (B,) True: the filter's mount said so, else the frames
     t_last: FloatArray  # (B, 3) time of the last used frame per axis
     cusum: FloatArray  # (B, 3, 2, D)
     zero_count: NDArray[np.int64]  # (B, 3, 2, D) value of ``count`` when the CUSUM was 0
@@ -412,24 +436,49 @@ class MonitorCore:
         self.body_std = np.array([sb, sb, 0.0])
         sr = math.radians(cfg.road_std_deg)
         self.road_std = np.array([sr, sr, 0.0])
-        meas_var = np.array([math.radians(cfg.meas_angle_std_deg) ** 2] * 2
-                            + [cfg.meas_height_std_m**2])
-        a_nom = self._decay(np.full(3, 1.0 / cfg.fps))
-        self.w_nominal = np.array([long_run_variance(self.body_std[j], a_nom[j], meas_var[j])
-                                   for j in range(3)]) + self._road_lrv(np.full(3, 1.0 / cfg.fps))
-        arl = self.n_tests * 3600.0 * cfg.fps / cfg.false_alarms_per_hour
-        self.threshold = np.empty((3, d))  # in log-likelihood units
-        for j in range(3):
-            for i in range(d):
-                sd = math.sqrt(self.w_nominal[j])
-                b = cusum_threshold(arl, -self.ref[j, i] / sd)
-                self.threshold[j, i] = b * self.delta[j, i] / sd
+        self._meas_var = np.array([math.radians(cfg.meas_angle_std_deg) ** 2] * 2
+                                  + [cfg.meas_height_std_m**2])
+        self.w_nominal = self._typical_w(self.body_std)
+        self._arl = self.n_tests * 3600.0 * cfg.fps / cfg.false_alarms_per_hour
+        # thresholds (log-likelihood units) at the model's body std and at larger adapted ones
+        self._threshold_table = np.stack([
+            self._thresholds(self._typical_w(self.body_std * np.array([k, k, 1.0])))
+            for k in _BODY_SCALES
+        ])  # (S, 3, D)
+        self.threshold = self._threshold_table[0]
         self.limits = nominal.limits
         self.nominal_values = nominal.values
         self.calib_frames = max(1, round(cfg.calibrate_after_s * cfg.fps))
         self.clear_frames = max(1, round(cfg.clear_after_s * cfg.fps))
         self.max_gated = max(0, round(cfg.max_gated_run_s * cfg.fps))
         self.reset()
+
+    def _typical_w(self, body_std: FloatArray) -> FloatArray:
+        """(3,) long-run variance per frame at the configured frame rate and measurement
+        noise for a body of stationary std ``body_std`` (3,)."""
+        dt = np.full(3, 1.0 / self.config.fps)
+        a = self._decay(dt, self._tau_of(body_std))
+        return np.array([long_run_variance(body_std[j], a[j], self._meas_var[j])
+                         for j in range(3)]) + self._road_lrv(dt)
+
+    def _thresholds(self, w: FloatArray) -> FloatArray:
+        """(3, D) CUSUM thresholds for the requested false-alarm rate at long-run
+        variances ``w`` (3,)."""
+        out = np.empty(self.delta.shape)
+        for j in range(3):
+            sd = math.sqrt(w[j])
+            for i in range(self.delta.shape[1]):
+                b = cusum_threshold(self._arl, -self.ref[j, i] / sd)
+                out[j, i] = b * self.delta[j, i] / sd
+        return out
+
+    def _tau_of(self, body_std: FloatArray) -> FloatArray:
+        """Body time constants (s) at stationary std ``body_std`` (..., 3): the model's
+        τ·(σ₀/σ)², as ``filters.model.body_transition`` (the body's low-frequency power stays
+        the model's; the shaking beyond it is fast)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(body_std > 0, self.body_std / body_std, 1.0)
+        return self.tau * np.where(self.body_std > 0, ratio, 1.0) ** 2
 
     # -- public ---------------------------------------------------------------------------
 
@@ -438,6 +487,10 @@ class MonitorCore:
         b, d = self.batch, self.delta.shape[1]
         fresh = _Arrays(
             body=np.zeros((b, 3)), body_var=np.tile(self.body_std**2, (b, 1)),
+            body_std=np.tile(self.body_std, (b, 1)),
+            threshold=np.tile(self.threshold, (b, 1, 1)),
+            invalid_axis=np.zeros(b, dtype=np.int64), invalid_dev=np.zeros(b),
+            invalid_mount=np.zeros(b, dtype=bool),
             t_last=np.full((b, 3), np.nan), cusum=np.zeros((b, 3, 2, d)),
             zero_count=np.zeros((b, 3, 2, d), dtype=np.int64),
             used=np.zeros((b, 3), dtype=np.int64), count=np.zeros(b, dtype=np.int64),
@@ -454,7 +507,7 @@ class MonitorCore:
 
     def normalised_statistic(self) -> FloatArray:
         """(B, 3): per axis, the largest CUSUM divided by its threshold (1 = alarm)."""
-        return (self.s.cusum / self.threshold[None, :, None, :]).max(axis=(2, 3))
+        return (self.s.cusum / self.s.threshold[:, :, None, :]).max(axis=(2, 3))
 
     def step(
         self,
@@ -464,14 +517,19 @@ class MonitorCore:
         usable: NDArray[np.bool_],
         gated: NDArray[np.bool_] | None = None,
         mount: FloatArray | None = None,
+        body_std: FloatArray | None = None,
     ) -> NDArray[np.int64]:
         """Advance every stream by one frame; return the state codes (B,).
 
         ``t`` (B,) s; ``pose``/``pose_var`` (B, 3) measured frame pose (rad, rad, m; NaN =
         no information on that axis) and its variance; ``usable`` (B,); ``gated`` (B,) the
-        filter rejected the frame; ``mount`` (B, 3) the filter's mount estimate or NaN.
+        filter rejected the frame; ``mount`` (B, 3) the filter's mount estimate or NaN;
+        ``body_std`` (B, 2) the body's stationary std (pitch, roll, rad) adapted to the data
+        (None: keep the current one; never below the configured ``body_std_deg``).
         """
         s, cfg = self.s, self.config
+        if body_std is not None:
+            self._set_body_std(np.asarray(body_std, dtype=float).reshape(self.batch, 2))
         usable = np.asarray(usable, dtype=bool)
         if gated is not None:
             gated = np.asarray(gated, dtype=bool) & usable
@@ -486,9 +544,9 @@ class MonitorCore:
         # whitening Kalman filter on the body (Δ = 0), then the offset observation u
         dt = np.where(np.isfinite(s.t_last), t[:, None] - s.t_last, np.inf)
         dt = np.where(dt > 0, dt, 1.0 / cfg.fps)
-        a = self._decay(dt)
+        a = self._decay(dt, self._tau_of(s.body_std))
         x_pred = a * s.body
-        p_pred = a * a * s.body_var + self.body_std**2 * (1.0 - a * a)
+        p_pred = a * a * s.body_var + s.body_std**2 * (1.0 - a * a)
         nu = dev0 - x_pred
         sv = p_pred + var0
         road_var = self.road_std**2
@@ -519,10 +577,24 @@ class MonitorCore:
         settled = s.used >= max(1, round(cfg.invalid_tau_s * cfg.fps))
         bad = settled & (np.abs(s.ema) > self.limits)
         bad[:, 2] |= settled[:, 2] & (self.nominal_values[2] + s.ema[:, 2] <= 0.0)
+        # which axis and which source (frames or the filter's mount) is furthest out
+        excess = np.where(bad, np.abs(s.ema) / self.limits, -np.inf)
+        source_dev = np.where(bad, s.ema, 0.0)
+        from_mount = np.zeros_like(bad)
         if mount is not None:
             mdev = np.asarray(mount, dtype=float) - self.nominal_values
-            bad |= np.isfinite(mdev) & (np.abs(mdev) > self.limits)
+            mbad = np.isfinite(mdev) & (np.abs(mdev) > self.limits)
+            mexcess = np.where(mbad, np.abs(mdev) / self.limits, -np.inf)
+            from_mount = mexcess > excess
+            excess = np.maximum(excess, mexcess)
+            source_dev = np.where(from_mount, mdev, source_dev)
+            bad |= mbad
         invalid_now = bad.any(axis=1)
+        worst = np.argmax(excess, axis=1)
+        rows = np.arange(self.batch)
+        s.invalid_axis = np.where(invalid_now, worst, s.invalid_axis)
+        s.invalid_dev = np.where(invalid_now, source_dev[rows, worst], s.invalid_dev)
+        s.invalid_mount = np.where(invalid_now, from_mount[rows, worst], s.invalid_mount)
 
         return self._transition(usable, invalid_now)
 
@@ -534,11 +606,28 @@ class MonitorCore:
         a = np.exp(-np.minimum(dt, 1e6) / self.config.road_tau_s)
         return long_run_variance(self.road_std, a, 0.0)
 
-    def _decay(self, dt: FloatArray) -> FloatArray:
-        tau = self.tau
-        with np.errstate(divide="ignore", invalid="ignore"):
+    @staticmethod
+    def _decay(dt: FloatArray, tau: FloatArray) -> FloatArray:
+        """AR(1) coefficient of the body over ``dt`` at time constants ``tau`` (0: white)."""
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             a = np.where(tau > 0, np.exp(-dt / np.where(tau > 0, tau, 1.0)), 0.0)
         return a
+
+    def _set_body_std(self, angle_std: FloatArray) -> None:
+        """Adopt body stds (B, 2) for pitch and roll (floored at the configured one) and the
+        thresholds that go with them."""
+        s = self.s
+        std = np.maximum(angle_std, self.body_std[:2])
+        s.body_std[:, :2] = std
+        # log-linear interpolation of the threshold table in σ/σ₀ (clamped at its ends)
+        x = np.log(np.clip(std / self.body_std[:2], _BODY_SCALES[0], _BODY_SCALES[-1]))
+        grid = np.log(_BODY_SCALES)
+        hi = np.clip(np.searchsorted(grid, x, side="right"), 1, len(grid) - 1)  # (B, 2)
+        lo = hi - 1
+        f = ((x - grid[lo]) / (grid[hi] - grid[lo]))[..., None]  # (B, 2, 1)
+        table = self._threshold_table  # (S, 3, D)
+        for j in range(2):
+            s.threshold[:, j] = (1 - f[:, j]) * table[lo[:, j], j] + f[:, j] * table[hi[:, j], j]
 
     def _transition(
         self, usable: NDArray[np.bool_], invalid_now: NDArray[np.bool_]
@@ -580,7 +669,7 @@ class MonitorCore:
         s.evidence = np.where(normal, s.evidence + 1, s.evidence)
         enough = s.evidence >= self.calib_frames
         nxt = np.where(
-            warn, DRIFTING,
+            warn & enough, DRIFTING,
             np.where(
                 base == DRIFTING,
                 np.where(calm, np.where(enough, CALIBRATED, UNCALIBRATED), DRIFTING),
@@ -627,11 +716,14 @@ class DriftMonitor:
         self._hold_event: dict[str, Any] | None = None  # a HOLD not yet long enough to report
         self._change_at: int | None = None
         self._held = 0
+        cfg = self.config
+        self._body = BodyScale(cfg.body_noise(), cfg.body_window_s, cfg.body_window_min_pairs)
 
     @property
     def thresholds(self) -> FloatArray:
-        """(3, D) CUSUM thresholds (log-likelihood units) per axis and design shift."""
-        return self.core.threshold.copy()
+        """(3, D) CUSUM thresholds (log-likelihood units) per axis and design shift, at the
+        current body std."""
+        return self.core.s.threshold[0].copy()
 
     def accept(self, nominal: NominalCalibration) -> None:
         """Adopt a new nominal calibration (after a recalibration) and start over."""
@@ -644,9 +736,15 @@ class DriftMonitor:
         var = np.asarray(inp.pose_var, dtype=float).reshape(3)
         mount = None if inp.mount is None else np.asarray(inp.mount, dtype=float).reshape(1, 3)
         before = core.s.base[0]
+        body_std = None
+        if inp.usable and self.config.body_window_s > 0:
+            dev = pose[:2] - core.nominal_values[:2]
+            if np.all(np.isfinite(dev)) and np.all(np.isfinite(var[:2])):
+                self._body.add(float(inp.t), dev, var[:2])
+            body_std = self._body.std()[None]
         code = int(core.step(
             np.array([float(inp.t)]), pose[None], var[None], np.array([bool(inp.usable)]),
-            np.array([bool(inp.gated)]), mount,
+            np.array([bool(inp.gated)]), mount, body_std,
         )[0])
         base = int(core.s.base[0])
         used = int(core.s.count[0])
@@ -697,7 +795,7 @@ class DriftMonitor:
         """Used-frame count at which the leading statistic last was zero (change time)."""
         core = self.core
         axis = int(core.s.alarm_axis[0])
-        norm = core.s.cusum[0, axis] / core.threshold[axis][None, :]
+        norm = core.s.cusum[0, axis] / core.s.threshold[0, axis][None, :]
         side, i = np.unravel_index(int(np.argmax(norm)), norm.shape)
         return int(core.s.zero_count[0, axis, side, i])
 
@@ -711,7 +809,8 @@ class DriftMonitor:
         var = np.array([h[2] for h in hist])
         est = np.full(3, np.nan)
         half = np.full(3, np.nan)
-        a = core._decay(np.full(3, 1.0 / cfg.fps))
+        body_std = core.s.body_std[0]
+        a = core._decay(np.full(3, 1.0 / cfg.fps), core._tau_of(body_std))
         a_road = math.exp(-1.0 / (cfg.fps * cfg.road_tau_s))
         for j in range(3):
             ok = np.isfinite(dev[:, j])
@@ -719,7 +818,7 @@ class DriftMonitor:
             if n == 0:
                 continue
             est[j] = float(np.median(dev[ok, j]))
-            mv = (mean_variance(core.body_std[j], a[j], float(np.mean(var[ok, j])), n)
+            mv = (mean_variance(body_std[j], a[j], float(np.mean(var[ok, j])), n)
                   + mean_variance(core.road_std[j], a_road, 0.0, n))
             half[j] = 1.96 * math.sqrt(math.pi / 2.0 * mv)
             data = batch_means(dev[ok, j])  # the data's own scatter, where wider
@@ -734,21 +833,25 @@ class DriftMonitor:
         if code == HOLD:
             return inp.hold_reason or ("gated by the filter" if inp.gated else "unusable frame")
         if code == INVALID:
-            dev = core.s.ema[0]
-            j = int(np.argmax(np.abs(dev) / core.limits))
+            j = int(core.s.invalid_axis[0])
             limit = _fmt_dev(j, core.limits[j], sign=False)
-            return f"{AXES[j]} {_fmt_dev(j, dev[j])} from nominal exceeds the limit {limit}"
+            source = "filter's mount" if core.s.invalid_mount[0] else "1 s mean of the frames"
+            return (f"{AXES[j]} {_fmt_dev(j, float(core.s.invalid_dev[0]))} from nominal "
+                    f"({source}) exceeds the limit {limit}")
         if code == UNCALIBRATED:
             return (f"collecting evidence ({int(core.s.evidence[0])}/{core.calib_frames} "
                     "usable frames)")
         if code == CALIBRATED:
             return "consistent with nominal within tolerance"
         j = int(core.s.alarm_axis[0])
-        tol = core.nominal.tolerances[j]
+        tol = _fmt_dev(j, core.nominal.tolerances[j], sign=False)
         dev = (estimate - core.nominal_values)[j] if estimate is not None else core.s.ema[0, j]
-        what = "changed" if code == RECALIBRATE else "drifting"
-        return (f"{AXES[j]} {what}: {_fmt_dev(j, dev)} from nominal, tolerance "
-                f"{_fmt_dev(j, tol, sign=False)} (statistic {stat[j]:.2f})")
+        if code == RECALIBRATE:
+            return (f"{AXES[j]} changed: {_fmt_dev(j, dev)} from nominal (median since the "
+                    f"change), beyond the tolerance {tol}: the test crossed its threshold")
+        return (f"{AXES[j]} drifting: the test stands at {stat[j]:.0%} of its threshold "
+                f"(DRIFTING from {self.config.warn_enter:.0%}); median deviation since it "
+                f"began {_fmt_dev(j, dev)}, tolerance {tol}")
 
     def _event(self, inp: MonitorInput, state: str, reason: str, estimate: FloatArray | None,
                interval: FloatArray | None) -> dict[str, Any]:

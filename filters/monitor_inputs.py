@@ -9,8 +9,10 @@ pair measurements the filter is fed, wheel speed, and the filter's states.
   ``max_speed_gap_s`` in the speed samples, the height is NaN (untested);
 - HOLD reasons: the estimator's status when not ``ok``; ``inconsistent with neighbouring
   pairs`` (an outlier: see ``inconsistent_pairs``); ``too few inliers`` below
-  ``min_inliers``; ``standstill`` below ``min_speed_mps`` (wheel speed, or the estimated
-  travel at the assumed height without it);
+  ``min_inliers``; ``standstill`` where the wheel speed is at most ``min_speed_mps`` (a
+  stop, as the filters' zero-velocity update), or without wheel speed where the pair's
+  travel is below ``min_travel_frac`` of the camera height (the scale of the ground's image
+  motion: the same rule for a 0.2 m/s robot and a 40 m/s car);
 - mount / covariance / gated: from the filter's per-frame states where given.
 """
 
@@ -75,7 +77,8 @@ def input_arrays(
     speed: Any | None = None,
     *,
     clock_offset_s: float = 0.0,
-    min_speed_mps: float = 0.5,
+    min_speed_mps: float = 0.05,
+    min_travel_frac: float = 0.005,
     min_inliers: int = 0,
     speed_std_rel: float = 0.005,
     speed_std_abs_mps: float = 0.002,
@@ -121,17 +124,15 @@ def input_arrays(
                           + 2 * z[:, 4] * z[:, 5] * cov[:, 4, 5]) / travel**2
             height = h0 * d_wheel / travel
             height_var = height**2 * (travel_var / travel**2 + dist_var / d_wheel**2)
-            moving = v_mean > min_speed_mps
+            moving = (v_mean > min_speed_mps) & (d_wheel > min_travel_frac * h0)
         height = np.where(moving, height, np.nan)
         height_var = np.where(moving, height_var, np.nan)
     else:
         v_now = np.full(n, np.nan)
-    # standstill: from the wheel speed where it covers the frame, else from the estimated
-    # travel at the assumed height (the first frame has no motion to judge)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        v_visual = travel / dt
-    v_est = np.where(np.isfinite(v_now), v_now, v_visual)
-    still = np.isfinite(v_est) & (v_est <= min_speed_mps)
+    # standstill: from the wheel speed where it covers the frame, else from the pair's travel
+    # in camera heights (travel at the assumed height over that height: the scale cancels)
+    still = np.where(np.isfinite(v_now), v_now <= min_speed_mps,
+                     travel < min_travel_frac * h0)
     reason = np.full(n, "", dtype=object)
     if consistency_gate > 0:
         reason[inconsistent_pairs(frame, z, cov, consistency_gate)] = (

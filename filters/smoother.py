@@ -315,7 +315,9 @@ def _prior_factors(
         gtsam.PriorFactorVector(
             F.key("Y", k), np.zeros(1), iso(1, math.radians(nz.prior_mount_yaw_std_deg))
         ),
-        gtsam.PriorFactorVector(F.key("B", k), np.zeros(2), iso(2, math.radians(nz.body_std_deg))),
+        gtsam.PriorFactorVector(
+            F.key("B", k), np.zeros(2), iso(2, math.radians(nz.initial_body_std_deg))
+        ),
         gtsam.PriorFactorVector(
             F.key("V", k), np.array([guess.speed[0]]), iso(1, nz.prior_speed_std_mps)
         ),
@@ -372,6 +374,7 @@ class BodyTracker:
     def __init__(self, cfg: SmootherConfig) -> None:
         self._noise = cfg.noise
         self._scale = BodyScale(cfg.noise, cfg.body_window_s, cfg.body_window_min_pairs)
+        self._min_pairs = cfg.body_window_min_pairs if cfg.body_window_s > 0 else 0
 
     def observe(self, m: PairMeasurement) -> FloatArray:
         """Add frame ``m``'s pair (if usable); the body std (pitch, roll, rad) at its time."""
@@ -379,6 +382,21 @@ class BodyTracker:
             var = np.diag(self._noise.pair_covariance(m.covariance, m.z[6]))[2:4]
             self._scale.add(m.t, m.z[2:4], var)
         return self._scale.std()
+
+    def stds(self, measurements: Sequence[PairMeasurement]) -> FloatArray:
+        """(n, 2) body std of every frame of a whole drive (rad): the trailing window's, and
+        for the frames before the window first held enough pairs to measure the shaking,
+        the std at that point (a batch may look ahead; ``observe`` alone would give them the
+        'unknown' std)."""
+        out = np.empty((len(measurements), 2))
+        counts = np.empty(len(measurements), dtype=np.int64)
+        for k, m in enumerate(measurements):
+            out[k] = self.observe(m)
+            counts[k] = self._scale.pairs
+        known = np.flatnonzero(counts >= self._min_pairs)
+        if len(known):
+            out[: known[0]] = out[known[0]]
+        return out
 
 
 def _metric_frames(t: FloatArray, speeds: FloatArray, timeout_s: float) -> NDArray[np.bool_]:
@@ -673,7 +691,7 @@ def smooth_batch(
     guess = _initial_guess(ms, sp, dts, cfg.height_m, noise=cfg.noise)
     sp = guess.wheel_speed
     metric = _metric_frames(t, sp, cfg.speed_timeout_s)
-    body = BodyTracker(cfg)
+    body_std = BodyTracker(cfg).stds(ms)
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     pairs: dict[int, tuple[gtsam.CustomFactor, gtsam.CustomFactor]] = {}
@@ -688,7 +706,7 @@ def smooth_batch(
             for f in _prior_factors(0, guess, cfg):
                 graph.add(f)
         fs = _frame_factors(
-            k, m, float(sp[k]), float(dts[k]), cfg, k == 0, bool(metric[k]), body.observe(m)
+            k, m, float(sp[k]), float(dts[k]), cfg, k == 0, bool(metric[k]), body_std[k]
         )
         for f in fs:
             graph.add(f)

@@ -243,14 +243,29 @@ def test_hold_reasons_and_frozen_statistics():
 
 
 def test_standstill_is_hold():
+    """A stop is HOLD (by the wheel speed, else by the pair's travel in camera heights);
+    a crawling vehicle whose pairs are ok is evidence, with or without wheel speed."""
     run = drive(120.0, seed=18, stop_probability=1.0, segment_mean_s=4.0)
-    arr = input_arrays(np.arange(len(run.z)), run.truth.t, run.z, run.covariance, 1.5,
-                       run.status, None, run.speed)
-    still = run.truth.speed < 0.3
-    assert still.any()
-    moving_ok = (run.truth.speed > 1.0) & (run.status == "ok")
-    assert np.all(arr.reason[still] != "")
-    assert np.all(arr.reason[moving_ok] == "")
+    still = run.truth.speed < 0.02
+    crawling_ok = (run.truth.speed > 0.1) & (run.status == "ok")
+    assert still.any() and (crawling_ok & (run.truth.speed < 1.0)).any()
+    for speed in (run.speed, None):
+        arr = input_arrays(np.arange(len(run.z)), run.truth.t, run.z, run.covariance, 1.5,
+                           run.status, None, speed)
+        assert np.all(arr.reason[still] != "")
+        assert np.all(arr.reason[crawling_ok] == "")
+    # without wheel speed the rule is the travel in camera heights: a robot 10x smaller
+    # moving 10x slower (the same image motion) stands and moves on the same frames
+    small = input_arrays(np.arange(len(run.z)), run.truth.t,
+                         run.z * np.array([1, 1, 1, 1, 0.1, 0.1, 1]), run.covariance, 0.15,
+                         run.status, None, None)
+    np.testing.assert_array_equal(small.reason, arr.reason)
+    # an ok pair that moved 0.1 % of the camera height says nothing: standstill
+    z = run.z.copy()
+    z[:, 4:6] *= 0.001 * 1.5 / np.maximum(np.hypot(z[:, 4], z[:, 5]), 1e-12)[:, None]
+    creeping = input_arrays(np.arange(len(z)), run.truth.t, z, run.covariance, 1.5,
+                            run.status, None, None)
+    np.testing.assert_array_equal(creeping.reason[run.status == "ok"], "standstill")
 
 
 def test_gated_frames_hold_only_briefly():

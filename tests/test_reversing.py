@@ -64,7 +64,8 @@ def test_filters_follow_the_vehicle_backwards(parking, method):
     (1.0, 0.5, -0.05, -1.0),  # slow: the pair says the vehicle reverses
     (-1.0, 0.5, 0.05, 1.0),   # and forward again
     (-1.0, 0.5, None, -1.0),  # no pair: keep the direction
-    (1.0, -0.5, 0.05, -1.0),  # a signed source says it reverses
+    (1.0, -0.5, 0.05, 1.0),   # a signed reading the pair contradicts: the image decides
+    (1.0, -0.5, -0.05, -1.0),  # and one it confirms
     (-1.0, float("nan"), 0.05, -1.0),  # no reading: keep it
 ])
 def test_travel_direction(previous, reading, tz, expected):
@@ -72,5 +73,4 @@ def test_travel_direction(previous, reading, tz, expected):
     direction = M.travel_direction(previous, reading, z)
     assert direction == expected
     if np.isfinite(reading):
-        assert M.signed_speed(reading, direction) == (reading if reading < 0 else
-                                                       direction * reading)
+        assert M.signed_speed(reading, direction) == direction * abs(reading)

@@ -12,7 +12,9 @@ Profiles follow the paper's experiments: ``static`` (constant pose), ``gradual``
 pitch/roll changes of a few degrees over seconds), ``shaking`` (1–3 Hz pitch/roll
 oscillations of ~1–2° plus a little height change), ``height`` (height variation),
 ``turn`` (constant yaw rate), ``drift`` (a slow linear mount pitch/roll drift, the
-calibration changing, under 1–3 Hz body shaking of ~0.3°: the filters' mount + body model).
+calibration changing, under 1–3 Hz body shaking of ~0.3°: the filters' mount + body model),
+``knock`` (the same shaking on a fixed mount whose pitch steps by 1° at 40 % of the drive:
+a camera knocked out of its calibration).
 
 Where a profile separates the slow mount (the calibration) from the body motion, the
 trajectory's ``mount_*`` arrays hold the mount part and ``gt.csv`` has ``mount_*`` columns
@@ -44,7 +46,9 @@ from .render import Effects, ExposureBand, ExposurePose, render_frame, world_pos
 from .table import TableWriter
 from .texture import TEXTURES, GroundTexture, load_texture
 
-PROFILES: tuple[str, ...] = ("static", "gradual", "shaking", "height", "turn", "drift")
+PROFILES: tuple[str, ...] = (
+    "static", "gradual", "shaking", "height", "turn", "drift", "knock",
+)
 GT_EXTRA_COLUMNS: tuple[str, ...] = (
     "prev_pitch_deg", "prev_roll_deg", "prev_height_m", "speed_mps",
     "world_x_m", "world_z_m", "world_heading_deg",
@@ -54,6 +58,10 @@ GT_EXTRA_COLUMNS: tuple[str, ...] = (
 DRIFT_RATE_DPS: tuple[float, float] = (0.01, -0.006)
 #: amplitude of each of the three body-shaking sinusoids of ``drift``, degrees (pitch, roll)
 DRIFT_SHAKE_DEG: tuple[float, float] = (0.2, 0.15)
+#: mount pitch step of ``knock`` per unit amplitude, degrees, and when it happens (fraction
+#: of the drive's duration)
+KNOCK_PITCH_DEG: float = 1.0
+KNOCK_AT: float = 0.4
 
 
 @dataclass(frozen=True)
@@ -246,7 +254,12 @@ def _drift_mount(t, p, a):
 
 
 def _drift(t, p, rng, a):
-    pitch, roll, height = _drift_mount(t, p, a)
+    return _shaken(_drift_mount(t, p, a), t, rng, a)
+
+
+def _shaken(mount, t, rng, a):
+    """The ``drift`` body shaking (three 1–3 Hz sinusoids, ``DRIFT_SHAKE_DEG``) on ``mount``."""
+    pitch, roll, height = mount
     for _ in range(3):
         f, ph = rng.uniform(1.0, 3.0, 2), rng.uniform(0, 2 * np.pi, 2)
         pitch = pitch + a * np.radians(DRIFT_SHAKE_DEG[0]) * np.sin(2 * np.pi * f[0] * t + ph[0])
@@ -254,9 +267,25 @@ def _drift(t, p, rng, a):
     return pitch, roll, height
 
 
+def knock_time(t: NDArray[np.float64]) -> float:
+    """Time (s) of the ``knock`` profile's mount step in a drive of frame times ``t``."""
+    return float(t[0] + KNOCK_AT * (t[-1] - t[0]))
+
+
+def _knock_mount(t, p, a):
+    """Mount of ``knock``: the nominal pose, its pitch stepping by ``KNOCK_PITCH_DEG`` ×
+    ``a`` at ``knock_time``."""
+    pitch, roll, height = _static(t, p, None, a)
+    return pitch + a * np.radians(KNOCK_PITCH_DEG) * (t >= knock_time(t)), roll, height
+
+
+def _knock(t, p, rng, a):
+    return _shaken(_knock_mount(t, p, a), t, rng, 1.0)
+
+
 _PROFILE_FUNCS: dict[str, Callable] = {
     "static": _static, "gradual": _gradual, "shaking": _shaking, "height": _height, "turn": _turn,
-    "drift": _drift,
+    "drift": _drift, "knock": _knock,
 }
 #: mount part (slow calibration) of the profiles that separate it from the body motion
 _MOUNT_FUNCS: dict[str, Callable] = {
@@ -264,6 +293,7 @@ _MOUNT_FUNCS: dict[str, Callable] = {
     "turn": lambda t, p, a: _static(t, p, None, a),
     "shaking": lambda t, p, a: _static(t, p, None, a),
     "drift": _drift_mount,
+    "knock": _knock_mount,
 }
 
 
