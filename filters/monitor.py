@@ -396,6 +396,7 @@ class _Arrays:
     invalid_axis: NDArray[np.int64]  # (B,) axis that made the last frame INVALID
     invalid_dev: FloatArray  # (B,) its deviation from nominal (rad or m)
     invalid_mount: NDArray[np.bool_]  # (B,) True: the filter's mount said so, else the frames
+    onset: NDArray[np.int64]  # (B,) usable-frame count where the last alarm's change began
     t_last: FloatArray  # (B, 3) time of the last used frame per axis
     cusum: FloatArray  # (B, 3, 2, D)
     zero_count: NDArray[np.int64]  # (B, 3, 2, D) value of ``count`` when the CUSUM was 0
@@ -490,7 +491,7 @@ class MonitorCore:
             body_std=np.tile(self.body_std, (b, 1)),
             threshold=np.tile(self.threshold, (b, 1, 1)),
             invalid_axis=np.zeros(b, dtype=np.int64), invalid_dev=np.zeros(b),
-            invalid_mount=np.zeros(b, dtype=bool),
+            invalid_mount=np.zeros(b, dtype=bool), onset=np.zeros(b, dtype=np.int64),
             t_last=np.full((b, 3), np.nan), cusum=np.zeros((b, 3, 2, d)),
             zero_count=np.zeros((b, 3, 2, d), dtype=np.int64),
             used=np.zeros((b, 3), dtype=np.int64), count=np.zeros(b, dtype=np.int64),
@@ -504,6 +505,21 @@ class MonitorCore:
             return
         for name in fresh.__dataclass_fields__:
             getattr(self.s, name)[streams] = getattr(fresh, name)[streams]
+
+    def change_onset(self, axis: NDArray[np.int64]) -> NDArray[np.int64]:
+        """(B,) usable-frame count at which the change on ``axis`` (B,) began: on that axis's
+        leading side, the earliest last zero of the tests still above zero (the small design
+        shifts keep evidence longer than a large one, whose last zero may be a few frames
+        back and would leave a noisy median)."""
+        s = self.s
+        rows = np.arange(self.batch)
+        cus = s.cusum[rows, axis]  # (B, 2, D)
+        norm = cus / s.threshold[rows, axis][:, None, :]
+        side = np.argmax(norm.max(axis=2), axis=1)
+        live = cus[rows, side] > 0  # (B, D)
+        zeros = np.where(live, s.zero_count[rows, axis][rows, side], np.iinfo(np.int64).max)
+        first = zeros.min(axis=1)
+        return np.where(live.any(axis=1), first, s.count)
 
     def normalised_statistic(self) -> FloatArray:
         """(B, 3): per axis, the largest CUSUM divided by its threshold (1 = alarm)."""
@@ -658,6 +674,7 @@ class MonitorCore:
         s.alarm_axis = np.where(alarm | (warn & usable & (base != RECALIBRATE)), axis, s.alarm_axis)
         s.quiet = np.where(alarm, 0, s.quiet)
         if alarm.any():
+            s.onset = np.where(alarm, self.change_onset(axis), s.onset)
             s.cusum[alarm] = 0.0
             s.zero_count[alarm] = s.count[alarm][:, None, None, None]
         # RECALIBRATE → CALIBRATED after clear_after_s of frames without a warning
@@ -751,7 +768,7 @@ class DriftMonitor:
         if inp.usable:
             self._history.append((used, pose - core.nominal_values, var))
         if base == RECALIBRATE and before != RECALIBRATE:
-            self._change_at = self._change_start()
+            self._change_at = int(core.s.onset[0])  # the statistics restarted at the alarm
         elif base not in (RECALIBRATE, DRIFTING):
             self._change_at = None
         state = STATES[code]
@@ -760,7 +777,7 @@ class DriftMonitor:
         if code in (DRIFTING, RECALIBRATE) or (code == HOLD and base in (DRIFTING, RECALIBRATE)):
             start = self._change_at if base == RECALIBRATE else self._change_start()
             estimate, interval = self._estimate(start)
-        reason = self._reason(code, base, inp, stat, estimate)
+        reason = self._reason(code, base, inp, stat, estimate, interval)
         event = self._debounced_event(inp, state, reason, estimate, interval)
         self._state = state
         return MonitorOutput(
@@ -792,12 +809,10 @@ class DriftMonitor:
         return self._event(inp, state, reason, estimate, interval)
 
     def _change_start(self) -> int:
-        """Used-frame count at which the leading statistic last was zero (change time)."""
+        """Used-frame count at which the change under way began (``MonitorCore.change_onset``
+        on the leading axis)."""
         core = self.core
-        axis = int(core.s.alarm_axis[0])
-        norm = core.s.cusum[0, axis] / core.s.threshold[0, axis][None, :]
-        side, i = np.unravel_index(int(np.argmax(norm)), norm.shape)
-        return int(core.s.zero_count[0, axis, side, i])
+        return int(core.change_onset(core.s.alarm_axis[:1])[0])
 
     def _estimate(self, start: int | None) -> tuple[FloatArray, FloatArray]:
         core, cfg = self.core, self.config
@@ -828,7 +843,7 @@ class DriftMonitor:
         return value, np.stack([value - half, value + half], axis=1)
 
     def _reason(self, code: int, base: int, inp: MonitorInput, stat: FloatArray,
-                estimate: FloatArray | None) -> str:
+                estimate: FloatArray | None, interval: FloatArray | None) -> str:
         core = self.core
         if code == HOLD:
             return inp.hold_reason or ("gated by the filter" if inp.gated else "unusable frame")
@@ -847,8 +862,13 @@ class DriftMonitor:
         tol = _fmt_dev(j, core.nominal.tolerances[j], sign=False)
         dev = (estimate - core.nominal_values)[j] if estimate is not None else core.s.ema[0, j]
         if code == RECALIBRATE:
+            span = ""
+            if interval is not None:
+                lo, hi = interval[j] - core.nominal_values[j]
+                span = f", 95 % {_fmt_dev(j, lo)} … {_fmt_dev(j, hi)}"
             return (f"{AXES[j]} changed: {_fmt_dev(j, dev)} from nominal (median since the "
-                    f"change), beyond the tolerance {tol}: the test crossed its threshold")
+                    f"change{span}), beyond the tolerance {tol}: the test crossed its "
+                    "threshold")
         return (f"{AXES[j]} drifting: the test stands at {stat[j]:.0%} of its threshold "
                 f"(DRIFTING from {self.config.warn_enter:.0%}); median deviation since it "
                 f"began {_fmt_dev(j, dev)}, tolerance {tol}")
