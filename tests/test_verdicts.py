@@ -28,7 +28,6 @@ from filters.monitor import (
     write_nominal,
 )
 from vipm_track.cli import main
-from vipm_track.measurement import read_measurements
 from vipm_track.table import read_table
 
 DATA = Path(__file__).parent / "data"
