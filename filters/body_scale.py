@@ -1,13 +1,19 @@
 """Adaptive body shaking: the Gauss–Markov body's stationary std matched to the data.
 
-The model's ``NoiseParams.body_std_deg`` is a floor. Over a trailing window the measured body
-(a pair's current-frame pitch/roll, minus the mount where a filter has one) has the robust
-variance (1.4826 · MAD)² = body variance + measurement variance (covariance matching); where
-that body std is larger than the floor, it replaces it (with a shorter time constant, so
-the shaking beyond the model is fast and does not pull the mount: ``model.body_transition``).
-Used by the EKF (body = pair minus its filtered mount) and both smoothers (body = the
-pair's angles; within a window of seconds the mount is constant, and the MAD is about the
-window's median).
+The model's ``NoiseParams.body_std_deg`` is a floor. Over a trailing window, two robust
+readings of the shaking (covariance matching), the larger taken:
+
+- the spread of the frames' pitch/roll *levels*: (1.4826 · MAD)² about the window's median,
+  less the median measurement variance, is σ² — it sees slow sway too, but a mount change
+  inside the window widens it until the window has passed;
+- the spread of the pairs' *changes* of pitch/roll between their two frames (``pair_change``),
+  in which the mount cancels: under the model's body (Gauss–Markov, std σ, time constant
+  τ = τ₀(σ₀/σ)², ``model.body_transition``: shaking beyond the model is fast, so it does not
+  pull the mount) a change over Δt has the variance 2σ²(1 − exp(−Δt σ²/(τ₀σ₀²))) + r,
+  increasing in σ and solved for it — it sees fast shaking at once, whatever the mount does.
+
+Where the larger is above the floor it replaces it. Used by the EKF, both smoothers and the
+monitor.
 """
 
 from __future__ import annotations
@@ -35,8 +41,21 @@ def pairs_to_start(init_pairs: int, window_s: float, min_pairs: int) -> int:
     return max(init_pairs, min_pairs if window_s > 0 else 0)
 
 
+def pair_change(z: FloatArray, covariance: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """A pair's measured change of (pitch, roll) from its previous to its current frame, rad,
+    and the variances of those changes, rad², from its 7-vector ``z`` and covariance (the
+    order of ``vipm_track.measurement``); ``z`` (..., 7) and covariances (..., 7, 7) give
+    (..., 2) each."""
+    z = np.asarray(z, dtype=float)
+    c = np.asarray(covariance, dtype=float)
+    change = z[..., 2:4] - z[..., 0:2]
+    var = np.stack([c[..., 0, 0] + c[..., 2, 2] - 2.0 * c[..., 0, 2],
+                    c[..., 1, 1] + c[..., 3, 3] - 2.0 * c[..., 1, 3]], axis=-1)
+    return change, np.maximum(var, 0.0)
+
+
 class BodyScale:
-    """Trailing-window covariance matching of the body std (pitch, roll), rad.
+    """Trailing-window covariance matching of the body std (pitch, roll), rad (module doc).
 
     ``window_s`` ≤ 0 keeps the model's std. With fewer than ``min_pairs`` pairs in the window
     the shaking is not known well yet: the std is ``NoiseParams.initial_body_std_deg`` below
@@ -48,17 +67,22 @@ class BodyScale:
     def __init__(self, noise: NoiseParams, window_s: float, min_pairs: int) -> None:
         self._floor = np.full(2, math.radians(noise.body_std_deg))
         self._unknown = np.full(2, math.radians(noise.initial_body_std_deg))
+        self._tau0 = float(noise.body_tau_s)
         self._window_s = float(window_s)
         self._min_pairs = int(min_pairs)
-        #: rows (t, body pitch, body roll, their measurement variances), s / rad / rad²,
-        #: of the window: self._seen[self._start:self._end]
-        self._seen = np.empty((64, 5))
+        #: rows (t, pitch, roll, their variances, change of pitch, of roll, their variances,
+        #: interval), s / rad / rad² / s, of the window: self._seen[self._start:self._end]
+        self._seen = np.empty((64, 10))
         self._start = self._end = 0
 
-    def add(self, t: float, body: FloatArray, var: FloatArray) -> None:
-        """One pair's measured body (pitch, roll, rad) and its measurement variances (rad²)
-        at time ``t`` (s, increasing); drops what left the window."""
-        if self._window_s <= 0:
+    def add(self, t: float, level: FloatArray, level_var: FloatArray, change: FloatArray,
+            change_var: FloatArray, dt: float) -> None:
+        """One pair at time ``t`` (s, increasing): its current frame's (pitch, roll) ``level``
+        (rad), their measurement variances (rad²), its measured ``change`` of them over its
+        interval ``dt`` (s) and that change's variances (``pair_change``); drops what left
+        the window. A pair with a value that is not finite, or ``dt`` ≤ 0, is ignored."""
+        values = np.concatenate([level, level_var, change, change_var])
+        if self._window_s <= 0 or not (dt > 0 and np.all(np.isfinite(values))):
             return
         if self._end == len(self._seen):  # full: move the window to the front, or grow
             n = self._end - self._start
@@ -66,7 +90,9 @@ class BodyScale:
                 self._seen = np.concatenate([self._seen, np.empty_like(self._seen)])
             self._seen[:n] = self._seen[self._start:self._end]
             self._start, self._end = 0, n
-        self._seen[self._end] = (t, body[0], body[1], var[0], var[1])
+        self._seen[self._end, 0] = t
+        self._seen[self._end, 1:9] = values
+        self._seen[self._end, 9] = dt
         self._end += 1
         self._start += int(np.searchsorted(self._seen[self._start:self._end, 0],
                                            t - self._window_s))
@@ -89,19 +115,36 @@ class BodyScale:
             # about 1.17/√n), so that a few calm-looking pairs of a shaking vehicle are not
             # taken as exact
             out = np.empty(2)
-            _matched_std(self._seen[self._start:self._end], self._floor, out)
+            _matched_std(self._seen[self._start:self._end], self._floor, self._tau0, out)
             return np.maximum(self._floor, out * (1.0 + 2.0 * 1.17 / math.sqrt(n)))
         out = np.empty(2)
-        _matched_std(self._seen[self._start:self._end], self._floor, out)
+        _matched_std(self._seen[self._start:self._end], self._floor, self._tau0, out)
         return out
 
 
 @kernel
-def _matched_std(seen: FloatArray, floor: FloatArray, out: FloatArray) -> None:
-    """out = max(floor, √((1.4826·MAD)² − median variance)) per axis of the window ``seen``
-    (rows t, body pitch, roll, their variances)."""
+def _matched_std(seen: FloatArray, floor: FloatArray, tau0: float, out: FloatArray) -> None:
+    """out = the larger of the levels' and the changes' matched std, at least ``floor``, per
+    axis of the window ``seen`` (rows: ``BodyScale._seen``; module doc); Δt the median."""
+    dt = np.median(seen[:, 9])
     for axis in range(2):
+        s0 = floor[axis]
         b = seen[:, 1 + axis]
         mad = np.median(np.abs(b - np.median(b)))
-        var = (1.4826 * mad) ** 2 - np.median(seen[:, 3 + axis])
-        out[axis] = math.sqrt(max(floor[axis] ** 2, var))
+        level = math.sqrt(max(s0 * s0, (1.4826 * mad) ** 2 - np.median(seen[:, 3 + axis])))
+        d = seen[:, 5 + axis]
+        mad = np.median(np.abs(d - np.median(d)))
+        v = (1.4826 * mad) ** 2 - np.median(seen[:, 7 + axis])
+        f0 = 2.0 * s0 * s0 * (1.0 - math.exp(-dt / tau0))
+        change = s0
+        if v > f0:
+            lo, hi = s0, s0 * math.sqrt(v / f0)  # f(hi) ≥ v: its exponent is at least dt/τ₀
+            for _ in range(60):
+                mid = 0.5 * (lo + hi)
+                f = 2.0 * mid * mid * (1.0 - math.exp(-dt * mid * mid / (tau0 * s0 * s0)))
+                if f < v:
+                    lo = mid
+                else:
+                    hi = mid
+            change = 0.5 * (lo + hi)
+        out[axis] = max(level, change)

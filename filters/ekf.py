@@ -46,8 +46,9 @@ from scipy.stats import chi2
 from vipm_track.measurement import PairMeasurement
 
 from . import model as M
-from .body_scale import BodyScale, pairs_to_start
+from .body_scale import BodyScale, pair_change, pairs_to_start
 from .model import NoiseParams
+from .mount_change import MountChangeConfig, MountChangeDetector
 
 FloatArray = NDArray[np.float64]
 
@@ -101,6 +102,9 @@ class EkfConfig:
     #: p95 3.43 / 11.6 % → 3.15 / 9.5 % with 2); 2 keeps rejecting simulated outliers (cart
     #: trajectory with 10 % outliers unchanged; 4 let them bend it, 0.13 → 0.20 m RMS)
     motion_soft_gate_factor: float = 2.0
+    #: a step of the mount (a knocked camera) found in the pose innovations re-opens the
+    #: mount's variance (``filters.mount_change``)
+    mount_change: MountChangeConfig = field(default_factory=MountChangeConfig)
 
 
 class FrameStds:
@@ -227,6 +231,9 @@ class ExtrinsicsEKF:
                                            cfg.body_window_min_pairs)
         #: pairs up to this time are in the body window already (the bootstrap's)
         self._body_seen_t = -math.inf
+        self._mount_change = MountChangeDetector(cfg.mount_change)
+        #: mount steps found so far: (onset time s, axis 0 pitch / 1 roll, step rad)
+        self.mount_changes: list[tuple[float, int, float]] = []
         h0 = self._cfg.height_m
         self._height = (h0, (self._cfg.noise.prior_height_std_rel * h0) ** 2)
 
@@ -338,8 +345,8 @@ class ExtrinsicsEKF:
         nz = self._cfg.noise
         h_mean, h_var = self._height
         pairs = [(m, d) for m, _, d, _ in boot if m is not None]
-        for m, _ in pairs:
-            self._body.add(m.t, m.z[2:4], self._body_var(m))
+        for m, d in pairs:
+            self._body.add(m.t, *self._body_change(m), d)
         self._body_seen_t = pairs[-1][0].t
         zs = np.array([m.z for m, _ in pairs])
         dts = np.array([d for _, d in pairs])
@@ -402,6 +409,10 @@ class ExtrinsicsEKF:
         y = m.z - zp
         y[6] = _wrap(y[6])
         s = h @ kf.P @ h.T + r
+        step = self._mount_change.update(m.t, y[2:4], np.diag(s)[2:4])
+        if np.isfinite(step).any():
+            self._reopen_mount(step)
+            s = h @ kf.P @ h.T + r
         nis = _mahalanobis(y, s)
         keep = []
         r = r.copy()
@@ -417,7 +428,7 @@ class ExtrinsicsEKF:
                 # prediction
                 r[np.ix_(block, block)] *= d2 / gate
                 keep.extend(block)
-        self._observe_body(m)
+        self._observe_body(m, dt)
         self._pose_gated_run = 0 if 0 in keep else self._pose_gated_run + 1
         self._motion_gated_run = 0 if 4 in keep else self._motion_gated_run + 1
         if keep:
@@ -433,17 +444,41 @@ class ExtrinsicsEKF:
         rejected = [name for name, rows in (("pose", 0), ("motion", 4)) if rows not in keep]
         return nis, "+".join(rejected)
 
-    def _body_var(self, m: PairMeasurement) -> FloatArray:
-        """Measurement variances (rad²) of the pair's current-frame pitch and roll."""
-        return np.diag(self._cfg.noise.pair_covariance(m.covariance, m.z[6]))[2:4]
+    def _reopen_mount(self, step: FloatArray) -> None:
+        """Re-open the mount angles for the found steps (pitch, roll; rad, NaN: none), and say
+        so in the frame's reason.
 
-    def _observe_body(self, m: PairMeasurement) -> None:
-        """Add the pair's current-frame pitch/roll to the body window (unless the bootstrap
-        put it there) and re-adapt the body std."""
+        Until now the bodies took the step (the frames' angles = mount + body fit the pairs):
+        what is uncertain is the split, so the variance d² goes along (mount, −body,
+        −previous body), leaving their sums as well known as before; the bodies then decay
+        to zero and the pairs move the mount."""
+        kf = self._kf
+        assert kf is not None
+        notes = []
+        axes = ((M.MOUNT_PITCH, M.BODY_PITCH, M.PREV_BODY_PITCH),
+                (M.MOUNT_ROLL, M.BODY_ROLL, M.PREV_BODY_ROLL))
+        for j, ((mount, body, prev), d) in enumerate(zip(axes, step, strict=True)):
+            if np.isfinite(d):
+                self.mount_changes.append((float(self._mount_change.onset[j]), j, float(d)))
+                v = np.zeros(M.STATE_DIM)
+                v[[mount, body, prev]] = (1.0, -1.0, -1.0)
+                kf.P += d * d * np.outer(v, v)
+                notes.append(f"{('pitch', 'roll')[j]} {math.degrees(d):+.2f}°")
+        self._add_motion_note("mount re-opened after a step of " + ", ".join(notes))
+
+    def _body_change(self, m: PairMeasurement) -> tuple[FloatArray, ...]:
+        """The pair's current-frame pitch/roll (rad), their variances, its change of them and
+        the change's variances (rad², with the filters' floors: ``pair_covariance``)."""
+        cov = self._cfg.noise.pair_covariance(m.covariance, m.z[6])
+        return (m.z[2:4], np.diag(cov)[2:4], *pair_change(m.z, cov))
+
+    def _observe_body(self, m: PairMeasurement, dt: float) -> None:
+        """Add the pair's change of pitch/roll over ``dt`` s to the body window (unless the
+        bootstrap put it there) and re-adapt the body std."""
         kf = self._kf
         assert kf is not None
         if m.t > self._body_seen_t:
-            self._body.add(m.t, m.z[2:4], self._body_var(m))
+            self._body.add(m.t, *self._body_change(m), dt)
         kf.body_std = self._body.std()
 
     def _restart_motion(self, m: PairMeasurement, dt: float) -> None:
@@ -551,6 +586,7 @@ class ExtrinsicsEKF:
         self._kf = None
         self._pose_gated_run = self._motion_gated_run = self._speed_gated_run = 0
         self._pending_reset = reason
+        self._mount_change.reset()
 
     def _state(
         self, frame: int, t: float, status: str, nis: float = float("nan"), gated: str = "",
@@ -647,11 +683,13 @@ def run_filter(
     config: EkfConfig | None = None,
     clock_offset_s: float = 0.0,
     progress: bool = False,
+    ekf: ExtrinsicsEKF | None = None,
 ) -> list[FilterState]:
     """Filter a whole sequence (one measurement per frame, failed ones included); with
     ``speed_series`` the wheel speed at each frame time is applied too. Returns one
-    ``FilterState`` per measurement."""
-    ekf = ExtrinsicsEKF(config)
+    ``FilterState`` per measurement. ``ekf``: the filter to run (its ``mount_changes`` are
+    then the caller's to read), else one made from ``config``."""
+    ekf = ekf or ExtrinsicsEKF(config)
     times = np.array([m.t for m in measurements], dtype=float)
     speeds = (
         speed_at(speed_series, times, clock_offset_s) if speed_series is not None

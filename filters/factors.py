@@ -337,12 +337,20 @@ def body_factor(
     return gtsam.LinearContainerFactor(jf, lin)
 
 
-def mount_walk_factors(k: int, dt: float, noise: NoiseParams) -> list[gtsam.NonlinearFactor]:
-    """Random walks of the mount angles, height and yaw from frame k-1 to k over ``dt``."""
+def mount_walk_factors(
+    k: int, dt: float, noise: NoiseParams, jump_var: FloatArray | None = None
+) -> list[gtsam.NonlinearFactor]:
+    """Random walks of the mount angles, height and yaw from frame k-1 to k over ``dt``;
+    ``jump_var`` (pitch, roll; rad²) is added to the angles' variance where the mount may
+    have stepped (``filters.mount_change``)."""
+    models = list(_walk_noise_models(float(dt), noise))
+    if jump_var is not None:
+        q = process_noise(float(dt), noise)[M.MOUNT_PITCH, M.MOUNT_PITCH]
+        models[0] = gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(q + np.asarray(jump_var)))
     return [
         gtsam.BetweenFactorVector(key(c, k - 1), key(c, k), zero, sigma)
-        for c, zero, sigma in zip("MHY", (np.zeros(2), np.zeros(1), np.zeros(1)),
-                                  _walk_noise_models(float(dt), noise), strict=True)
+        for c, zero, sigma in zip("MHY", (np.zeros(2), np.zeros(1), np.zeros(1)), models,
+                                  strict=True)
     ]
 
 

@@ -43,6 +43,7 @@ from vipm_track.measurement import PairMeasurement
 from . import model as M
 from . import window_rows as W
 from .body_scale import pairs_to_start
+from .mount_change import MountChangeDetector
 from .smoother import (
     BodyTracker,
     SmoothedFrame,
@@ -101,6 +102,10 @@ class _PairStore:
     def pop_back(self) -> None:
         self._hi -= 1
 
+    def field(self, name: str, i: int) -> np.ndarray:
+        """Pair ``i``'s (from the front) row of field ``name``, a view to change in place."""
+        return self._arrays[name][self._lo + i]
+
     def view(self, n: int | None = None) -> W.StackedPairs:
         """The pairs (the first ``n`` only, if given) as StackedPairs of array views."""
         hi = self._hi if n is None else self._lo + n
@@ -151,6 +156,7 @@ class FixedLagSmoother:
         self._body = BodyTracker(cfg)
         self._start_pairs = pairs_to_start(cfg.init_pairs, cfg.body_window_s,
                                            cfg.body_window_min_pairs)
+        self._mount_change = MountChangeDetector(cfg.mount_change)
         self._started = False
         self._t_last = -math.inf
         self._last_speed_t = -math.inf
@@ -240,6 +246,30 @@ class FixedLagSmoother:
         self._ms.append(m)
         self._x = np.vstack([self._x, new])
         self._last = None
+        if m.ok:
+            self._watch_mount(m, dt, prev, body_std)
+
+    def _watch_mount(
+        self, m: PairMeasurement, dt: float, prev: FloatArray, body_std: FloatArray
+    ) -> None:
+        """Feed the mount-change test (``filters.mount_change``) the newest pair's angles
+        against the window's prediction (the newest frame's mount plus its decayed body); on a
+        step, let the mount jump into the frame where it began (or the window's oldest pair,
+        if that frame is final already)."""
+        decay, _ = M.body_transition(dt, self._cfg.noise, body_std)
+        cov = self._cfg.noise.pair_covariance(m.covariance, m.z[6])
+        innovation = m.z[2:4] - (prev[5:7] + decay * prev[9:11])
+        step = self._mount_change.update(m.t, innovation, body_std**2 + np.diag(cov)[2:4])
+        for j in np.flatnonzero(np.isfinite(step)):
+            onset = self._mount_change.onset[j]
+            # pair p joins frames p and p + 1 of the window
+            p = next((i for i in range(len(self._c)) if self._ms[i + 1].t >= onset),
+                     len(self._c) - 1)
+            jump = np.zeros(2)
+            jump[j] = (2.0 * step[j]) ** 2
+            pm = self._ms[p + 1]
+            W.apply_mount_jump(self._c.field("lin_jac", p), self._c.field("lin_b", p), pm,
+                               pm.t - self._ms[p].t, self._cfg.noise, jump)
 
     def _push_pair(
         self, m: PairMeasurement, dt: float, speed: float, metric: bool, body_std: FloatArray

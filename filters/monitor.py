@@ -161,11 +161,17 @@ def load_nominal(path: str | Path) -> NominalCalibration:
     if not path.is_file():
         raise InputError(f"{path}: nominal calibration file not found")
     try:
-        doc = yaml.safe_load(path.read_text())
+        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not a text file (byte {exc.start}: {exc.reason})") from exc
     except yaml.YAMLError as exc:
         raise InputError(f"{path}: not valid YAML: {exc}") from exc
     if not isinstance(doc, dict):
         raise InputError(f"{path}: expected a mapping with pitch_deg, roll_deg, height_m")
+    known = ("pitch_deg", "roll_deg", "height_m", "tolerances", "limits")
+    unknown = sorted(str(k) for k in doc if k not in known)
+    if unknown:
+        raise InputError(f"{path}: unknown key(s) {unknown}; expected {sorted(known)}")
 
     def number(section: dict[str, Any], key: str, where: str) -> float:
         try:
@@ -306,6 +312,9 @@ class MonitorInput:
     measurement variance (rad², rad², m²), body shaking excluded. ``mount``/``mount_cov``:
     the filter's mount estimate (same units) and 3×3 covariance, or None. ``usable`` False
     with a ``hold_reason`` puts the frame on HOLD; ``gated``: the filter rejected the frame.
+    ``change``/``change_var``: the pair's measured change of (pitch, roll) since the frame
+    before, ``dt`` s earlier (rad, rad²; ``body_scale.pair_change``), from which the body's
+    shaking is measured; None: the body std stays the model's.
     """
 
     frame: int
@@ -317,6 +326,9 @@ class MonitorInput:
     gated: bool = False
     mount: FloatArray | None = None
     mount_cov: FloatArray | None = None
+    change: FloatArray | None = None
+    change_var: FloatArray | None = None
+    dt: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -754,10 +766,10 @@ class DriftMonitor:
         mount = None if inp.mount is None else np.asarray(inp.mount, dtype=float).reshape(1, 3)
         before = core.s.base[0]
         body_std = None
-        if inp.usable and self.config.body_window_s > 0:
-            dev = pose[:2] - core.nominal_values[:2]
-            if np.all(np.isfinite(dev)) and np.all(np.isfinite(var[:2])):
-                self._body.add(float(inp.t), dev, var[:2])
+        if inp.usable and inp.change is not None and self.config.body_window_s > 0:
+            change_var = np.full(2, np.nan) if inp.change_var is None else inp.change_var
+            self._body.add(float(inp.t), pose[:2], var[:2], np.asarray(inp.change, dtype=float),
+                           np.asarray(change_var, dtype=float), float(inp.dt))
             body_std = self._body.std()[None]
         code = int(core.step(
             np.array([float(inp.t)]), pose[None], var[None], np.array([bool(inp.usable)]),

@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 
 from vipm_track.measurement import PairMeasurement
 
+from .body_scale import pair_change
 from .monitor import (
     DriftMonitor,
     MonitorConfig,
@@ -200,6 +201,9 @@ def inputs_from_measurements(
         [m.status for m in measurements], np.array([m.inliers for m in measurements]),
         speed, **options,
     )
+    change, change_var = pair_change(np.array([m.z for m in measurements]),
+                                     np.array([m.covariance for m in measurements]))
+    dt = np.concatenate([[np.nan], np.diff(arr.t)])
     out = []
     for k in range(n):
         mount = mount_cov = None
@@ -210,7 +214,8 @@ def inputs_from_measurements(
         out.append(MonitorInput(
             frame=int(arr.frame[k]), t=float(arr.t[k]), pose=arr.pose[k],
             pose_var=arr.pose_var[k], usable=not reason, hold_reason=reason, gated=gated,
-            mount=mount, mount_cov=mount_cov,
+            mount=mount, mount_cov=mount_cov, change=change[k], change_var=change_var[k],
+            dt=float(dt[k]),
         ))
     return out
 

@@ -38,10 +38,11 @@ from vipm_track.measurement import PairMeasurement
 
 from . import factors as F
 from . import model as M
-from .body_scale import BodyScale
-from .ekf import FrameStds, SpeedSource, speed_at
+from .body_scale import BodyScale, pair_change
+from .ekf import EkfConfig, ExtrinsicsEKF, FrameStds, SpeedSource, speed_at
 from .long_run import batch_means
 from .model import NoiseParams
+from .mount_change import MountChangeConfig
 
 FloatArray = NDArray[np.float64]
 
@@ -77,6 +78,9 @@ class SmootherConfig:
     #: over this many seconds up to it, less their measurement noise; 0 keeps the model's
     body_window_s: float = 6.0
     body_window_min_pairs: int = 10
+    #: mount steps (a knocked camera) found by the EKF's test (``filters.mount_change``) let
+    #: the batch's mount jump there
+    mount_change: MountChangeConfig = field(default_factory=MountChangeConfig)
     #: robust loss of the wheel-speed factors
     speed_loss: str = "huber"
     #: side slip allowed per frame by the no-side-slip process model, metres
@@ -338,19 +342,24 @@ def _frame_factors(
     first: bool,
     metric: bool = True,
     body_std: FloatArray | None = None,
+    mount_jump_var: FloatArray | None = None,
 ) -> list[gtsam.NonlinearFactor]:
     """Factors that frame k (key index) adds: process, body (std ``body_std``, rad; None: the
-    model's), mount walk (unless ``first``), the pair (if usable and not ``first``;
-    ``metric``: see ``motion_pair_factor``), the wheel speed (if finite) and the standstill
-    (``model.standstill_states``)."""
+    model's), mount walk (unless ``first``; ``mount_jump_var``: see ``mount_walk_factors``),
+    the pair (if usable and not ``first``; ``metric``: see ``motion_pair_factor``), the wheel
+    speed (if finite) and the standstill (``model.standstill_states``)."""
     nz = cfg.noise
     out: list[gtsam.NonlinearFactor] = []
     if not first:
         out.append(F.process_factor(k, dt, nz, cfg.cross_track_std_m))
         out.append(F.body_factor(k, dt, nz, body_std))
-        out.extend(F.mount_walk_factors(k, dt, nz))
+        out.extend(F.mount_walk_factors(k, dt, nz, mount_jump_var))
         if m.ok:
             cov = nz.pair_covariance(m.covariance, m.z[6])
+            if mount_jump_var is not None:
+                # the pair across a mount step saw its previous frame on the old mount, which
+                # its factor (one mount for both frames) can only take with the step's doubt
+                cov[[0, 1], [0, 1]] += mount_jump_var
             out.append(F.pose_pair_factor(k, m.z[:4], cov[:4, :4], cfg.loss, cfg.pair_loss_k(4)))
             given = None
             if cfg.motion_given_pose:
@@ -367,20 +376,43 @@ def _frame_factors(
     return out
 
 
+def mount_jumps(
+    ms: Sequence[PairMeasurement], speeds: FloatArray, cfg: SmootherConfig
+) -> dict[int, FloatArray]:
+    """Where the mount stepped (a knocked camera): the EKF's mount-change test
+    (``filters.mount_change``) run over the drive; key index → variance (pitch, roll; rad²)
+    to add to the mount's walk into that frame, (2 × the step)² on the axis that stepped."""
+    if not cfg.mount_change.enabled:
+        return {}
+    ekf = ExtrinsicsEKF(EkfConfig(height_m=cfg.height_m, noise=cfg.noise,
+                                  mount_change=cfg.mount_change))
+    for m, v in zip(ms, speeds, strict=True):
+        ekf.step(m, m.t, float(v), m.frame)
+    t = np.array([m.t for m in ms])
+    out: dict[int, FloatArray] = {}
+    for onset, axis, step in ekf.mount_changes:
+        k = max(1, int(np.searchsorted(t, onset)))
+        out.setdefault(k, np.zeros(2))[axis] += (2.0 * step) ** 2
+    return out
+
+
 class BodyTracker:
-    """The smoothers' adaptive body std (``body_scale.BodyScale`` on the pairs' current-frame
-    pitch/roll and their variances): feed every frame in time order."""
+    """The smoothers' adaptive body std (``body_scale.BodyScale`` on the pairs' pitch/roll,
+    their changes and variances): feed every frame in time order."""
 
     def __init__(self, cfg: SmootherConfig) -> None:
         self._noise = cfg.noise
         self._scale = BodyScale(cfg.noise, cfg.body_window_s, cfg.body_window_min_pairs)
         self._min_pairs = cfg.body_window_min_pairs if cfg.body_window_s > 0 else 0
+        self._t_last = math.nan  # time of the frame before (pairs join consecutive frames)
 
     def observe(self, m: PairMeasurement) -> FloatArray:
         """Add frame ``m``'s pair (if usable); the body std (pitch, roll, rad) at its time."""
         if m.ok:
-            var = np.diag(self._noise.pair_covariance(m.covariance, m.z[6]))[2:4]
-            self._scale.add(m.t, m.z[2:4], var)
+            cov = self._noise.pair_covariance(m.covariance, m.z[6])
+            self._scale.add(m.t, m.z[2:4], np.diag(cov)[2:4], *pair_change(m.z, cov),
+                            m.t - self._t_last)
+        self._t_last = m.t
         return self._scale.std()
 
     def stds(self, measurements: Sequence[PairMeasurement]) -> FloatArray:
@@ -692,6 +724,7 @@ def smooth_batch(
     sp = guess.wheel_speed
     metric = _metric_frames(t, sp, cfg.speed_timeout_s)
     body_std = BodyTracker(cfg).stds(ms)
+    jumps = mount_jumps(ms, sp, cfg)
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     pairs: dict[int, tuple[gtsam.CustomFactor, gtsam.CustomFactor]] = {}
@@ -706,7 +739,8 @@ def smooth_batch(
             for f in _prior_factors(0, guess, cfg):
                 graph.add(f)
         fs = _frame_factors(
-            k, m, float(sp[k]), float(dts[k]), cfg, k == 0, bool(metric[k]), body_std[k]
+            k, m, float(sp[k]), float(dts[k]), cfg, k == 0, bool(metric[k]), body_std[k],
+            jumps.get(k),
         )
         for f in fs:
             graph.add(f)

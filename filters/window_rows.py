@@ -167,6 +167,25 @@ def pair_constants(
     }
 
 
+def apply_mount_jump(
+    lin_jac: FloatArray, lin_b: FloatArray, m: PairMeasurement, dt: float, noise: NoiseParams,
+    jump_var: FloatArray,
+) -> None:
+    """Let the mount step by variance ``jump_var`` (pitch, roll; rad²) into the frame of a
+    stored pair's rows (``pair_constants``'s ``lin_jac`` (21, 22) and ``lin_b`` (21,), changed
+    in place): its mount-walk rows and the doubt of its previous frame's angles, as
+    ``smoother._frame_factors`` does for the batch."""
+    q = np.diag(F.process_noise(float(dt), noise))[[M.MOUNT_PITCH, M.MOUNT_ROLL]]
+    for i in range(2):  # mount walks: 1/√q → 1/√(q + jump)
+        lin_jac[7 + i] *= math.sqrt(q[i] / (q[i] + jump_var[i]))
+    if m.ok:
+        cov = noise.pair_covariance(m.covariance, m.z[6])
+        cov[[0, 1], [0, 1]] += jump_var
+        w_pose = F.whitener(cov[:4, :4])
+        lin_jac[POSE_ROWS] = w_pose @ _J_POSE
+        lin_b[POSE_ROWS] = w_pose @ np.asarray(m.z, dtype=float)[:4]
+
+
 def stacked_rows(
     prev: FloatArray,
     curr: FloatArray,

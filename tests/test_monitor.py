@@ -98,6 +98,8 @@ def test_nominal_round_trip(tmp_path):
         ("pitch_deg: 3\nroll_deg: 0\nheight_m: 1.5\ntolerances: {pitch: 1}\n", "pitch"),
         ("[1, 2]\n", "mapping"),
         ("pitch_deg: [3\n", "YAML"),
+        ("pitch_deg: 3\nroll_deg: 0\nheight_m: 1.5\ntolerance: {pitch_deg: 1}\n",
+         r"unknown key\(s\) \['tolerance'\]; expected .*'tolerances'"),
     ],
 )
 def test_nominal_errors_name_file_and_key(tmp_path, text, message):
@@ -106,6 +108,13 @@ def test_nominal_errors_name_file_and_key(tmp_path, text, message):
     with pytest.raises(InputError, match=message) as info:
         load_nominal(path)
     assert "bad.yaml" in str(info.value)
+
+
+def test_nominal_that_is_not_text_names_the_file(tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_bytes(b"pitch_deg: 3\n\xff\xfe\x00garbage")
+    with pytest.raises(InputError, match="bad.yaml: not a text file"):
+        load_nominal(path)
 
 
 def test_shipped_nominal_examples_load():
