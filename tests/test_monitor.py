@@ -113,7 +113,7 @@ def test_nominal_errors_name_file_and_key(tmp_path, text, message):
 def test_nominal_that_is_not_text_names_the_file(tmp_path):
     path = tmp_path / "bad.yaml"
     path.write_bytes(b"pitch_deg: 3\n\xff\xfe\x00garbage")
-    with pytest.raises(InputError, match="bad.yaml: not a text file"):
+    with pytest.raises(InputError, match=r"bad\.yaml: not a text file"):
         load_nominal(path)
 
 
