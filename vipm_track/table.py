@@ -2,7 +2,8 @@
 
 The first eight columns are fixed (``BASE_COLUMNS``); further columns follow. Rows are
 written and flushed one at a time so an interrupted run keeps everything it computed.
-Numbers are written as text with enough digits to round-trip; missing numbers are empty.
+Numbers are written as text rounded to nine decimal places (``format_float``); missing
+numbers are empty; lines end in ``\n``.
 """
 
 from __future__ import annotations
@@ -69,13 +70,31 @@ class TableError(InputError):
     """A per-frame table is unreadable or lacks a column; the message names file and row."""
 
 
+#: Decimal places a written number keeps (below a nanodegree, nanometre, nanosecond: far
+#: under any estimate's noise); smaller magnitudes keep ``SIGNIFICANT`` digits instead.
+DECIMALS = 9
+SIGNIFICANT = 12
+#: Line ending of every text file the project writes.
+LINE_END = "\n"
+
+
+def format_float(v: float) -> str:
+    """Shortest text of ``v`` rounded to :data:`DECIMALS` places (``0.3``, not
+    ``0.30000000000000004``); magnitudes below 1e-3 keep :data:`SIGNIFICANT` digits."""
+    if not math.isfinite(v):
+        return "" if math.isnan(v) else ("inf" if v > 0 else "-inf")
+    if v != 0.0 and abs(v) < 1e-3:
+        return f"{v:.{SIGNIFICANT}g}"
+    text = repr(round(v, DECIMALS))
+    return "0.0" if text == "-0.0" else text
+
+
 def format_value(value: Any) -> str:
-    """Text of one cell: empty for None/NaN, ``repr`` precision for floats."""
+    """Text of one cell: empty for None/NaN, floats by :func:`format_float`."""
     if value is None:
         return ""
     if isinstance(value, (float, np.floating)):
-        v = float(value)
-        return "" if math.isnan(v) else repr(v)
+        return format_float(float(value))
     if isinstance(value, (np.integer,)):
         return str(int(value))
     return str(value)
@@ -101,16 +120,22 @@ class TableWriter:
             _require_pyarrow()
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = self.path.open("w", newline="")
-        self._writer = csv.writer(self._file)
+        self._writer = csv.writer(self._file, lineterminator=LINE_END)
         self._writer.writerow(self.columns)
         self._file.flush()
         self._rows: list[dict[str, Any]] = []
+        self._line = io.StringIO()
+        self._line_writer = csv.writer(self._line, lineterminator=LINE_END)
 
     def write(self, row: Mapping[str, Any]) -> None:
         unknown = set(row) - set(self.columns)
         if unknown:
             raise KeyError(f"{self.path}: row has columns not in the table: {sorted(unknown)}")
-        self._writer.writerow([format_value(row.get(c)) for c in self.columns])
+        # one write of the whole line, then flush: the file never ends in half a row
+        self._line.seek(0)
+        self._line.truncate()
+        self._line_writer.writerow([format_value(row.get(c)) for c in self.columns])
+        self._file.write(self._line.getvalue())
         self._file.flush()
         if self.parquet_path is not None:
             self._rows.append(dict(row))

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 
 from ..errors import InputError
-from .common import add_can_decoding_options
+from .common import add_can_decoding_options, check_writable
 from .inputs import read_estimates, speed_on_camera_clock
 
 
@@ -57,6 +57,7 @@ def run(args: argparse.Namespace) -> int:
         write_speed_csv,
     )
 
+    check_writable(args.out, "--out")
     if args.log is not None:
         series, summary = decode_can_log(args.log, args.dbc, args.signals, combine=args.combine,
                                          channel=args.can_channel, scale=args.speed_scale,

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..camera import CameraModel, load_camera
-from ..errors import InputError
+from ..errors import InputError, NothingUsable
 from ..estimator import REFINEMENT_WEIGHTING
 from .common import (
     add_camera_options,
@@ -22,6 +22,7 @@ from .common import (
     add_rerun_options,
     check_height,
     check_output,
+    check_rerun_output,
     seconds_or_auto,
 )
 
@@ -155,10 +156,11 @@ def run(args: argparse.Namespace) -> int:
     from ..sources import open_source
     from .inputs import with_searched_setup
 
+    out = check_output(args.out, args.parquet)
+    check_rerun_output(args)
     camera = load_camera(args.camera)
     height = check_height(args.height)
     config = build_config(args, camera)
-    out = check_output(args.out)
     source = open_source(images=args.images, video=args.video, fps=args.fps,
                          start=args.start, max_frames=args.max_frames)
     parallel = parallel_settings(args)
@@ -176,6 +178,10 @@ def run(args: argparse.Namespace) -> int:
         logging.finish()
     if not args.quiet:
         print(f"{out}: {summary.line()}", file=sys.stderr)
+    if summary.ok == 0:
+        counts = ", ".join(f"{n}× {s}" for s, n in summary.statuses.most_common())
+        raise NothingUsable(f"{out}: no frame has an estimate ({counts or 'no frames'}); the "
+                            "table holds each frame's status")
     return 0
 
 

@@ -9,6 +9,7 @@ from ..errors import InputError
 from ..render import Effects
 from ..sim import PRESETS, PROFILES, simulate_sequence
 from ..texture import TEXTURES
+from .common import check_output_dir
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -55,6 +56,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_dir(args.out)
     if args.frames < 1:
         raise InputError(f"--frames must be ≥ 1, got {args.frames}")
     for name in ("fps", "speed"):
