@@ -2,8 +2,8 @@
 
 The first eight columns are fixed (``BASE_COLUMNS``); further columns follow. Rows are
 written and flushed one at a time so an interrupted run keeps everything it computed.
-Numbers are written as text rounded to nine decimal places (``format_float``); missing
-numbers are empty; lines end in ``\n``.
+Numbers are written as text at 15 significant digits (``format_float``: ``0.3``, not
+``0.30000000000000004``); missing numbers are empty; lines end in ``\n``.
 """
 
 from __future__ import annotations
@@ -70,23 +70,24 @@ class TableError(InputError):
     """A per-frame table is unreadable or lacks a column; the message names file and row."""
 
 
-#: Decimal places a written number keeps (below a nanodegree, nanometre, nanosecond: far
-#: under any estimate's noise); smaller magnitudes keep ``SIGNIFICANT`` digits instead.
+#: Significant digits a written number keeps: float64 carries 15.9, and arithmetic noise
+#: (``3 * 0.1 = 0.30000000000000004``) sits in the 16th and 17th; numbers of 10^6 and more
+#: keep 9 decimal places (a Unix time's nanoseconds) up to float64's 17 digits.
+SIGNIFICANT = 15
 DECIMALS = 9
-SIGNIFICANT = 12
 #: Line ending of every text file the project writes.
 LINE_END = "\n"
 
 
 def format_float(v: float) -> str:
-    """Shortest text of ``v`` rounded to :data:`DECIMALS` places (``0.3``, not
-    ``0.30000000000000004``); magnitudes below 1e-3 keep :data:`SIGNIFICANT` digits."""
+    """Shortest text of ``v`` at :data:`SIGNIFICANT` significant digits (``0.3``, not
+    ``0.30000000000000004``); at least :data:`DECIMALS` decimal places for large numbers."""
     if not math.isfinite(v):
         return "" if math.isnan(v) else ("inf" if v > 0 else "-inf")
-    if v != 0.0 and abs(v) < 1e-3:
-        return f"{v:.{SIGNIFICANT}g}"
-    text = repr(round(v, DECIMALS))
-    return "0.0" if text == "-0.0" else text
+    if v == 0.0:
+        return "0.0"
+    digits = min(17, max(SIGNIFICANT, math.floor(math.log10(abs(v))) + 1 + DECIMALS))
+    return repr(float(f"{v:.{digits}g}"))
 
 
 def format_value(value: Any) -> str:
