@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 import math
 import re
 import statistics
@@ -39,6 +40,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from vipm_track.errors import InputError, printable
+from vipm_track.table import LINE_END, read_text
 
 from .can_decode import MessageDecoder, SignalSpec, load_dbc, parse_signal_specs
 from .can_logs import LogRecords
@@ -611,29 +613,36 @@ def read_speed_csv(path: str | Path) -> SpeedSeries:
     summary = DecodeSummary(source=str(path))
     ts: list[float] = []
     vs: list[float] = []
-    with path.open(newline="") as fh:
-        reader = csv.reader(fh)
+    reader = csv.reader(io.StringIO(read_text(path), newline=""))
+    try:
         header = [h.strip() for h in next(reader, [])]
         if "t" not in header or "speed_mps" not in header:
-            raise InputError(f"{path}: header {header} lacks column(s) 't' and/or 'speed_mps'")
+            raise InputError(f"{path}: header {printable(header, 200)} lacks column(s) 't' "
+                             "and/or 'speed_mps'")
         it, iv = header.index("t"), header.index("speed_mps")
         for row in reader:
             if not row or all(not c.strip() for c in row):
                 continue
             summary.frames += 1
+            where = f"{path}:{reader.line_num}"
             try:
                 t, v = float(row[it]), float(row[iv])
             except (IndexError, ValueError):
                 summary.bad_rows += 1
+                summary.note(where, "not two numbers t, speed_mps")
                 continue
             if not (math.isfinite(t) and math.isfinite(v)):
                 summary.bad_rows += 1
+                summary.note(where, "not finite")
                 continue
             if ts and t <= ts[-1]:
                 summary.non_monotonic += 1
+                summary.note(where, f"t {t} not after the previous row's {ts[-1]}")
                 continue
             ts.append(t)
             vs.append(v)
+    except csv.Error as exc:
+        raise InputError(f"{path}: line {reader.line_num}: not CSV ({exc})") from None
     summary.used = summary.samples = len(ts)
     if ts:
         summary.t_first, summary.t_last = ts[0], ts[-1]
@@ -646,9 +655,9 @@ def write_speed_csv(series: SpeedSeries, path: str | Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as fh:
-        fh.write("t,speed_mps\n")
+        fh.write("t,speed_mps" + LINE_END)
         np.savetxt(fh, np.column_stack([series.t, series.speed_mps]), fmt=["%.6f", "%.5f"],
-                   delimiter=",")
+                   delimiter=",", newline=LINE_END)
     return path
 
 

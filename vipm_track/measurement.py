@@ -75,6 +75,12 @@ def measurements_from_table(
     if missing:
         raise InputError(f"{source}: estimates table lacks column(s) {missing}")
     n = len(columns["frame"])
+    frames = np.asarray(columns["frame"], dtype=float)
+    bad = ~np.isfinite(frames) | (frames != np.round(frames)) | (frames < 0)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise InputError(f"{source}: row {i + 2}: frame {frames[i]} is not a frame index "
+                         "(an integer >= 0)")
     corr_all = _correlations(columns, n, source)
     status = columns.get("status", np.array(["ok"] * n, dtype=object))
     z_all = _stack_in_radians(columns, _Z_COLUMNS)

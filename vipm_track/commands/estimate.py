@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -179,7 +180,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"{out}: {summary.line()}", file=sys.stderr)
     if summary.ok == 0:
-        counts = ", ".join(f"{n}× {s}" for s, n in summary.statuses.most_common())
+        kinds = Counter(s.split(":")[0] for s in summary.statuses.elements())
+        counts = ", ".join(f"{n}× {s}" for s, n in kinds.most_common())
         raise NothingUsable(f"{out}: no frame has an estimate ({counts or 'no frames'}); the "
                             "table holds each frame's status")
     return 0

@@ -7,7 +7,7 @@ import sys
 
 from ..errors import InputError
 from ..render import Effects
-from ..sim import PRESETS, PROFILES, simulate_sequence
+from ..sim import PRESETS, PROFILES, clear_earlier_run, simulate_sequence
 from ..texture import TEXTURES
 from .common import check_output_dir
 
@@ -74,6 +74,10 @@ def run(args: argparse.Namespace) -> int:
         highlights=args.highlights, motion_blur=args.motion_blur,
         rolling_shutter=args.readout_time * fps, obstacle=args.obstacle, seed=args.seed,
     )
+    removed = clear_earlier_run(args.out)
+    if removed:
+        print(f"vipm-track simulate: removed {removed} images of an earlier run in "
+              f"{args.out}/images", file=sys.stderr)
     traj = simulate_sequence(
         args.preset, args.frames, args.out, seed=args.seed, profile=args.profile,
         effects=effects, texture=args.texture, fps=args.fps, speed=args.speed,
