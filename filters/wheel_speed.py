@@ -105,7 +105,7 @@ class DecodeSummary:
             out.append(f"  time span {self.t_first:.6f} .. {self.t_last:.6f} s "
                        f"({self.t_last - self.t_first:.3f} s)")
         if self.channels:
-            out.append("  channels: " + ", ".join(f"{c}={n}" for c, n in sorted(
+            out.append("  channels: " + ", ".join(f"{printable(c, 40)}={n}" for c, n in sorted(
                 self.channels.items(), key=lambda kv: str(kv[0]))))
         labels = [
             ("other_ids", "frames of other DBC ids (not errors)"),

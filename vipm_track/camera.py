@@ -262,15 +262,22 @@ def _check_keys(path: Path, doc: dict, valid: tuple[str, ...], prefix: str) -> N
 
 def _read_opencv_storage(path: Path) -> CameraModel:
     try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except cv2.error as exc:
+        return _read_opencv_nodes(path)
+    except (cv2.error, SystemError) as exc:  # its parser raises either on a damaged file
+        lines = str(exc).strip().splitlines() or [type(exc).__name__]
         raise CameraFileError(path, "OpenCV FileStorage cannot parse it ("
-                              f"{printable(str(exc).strip().splitlines()[-1], 200)})") from None
+                              f"{printable(lines[-1], 200)})") from None
+
+
+def _read_opencv_nodes(path: Path) -> CameraModel:
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     if not fs.isOpened():
         raise CameraFileError(path, "OpenCV FileStorage could not open it")
     try:
         root = fs.root()
-        keys = root.keys() if root.isMap() else []
+        if not root.isMap():
+            raise CameraFileError(path, "expected a mapping of named nodes (OpenCV FileStorage)")
+        keys = root.keys()
         unknown = [k for k in keys if k not in OPENCV_KEYS + OPENCV_CALIBRATION_KEYS]
         if unknown:
             raise CameraFileError(
