@@ -654,10 +654,16 @@ def write_speed_csv(series: SpeedSeries, path: str | Path) -> Path:
     """Write ``t,speed_mps`` (µs and 0.01 mm/s resolution); the path written."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as fh:
-        fh.write("t,speed_mps" + LINE_END)
-        np.savetxt(fh, np.column_stack([series.t, series.speed_mps]), fmt=["%.6f", "%.5f"],
-                   delimiter=",", newline=LINE_END)
+    # written beside it, then renamed: an interrupted write never leaves half a table
+    partial = path.with_name(path.name + ".partial")
+    try:
+        with partial.open("w", newline="") as fh:
+            fh.write("t,speed_mps" + LINE_END)
+            np.savetxt(fh, np.column_stack([series.t, series.speed_mps]), fmt=["%.6f", "%.5f"],
+                       delimiter=",", newline=LINE_END)
+        partial.replace(path)
+    finally:
+        partial.unlink(missing_ok=True)
     return path
 
 

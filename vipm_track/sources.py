@@ -299,6 +299,9 @@ class VideoSource(FrameSource):
         self.fps = fps
         if fps is None and not (math.isfinite(self.container_fps) and self.container_fps > 0):
             raise SourceError(f"{self.path}: the video has no frame rate; pass --fps")
+        if fps is not None:
+            _say_once(f"vipm-track: frames of {self.path} timed by --fps {fps:g} (index / fps), "
+                      "not by the video's own time stamps")
         self.frame_count = max(count, 0)
         if self.frame_count and start >= self.frame_count:
             raise SourceError(
