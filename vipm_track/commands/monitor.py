@@ -17,6 +17,7 @@ import math
 import sys
 from collections import Counter
 from collections.abc import Iterator
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -172,42 +173,29 @@ def monitor_stream(
     progress: bool = False,
 ) -> Iterator[tuple[PairMeasurement, Any, Any]]:
     """(measurement, EKF state, monitor output) of every frame, each as soon as it is
-    decided: the EKF steps frame by frame, and frame k is judged once frame k+1 is in (its
-    monitor input compares its pair with both neighbours', ``monitor_inputs``). The same
-    answers as ``filters.monitor_inputs.monitor_measurements`` over the whole list."""
+    decided: the measurements' monitor inputs (``filters.monitor_inputs``: they compare a
+    pair with its neighbours) are found for the whole list at once, then the EKF steps frame
+    by frame and the monitor judges each frame with the filter's mount. The same answers as
+    ``filters.monitor_inputs.monitor_measurements``."""
     from filters.ekf import ExtrinsicsEKF, speed_at
     from filters.monitor import DriftMonitor
-    from filters.monitor_inputs import inputs_from_measurements
+    from filters.monitor_inputs import inputs_from_measurements, mount_from_state
 
     ekf = ExtrinsicsEKF(ekf_config)
     mon = DriftMonitor(nominal, config)
+    inputs = inputs_from_measurements(measurements, speed)
     times = np.array([m.t for m in measurements], dtype=float)
     speeds = speed_at(speed, times) if speed is not None else np.full(len(times), np.nan)
-    it: Any = zip(measurements, speeds, strict=True)
+    it: Any = zip(measurements, speeds, inputs, strict=True)
     if progress:
         from tqdm import tqdm
 
         it = tqdm(it, total=len(measurements), desc="monitor", unit="frame")
-    window: list[tuple[PairMeasurement, Any]] = []  # frames k-1, k, k+1
-
-    def judge(index: int) -> tuple[PairMeasurement, Any, Any]:
-        ms = [w[0] for w in window]
-        inputs = inputs_from_measurements(ms, speed, [w[1] for w in window])
-        m, state = window[index]
-        return m, state, mon.update(inputs[index])
-
-    started = False
-    for m, v in it:
-        window.append((m, ekf.step(m, m.t, float(v), m.frame)))
-        if len(window) > 3:
-            window.pop(0)
-        if len(window) == 2 and not started:
-            started = True
-            yield judge(0)
-        elif len(window) == 3:
-            yield judge(1)
-    if window:
-        yield judge(len(window) - 1)
+    for m, v, frame_input in it:
+        state = ekf.step(m, m.t, float(v), m.frame)
+        mount, mount_cov, gated = mount_from_state(state)
+        judged = replace(frame_input, mount=mount, mount_cov=mount_cov, gated=gated)
+        yield m, state, mon.update(judged)
 
 
 def monitor_row(m: PairMeasurement, state: Any, out: Any) -> dict[str, Any]:
