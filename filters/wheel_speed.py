@@ -81,6 +81,7 @@ class DecodeSummary:
     read_errors: list[str] = field(default_factory=list)
     #: the first few bad lines / frames, "FILE:LINE: why" or "FILE: frame N: why"
     examples: list[str] = field(default_factory=list)
+    interrupted: bool = False  # reading stopped by Ctrl-C / SIGTERM
     unknown_id_set: set[int] = field(default_factory=set)
     channels: Counter = field(default_factory=Counter)
     t_first: float = math.nan  # first frame's time in the log's own time base [s]
@@ -128,6 +129,8 @@ class DecodeSummary:
                         ", ..." if len(ids) > 12 else "") + "]"
                 out.append(f"  {n} {label}{extra}")
         out.extend(f"  read error: {printable(e, 300)}" for e in self.read_errors)
+        if self.interrupted:
+            out.append(f"  interrupted after {self.frames} frames")
         if self.examples:
             out.append(f"  first {len(self.examples)} bad: " + "; ".join(self.examples))
         return out
@@ -381,7 +384,9 @@ class SpeedDecoder:
 
         An exception from the iterator (an unreadable record) is recorded in
         ``summary.read_errors``; reading goes on with ``resume()`` (a fresh iterator that
-        continues after the bad record) where given, else stops keeping what was read."""
+        continues after the bad record) where given, else stops keeping what was read. An
+        interrupt (Ctrl-C) stops the reading too: the frames read before it are decoded and
+        ``summary.interrupted`` is set."""
         batches: dict[int, tuple[list[float], list[bytes], list[int], list[int]]] = {}
         seq = 0
         iterator = iter(messages)
@@ -390,6 +395,9 @@ class SpeedDecoder:
             try:
                 msg = next(iterator)
             except StopIteration:
+                break
+            except KeyboardInterrupt:
+                self.summary.interrupted = True
                 break
             except Exception as exc:  # python-can readers raise assorted types on bad files
                 errors = self.summary.read_errors
@@ -523,6 +531,8 @@ def decode_can_log(path: str | Path, dbc: str | Path | cantools.database.can.Dat
     series = decoder.feed_many(records, progress=progress)
     if records.stopped:
         summary.read_errors.append(f"{decoder.where(records.position)}: {records.stopped}")
+    if summary.interrupted and len(series) == 0:
+        raise KeyboardInterrupt
     if len(series) == 0:
         raise InputError(f"{path}: no speed sample decoded for {', '.join(decoder.signal_names)}"
                          "\n" + str(summary))
@@ -700,6 +710,8 @@ def speed_from_args(args: argparse.Namespace, progress: bool = True,
     if series.summary is not None:
         for line in series.summary.lines():
             report(line)
+        if series.summary.interrupted:
+            raise KeyboardInterrupt
     if len(series) == 0:
         raise InputError(f"{series.source}: no speed samples")
     return series.shifted(offset) if offset else series

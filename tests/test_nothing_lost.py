@@ -450,3 +450,24 @@ def test_simulate_into_an_earlier_run_leaves_no_stale_images(tmp_path, capsys):
     (out / "images" / "mine.jpg").write_bytes(b"x")
     rc, err = _run(capsys, "simulate", "--frames", "2", "--out", out)
     assert rc == 2 and "mine.jpg" in err and (out / "images" / "mine.jpg").exists()
+
+
+def test_interrupted_can_speed_writes_the_samples_decoded_before_it(tmp_path, capsys, can_data,
+                                                                    monkeypatch):
+    import filters.can_logs
+
+    real = filters.can_logs.LogRecords.__iter__
+
+    def stopping(self):
+        for k, msg in enumerate(real(self)):
+            if k == 20000:
+                raise KeyboardInterrupt
+            yield msg
+
+    monkeypatch.setattr(filters.can_logs.LogRecords, "__iter__", stopping)
+    out = tmp_path / "speed.csv"
+    rc, err = _run(capsys, "can-speed", can_data / "rav4_drive.log", "--dbc",
+                   can_data / "toyota_2017.dbc", "--out", out)
+    assert rc == 130 and "interrupted after 20000 frames" in err
+    rows = _rows(out)
+    assert 500 < len(rows) < 2000 and all(len(r.split(",")) == 2 for r in rows)

@@ -99,4 +99,6 @@ def run(args: argparse.Namespace) -> int:
                              clock_offset=series.clock_offset)
     path = write_speed_csv(series, args.out)
     print(f"wrote {len(series)} speed samples to {path}", file=sys.stderr)
+    if summary.interrupted:
+        raise KeyboardInterrupt
     return 0
