@@ -433,11 +433,15 @@ def test_wrong_image_size_names_both_sizes(tmp_path):
 
     images = tmp_path / "images"
     images.mkdir()
-    for k in range(2):
-        cv2.imwrite(str(images / f"{k:06d}.png"), np.zeros((30, 41), np.uint8))
     camera = CameraModel(np.array([[50.0, 0, 20], [0, 50, 15], [0, 0, 1]]), 40, 30)
+    cv2.imwrite(str(images / "000000.png"), np.zeros((30, 41), np.uint8))
     with pytest.raises(InputError, match=r"41×30 px but the camera model is 40×30 px"):
         list(run_sequence(open_source(images=images, fps=10), camera, 1.0, estimator=object()))
+    cv2.imwrite(str(images / "000000.png"), np.zeros((30, 40), np.uint8))
+    cv2.imwrite(str(images / "000001.png"), np.zeros((24, 32), np.uint8))
+    steps = list(run_sequence(open_source(images=images, fps=10), camera, 1.0,
+                              estimator=object()))
+    assert steps[1].status == "wrong image size 32×24 (camera 40×30)"
 
 
 def test_simulate_into_an_earlier_run_leaves_no_stale_images(tmp_path, capsys):
