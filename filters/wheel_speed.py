@@ -399,6 +399,8 @@ class SpeedDecoder:
             except KeyboardInterrupt:
                 self.summary.interrupted = True
                 break
+            except InputError:  # the log cannot be opened at all: nothing to go on with
+                raise
             except Exception as exc:  # python-can readers raise assorted types on bad files
                 errors = self.summary.read_errors
                 go_on = resume is not None and len(errors) < MAX_READ_ERRORS

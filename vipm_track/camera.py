@@ -231,7 +231,7 @@ def _read_ros_yaml(path: Path, text: str) -> CameraModel:
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
-        problem = getattr(exc, "problem", None) or type(exc).__name__
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise CameraFileError(path, f"{where}not valid YAML ({printable(problem)})") from None
     except (ValueError, TypeError, OverflowError) as exc:  # e.g. a date YAML cannot build
         raise CameraFileError(path, f"not valid YAML ({printable(exc)})") from None

@@ -182,11 +182,11 @@ def read_times(path: str | Path, expected: int | None = None) -> NDArray[np.floa
             value = float(text.split()[0])
         except ValueError as exc:
             raise SourceError(
-                f"{path}: line {lineno}: not a timestamp in seconds: {printable(text, 60)!r}"
+                f"{path}: line {lineno}: not a timestamp in seconds: '{printable(text, 60)}'"
             ) from exc
         if not math.isfinite(value):
             raise SourceError(f"{path}: line {lineno}: timestamp is not finite: "
-                              f"{printable(text, 60)!r}")
+                              f"'{printable(text, 60)}'")
         if values and value <= values[-1]:
             raise SourceError(
                 f"{path}: line {lineno}: timestamp {value} does not increase "

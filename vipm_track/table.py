@@ -233,7 +233,7 @@ def read_table(path: str | Path, required: Sequence[str] = BASE_COLUMNS[:2]) -> 
     missing = [c for c in required if c not in header]
     if missing:
         raise TableError(f"{path}: missing column(s) {missing}; header is "
-                         f"{printable(header, 300)}")
+                         f"{printable(header, 160)}")
     repeated = sorted({h for h in header if header.count(h) > 1})
     if repeated:
         raise TableError(f"{path}: column(s) {printable(repeated, 200)} appear more than once "

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -39,13 +40,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _read_times(path: str) -> np.ndarray:
-    try:
-        times = np.loadtxt(path, dtype=np.float64, ndmin=1)
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read frame times: {exc}") from exc
-    except ValueError as exc:
-        raise InputError(f"{path}: frame times must be one number per line: {exc}") from exc
-    return times.reshape(-1)
+    from ..sources import read_times
+
+    if not Path(path).is_file():
+        raise InputError(f"--frame-times {path}: file not found")
+    return read_times(path)
 
 
 def run(args: argparse.Namespace) -> int:

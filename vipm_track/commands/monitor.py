@@ -92,7 +92,11 @@ def run(args: argparse.Namespace) -> int:
     if args.events:
         check_writable(args.events, "--events")
     check_rerun_output(args)
-    nominal = load_nominal(args.nominal)
+    try:
+        nominal = load_nominal(args.nominal)
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{args.nominal}: not a text file (undecodable byte at offset "
+                         f"{exc.start}); a nominal calibration is YAML") from None
     height = check_height(nominal_height(args.height, nominal.height_m, args.nominal))
     if not (math.isfinite(args.false_alarms_per_hour) and args.false_alarms_per_hour > 0):
         raise InputError(f"--false-alarms-per-hour must be > 0, got {args.false_alarms_per_hour}")
