@@ -150,10 +150,16 @@ class LogRecords:
             last_failed = -1
             while True:
                 try:
+                    pending = feed.pending
                     for msg in reader:
-                        lines = feed.taken()
-                        self._passed_over(lines[:-1], meta)
-                        self.position = lines[-1][0] if lines else feed.lineno
+                        if len(pending) == 1:  # the usual case: one line, one frame
+                            self.position = pending[0][0]
+                            pending.clear()
+                        else:
+                            lines = feed.taken()
+                            pending = feed.pending
+                            self._passed_over(lines[:-1], meta)
+                            self.position = lines[-1][0] if lines else feed.lineno
                         yield msg
                     self._passed_over(feed.taken(), meta)
                     return

@@ -290,7 +290,7 @@ def _write_interrupted(writer, measurements, frames: list, rows: list[dict]) -> 
     idle = SimpleNamespace(initialised=False, status="interrupted", nis=float("nan"), gated="",
                            standstill=False, reset_reason="")
     for m in measurements[done:]:
-        row = track_row(replace_frame(idle, m), m, None)
+        row = track_row(_at_frame(idle, m), m, None)
         row["status"] = NOT_SMOOTHED
         writer.write(row)
         rows.append(row)
@@ -298,7 +298,7 @@ def _write_interrupted(writer, measurements, frames: list, rows: list[dict]) -> 
             f"with status '{NOT_SMOOTHED}'")
 
 
-def replace_frame(state: SimpleNamespace, m) -> SimpleNamespace:
+def _at_frame(state: SimpleNamespace, m) -> SimpleNamespace:
     """``state`` placed at the frame and time of measurement ``m``."""
     return SimpleNamespace(**{**vars(state), "frame": m.frame, "t": m.t})
 
