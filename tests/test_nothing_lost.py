@@ -363,7 +363,7 @@ def test_backward_times_and_missing_numbers_are_reported_with_rows(tmp_path, cap
     header = lines[0].split(",")
     cells = [line.split(",") for line in lines[1:]]
     cells[20][1] = cells[18][1]  # frame 20's time before frame 19's
-    cells[30][header.index("pitch_deg")] = ""  # ok, but no pitch
+    cells[30][header.index("pitch_deg")] = ""  # ok, but no pitch (rows: CSV lines)
     assert cells[30][header.index("status")] == "ok"
     path = tmp_path / "bad.csv"
     path.write_text("\n".join([lines[0], *(",".join(c) for c in cells)]) + "\n")
@@ -375,6 +375,12 @@ def test_backward_times_and_missing_numbers_are_reported_with_rows(tmp_path, cap
     assert 20 not in table["frame"].tolist() and len(table["frame"]) == 119
     k = table["frame"].tolist().index(30)
     assert table["meas_status"][k] == "no estimate (numbers missing in the table)"
+    # smooth's drive summary keeps the notes
+    out = tmp_path / "s.csv"
+    assert _run(capsys, "smooth", "--estimates", path, "--height", "1.65", "--out", out,
+                "--quiet")[0] == 0
+    notes = json.loads(out.with_suffix(".summary.json").read_text())["input_notes"]
+    assert len(notes) == 2 and "row 22 t " in notes[0] and "row 32 frame 30" in notes[1]
 
 
 def test_numbers_are_written_at_sensible_precision_with_one_line_ending(tmp_path, capsys):

@@ -225,7 +225,14 @@ def read_table(path: str | Path, required: Sequence[str] = BASE_COLUMNS[:2]) -> 
         reader = csv.reader(io.StringIO(read_text(path), newline=""))
         try:
             header = [h.strip() for h in next(reader)]
-            records = [r for r in reader if r]
+            records = []
+            for r in reader:
+                if not r:
+                    continue
+                if len(r) != len(header):
+                    raise TableError(f"{path}: line {reader.line_num}: {len(r)} cells but the "
+                                     f"header has {len(header)} (a cut or damaged row)")
+                records.append(r)
         except StopIteration:
             raise TableError(f"{path}: empty file, expected a header row") from None
         except csv.Error as exc:

@@ -88,12 +88,13 @@ def check_speed_overlap(speed: SpeedSeries, frame_times: list[float], strict: bo
           f"{times.size} frames have a wheel speed ({spans})", file=sys.stderr)
 
 
-def read_estimates(path: str, quiet: bool = False) -> list[PairMeasurement]:
+def read_estimates(path: str, quiet: bool = False, notes: list[str] | None = None,
+                   ) -> list[PairMeasurement]:
     """The pair measurements of an estimates table (``vipm-track estimate``) that form a
     sequence (``measurement.in_sequence``: a repeated frame, a frame or time going backwards
     is left out; a row saying ok without its numbers is read as no estimate), what was left
-    out said on stderr with its row numbers unless ``quiet``. InputError naming the file
-    when it is missing, empty or lacks a column."""
+    out said on stderr with its row numbers unless ``quiet`` (and appended to ``notes``).
+    InputError naming the file when it is missing, empty or lacks a column."""
     try:
         measurements = read_measurements(path)
     except ValueError as exc:  # TableError is an InputError; a missing column is not
@@ -104,8 +105,11 @@ def read_estimates(path: str, quiet: bool = False) -> list[PairMeasurement]:
         raise InputError(f"{path}: no rows")
     first_row = 1 if str(path).lower().endswith(".parquet") else 2
     measurements, issues = in_sequence(measurements, first_row)
-    if issues and not quiet:
-        for line in issues.lines(str(path)):
+    lines = issues.lines(str(path)) if issues else []
+    if notes is not None:
+        notes.extend(lines)
+    if not quiet:
+        for line in lines:
             print(f"vipm-track: warning: {line}", file=sys.stderr)
     return measurements
 
@@ -257,13 +261,17 @@ def measurements_from_args(
 ) -> list[PairMeasurement]:
     """All pair measurements of the input: ``--estimates`` read, or ``--images``/``--video``
     estimated (:func:`estimate_stream`, with a progress bar on stderr where asked). Exactly
-    one input must be given."""
+    one input must be given. Sets ``args.input_notes`` (what reading the table left out) and,
+    where an interrupt stopped the estimation, ``args.interrupted_at`` (the last frame
+    estimated: the measurements are those before it)."""
     given = [o for o in ("estimates", "images", "video") if getattr(args, o, None)]
     if len(given) != 1:
         raise InputError("give exactly one of --estimates EST.csv, --images DIR, --video FILE"
                          + (f" (got --{' --'.join(given)})" if given else ""))
     if args.estimates:
-        measurements = read_estimates(args.estimates, getattr(args, "quiet", False))
+        args.input_notes = []
+        measurements = read_estimates(args.estimates, getattr(args, "quiet", False),
+                                      args.input_notes)
         require_usable(measurements, args.estimates)
         return measurements
     stream = estimate_stream(args, height, config, sink, camera)

@@ -213,6 +213,7 @@ def run(args: argparse.Namespace) -> int:
         sink.finish()
     summary = summarize_mount(frames, measurements[: len(frames)]) if frames else {}
     summary["status"] = interrupted or "complete"
+    summary["input_notes"] = getattr(args, "input_notes", [])
     summary["smoother"] = {
         "lag_s": config.lag_s,
         "loss": config.loss,
