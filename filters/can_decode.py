@@ -16,7 +16,7 @@ import cantools
 import numpy as np
 from numpy.typing import NDArray
 
-from vipm_track.errors import InputError
+from vipm_track.errors import InputError, printable
 
 #: Speed units a DBC may state, and their factor to m/s (case-insensitive, spaces ignored).
 UNIT_TO_MPS: dict[str, float] = {
@@ -55,13 +55,28 @@ def load_dbc(path: str | Path) -> cantools.database.can.Database:
     path = Path(path)
     if not path.is_file():
         raise DbcError(f"{path}: DBC file not found")
+    binary = _binary_offset(path.read_bytes())
+    if binary is not None:
+        raise DbcError(f"{path}: not a DBC: binary content (byte {binary[1]:#04x} at offset "
+                       f"{binary[0]}); a DBC is a text file")
     try:
         db = cantools.database.load_file(str(path), database_format="dbc", strict=False)
     except Exception as exc:  # cantools raises several unrelated types for bad files
-        raise DbcError(f"{path}: cannot load as DBC: {exc}") from exc
+        where = re.search(r"line (\d+), column (\d+)", str(exc))
+        if where:
+            raise DbcError(f"{path}: line {where[1]}, column {where[2]}: not valid DBC syntax "
+                           "(cantools)") from None
+        raise DbcError(f"{path}: cannot load as DBC: {printable(exc, 200)}") from None
     if not db.messages:
         raise DbcError(f"{path}: DBC defines no messages")
     return db
+
+
+def _binary_offset(data: bytes) -> tuple[int, int] | None:
+    """(offset, byte) of the first control byte (other than tab, CR, LF, FF) in ``data``, or
+    None for a text file."""
+    match = re.search(rb"[\x00-\x08\x0b\x0e-\x1f\x7f]", data)
+    return None if match is None else (match.start(), data[match.start()])
 
 
 def unit_factor(unit: str | None, where: str) -> float:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 import math
 import re
 import statistics
@@ -38,9 +39,11 @@ import cantools
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from vipm_track.errors import InputError
+from vipm_track.errors import InputError, printable
+from vipm_track.table import LINE_END, read_text
 
 from .can_decode import MessageDecoder, SignalSpec, load_dbc, parse_signal_specs
+from .can_logs import LogRecords
 
 #: Rules combining several speed signals into one speed (rows: samples, columns: signals).
 COMBINE_RULES: dict[str, Callable[..., NDArray[np.float64]]] = {
@@ -52,10 +55,10 @@ _COMBINE_SCALAR: dict[str, Callable[[list[float]], float]] = {
 }
 #: Default largest spacing of speed samples [s] across which interpolation is trusted.
 DEFAULT_MAX_GAP = 0.5
-#: Log suffixes python-can's LogReader reads (``.mf4`` needs asammdf).
-LOG_SUFFIXES = (".log", ".asc", ".blf", ".trc", ".csv", ".mf4", ".db")
-#: Unreadable records skipped in a candump log before reading gives up.
+#: Unreadable records skipped in a binary log before reading gives up.
 MAX_READ_ERRORS = 1000
+#: Bad lines / frames a summary names (the rest are counted).
+MAX_EXAMPLES = 5
 
 
 @dataclass
@@ -74,7 +77,11 @@ class DecodeSummary:
     decode_errors: int = 0     # wanted id, undecodable or outside the DBC's [min, max]
     non_monotonic: int = 0     # wanted id, time not after its previous frame
     bad_rows: int = 0          # CSV rows that are not two finite numbers
+    bad_lines: int = 0         # log lines (or records) the reader could not read as a frame
     read_errors: list[str] = field(default_factory=list)
+    #: the first few bad lines / frames, "FILE:LINE: why" or "FILE: frame N: why"
+    examples: list[str] = field(default_factory=list)
+    interrupted: bool = False  # reading stopped by Ctrl-C / SIGTERM
     unknown_id_set: set[int] = field(default_factory=set)
     channels: Counter = field(default_factory=Counter)
     t_first: float = math.nan  # first frame's time in the log's own time base [s]
@@ -84,7 +91,12 @@ class DecodeSummary:
     def bad(self) -> int:
         """Frames or rows that were rejected as bad data (not counting other/unknown ids)."""
         return (self.error_frames + self.length_mismatch + self.decode_errors
-                + self.non_monotonic + self.bad_rows + len(self.read_errors))
+                + self.non_monotonic + self.bad_rows + self.bad_lines + len(self.read_errors))
+
+    def note(self, where: str, why: str) -> None:
+        """Keep ``where: why`` (made printable) among the first :data:`MAX_EXAMPLES`."""
+        if len(self.examples) < MAX_EXAMPLES:
+            self.examples.append(printable(f"{where}: {why}", 200))
 
     def lines(self) -> list[str]:
         """Human-readable report, one line per non-zero count."""
@@ -94,7 +106,7 @@ class DecodeSummary:
             out.append(f"  time span {self.t_first:.6f} .. {self.t_last:.6f} s "
                        f"({self.t_last - self.t_first:.3f} s)")
         if self.channels:
-            out.append("  channels: " + ", ".join(f"{c}={n}" for c, n in sorted(
+            out.append("  channels: " + ", ".join(f"{printable(c, 40)}={n}" for c, n in sorted(
                 self.channels.items(), key=lambda kv: str(kv[0]))))
         labels = [
             ("other_ids", "frames of other DBC ids (not errors)"),
@@ -105,6 +117,7 @@ class DecodeSummary:
             ("decode_errors", "wanted frames undecodable or out of the DBC range (skipped)"),
             ("non_monotonic", "wanted frames with time not after the previous (skipped)"),
             ("bad_rows", "rows that are not two finite numbers (skipped)"),
+            ("bad_lines", "lines the log reader could not read as a CAN frame (skipped)"),
         ]
         for name, label in labels:
             n = getattr(self, name)
@@ -115,7 +128,11 @@ class DecodeSummary:
                     extra = " [" + ", ".join(f"0x{i:X}" for i in ids[:12]) + (
                         ", ..." if len(ids) > 12 else "") + "]"
                 out.append(f"  {n} {label}{extra}")
-        out.extend(f"  read error: {e}" for e in self.read_errors)
+        out.extend(f"  read error: {printable(e, 300)}" for e in self.read_errors)
+        if self.interrupted:
+            out.append(f"  interrupted after {self.frames} frames")
+        if self.examples:
+            out.append(f"  first {len(self.examples)} bad: " + "; ".join(self.examples))
         return out
 
     def __str__(self) -> str:
@@ -281,10 +298,21 @@ class SpeedDecoder:
         self._v: list[NDArray[np.float64]] = []
         self._pending_t: list[float] = []           # samples from feed() not yet chunked
         self._pending_v: list[float] = []
+        #: position of the message being screened: its line in a text log (``position_kind``
+        #: "line", set by the log reader) or its frame index
+        self.position: Callable[[], int] = lambda: self.summary.frames - 1
+        self.position_kind = "frame"
 
     @property
     def signal_names(self) -> tuple[str, ...]:
         return tuple(s.name for s in self.specs)
+
+    def where(self, position: int | None = None) -> str:
+        """``FILE:LINE`` or ``FILE: frame N`` of ``position`` (default: the current message)."""
+        position = self.position() if position is None else position
+        if self.position_kind == "line":
+            return f"{self.summary.source}:{position}"
+        return f"{self.summary.source}: frame {position}"
 
     # -- per-frame screening (shared by feed and feed_many) ---------------------------------
     def _screen(self, msg) -> _Wanted | None:
@@ -312,6 +340,8 @@ class SpeedDecoder:
             return None
         if len(msg.data) != wanted.decoder.length:
             s.length_mismatch += 1
+            s.note(self.where(), f"{len(msg.data)} data bytes, the DBC's "
+                   f"{wanted.decoder.message.name} has {wanted.decoder.length}")
             return None
         return wanted
 
@@ -326,11 +356,13 @@ class SpeedDecoder:
         t = float(msg.timestamp)
         if not (math.isfinite(t) and t > wanted.t_last):
             s.non_monotonic += 1
+            s.note(self.where(), f"time {t} not after the previous frame's {wanted.t_last}")
             return None
         wanted.t_last = t
         values = wanted.decoder.decode_one(bytes(msg.data))
         if values is None:
             s.decode_errors += 1
+            s.note(self.where(), "undecodable or outside the DBC's range")
             return None
         s.used += 1
         hold = self._hold
@@ -352,8 +384,10 @@ class SpeedDecoder:
 
         An exception from the iterator (an unreadable record) is recorded in
         ``summary.read_errors``; reading goes on with ``resume()`` (a fresh iterator that
-        continues after the bad record) where given, else stops keeping what was read."""
-        batches: dict[int, tuple[list[float], list[bytes], list[int]]] = {}
+        continues after the bad record) where given, else stops keeping what was read. An
+        interrupt (Ctrl-C) stops the reading too: the frames read before it are decoded and
+        ``summary.interrupted`` is set."""
+        batches: dict[int, tuple[list[float], list[bytes], list[int], list[int]]] = {}
         seq = 0
         iterator = iter(messages)
         bar = _progress(progress, self.summary.source)
@@ -362,6 +396,11 @@ class SpeedDecoder:
                 msg = next(iterator)
             except StopIteration:
                 break
+            except KeyboardInterrupt:
+                self.summary.interrupted = True
+                break
+            except InputError:  # the log cannot be opened at all: nothing to go on with
+                raise
             except Exception as exc:  # python-can readers raise assorted types on bad files
                 errors = self.summary.read_errors
                 go_on = resume is not None and len(errors) < MAX_READ_ERRORS
@@ -378,10 +417,11 @@ class SpeedDecoder:
             wanted = self._screen(msg)
             if wanted is None:
                 continue
-            ts, data, order = batches.setdefault(id(wanted), ([], [], []))
+            ts, data, order, where = batches.setdefault(id(wanted), ([], [], [], []))
             ts.append(float(msg.timestamp))
             data.append(bytes(msg.data))
             order.append(seq)
+            where.append(self.position())
         if bar is not None:
             bar.update(self.summary.frames - bar.n)
             bar.close()
@@ -404,23 +444,28 @@ class SpeedDecoder:
                            scale=self.scale, summary=self.summary)
 
     # -- vectorised decode and combination --------------------------------------------------
-    def _process(self, batches: dict[int, tuple[list[float], list[bytes], list[int]]]
+    def _process(self, batches: dict[int, tuple[list[float], list[bytes], list[int], list[int]]]
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         self._flush()
         by_id = {id(w): w for w in self._wanted.values()}
         ev_t, ev_order, ev_rows, ev_msg = [], [], [], []
-        for m_index, (key, (ts, data, order)) in enumerate(batches.items()):
+        for m_index, (key, (ts, data, order, where)) in enumerate(batches.items()):
             wanted = by_id[key]
             t = np.asarray(ts, dtype=np.float64)
             # Accept a frame only if its time is after every earlier frame of its id.
             prior = np.maximum.accumulate(np.concatenate([[wanted.t_last], t[:-1]]))
             mono = np.isfinite(t) & (t > prior)
             self.summary.non_monotonic += int((~mono).sum())
+            for i in np.flatnonzero(~mono)[:MAX_EXAMPLES]:
+                self.summary.note(self.where(where[i]),
+                                  f"time {t[i]} not after the previous frame's {prior[i]}")
             if mono.any():
                 wanted.t_last = max(wanted.t_last, float(t[mono].max()))
             payload = np.frombuffer(b"".join(data), dtype=np.uint8).reshape(len(ts), -1)
             values, ok = wanted.decoder.decode(payload[mono])
             self.summary.decode_errors += int((~ok).sum())
+            for i in np.flatnonzero(mono)[~ok][:MAX_EXAMPLES]:
+                self.summary.note(self.where(where[i]), "undecodable or outside the DBC's range")
             self.summary.used += int(ok.sum())
             rows = np.full((int(ok.sum()), len(self.specs)), np.nan)
             rows[:, wanted.columns] = values[ok] * self._to_mps[wanted.columns]
@@ -461,25 +506,6 @@ def _progress(enabled: bool, what: str):
                 mininterval=0.5, leave=False)
 
 
-def _open_log(path: Path):
-    import can
-
-    if not path.is_file():
-        raise InputError(f"{path}: CAN log not found")
-    suffixes = [s.lower() for s in path.suffixes]
-    if suffixes and suffixes[-1] == ".gz":
-        suffixes = suffixes[:-1]
-    if not suffixes or suffixes[-1] not in LOG_SUFFIXES:
-        raise InputError(f"{path}: unsupported CAN log type (python-can reads "
-                         f"{', '.join(LOG_SUFFIXES)}, optionally .gz)")
-    try:
-        return can.LogReader(str(path))
-    except ImportError as exc:
-        raise InputError(f"{path}: this log format needs an optional package: {exc}") from exc
-    except Exception as exc:
-        raise InputError(f"{path}: cannot open as a CAN log: {exc}") from exc
-
-
 def decode_can_log(path: str | Path, dbc: str | Path | cantools.database.can.Database,
                    signals: str | list[str] | None = None, combine: str = "mean",
                    channel: str | None = None, scale: float = 1.0,
@@ -487,28 +513,32 @@ def decode_can_log(path: str | Path, dbc: str | Path | cantools.database.can.Dat
     """Speed series [t s in the log's time base, m/s] decoded from a CAN log, and the summary.
 
     ``path`` is any log python-can's ``LogReader`` reads (candump .log, Vector .asc/.blf,
-    PCAN .trc, .csv, .mf4 with asammdf). See :class:`SpeedDecoder` for the other parameters.
-    A log that yields no speed sample raises :class:`InputError` with the summary.
+    PCAN .trc, .csv, .mf4 with asammdf), read by ``filters.can_logs.LogRecords``: a line or
+    record that is not a frame is skipped, counted and (the first few) named by line or frame
+    index, and reading goes on. See :class:`SpeedDecoder` for the other parameters. A log
+    that yields no speed sample raises :class:`InputError` with the summary.
     """
     path = Path(path)
     decoder = SpeedDecoder(dbc, signals, combine=combine, channel=channel, scale=scale,
                            source=str(path))
-    reader = _open_log(path)
-    # A candump reader iterates its file line by line: a fresh iterator resumes after a bad
-    # line. The other readers parse a header first, so they stop at the first bad record.
-    import can
+    summary = decoder.summary
 
-    resume = (lambda: iter(reader)) if isinstance(reader, can.CanutilsLogReader) else None
-    try:
-        series = decoder.feed_many(reader, progress=progress, resume=resume)
-    finally:
-        stop = getattr(reader, "stop", None)
-        if stop is not None:
-            stop()
+    def bad(position: int, why: str) -> None:
+        summary.bad_lines += 1
+        summary.note(decoder.where(position), why)
+
+    records = LogRecords(path, bad)
+    decoder.position_kind = records.kind
+    decoder.position = lambda: records.position
+    series = decoder.feed_many(records, progress=progress)
+    if records.stopped:
+        summary.read_errors.append(f"{decoder.where(records.position)}: {records.stopped}")
+    if summary.interrupted and len(series) == 0:
+        raise KeyboardInterrupt
     if len(series) == 0:
         raise InputError(f"{path}: no speed sample decoded for {', '.join(decoder.signal_names)}"
-                         "\n" + str(decoder.summary))
-    return series, decoder.summary
+                         "\n" + str(summary))
+    return series, summary
 
 
 def iter_bus(bus, duration: float | None = None, max_messages: int | None = None,
@@ -595,29 +625,36 @@ def read_speed_csv(path: str | Path) -> SpeedSeries:
     summary = DecodeSummary(source=str(path))
     ts: list[float] = []
     vs: list[float] = []
-    with path.open(newline="") as fh:
-        reader = csv.reader(fh)
+    reader = csv.reader(io.StringIO(read_text(path), newline=""))
+    try:
         header = [h.strip() for h in next(reader, [])]
         if "t" not in header or "speed_mps" not in header:
-            raise InputError(f"{path}: header {header} lacks column(s) 't' and/or 'speed_mps'")
+            raise InputError(f"{path}: header {printable(header, 200)} lacks column(s) 't' "
+                             "and/or 'speed_mps'")
         it, iv = header.index("t"), header.index("speed_mps")
         for row in reader:
             if not row or all(not c.strip() for c in row):
                 continue
             summary.frames += 1
+            where = f"{path}:{reader.line_num}"
             try:
                 t, v = float(row[it]), float(row[iv])
             except (IndexError, ValueError):
                 summary.bad_rows += 1
+                summary.note(where, "not two numbers t, speed_mps")
                 continue
             if not (math.isfinite(t) and math.isfinite(v)):
                 summary.bad_rows += 1
+                summary.note(where, "not finite")
                 continue
             if ts and t <= ts[-1]:
                 summary.non_monotonic += 1
+                summary.note(where, f"t {t} not after the previous row's {ts[-1]}")
                 continue
             ts.append(t)
             vs.append(v)
+    except csv.Error as exc:
+        raise InputError(f"{path}: line {reader.line_num}: not CSV ({exc})") from None
     summary.used = summary.samples = len(ts)
     if ts:
         summary.t_first, summary.t_last = ts[0], ts[-1]
@@ -629,10 +666,16 @@ def write_speed_csv(series: SpeedSeries, path: str | Path) -> Path:
     """Write ``t,speed_mps`` (µs and 0.01 mm/s resolution); the path written."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as fh:
-        fh.write("t,speed_mps\n")
-        np.savetxt(fh, np.column_stack([series.t, series.speed_mps]), fmt=["%.6f", "%.5f"],
-                   delimiter=",")
+    # written beside it, then renamed: an interrupted write never leaves half a table
+    partial = path.with_name(path.name + ".partial")
+    try:
+        with partial.open("w", newline="") as fh:
+            fh.write("t,speed_mps" + LINE_END)
+            np.savetxt(fh, np.column_stack([series.t, series.speed_mps]), fmt=["%.6f", "%.5f"],
+                       delimiter=",", newline=LINE_END)
+        partial.replace(path)
+    finally:
+        partial.unlink(missing_ok=True)
     return path
 
 
@@ -669,6 +712,8 @@ def speed_from_args(args: argparse.Namespace, progress: bool = True,
     if series.summary is not None:
         for line in series.summary.lines():
             report(line)
+        if series.summary.interrupted:
+            raise KeyboardInterrupt
     if len(series) == 0:
         raise InputError(f"{series.source}: no speed samples")
     return series.shifted(offset) if offset else series

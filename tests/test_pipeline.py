@@ -111,7 +111,8 @@ def test_wrong_size_first_frame_fails_fast_later_frames_get_a_row(tmp_path: Path
     cv2.imwrite(str(folder / "000001.png"), np.zeros((30, 41), np.uint8))
     steps = list(run_sequence(open_source(images=folder), CAMERA, 1.0, tracking=False,
                               estimator=_FakeEstimator()))
-    assert [s.status for s in steps] == [FIRST_FRAME, WRONG_SIZE, NO_PREVIOUS]
+    assert [s.status for s in steps] == [
+        FIRST_FRAME, f"{WRONG_SIZE} 41×30 (camera 40×30)", NO_PREVIOUS]
 
 
 def test_bad_height_is_an_input_error(tmp_path: Path) -> None:

@@ -18,10 +18,30 @@ import numpy as np
 import yaml
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import InputError
+from .errors import InputError, printable
 
 PINHOLE_MODELS = ("plumb_bob", "rational_polynomial", "none")
 FISHEYE_MODELS = ("equidistant", "fisheye")
+
+#: Keys of a ROS camera_info YAML (what ``camera_calibration`` writes); others are errors.
+ROS_KEYS = ("image_width", "image_height", "camera_name", "camera_matrix", "distortion_model",
+            "distortion_coefficients", "rectification_matrix", "projection_matrix")
+#: Keys of a matrix in a ROS camera_info YAML.
+ROS_MATRIX_KEYS = ("rows", "cols", "data")
+#: Nodes of an OpenCV FileStorage camera file: the ones read, then the ones OpenCV's
+#: calibration sample writes beside them (not needed here, accepted).
+OPENCV_KEYS = ("camera_matrix", "distortion_coefficients", "image_width", "image_height",
+               "distortion_model")
+OPENCV_CALIBRATION_KEYS = (
+    "calibration_time", "calibration_Time", "nr_of_frames", "nrOfFrames", "board_width",
+    "board_height", "board_Width", "board_Height", "square_size", "square_Size", "flags",
+    "calibrate_FixAspectRatio", "calibrate_AssumeZeroTangentialDistortion",
+    "calibrate_FixPrincipalPointAtTheCenter", "fix_aspect_ratio", "fisheye_model",
+    "FixAspectRatio", "aspectRatio", "avg_reprojection_error", "avg_reprojection_Error",
+    "per_view_reprojection_errors", "extrinsic_parameters", "image_points", "grid_points",
+    "Avg_Reprojection_Error", "Per_View_Reprojection_Errors", "Extrinsic_Parameters",
+    "Image_points",
+)
 
 
 class CameraFileError(InputError):
@@ -174,16 +194,22 @@ def read_kitti_calib(path: str | Path, image_size: tuple[int, int] | None = None
     from the first image in ``image_0/`` beside the file, else 1241×376."""
     path = Path(path)
     rows = {}
-    for line in path.read_text().splitlines():
+    for lineno, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
         if ":" in line:
             key, values = line.split(":", 1)
             rows[key.strip()] = values.split()
+        elif line.strip():
+            raise CameraFileError(path, f"line {lineno}: expected 'KEY: numbers' "
+                                  "(KITTI calib.txt)")
     if "P0" not in rows:
         raise CameraFileError(path, "no P0 line (KITTI calib.txt expected)", "P0")
     try:
         p0 = np.array([float(v) for v in rows["P0"]]).reshape(3, 4)
-    except ValueError as exc:
-        raise CameraFileError(path, f"P0 must hold 12 numbers ({exc})", "P0") from exc
+    except ValueError:
+        raise CameraFileError(path, f"must hold 12 numbers, got {printable(rows['P0'], 120)}",
+                              "P0") from None
+    if not np.all(np.isfinite(p0)):
+        raise CameraFileError(path, "contains non-finite values", "P0")
     if image_size is None:
         image_size = _kitti_image_size(path.parent) or (1241, 376)
     return _build(path, p0[:, :3], image_size[0], image_size[1], "none", np.zeros(0), "P0")
@@ -203,9 +229,19 @@ def _read_ros_yaml(path: Path, text: str) -> CameraModel:
     try:
         doc = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise CameraFileError(path, f"not valid YAML ({exc})") from exc
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise CameraFileError(path, f"{where}not valid YAML ({printable(problem)})") from None
+    except (ValueError, TypeError, OverflowError) as exc:  # e.g. a date YAML cannot build
+        raise CameraFileError(path, f"not valid YAML ({printable(exc)})") from None
     if not isinstance(doc, dict):
         raise CameraFileError(path, "expected a YAML mapping (ROS camera_info)")
+    _check_keys(path, doc, ROS_KEYS, "")
+    for name in ("camera_matrix", "distortion_coefficients", "rectification_matrix",
+                 "projection_matrix"):
+        if isinstance(doc.get(name), dict):
+            _check_keys(path, doc[name], ROS_MATRIX_KEYS, f"{name}.")
     width = _required(doc, "image_width", path)
     height = _required(doc, "image_height", path)
     k = _matrix(doc, "camera_matrix", path, (3, 3))
@@ -216,11 +252,37 @@ def _read_ros_yaml(path: Path, text: str) -> CameraModel:
     return _build(path, k, width, height, model, dist, "camera_matrix")
 
 
+def _check_keys(path: Path, doc: dict, valid: tuple[str, ...], prefix: str) -> None:
+    """CameraFileError naming the first key of ``doc`` not in ``valid``, and the valid ones."""
+    unknown = [k for k in doc if k not in valid]
+    if unknown:
+        raise CameraFileError(path, f"unknown key; valid keys are {', '.join(valid)}",
+                              printable(f"{prefix}{unknown[0]}", 80))
+
+
 def _read_opencv_storage(path: Path) -> CameraModel:
+    try:
+        return _read_opencv_nodes(path)
+    except (cv2.error, SystemError) as exc:  # its parser raises either on a damaged file
+        lines = str(exc).strip().splitlines() or [type(exc).__name__]
+        raise CameraFileError(path, "OpenCV FileStorage cannot parse it ("
+                              f"{printable(lines[-1], 200)})") from None
+
+
+def _read_opencv_nodes(path: Path) -> CameraModel:
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     if not fs.isOpened():
         raise CameraFileError(path, "OpenCV FileStorage could not open it")
     try:
+        root = fs.root()
+        if not root.isMap():
+            raise CameraFileError(path, "expected a mapping of named nodes (OpenCV FileStorage)")
+        keys = root.keys()
+        unknown = [k for k in keys if k not in OPENCV_KEYS + OPENCV_CALIBRATION_KEYS]
+        if unknown:
+            raise CameraFileError(
+                path, f"unknown key; valid keys are {', '.join(OPENCV_KEYS)} (and the other "
+                "nodes OpenCV's calibration sample writes)", printable(unknown[0], 80))
         k_node = fs.getNode("camera_matrix")
         if k_node.empty():
             raise CameraFileError(path, "missing", "camera_matrix")
@@ -234,6 +296,8 @@ def _read_opencv_storage(path: Path) -> CameraModel:
             node = fs.getNode(name)
             if node.empty():
                 raise CameraFileError(path, "missing", name)
+            if not node.isInt():
+                raise CameraFileError(path, "must be an integer", name)
             size.append(int(node.real()))
         model_node = fs.getNode("distortion_model")
         model = model_node.string() if not model_node.empty() else ""

@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
 from collections.abc import Sequence
 
-from .errors import InputError
+from .errors import InputError, NothingUsable, os_error_line, printable
 
 #: Subcommand modules under ``vipm_track.commands``, in the order ``--help`` lists them.
 COMMANDS: tuple[str, ...] = (
@@ -29,19 +30,42 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Exit codes: 0 usable output, 1 ran but nothing usable, 2 bad input, 130 interrupted.
+EXIT_OK, EXIT_NOTHING_USABLE, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+
+def _terminate(signum: int, frame: object) -> None:
+    # SIGTERM ends a run as Ctrl-C does: what is decided is written, then exit 130
+    raise KeyboardInterrupt
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    name = f"vipm-track {args.command}"
+    previous = signal.getsignal(signal.SIGTERM)
+    try:
+        signal.signal(signal.SIGTERM, _terminate)
+    except ValueError:  # not the main thread (an embedding program): leave SIGTERM alone
+        previous = None
     try:
         return int(args.handler(args) or 0)
-    except (InputError, FileNotFoundError) as exc:
-        print(f"vipm-track {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+    except InputError as exc:
+        print(f"{name}: error: {printable(exc, 2000)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except NothingUsable as exc:
+        print(f"{name}: nothing usable: {printable(exc, 2000)}", file=sys.stderr)
+        return EXIT_NOTHING_USABLE
+    except OSError as exc:
+        print(f"{name}: error: {os_error_line(exc)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     except KeyboardInterrupt:
-        print(
-            f"vipm-track {args.command}: interrupted; rows written so far are kept", file=sys.stderr
-        )
-        return 130
+        print(f"{name}: interrupted; the rows written before it are complete and kept",
+              file=sys.stderr)
+        return EXIT_INTERRUPTED
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

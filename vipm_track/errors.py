@@ -1,5 +1,35 @@
-"""Errors the user can act on: the CLI prints their message (file, frame, field) and exits 2."""
+"""Errors the user can act on: the CLI prints their message (file, frame, field) and exits 2
+(:class:`InputError`) or 1 (:class:`NothingUsable`)."""
+
+from __future__ import annotations
+
+import re
 
 
 class InputError(ValueError):
     """Bad input: a file, frame, field or option that cannot be used, named in the message."""
+
+
+class NothingUsable(RuntimeError):
+    """The run went through its input but nothing in it was usable (every frame failed):
+    the message counts the statuses; the CLI exits 1."""
+
+
+_UNPRINTABLE = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f\ufffd]")
+
+
+def printable(text: object, limit: int = 400) -> str:
+    """``text`` safe for a terminal: control characters and undecodable bytes shown as
+    ``\\xNN`` escapes (a garbage file's bytes are never echoed raw), cut at ``limit``
+    characters."""
+    s = _UNPRINTABLE.sub(lambda m: m.group().encode("unicode_escape").decode("ascii"), str(text))
+    return s if len(s) <= limit else s[: limit - 3] + "..."
+
+
+def os_error_line(exc: OSError, what: str = "") -> str:
+    """One line for an OS error (permissions, disk full, not a directory): the path and the
+    reason, no traceback."""
+    path = exc.filename if exc.filename is not None else what
+    reason = exc.strerror or type(exc).__name__
+    extra = f" -> {exc.filename2}" if getattr(exc, "filename2", None) else ""
+    return printable(f"{path}{extra}: {reason}" if path else reason)

@@ -12,7 +12,7 @@ order and units. A frame whose ``status`` is not ``ok`` carries NaNs.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -75,6 +75,12 @@ def measurements_from_table(
     if missing:
         raise InputError(f"{source}: estimates table lacks column(s) {missing}")
     n = len(columns["frame"])
+    frames = np.asarray(columns["frame"], dtype=float)
+    bad = ~np.isfinite(frames) | (frames != np.round(frames)) | (frames < 0)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise InputError(f"{source}: row {i + 2}: frame {frames[i]} is not a frame index "
+                         "(an integer >= 0)")
     corr_all = _correlations(columns, n, source)
     status = columns.get("status", np.array(["ok"] * n, dtype=object))
     z_all = _stack_in_radians(columns, _Z_COLUMNS)
@@ -130,6 +136,81 @@ def _stack_in_radians(columns: dict[str, NDArray], names: tuple[str, ...]) -> ND
 def read_measurements(path: str | Path) -> list[PairMeasurement]:
     """Measurements from an estimates CSV/Parquet written by ``vipm-track estimate``."""
     return measurements_from_table(read_table(path), str(path))
+
+
+#: Status given to a row whose status says ``ok`` but whose numbers are not all there.
+MISSING_NUMBERS = "no estimate (numbers missing in the table)"
+
+
+@dataclass(frozen=True)
+class SequenceIssues:
+    """Rows of an estimates table that do not form a sequence, by their row number in the
+    file (a CSV's header is row 1): ``duplicated`` (row, frame, row it first appeared in),
+    ``out_of_order`` (row, frame, previous frame), ``backwards`` (row, t, previous t),
+    ``missing`` (row, frame) of rows saying ``ok`` with numbers missing."""
+
+    duplicated: tuple[tuple[int, int, int], ...] = ()
+    out_of_order: tuple[tuple[int, int, int], ...] = ()
+    backwards: tuple[tuple[int, float, float], ...] = ()
+    missing: tuple[tuple[int, int], ...] = ()
+
+    def __bool__(self) -> bool:
+        return bool(self.duplicated or self.out_of_order or self.backwards or self.missing)
+
+    def lines(self, source: str, first: int = 5) -> list[str]:
+        """One line per kind of issue, naming the first ``first`` rows."""
+        def rows(items: tuple, text) -> str:
+            shown = "; ".join(text(*item) for item in items[:first])
+            return shown + ("; ..." if len(items) > first else "")
+
+        out = []
+        if self.duplicated:
+            out.append(f"{source}: {len(self.duplicated)} rows repeat an earlier frame, left "
+                       "out (the first row of each frame is used): " + rows(
+                           self.duplicated, lambda r, f, r0: f"row {r} frame {f} (first row {r0})"))
+        if self.out_of_order:
+            out.append(f"{source}: {len(self.out_of_order)} rows have a frame before the "
+                       "previous row's, left out: " + rows(
+                           self.out_of_order, lambda r, f, f0: f"row {r} frame {f} after {f0}"))
+        if self.backwards:
+            out.append(f"{source}: {len(self.backwards)} rows have a time not after the "
+                       "previous row's, left out: " + rows(
+                           self.backwards, lambda r, t, t0: f"row {r} t {t!r} after {t0!r}"))
+        if self.missing:
+            out.append(f"{source}: {len(self.missing)} rows say ok but lack numbers, read as "
+                       f"'{MISSING_NUMBERS}': " + rows(
+                           self.missing, lambda r, f: f"row {r} frame {f}"))
+        return out
+
+
+def in_sequence(
+    measurements: list[PairMeasurement], first_row: int = 2
+) -> tuple[list[PairMeasurement], SequenceIssues]:
+    """The measurements that form a sequence (frames and times strictly increasing; a row
+    saying ``ok`` without all its numbers gets :data:`MISSING_NUMBERS`), and what was done to
+    the others. Row numbers count from ``first_row`` (2: a CSV's first data row)."""
+    kept: list[PairMeasurement] = []
+    seen: dict[int, int] = {}
+    duplicated, out_of_order, backwards, missing = [], [], [], []
+    for i, m in enumerate(measurements):
+        row = i + first_row
+        if m.frame in seen:
+            duplicated.append((row, m.frame, seen[m.frame]))
+            continue
+        if kept and m.frame < kept[-1].frame:
+            out_of_order.append((row, m.frame, kept[-1].frame))
+            continue
+        if not np.isfinite(m.t) or (kept and not m.t > kept[-1].t):
+            backwards.append((row, m.t, kept[-1].t if kept else float("nan")))
+            continue
+        seen[m.frame] = row
+        if m.status == "ok" and not (np.isfinite(m.z).all()
+                                     and np.isfinite(np.diag(m.covariance)).all()):
+            missing.append((row, m.frame))
+            m = replace(m, status=MISSING_NUMBERS)
+        kept.append(m)
+    return kept, SequenceIssues(tuple(duplicated), tuple(out_of_order), tuple(backwards),
+                                tuple(missing))
 
 
 def measurement_row(m: PairMeasurement) -> dict[str, object]:

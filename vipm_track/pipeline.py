@@ -124,7 +124,9 @@ def run_sequence(
             if not checked_size:
                 raise InputError(f"{source.description}: {exc}") from exc
             prev_image, previous_ok = None, None
-            yield SequenceStep(frame.index, frame.t, None, WRONG_SIZE)
+            h, w = frame.image.shape[:2]
+            yield SequenceStep(frame.index, frame.t, None,
+                               f"{WRONG_SIZE} {w}×{h} (camera {camera.width}×{camera.height})")
             continue
         checked_size = True
         if prev_image is None:

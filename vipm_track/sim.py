@@ -23,7 +23,9 @@ trajectory's ``mount_*`` arrays hold the mount part and ``gt.csv`` has ``mount_*
 
 from __future__ import annotations
 
+import errno
 import functools
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,6 +36,7 @@ from numpy.typing import NDArray
 from scipy.interpolate import CubicSpline
 
 from .camera import CameraModel, write_ros_yaml
+from .errors import InputError
 from .geometry import (
     GroundPose,
     PlanarMotion,
@@ -438,6 +441,28 @@ def write_wheel_speed_csv(
     return path
 
 
+#: Names of the images :func:`simulate_sequence` writes into ``OUT/images``.
+_OWN_IMAGE = re.compile(r"^\d{6}\.png$")
+
+
+def clear_earlier_run(out_dir: str | Path) -> int:
+    """Remove the images an earlier :func:`simulate_sequence` run left in ``out_dir/images``
+    (so a shorter run does not leave frames its ``times.txt`` lacks); returns how many.
+    Other files in that folder are not ours to delete: an :class:`InputError` names them."""
+    folder = Path(out_dir) / "images"
+    if not folder.is_dir():
+        return 0
+    entries = sorted(folder.iterdir())
+    foreign = [e.name for e in entries if not (_OWN_IMAGE.match(e.name) and e.is_file())]
+    if foreign:
+        raise InputError(f"{folder}: holds files a simulation did not write "
+                         f"({', '.join(foreign[:5])}{', ...' if len(foreign) > 5 else ''}); "
+                         "give an empty or new --out folder")
+    for e in entries:
+        e.unlink()
+    return len(entries)
+
+
 def simulate_sequence(
     preset: Preset | str,
     frames: int,
@@ -457,6 +482,7 @@ def simulate_sequence(
     """
     p = PRESETS[preset] if isinstance(preset, str) else preset
     out = Path(out_dir)
+    clear_earlier_run(out)
     (out / "images").mkdir(parents=True, exist_ok=True)
     traj = make_trajectory(profile, frames, fps, p, seed, speed, amplitude)
     tex = preset_texture(p, texture, seed)
@@ -472,7 +498,8 @@ def simulate_sequence(
     with TableWriter(out / "gt.csv", GT_EXTRA_COLUMNS) as writer:
         for k, row in zip(iterator, gt_rows(traj), strict=True):
             img = render_trajectory_frame(tex, camera, traj, k, effects)
-            if not cv2.imwrite(str(out / "images" / f"{k:06d}.png"), img):
-                raise OSError(f"could not write {out / 'images' / f'{k:06d}.png'}")
+            image_path = out / "images" / f"{k:06d}.png"
+            if not cv2.imwrite(str(image_path), img):
+                raise OSError(errno.EIO, "OpenCV could not write the image", str(image_path))
             writer.write(row)
     return traj

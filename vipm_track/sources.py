@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import copy
 import math
+import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,7 +28,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from .errors import InputError
+from .errors import InputError, printable
 
 IMAGE_SUFFIXES: frozenset[str] = frozenset(
     {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".pnm", ".webp"}
@@ -173,7 +174,7 @@ def read_times(path: str | Path, expected: int | None = None) -> NDArray[np.floa
     not increase, or (with ``expected``) a count different from the number of images."""
     path = Path(path)
     values: list[float] = []
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+    for lineno, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
         text = line.split("#", 1)[0].strip()
         if not text:
             continue
@@ -181,10 +182,11 @@ def read_times(path: str | Path, expected: int | None = None) -> NDArray[np.floa
             value = float(text.split()[0])
         except ValueError as exc:
             raise SourceError(
-                f"{path}: line {lineno}: not a timestamp in seconds: {text!r}"
+                f"{path}: line {lineno}: not a timestamp in seconds: '{printable(text, 60)}'"
             ) from exc
         if not math.isfinite(value):
-            raise SourceError(f"{path}: line {lineno}: timestamp is not finite: {text!r}")
+            raise SourceError(f"{path}: line {lineno}: timestamp is not finite: "
+                              f"'{printable(text, 60)}'")
         if values and value <= values[-1]:
             raise SourceError(
                 f"{path}: line {lineno}: timestamp {value} does not increase "
@@ -197,6 +199,17 @@ def read_times(path: str | Path, expected: int | None = None) -> NDArray[np.floa
             "times.txt needs one line per image"
         )
     return np.asarray(values, dtype=np.float64)
+
+
+_SAID: set[str] = set()
+
+
+def _say_once(line: str) -> None:
+    """Print ``line`` on stderr the first time it comes (a run opens its source several
+    times: set-up searches, then the run)."""
+    if line not in _SAID:
+        _SAID.add(line)
+        print(line, file=sys.stderr)
 
 
 def read_grey(path: str | Path) -> NDArray[np.uint8] | None:
@@ -225,6 +238,9 @@ class ImageFolderSource(FrameSource):
         self.times_file = find_times_file(self.folder)
         if self.times_file is not None:
             times = read_times(self.times_file, expected=len(files))
+            if fps is not None:
+                _say_once(f"vipm-track: --fps {fps:g} not used: the frames of {self.folder} "
+                          f"are timed by {self.times_file} (remove it to time them by --fps)")
         elif fps is not None:
             times = np.arange(len(files)) / fps
         else:
@@ -283,6 +299,9 @@ class VideoSource(FrameSource):
         self.fps = fps
         if fps is None and not (math.isfinite(self.container_fps) and self.container_fps > 0):
             raise SourceError(f"{self.path}: the video has no frame rate; pass --fps")
+        if fps is not None:
+            _say_once(f"vipm-track: frames of {self.path} timed by --fps {fps:g} (index / fps), "
+                      "not by the video's own time stamps")
         self.frame_count = max(count, 0)
         if self.frame_count and start >= self.frame_count:
             raise SourceError(

@@ -2,7 +2,8 @@
 
 The first eight columns are fixed (``BASE_COLUMNS``); further columns follow. Rows are
 written and flushed one at a time so an interrupted run keeps everything it computed.
-Numbers are written as text with enough digits to round-trip; missing numbers are empty.
+Numbers are written as text at 15 significant digits (``format_float``: ``0.3``, not
+``0.30000000000000004``); missing numbers are empty; lines end in ``\n``.
 """
 
 from __future__ import annotations
@@ -10,14 +11,15 @@ from __future__ import annotations
 import csv
 import io
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from .errors import InputError
+from .errors import InputError, printable
 
 BASE_COLUMNS: tuple[str, ...] = (
     "frame",
@@ -69,13 +71,32 @@ class TableError(InputError):
     """A per-frame table is unreadable or lacks a column; the message names file and row."""
 
 
+#: Significant digits a written number keeps: float64 carries 15.9, and arithmetic noise
+#: (``3 * 0.1 = 0.30000000000000004``) sits in the 16th and 17th; numbers of 10^6 and more
+#: keep 9 decimal places (a Unix time's nanoseconds) up to float64's 17 digits.
+SIGNIFICANT = 15
+DECIMALS = 9
+#: Line ending of every text file the project writes.
+LINE_END = "\n"
+
+
+def format_float(v: float) -> str:
+    """Shortest text of ``v`` at :data:`SIGNIFICANT` significant digits (``0.3``, not
+    ``0.30000000000000004``); at least :data:`DECIMALS` decimal places for large numbers."""
+    if not math.isfinite(v):
+        return "" if math.isnan(v) else ("inf" if v > 0 else "-inf")
+    if v == 0.0:
+        return "0.0"
+    digits = min(17, max(SIGNIFICANT, math.floor(math.log10(abs(v))) + 1 + DECIMALS))
+    return repr(float(f"{v:.{digits}g}"))
+
+
 def format_value(value: Any) -> str:
-    """Text of one cell: empty for None/NaN, ``repr`` precision for floats."""
+    """Text of one cell: empty for None/NaN, floats by :func:`format_float`."""
     if value is None:
         return ""
     if isinstance(value, (float, np.floating)):
-        v = float(value)
-        return "" if math.isnan(v) else repr(v)
+        return format_float(float(value))
     if isinstance(value, (np.integer,)):
         return str(int(value))
     return str(value)
@@ -101,24 +122,43 @@ class TableWriter:
             _require_pyarrow()
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = self.path.open("w", newline="")
-        self._writer = csv.writer(self._file)
-        self._writer.writerow(self.columns)
-        self._file.flush()
+        self._writer = csv.writer(self._file, lineterminator=LINE_END)
+        with self._named_os_errors():
+            self._writer.writerow(self.columns)
+            self._file.flush()
         self._rows: list[dict[str, Any]] = []
+        self._line = io.StringIO()
+        self._line_writer = csv.writer(self._line, lineterminator=LINE_END)
 
     def write(self, row: Mapping[str, Any]) -> None:
         unknown = set(row) - set(self.columns)
         if unknown:
             raise KeyError(f"{self.path}: row has columns not in the table: {sorted(unknown)}")
-        self._writer.writerow([format_value(row.get(c)) for c in self.columns])
-        self._file.flush()
+        # one write of the whole line, then flush: the file never ends in half a row
+        self._line.seek(0)
+        self._line.truncate()
+        self._line_writer.writerow([format_value(row.get(c)) for c in self.columns])
+        with self._named_os_errors():
+            self._file.write(self._line.getvalue())
+            self._file.flush()
         if self.parquet_path is not None:
             self._rows.append(dict(row))
+
+    @contextmanager
+    def _named_os_errors(self) -> Iterator[None]:
+        # a write error (disk full) names the file, as the CLI prints it
+        try:
+            yield
+        except OSError as exc:
+            if exc.filename is not None:
+                raise
+            raise OSError(exc.errno, exc.strerror, str(self.path)) from None
 
     def close(self) -> None:
         if self._file.closed:
             return
-        self._file.close()
+        with self._named_os_errors():
+            self._file.close()
         if self.parquet_path is not None:
             write_parquet(self._rows, self.columns, self.parquet_path)
 
@@ -173,22 +213,38 @@ def read_table(path: str | Path, required: Sequence[str] = BASE_COLUMNS[:2]) -> 
         pa = _require_pyarrow()
         import pyarrow.parquet as pq
 
-        del pa
-        table = pq.read_table(str(path))
-        raw = {name: table.column(name).to_pylist() for name in table.column_names}
+        try:
+            table = pq.read_table(str(path))
+            raw = {name: table.column(name).to_pylist() for name in table.column_names}
+        except (OSError, ValueError, TypeError, pa.ArrowException) as exc:
+            raise TableError(f"{path}: not a readable Parquet table "
+                             f"({printable(exc, 160)})") from None
         header = list(raw)
         records = [[raw[c][i] for c in header] for i in range(table.num_rows)]
     else:
-        with path.open(newline="") as f:
-            reader = csv.reader(io.StringIO(f.read()))
+        reader = csv.reader(io.StringIO(read_text(path), newline=""))
         try:
             header = [h.strip() for h in next(reader)]
-        except StopIteration as exc:
-            raise TableError(f"{path}: empty file, expected a header row") from exc
-        records = [r for r in reader if r]
+            records = []
+            for r in reader:
+                if not r:
+                    continue
+                if len(r) != len(header):
+                    raise TableError(f"{path}: line {reader.line_num}: {len(r)} cells but the "
+                                     f"header has {len(header)} (a cut or damaged row)")
+                records.append(r)
+        except StopIteration:
+            raise TableError(f"{path}: empty file, expected a header row") from None
+        except csv.Error as exc:
+            raise TableError(f"{path}: line {reader.line_num}: not CSV ({exc})") from None
     missing = [c for c in required if c not in header]
     if missing:
-        raise TableError(f"{path}: missing column(s) {missing}; header is {header}")
+        raise TableError(f"{path}: missing column(s) {missing}; header is "
+                         f"{printable(header, 160)}")
+    repeated = sorted({h for h in header if header.count(h) > 1})
+    if repeated:
+        raise TableError(f"{path}: column(s) {printable(repeated, 200)} appear more than once "
+                         "in the header")
     out: dict[str, NDArray] = {}
     for j, name in enumerate(header):
         cells = [r[j] if j < len(r) else "" for r in records]
@@ -199,14 +255,21 @@ def read_table(path: str | Path, required: Sequence[str] = BASE_COLUMNS[:2]) -> 
         for i, v in enumerate(cells):
             try:
                 values[i] = _to_float(v)
-            except ValueError as exc:
+            except (ValueError, TypeError, OverflowError):
                 raise TableError(
-                    f"{path}: row {i + 2}, column '{name}': not a number: {v!r}"
-                ) from exc
+                    f"{path}: row {i + 2}, column '{printable(name, 60)}': not a number: "
+                    f"{printable(repr(v), 60)}"
+                ) from None
         out[name] = (
             values.astype(np.int64) if name == "frame" and np.all(np.isfinite(values)) else values
         )
     return out
+
+
+def read_text(path: Path) -> str:
+    """Text of a file: undecodable bytes and NULs become U+FFFD (so a damaged line fails
+    where it is, with its number, rather than the whole file failing to decode)."""
+    return path.read_bytes().decode("utf-8", errors="replace").replace("\x00", "\ufffd")
 
 
 def _to_float(v: Any) -> float:

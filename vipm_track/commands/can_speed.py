@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
-from .common import add_can_decoding_options
+from .common import add_can_decoding_options, check_writable
 from .inputs import read_estimates, speed_on_camera_clock
 
 
@@ -39,13 +40,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _read_times(path: str) -> np.ndarray:
-    try:
-        times = np.loadtxt(path, dtype=np.float64, ndmin=1)
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read frame times: {exc}") from exc
-    except ValueError as exc:
-        raise InputError(f"{path}: frame times must be one number per line: {exc}") from exc
-    return times.reshape(-1)
+    from ..sources import read_times
+
+    if not Path(path).is_file():
+        raise InputError(f"--frame-times {path}: file not found")
+    return read_times(path)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -57,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
         write_speed_csv,
     )
 
+    check_writable(args.out, "--out")
     if args.log is not None:
         series, summary = decode_can_log(args.log, args.dbc, args.signals, combine=args.combine,
                                          channel=args.can_channel, scale=args.speed_scale,
@@ -98,4 +98,6 @@ def run(args: argparse.Namespace) -> int:
                              clock_offset=series.clock_offset)
     path = write_speed_csv(series, args.out)
     print(f"wrote {len(series)} speed samples to {path}", file=sys.stderr)
+    if summary.interrupted:
+        raise KeyboardInterrupt
     return 0

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import argparse
 import math
+import tempfile
 from pathlib import Path
 
-from ..errors import InputError
+from ..errors import InputError, os_error_line
 
 
 def add_input_options(parser: argparse.ArgumentParser, required: bool = True) -> None:
@@ -50,15 +51,64 @@ def check_height(height: float | None) -> float:
     return float(height)
 
 
-def check_output(out: str) -> Path:
-    """``--out`` as a CSV path: not a folder, not a .parquet name (``--parquet`` writes the
-    Parquet beside the CSV)."""
+def check_output(out: str, parquet: bool = False, option: str = "--out") -> Path:
+    """``--out`` as a CSV path that can be written: not a folder, not a .parquet name
+    (``--parquet`` writes the Parquet beside the CSV, checked too where ``parquet``)."""
     path = Path(out)
     if path.is_dir():
-        raise InputError(f"--out {out}: is a folder; give a CSV file name")
+        raise InputError(f"{option} {out}: is a folder; give a CSV file name")
     if path.suffix.lower() == ".parquet":
-        raise InputError(f"--out {out}: give a .csv name; --parquet writes the Parquet beside it")
+        raise InputError(f"{option} {out}: give a .csv name; --parquet writes the Parquet "
+                         "beside it")
+    check_writable(path, option)
+    if parquet:
+        check_writable(path.with_suffix(".parquet"), "--parquet")
     return path
+
+
+def check_writable(path: str | Path, option: str) -> Path:
+    """``path`` as a file this run can create or overwrite, checked before any work: its
+    folder is created, the file opened for appending (and removed again where it did not
+    exist). InputError naming the option, the path and the OS reason otherwise."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{option} {path}: is a folder; give a file name")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{option} {path}: cannot create its folder: "
+                         f"{os_error_line(exc)}") from None
+    existed = path.exists()
+    try:
+        with path.open("a"):
+            pass
+        if not existed:
+            path.unlink()
+    except OSError as exc:
+        raise InputError(f"{option} {path}: cannot be written: {os_error_line(exc)}") from None
+    return path
+
+
+def check_output_dir(out: str | Path, option: str = "--out") -> Path:
+    """``out`` as a folder this run can write into (created where missing); InputError naming
+    the option, the folder and the OS reason otherwise."""
+    path = Path(out)
+    if path.exists() and not path.is_dir():
+        raise InputError(f"{option} {path}: is a file; give a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as exc:
+        raise InputError(f"{option} {path}: cannot write into this folder: "
+                         f"{os_error_line(exc)}") from None
+    return path
+
+
+def check_rerun_output(args: argparse.Namespace) -> None:
+    """``--rerun OUT.rrd`` (where given) as a file this run can write (:func:`check_writable`)."""
+    if getattr(args, "rerun", None):
+        check_writable(args.rerun, "--rerun")
 
 
 def add_output_options(parser: argparse.ArgumentParser, what: str = "per-frame CSV") -> None:

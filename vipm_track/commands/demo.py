@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from ..errors import InputError
 from ..estimator import EstimatorConfig
-from .common import add_rerun_options
+from .common import add_rerun_options, check_output_dir, check_rerun_output
 from .estimate import add_estimator_options, build_config
 
 DEMO_PRESET = "cart"
@@ -68,6 +68,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--frames must be between 2 and 2000, got {args.frames}")
     from ..sim import PRESETS
 
+    check_output_dir(args.out)
+    check_rerun_output(args)
     config = build_config(args, PRESETS[DEMO_PRESET].camera())
     result = run_demo(Path(args.out), args.frames, args.seed, args.profile, config,
                       tracking=not args.no_tracking, progress=False if args.quiet else None,

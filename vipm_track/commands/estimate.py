@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -13,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..camera import CameraModel, load_camera
-from ..errors import InputError
+from ..errors import InputError, NothingUsable
 from ..estimator import REFINEMENT_WEIGHTING
 from .common import (
     add_camera_options,
@@ -22,6 +23,7 @@ from .common import (
     add_rerun_options,
     check_height,
     check_output,
+    check_rerun_output,
     seconds_or_auto,
 )
 
@@ -155,10 +157,11 @@ def run(args: argparse.Namespace) -> int:
     from ..sources import open_source
     from .inputs import with_searched_setup
 
+    out = check_output(args.out, args.parquet)
+    check_rerun_output(args)
     camera = load_camera(args.camera)
     height = check_height(args.height)
     config = build_config(args, camera)
-    out = check_output(args.out)
     source = open_source(images=args.images, video=args.video, fps=args.fps,
                          start=args.start, max_frames=args.max_frames)
     parallel = parallel_settings(args)
@@ -176,6 +179,11 @@ def run(args: argparse.Namespace) -> int:
         logging.finish()
     if not args.quiet:
         print(f"{out}: {summary.line()}", file=sys.stderr)
+    if summary.ok == 0:
+        kinds = Counter(s.split(":")[0] for s in summary.statuses.elements())
+        counts = ", ".join(f"{n}× {s}" for s, n in kinds.most_common())
+        raise NothingUsable(f"{out}: no frame has an estimate ({counts or 'no frames'}); the "
+                            "table holds each frame's status")
     return 0
 
 

@@ -8,15 +8,15 @@ from __future__ import annotations
 import argparse
 import sys
 from collections import Counter
-from collections.abc import Iterator
-from dataclasses import replace
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..camera import CameraModel, load_camera
-from ..errors import InputError
-from ..measurement import PairMeasurement, read_measurements
+from ..errors import InputError, NothingUsable
+from ..measurement import PairMeasurement, in_sequence, read_measurements
 
 if TYPE_CHECKING:
     from filters.clock_offset import ClockOffsetFit
@@ -88,9 +88,13 @@ def check_speed_overlap(speed: SpeedSeries, frame_times: list[float], strict: bo
           f"{times.size} frames have a wheel speed ({spans})", file=sys.stderr)
 
 
-def read_estimates(path: str) -> list[PairMeasurement]:
-    """The pair measurements of an estimates table (``vipm-track estimate``); InputError
-    naming the file when it is missing, empty or lacks a column."""
+def read_estimates(path: str, quiet: bool = False, notes: list[str] | None = None,
+                   ) -> list[PairMeasurement]:
+    """The pair measurements of an estimates table (``vipm-track estimate``) that form a
+    sequence (``measurement.in_sequence``: a repeated frame, a frame or time going backwards
+    is left out; a row saying ok without its numbers is read as no estimate), what was left
+    out said on stderr with its row numbers unless ``quiet`` (and appended to ``notes``).
+    InputError naming the file when it is missing, empty or lacks a column."""
     try:
         measurements = read_measurements(path)
     except ValueError as exc:  # TableError is an InputError; a missing column is not
@@ -99,6 +103,14 @@ def read_estimates(path: str) -> list[PairMeasurement]:
         raise InputError(f"{path}: {exc}") from exc
     if not measurements:
         raise InputError(f"{path}: no rows")
+    first_row = 1 if str(path).lower().endswith(".parquet") else 2
+    measurements, issues = in_sequence(measurements, first_row)
+    lines = issues.lines(str(path)) if issues else []
+    if notes is not None:
+        notes.extend(lines)
+    if not quiet:
+        for line in lines:
+            print(f"vipm-track: warning: {line}", file=sys.stderr)
     return measurements
 
 
@@ -249,34 +261,65 @@ def measurements_from_args(
 ) -> list[PairMeasurement]:
     """All pair measurements of the input: ``--estimates`` read, or ``--images``/``--video``
     estimated (:func:`estimate_stream`, with a progress bar on stderr where asked). Exactly
-    one input must be given."""
+    one input must be given. Sets ``args.input_notes`` (what reading the table left out) and,
+    where an interrupt stopped the estimation, ``args.interrupted_at`` (the last frame
+    estimated: the measurements are those before it)."""
     given = [o for o in ("estimates", "images", "video") if getattr(args, o, None)]
     if len(given) != 1:
         raise InputError("give exactly one of --estimates EST.csv, --images DIR, --video FILE"
                          + (f" (got --{' --'.join(given)})" if given else ""))
     if args.estimates:
-        measurements = read_estimates(args.estimates)
-        warn_if_no_usable_pair(measurements, args.estimates)
+        args.input_notes = []
+        measurements = read_estimates(args.estimates, getattr(args, "quiet", False),
+                                      args.input_notes)
+        require_usable(measurements, args.estimates)
         return measurements
     stream = estimate_stream(args, height, config, sink, camera)
     if progress:
         from tqdm import tqdm
 
         stream = tqdm(stream, desc="estimate", unit="frame", file=sys.stderr)
-    out = list(stream)
-    if not out:
+    out = collect_until_interrupt(stream)
+    if not out.items:
+        if out.interrupted:
+            raise KeyboardInterrupt
         raise InputError(f"{args.images or args.video}: no frames")
-    warn_if_no_usable_pair(out, str(args.images or args.video))
+    require_usable(out.items, str(args.images or args.video))
+    if out.interrupted:
+        print(f"vipm-track: interrupted while estimating: going on with the {len(out.items)} "
+              "frames estimated before it (interrupt again to stop at once)", file=sys.stderr)
+        args.interrupted_at = out.items[-1].frame
+    return out.items
+
+
+@dataclass
+class Collected:
+    """Items of a stream up to its end or an interrupt (``interrupted`` says which)."""
+
+    items: list[Any]
+    interrupted: bool = False
+
+
+def collect_until_interrupt(stream: Iterable[Any]) -> Collected:
+    """Every item of ``stream``; on Ctrl-C / SIGTERM the items read before it, with
+    ``interrupted`` set (what was computed is kept for the caller to write)."""
+    out = Collected([])
+    try:
+        for item in stream:
+            out.items.append(item)
+    except KeyboardInterrupt:
+        out.interrupted = True
     return out
 
 
-def warn_if_no_usable_pair(measurements: list[PairMeasurement], source: str) -> None:
-    """Say on stderr when not one frame of ``source`` has a usable pair: the filters would
-    then output their priors only, which reads like an answer."""
+def require_usable(measurements: list[PairMeasurement], source: str) -> None:
+    """:class:`NothingUsable` (exit 1) when not one frame of ``source`` has a usable pair:
+    the filters would output their priors only, which reads like an answer."""
     if any(m.ok for m in measurements):
         return
     counts = Counter(m.status for m in measurements)
-    print(f"vipm-track: warning: {source}: no frame has a usable pair estimate ("
-          + ", ".join(f"{n}× {status}" for status, n in counts.most_common())
-          + "); the output holds the filter's priors only. For a forward-looking camera give "
-          "--pitch; see the estimator options.", file=sys.stderr)
+    raise NothingUsable(
+        f"{source}: no frame has a usable pair estimate ("
+        + ", ".join(f"{n}× {status}" for status, n in counts.most_common())
+        + "); nothing is written. For a forward-looking camera give --pitch; see the "
+        "estimator options.")

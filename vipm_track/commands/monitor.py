@@ -12,10 +12,15 @@ mount estimate), and while DRIFTING / RECALIBRATE ``new_*`` with ``new_*_lo``/``
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 from collections import Counter
+from collections.abc import Iterator
+from dataclasses import replace
 from typing import Any
+
+import numpy as np
 
 from ..camera import load_camera
 from ..errors import InputError
@@ -27,6 +32,8 @@ from .common import (
     add_rerun_options,
     check_height,
     check_output,
+    check_rerun_output,
+    check_writable,
 )
 from .estimate import add_estimator_options, add_parallel_options
 from .inputs import (
@@ -77,18 +84,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from filters.monitor import MonitorConfig, load_nominal, write_events
-    from filters.monitor_inputs import frame_rate, monitor_measurements
+    from filters.ekf import EkfConfig
+    from filters.monitor import MonitorConfig, load_nominal
+    from filters.monitor_inputs import frame_rate
 
-    nominal = load_nominal(args.nominal)
-    height = check_height(nominal.height_m if args.height is None else args.height)
+    out = check_output(args.out, args.parquet)
+    if args.events:
+        check_writable(args.events, "--events")
+    check_rerun_output(args)
+    try:
+        nominal = load_nominal(args.nominal)
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{args.nominal}: not a text file (undecodable byte at offset "
+                         f"{exc.start}); a nominal calibration is YAML") from None
+    height = check_height(nominal_height(args.height, nominal.height_m, args.nominal))
     if not (math.isfinite(args.false_alarms_per_hour) and args.false_alarms_per_hour > 0):
         raise InputError(f"--false-alarms-per-hour must be > 0, got {args.false_alarms_per_hour}")
     if not (math.isfinite(args.road_std) and args.road_std >= 0):
         raise InputError(f"--road-std must be >= 0 degrees, got {args.road_std}")
     if not (math.isfinite(args.road_tau) and args.road_tau > 0):
         raise InputError(f"--road-tau must be > 0 seconds, got {args.road_tau}")
-    out = check_output(args.out)
     # the camera is needed only to estimate from images (inputs.estimate_stream says so)
     camera = load_camera(args.camera) if args.camera else None
     speed = load_speed(args)
@@ -102,22 +117,31 @@ def run(args: argparse.Namespace) -> int:
     measurements = measurements_from_args(args, height, config, sink, camera, progress)
     speed, _ = speed_on_camera_clock(args, speed, measurements)
 
-    from filters.ekf import EkfConfig
-
     ekf_config = EkfConfig(height_m=height)
     config = MonitorConfig.from_noise(
         ekf_config.noise, fps=frame_rate(measurements),
         false_alarms_per_hour=args.false_alarms_per_hour,
         road_std_deg=args.road_std, road_tau_s=args.road_tau,
     )
-    states, outputs = monitor_measurements(
-        measurements, nominal, speed, config, ekf_config, progress=progress
-    )
+    states: list[Any] = []
+    outputs: list[Any] = []
+    n_events = 0
     parquet = out.with_suffix(".parquet") if args.parquet else None
-    with TableWriter(out, MONITOR_COLUMNS, parquet) as writer:
-        for m, s, o in zip(measurements, states, outputs, strict=True):
-            writer.write(monitor_row(m, s, o))
-    n_events = write_events(outputs, args.events) if args.events else 0
+    events = open(args.events, "w", newline="\n") if args.events else None
+    try:
+        with TableWriter(out, MONITOR_COLUMNS, parquet) as writer:
+            for m, s, o in monitor_stream(measurements, nominal, speed, config, ekf_config,
+                                          progress):
+                writer.write(monitor_row(m, s, o))
+                states.append(s)
+                outputs.append(o)
+                if events is not None and o.event is not None:
+                    events.write(json.dumps(o.event) + "\n")
+                    events.flush()
+                    n_events += 1
+    finally:
+        if events is not None:
+            events.close()
     log_monitor_run(sink, measurements, states, outputs, progress)
     if progress:
         counts = Counter(o.state for o in outputs)
@@ -129,7 +153,53 @@ def run(args: argparse.Namespace) -> int:
         if flagged is not None:
             print(f"first RECALIBRATE at t={flagged.t:.2f} s (frame {flagged.frame}): "
                   f"{flagged.reason}", file=sys.stderr)
+    if getattr(args, "interrupted_at", None) is not None:
+        raise KeyboardInterrupt
     return 0
+
+
+def nominal_height(height: float | None, nominal_height_m: float, nominal_file: str) -> float:
+    """The one nominal camera height [m]: the nominal file's ``height_m``; ``--height`` may
+    repeat it, and an InputError names both where it says otherwise."""
+    if height is None or math.isclose(height, nominal_height_m, rel_tol=0, abs_tol=1e-6):
+        return nominal_height_m
+    raise InputError(f"--height {height:g} m contradicts the nominal calibration "
+                     f"{nominal_file}: height_m {nominal_height_m:g} m; give the height in "
+                     "one place (without --height the nominal file's is used)")
+
+
+def monitor_stream(
+    measurements: list[PairMeasurement],
+    nominal: Any,
+    speed: Any,
+    config: Any,
+    ekf_config: Any,
+    progress: bool = False,
+) -> Iterator[tuple[PairMeasurement, Any, Any]]:
+    """(measurement, EKF state, monitor output) of every frame, each as soon as it is
+    decided: the measurements' monitor inputs (``filters.monitor_inputs``: they compare a
+    pair with its neighbours) are found for the whole list at once, then the EKF steps frame
+    by frame and the monitor judges each frame with the filter's mount. The same answers as
+    ``filters.monitor_inputs.monitor_measurements``."""
+    from filters.ekf import ExtrinsicsEKF, speed_at
+    from filters.monitor import DriftMonitor
+    from filters.monitor_inputs import inputs_from_measurements, mount_from_state
+
+    ekf = ExtrinsicsEKF(ekf_config)
+    mon = DriftMonitor(nominal, config)
+    inputs = inputs_from_measurements(measurements, speed)
+    times = np.array([m.t for m in measurements], dtype=float)
+    speeds = speed_at(speed, times) if speed is not None else np.full(len(times), np.nan)
+    it: Any = zip(measurements, speeds, inputs, strict=True)
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(it, total=len(measurements), desc="monitor", unit="frame")
+    for m, v, frame_input in it:
+        state = ekf.step(m, m.t, float(v), m.frame)
+        mount, mount_cov, gated = mount_from_state(state)
+        judged = replace(frame_input, mount=mount, mount_cov=mount_cov, gated=gated)
+        yield m, state, mon.update(judged)
 
 
 def monitor_row(m: PairMeasurement, state: Any, out: Any) -> dict[str, Any]:

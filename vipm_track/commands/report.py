@@ -26,6 +26,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..sinks.report import write_report
+    from .common import check_output_dir
+
+    check_output_dir(args.out)
 
     report = write_report(args.table, args.out, gt=args.gt, title=args.title)
     names = ", ".join(p.name for p in report.plots.values())

@@ -7,8 +7,9 @@ import sys
 
 from ..errors import InputError
 from ..render import Effects
-from ..sim import PRESETS, PROFILES, simulate_sequence
+from ..sim import PRESETS, PROFILES, clear_earlier_run, simulate_sequence
 from ..texture import TEXTURES
+from .common import check_output_dir
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -55,6 +56,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_dir(args.out)
     if args.frames < 1:
         raise InputError(f"--frames must be ≥ 1, got {args.frames}")
     for name in ("fps", "speed"):
@@ -72,6 +74,10 @@ def run(args: argparse.Namespace) -> int:
         highlights=args.highlights, motion_blur=args.motion_blur,
         rolling_shutter=args.readout_time * fps, obstacle=args.obstacle, seed=args.seed,
     )
+    removed = clear_earlier_run(args.out)
+    if removed:
+        print(f"vipm-track simulate: removed {removed} images of an earlier run in "
+              f"{args.out}/images", file=sys.stderr)
     traj = simulate_sequence(
         args.preset, args.frames, args.out, seed=args.seed, profile=args.profile,
         effects=effects, texture=args.texture, fps=args.fps, speed=args.speed,

@@ -9,6 +9,7 @@ import math
 import sys
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -22,6 +23,8 @@ from .common import (
     add_rerun_options,
     check_height,
     check_output,
+    check_rerun_output,
+    check_writable,
 )
 from .estimate import add_estimator_options, add_parallel_options
 from .inputs import load_speed, measurements_from_args, speed_on_camera_clock
@@ -172,11 +175,17 @@ def build_config(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from filters.smoother import smooth, speeds_at_frames, summarize_mount, summary_markdown
-    from filters.track import TRACK_COLUMNS, track_row
-    from vipm_track.table import TableWriter
+    from filters.smoother import summarize_mount, summary_markdown
+    from filters.track import TRACK_COLUMNS
+
+    from ..table import TableWriter
 
     config = build_config(args)
+    out = check_output(args.out, args.parquet)
+    summary_path = Path(args.summary) if args.summary else out.with_suffix(".summary.json")
+    check_writable(summary_path, "--summary")
+    check_writable(summary_path.with_suffix(".md"), "--summary")
+    check_rerun_output(args)
     speed = load_speed(args)
     from ..sinks.rerun_sink import log_filter_run, sink_from_args
 
@@ -184,25 +193,27 @@ def run(args: argparse.Namespace) -> int:
     measurements = measurements_from_args(args, config.height_m, sink=sink,
                                           progress=not args.quiet)
     speed, clock_fit = speed_on_camera_clock(args, speed, measurements)
-    frames = smooth(measurements, speed, config, progress=not args.quiet)
-    speeds = speeds_at_frames(measurements, speed)
-    by_frame = {m.frame: (m, v) for m, v in zip(measurements, speeds, strict=True)}
-    out = check_output(args.out)
     pq = out.with_suffix(".parquet") if args.parquet else None
-    rows = []
+    rows: list[dict] = []
+    frames: list = []
+    interrupted: str | None = None
+    if getattr(args, "interrupted_at", None) is not None:
+        interrupted = (f"interrupted while estimating: smoothed over the frames up to "
+                       f"{args.interrupted_at}")
     with TableWriter(out, TRACK_COLUMNS, parquet_path=pq) as writer:
-        for f in frames:
-            m, v = by_frame.get(f.frame, (None, float("nan")))
-            row = track_row(f, m, float(v) if np.isfinite(v) else None)  # type: ignore[arg-type]
-            if not f.initialised:
-                row["status"] = f.reason or "skipped"
-            writer.write(row)
-            rows.append(row)
+        try:
+            for f, row in _smoothed_rows(measurements, speed, config, not args.quiet):
+                writer.write(row)
+                frames.append(f)
+                rows.append(row)
+        except KeyboardInterrupt:
+            interrupted = _write_interrupted(writer, measurements, frames, rows)
     if sink is not None:
         log_filter_run(sink, measurements, rows, "smoothed")
         sink.finish()
-
-    summary = summarize_mount(frames, measurements)
+    summary = summarize_mount(frames, measurements[: len(frames)]) if frames else {}
+    summary["status"] = interrupted or "complete"
+    summary["input_notes"] = getattr(args, "input_notes", [])
     summary["smoother"] = {
         "lag_s": config.lag_s,
         "loss": config.loss,
@@ -213,15 +224,90 @@ def run(args: argparse.Namespace) -> int:
         "clock_offset_std_s": None if clock_fit is None else clock_fit.std_s,
         "source": _source_name(args),
     }
-    path = Path(args.summary) if args.summary else out.with_suffix(".summary.json")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(summary, indent=2) + "\n")
-    text = summary_markdown(summary)
-    path.with_suffix(".md").write_text("# Drive summary\n\n" + text)
+    write_text(summary_path, json.dumps(summary, indent=2) + "\n")
+    text = summary_markdown(summary) if frames else ""
+    if interrupted:
+        text = f"**{interrupted}**\n\n" + text
+    write_text(summary_path.with_suffix(".md"), "# Drive summary\n\n" + text)
     if not args.quiet:
         print(text, file=sys.stderr)
-        print(f"vipm-track smooth: {len(frames)} frames → {out}; summary → {path}", file=sys.stderr)
+        print(f"vipm-track smooth: {len(rows)} frames → {out}; summary → {summary_path}",
+              file=sys.stderr)
+    if interrupted:
+        raise KeyboardInterrupt
     return 0
+
+
+def _smoothed_rows(measurements, speed, config, progress: bool):
+    """(smoothed frame, its track-table row) of every frame, each as soon as it is final:
+    the fixed-lag smoother's frames as they leave the window, the batch's when it is done."""
+    from filters.smoother import smooth, speeds_at_frames
+
+    speeds = speeds_at_frames(measurements, speed)
+    by_frame = {m.frame: (m, v) for m, v in zip(measurements, speeds, strict=True)}
+    if config.lag_s == 0:
+        frames = iter(smooth(measurements, speed, config, progress=progress))
+    else:
+        frames = _fixed_lag_frames(measurements, speeds, config, progress)
+    for f in frames:
+        m, v = by_frame.get(f.frame, (None, float("nan")))
+        yield f, _row(f, m, v)
+
+
+def _fixed_lag_frames(measurements, speeds, config, progress: bool):
+    """The fixed-lag smoother's frames, each as it leaves the window (then the rest)."""
+    from filters.fixed_lag import FixedLagSmoother
+
+    sm = FixedLagSmoother(config)
+    it = zip(measurements, speeds, strict=True)
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(it, total=len(measurements), desc="fixed-lag smoother", unit="frame")
+    for m, v in it:
+        yield from sm.step(m, float(v))
+    yield from sm.finish()
+
+
+def _row(f, m, v: float) -> dict:
+    from filters.track import track_row
+
+    row = track_row(f, m, float(v) if np.isfinite(v) else None)
+    if not f.initialised:
+        row["status"] = f.reason or "skipped"
+    return row
+
+
+#: ``status`` of the frames an interrupt left unsmoothed (their measurements are written).
+NOT_SMOOTHED = "interrupted: not smoothed"
+
+
+def _write_interrupted(writer, measurements, frames: list, rows: list[dict]) -> str:
+    """After an interrupt: one row per frame not yet written, holding its measurement with
+    :data:`NOT_SMOOTHED`; the summary's status line."""
+    from filters.track import track_row
+
+    done = len(rows)
+    idle = SimpleNamespace(initialised=False, status="interrupted", nis=float("nan"), gated="",
+                           standstill=False, reset_reason="")
+    for m in measurements[done:]:
+        row = track_row(_at_frame(idle, m), m, None)
+        row["status"] = NOT_SMOOTHED
+        writer.write(row)
+        rows.append(row)
+    return (f"interrupted: {done} of {len(measurements)} frames smoothed, the rest written "
+            f"with status '{NOT_SMOOTHED}'")
+
+
+def _at_frame(state: SimpleNamespace, m) -> SimpleNamespace:
+    """``state`` placed at the frame and time of measurement ``m``."""
+    return SimpleNamespace(**{**vars(state), "frame": m.frame, "t": m.t})
+
+
+def write_text(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` with ``\\n`` line ends."""
+    with path.open("w", newline="\n") as fh:
+        fh.write(text)
 
 
 def _source_name(args: argparse.Namespace) -> str:

@@ -7,7 +7,7 @@ import argparse
 import sys
 from collections.abc import Iterator
 
-from ..errors import InputError
+from ..errors import InputError, NothingUsable
 from ..measurement import PairMeasurement
 from .common import (
     add_filter_inputs,
@@ -15,6 +15,7 @@ from .common import (
     add_rerun_options,
     check_height,
     check_output,
+    check_rerun_output,
 )
 from .estimate import add_estimator_options, add_parallel_options
 from .inputs import (
@@ -23,6 +24,7 @@ from .inputs import (
     load_speed,
     measurements_from_args,
     read_estimates,
+    require_usable,
     speed_on_camera_clock,
 )
 
@@ -55,8 +57,9 @@ def run(args: argparse.Namespace) -> int:
     from filters.model import NoiseParams
     from filters.track import track, write_track
 
+    out = check_output(args.out, args.parquet)
+    check_rerun_output(args)
     height = check_height(args.height)
-    out = check_output(args.out)
     if not 0.5 < args.gate < 1.0:
         raise InputError(f"--gate must be a probability in (0.5, 1), got {args.gate}")
     config = EkfConfig(height_m=height, noise=NoiseParams.for_preset(args.vehicle),
@@ -74,7 +77,8 @@ def run(args: argparse.Namespace) -> int:
     elif args.estimates:
         if args.images or args.video:
             raise InputError("give --estimates or --images/--video, not both")
-        measurements = read_estimates(args.estimates)
+        measurements = read_estimates(args.estimates, args.quiet)
+        require_usable(measurements, args.estimates)
         speed, _ = speed_on_camera_clock(args, speed, measurements)
         stream = iter(measurements)
         total = len(measurements)
@@ -84,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("give --images DIR, --video FILE or --estimates EST.csv")
 
     frame_times: list[float] = []
-    stream = _noting_times(stream, frame_times)
+    usable = [0]
+    stream = _noting_times(stream, frame_times, usable)
     steps = log_track_steps(sink, track(stream, speed, config))
     if not args.quiet:
         from tqdm import tqdm
@@ -97,12 +102,17 @@ def run(args: argparse.Namespace) -> int:
         summary = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
         print(f"vipm-track track: {sum(counts.values())} frames ({summary}) → {args.out}",
               file=sys.stderr)
+    if usable[0] == 0:
+        raise NothingUsable(f"{args.images or args.video}: no frame has a usable pair "
+                            f"estimate; {args.out} holds the filter's priors only")
     return 0
 
 
-def _noting_times(stream: Iterator[PairMeasurement], times: list[float],
+def _noting_times(stream: Iterator[PairMeasurement], times: list[float], usable: list[int],
                   ) -> Iterator[PairMeasurement]:
-    """``stream`` unchanged, each measurement's time appended to ``times`` as it passes."""
+    """``stream`` unchanged, each measurement's time appended to ``times`` and ``usable[0]``
+    counting the usable ones as they pass."""
     for m in stream:
         times.append(m.t)
+        usable[0] += m.ok
         yield m

@@ -1,0 +1,483 @@
+"""Every input error reported where it is, every interrupted run keeps its work: one test per
+row of issue 34's table (and issue 32's bad filter inputs), run through the CLI as a user
+would."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from conftest import ROOT, shared_data
+
+from vipm_track.cli import main
+from vipm_track.table import read_table
+
+KITTI_ESTIMATES = ROOT / "tests" / "data" / "kitti07_estimates.csv"
+CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f]")
+
+
+@pytest.fixture(scope="module")
+def est(tmp_path_factory) -> Path:
+    """The first 120 frames of KITTI 07's estimates table (camera 1.65 m, pitch ~1°)."""
+    path = tmp_path_factory.mktemp("est") / "est.csv"
+    lines = KITTI_ESTIMATES.read_text().splitlines(keepends=True)
+    path.write_text("".join(lines[:121]))
+    return path
+
+
+@pytest.fixture(scope="module")
+def nominal(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("nominal") / "nominal.yaml"
+    text = (ROOT / "data" / "nominal_car.yaml").read_text()
+    path.write_text(text.replace("pitch_deg: 3.0", "pitch_deg: 1.0", 1)
+                    .replace("height_m: 1.5", "height_m: 1.65", 1))
+    return path
+
+
+def _run(capsys, *argv: str) -> tuple[int, str]:
+    rc = main([str(a) for a in argv])
+    return rc, capsys.readouterr().err
+
+
+def _rows(path: Path) -> list[str]:
+    data = path.read_bytes()
+    assert b"\r" not in data, f"{path}: not \\n line ends"
+    assert data.endswith(b"\n"), f"{path}: ends in half a line"
+    return data.decode().splitlines()[1:]
+
+
+# -- output paths: checked before any work, exit 2 with the path and the OS reason -------------
+
+def _unwritable(tmp_path: Path) -> Path:
+    """A folder that cannot be created: its parent is a file (works as root, unlike chmod)."""
+    blocker = tmp_path / "blocker"
+    blocker.write_text("a file, not a folder\n")
+    return blocker / "sub"
+
+
+@pytest.mark.parametrize("command", [
+    "estimate", "track", "smooth", "monitor", "can-speed", "report", "simulate", "demo"])
+def test_every_subcommand_checks_its_output_before_any_work(tmp_path, capsys, est, nominal,
+                                                            command):
+    bad = _unwritable(tmp_path)
+    can = shared_data("comma2k19_can")
+    argv = {
+        "estimate": ["estimate", "--images", tmp_path / "none", "--camera", tmp_path / "none.yaml",
+                     "--height", "1", "--out", bad / "est.csv"],
+        "track": ["track", "--estimates", est, "--height", "1.65", "--out", bad / "t.csv"],
+        "smooth": ["smooth", "--estimates", est, "--height", "1.65", "--out", bad / "s.csv"],
+        "monitor": ["monitor", "--estimates", est, "--nominal", nominal, "--out", bad / "m.csv"],
+        "can-speed": ["can-speed", can / "rav4_drive.log", "--dbc", can / "toyota_2017.dbc",
+                      "--out", bad / "speed.csv"],
+        "report": ["report", est, "--out", bad / "report"],
+        "simulate": ["simulate", "--frames", "2", "--out", bad / "sim"],
+        "demo": ["demo", "--frames", "2", "--out", bad / "demo"],
+    }[command]
+    rc, err = _run(capsys, *argv)
+    assert rc == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert str(bad) in lines[0] and "Not a directory" in lines[0]
+
+
+def test_other_outputs_are_checked_too(tmp_path, capsys, est, nominal):
+    bad = _unwritable(tmp_path)
+    good = tmp_path / "m.csv"
+    for extra in (["--events", bad / "e.jsonl"], ["--rerun", bad / "r.rrd"]):
+        rc, err = _run(capsys, "monitor", "--estimates", est, "--nominal", nominal, "--out", good,
+                       "--quiet", *extra)
+        assert rc == 2 and str(bad) in err and len(err.strip().splitlines()) == 1
+        assert not good.exists()  # nothing computed, nothing written
+    rc, err = _run(capsys, "smooth", "--estimates", est, "--height", "1.65", "--out", good,
+                   "--summary", bad / "s.json", "--quiet")
+    assert rc == 2 and "--summary" in err and not good.exists()
+
+
+def test_a_write_error_during_the_run_is_one_line_naming_the_file(capsys, est):
+    if not Path("/dev/full").exists():
+        pytest.skip("no /dev/full here")
+    rc, err = _run(capsys, "track", "--estimates", est, "--height", "1.65", "--out", "/dev/full",
+                   "--quiet")
+    assert rc == 2 and err.strip() == "vipm-track track: error: /dev/full: No space left on device"
+
+
+# -- interrupts: what is decided is written, exit 130 --------------------------------------------
+
+def _interrupt_after(monkeypatch, cls, method: str, calls: int, sig: bool = False) -> None:
+    real = getattr(cls, method)
+    count = [0]
+
+    def wrapped(self, *a, **k):
+        count[0] += 1
+        if count[0] > calls:
+            if sig:  # a real SIGTERM to this process: the CLI's handler turns it into an interrupt
+                os.kill(os.getpid(), signal.SIGTERM)
+            raise KeyboardInterrupt
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(cls, method, wrapped)
+
+
+def test_ctrl_c_during_fixed_lag_smoothing_writes_what_is_decided(tmp_path, capsys, est,
+                                                                  monkeypatch):
+    from filters.fixed_lag import FixedLagSmoother
+
+    out = tmp_path / "s.csv"
+    _interrupt_after(monkeypatch, FixedLagSmoother, "step", 60)
+    rc, err = _run(capsys, "smooth", "--estimates", est, "--height", "1.65", "--lag", "1",
+                   "--out", out, "--quiet")
+    assert rc == 130 and "interrupted" in err
+    table = read_table(out)
+    assert list(table["frame"]) == list(range(120))  # every frame once
+    status = list(table["status"])
+    smoothed = [s != "interrupted: not smoothed" for s in status]
+    assert 30 < sum(smoothed) < 60 and smoothed == sorted(smoothed, reverse=True)
+    summary = json.loads(out.with_suffix(".summary.json").read_text())
+    assert summary["status"].startswith("interrupted")
+
+
+def test_sigterm_during_batch_smoothing_writes_the_measurements_with_a_status(
+        tmp_path, capsys, est, monkeypatch):
+    import filters.smoother
+
+    def stopped(*a, **k):
+        os.kill(os.getpid(), signal.SIGTERM)
+        raise AssertionError("SIGTERM did not interrupt")
+
+    monkeypatch.setattr(filters.smoother, "smooth", stopped)
+    out = tmp_path / "s.csv"
+    rc, _err = _run(capsys, "smooth", "--estimates", est, "--height", "1.65", "--out", out,
+                   "--quiet")
+    assert rc == 130
+    table = read_table(out)
+    assert len(table["frame"]) == 120 and set(table["status"]) == {"interrupted: not smoothed"}
+    ok = np.isfinite(table["meas_pitch_deg"])
+    assert ok.sum() > 100  # the measurements are kept
+    assert "interrupted" in json.loads(out.with_suffix(".summary.json").read_text())["status"]
+
+
+def test_fixed_lag_rows_are_on_disk_as_they_leave_the_window(tmp_path, capsys, est, monkeypatch):
+    from filters.fixed_lag import FixedLagSmoother
+
+    out = tmp_path / "s.csv"
+    seen: list[int] = []
+    real = FixedLagSmoother.step
+
+    def step(self, *a, **k):
+        seen.append(len(out.read_text().splitlines()) - 1 if out.exists() else -1)
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(FixedLagSmoother, "step", step)
+    rc, _ = _run(capsys, "smooth", "--estimates", est, "--height", "1.65", "--lag", "1",
+                 "--out", out, "--quiet")
+    assert rc == 0
+    assert seen[-1] > 100  # at the last frame, all but the window's ~10 frames are written
+
+
+@pytest.mark.parametrize("sig", [False, True])
+def test_interrupted_monitor_keeps_complete_rows(tmp_path, capsys, est, nominal, monkeypatch, sig):
+    from filters.monitor import DriftMonitor
+
+    out, events = tmp_path / "m.csv", tmp_path / "e.jsonl"
+    _interrupt_after(monkeypatch, DriftMonitor, "update", 50, sig=sig)
+    rc, err = _run(capsys, "monitor", "--estimates", est, "--nominal", nominal, "--out", out,
+                   "--events", events, "--quiet")
+    assert rc == 130 and "interrupted" in err
+    rows = _rows(out)
+    assert len(rows) == 50
+    assert read_table(out)["frame"].tolist() == list(range(50))
+    for line in events.read_text().splitlines():
+        json.loads(line)
+
+
+def test_streamed_monitor_judges_as_the_whole_sequence_does(est, nominal):
+    from filters.ekf import EkfConfig
+    from filters.monitor import MonitorConfig, load_nominal
+    from filters.monitor_inputs import frame_rate, monitor_measurements
+    from filters.wheel_speed import SpeedSeries
+    from vipm_track.commands.inputs import read_estimates
+    from vipm_track.commands.monitor import monitor_stream
+
+    ms = read_estimates(str(est))
+    nom = load_nominal(nominal)
+    ekf = EkfConfig(height_m=1.65)
+    cfg = MonitorConfig.from_noise(ekf.noise, fps=frame_rate(ms))
+    t = np.arange(0.0, 14.0, 0.02)
+    speed = SpeedSeries(t, 8.0 + np.sin(t))
+    for n, sp in ((120, None), (120, speed), (2, None), (1, None)):
+        _states, whole = monitor_measurements(ms[:n], nom, sp, cfg, ekf)
+        streamed = list(monitor_stream(ms[:n], nom, sp, cfg, ekf))
+        assert [o.state for _, _, o in streamed] == [o.state for o in whole]
+        assert [o.reason for _, _, o in streamed] == [o.reason for o in whole]
+        np.testing.assert_array_equal([o.statistic for _, _, o in streamed],
+                                      [o.statistic for o in whole])
+
+
+# -- CAN logs ---------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def can_data():
+    return shared_data("comma2k19_can")
+
+
+@pytest.fixture(scope="module")
+def asc_lines(can_data, tmp_path_factory) -> list[str]:
+    """3000 lines of a Vector .asc written by python-can from the RAV4 log."""
+    import can
+
+    path = tmp_path_factory.mktemp("asc") / "drive.asc"
+    with can.ASCWriter(str(path)) as writer:
+        for i, msg in enumerate(can.LogReader(str(can_data / "rav4_drive.log"))):
+            if i == 2995:
+                break
+            writer.on_message_received(msg)
+    lines = path.read_text().splitlines()
+    assert len(lines) >= 3000
+    return lines[:3000]
+
+
+def _decode(path: Path, can_data: Path):
+    from filters.wheel_speed import decode_can_log
+
+    return decode_can_log(path, can_data / "toyota_2017.dbc")
+
+
+def test_asc_bad_hex_byte_is_skipped_and_reading_goes_on(tmp_path, can_data, asc_lines):
+    clean = tmp_path / "clean.asc"
+    clean.write_text("\n".join(asc_lines) + "\n")
+    full, _ = _decode(clean, can_data)
+    lines = list(asc_lines)
+    k = next(i for i in range(999, 3000) if re.search(r"\s(AA|aa)\s+Rx", lines[i]))
+    lines[k] = re.sub(r"(d 8 )(\S\S)", r"\g<1>G\2", lines[k])
+    bad = tmp_path / "bad.asc"
+    bad.write_text("\n".join(lines) + "\n")
+    series, summary = _decode(bad, can_data)
+    assert len(series) == len(full) - 1 and summary.bad_lines == 1
+    assert f"{bad}:{k + 1}: " in str(summary) and not summary.read_errors
+
+
+def test_asc_cut_and_garbage_lines_are_counted_and_named(tmp_path, can_data, asc_lines):
+    rng = np.random.default_rng(0)
+    lines = list(asc_lines)
+    hit = sorted(rng.choice(np.arange(10, 3000), 81, replace=False))
+    for i in hit[:60]:
+        lines[i] = lines[i][: len(lines[i]) // 3]
+    for i in hit[60:]:
+        lines[i] = "".join(chr(c) for c in rng.integers(0x21, 0x7E, 30))
+    bad = tmp_path / "bad.asc"
+    bad.write_text("\n".join(lines) + "\n")
+    _series, summary = _decode(bad, can_data)
+    assert summary.bad_lines == 81 and summary.frames == 2995 - 81
+    text = str(summary)
+    assert "81 lines the log reader could not read" in text
+    assert f"{bad}:{hit[0] + 1}: " in text  # the first few are named by line
+
+
+@pytest.mark.parametrize("fmt", ["log", "asc", "trc", "csv", "blf"])
+def test_every_python_can_format_reads_the_same_frames(tmp_path, can_data, fmt):
+    import can
+
+    msgs = list(can.LogReader(str(can_data / "rav4_drive.log")))[:4000]
+    path = tmp_path / f"drive.{fmt}"
+    with can.Logger(str(path)) as writer:
+        for msg in msgs:
+            writer.on_message_received(msg)
+    series, summary = _decode(path, can_data)
+    assert summary.frames == 4000 and summary.bad == 0 and len(series) > 100
+
+
+def test_binary_dbc_is_not_echoed(tmp_path, capsys, can_data):
+    dbc = tmp_path / "garbage.dbc"
+    dbc.write_bytes(bytes(np.random.default_rng(1).integers(0, 256, 3000, dtype=np.uint8)))
+    rc, err = _run(capsys, "can-speed", can_data / "rav4_drive.log", "--dbc", dbc, "--out",
+                   tmp_path / "s.csv")
+    assert rc == 2 and "binary content" in err
+    assert not CONTROL.search(err.replace("\n", "")) and len(err) < 300
+
+
+# -- exit codes ----------------------------------------------------------------------------------
+
+def test_estimate_with_no_usable_frame_exits_1(tmp_path, capsys):
+    from conftest import CAR_CAMERA_YAML
+
+    images = tmp_path / "images"
+    images.mkdir()
+    for k in range(3):
+        (images / f"{k:06d}.png").write_bytes(b"not an image")
+    (tmp_path / "cam.yaml").write_text(CAR_CAMERA_YAML)
+    rc, err = _run(capsys, "estimate", "--images", images, "--camera", tmp_path / "cam.yaml",
+                   "--height", "1.5", "--fps", "10", "--out", tmp_path / "est.csv", "--quiet")
+    assert rc == 1 and "no frame has an estimate" in err and "3× unreadable frame" in err
+
+
+@pytest.mark.parametrize("command", ["track", "smooth", "monitor"])
+def test_estimates_without_a_usable_row_exit_1_without_a_summary(tmp_path, capsys, est, nominal,
+                                                               command):
+    table = read_table(est)
+    lines = est.read_text().splitlines()
+    header = lines[0].split(",")
+    s = header.index("status")
+    bad = tmp_path / "failed.csv"
+    bad.write_text("\n".join([lines[0]] + [
+        ",".join(c if j < 2 or j == 4 else ("no motion" if j == s else "")
+                 for j, c in enumerate(line.split(","))) for line in lines[1:]]) + "\n")
+    assert len(read_table(bad)["frame"]) == len(table["frame"])
+    out = tmp_path / "out.csv"
+    extra = ["--nominal", nominal] if command == "monitor" else ["--height", "1.65"]
+    rc, err = _run(capsys, command, "--estimates", bad, "--out", out, *extra)
+    assert rc == 1 and "no frame has a usable pair" in err and "120× no motion" in err
+    assert not out.exists() and not out.with_suffix(".summary.json").exists()
+
+
+def test_monitor_height_contradicting_the_nominal_is_an_error(tmp_path, capsys, est, nominal):
+    rc, err = _run(capsys, "monitor", "--estimates", est, "--nominal", nominal, "--height", "1.5",
+                   "--out", tmp_path / "m.csv")
+    assert rc == 2 and "--height 1.5 m" in err and "height_m 1.65 m" in err
+    rc, _ = _run(capsys, "monitor", "--estimates", est, "--nominal", nominal, "--height", "1.65",
+                 "--out", tmp_path / "m.csv", "--quiet")
+    assert rc == 0
+
+
+# -- tables -----------------------------------------------------------------------------------
+
+def test_track_writes_a_duplicated_frame_once_and_says_which_row(tmp_path, capsys, est):
+    lines = est.read_text().splitlines()
+    dup = tmp_path / "dup.csv"
+    dup.write_text("\n".join([*lines[:9], lines[8], *lines[9:]]) + "\n")  # frame 7 twice
+    out = tmp_path / "t.csv"
+    rc, err = _run(capsys, "track", "--estimates", dup, "--height", "1.65", "--out", out)
+    assert rc == 0
+    frames = read_table(out)["frame"].tolist()
+    assert frames == list(range(120))
+    assert "row 10 frame 7 (first row 9)" in err
+
+
+def test_backward_times_and_missing_numbers_are_reported_with_rows(tmp_path, capsys, est):
+    lines = est.read_text().splitlines()
+    header = lines[0].split(",")
+    cells = [line.split(",") for line in lines[1:]]
+    cells[20][1] = cells[18][1]  # frame 20's time before frame 19's
+    cells[30][header.index("pitch_deg")] = ""  # ok, but no pitch (rows: CSV lines)
+    assert cells[30][header.index("status")] == "ok"
+    path = tmp_path / "bad.csv"
+    path.write_text("\n".join([lines[0], *(",".join(c) for c in cells)]) + "\n")
+    out = tmp_path / "t.csv"
+    rc, err = _run(capsys, "track", "--estimates", path, "--height", "1.65", "--out", out)
+    assert rc == 0
+    assert "row 22 t " in err and "row 32 frame 30" in err
+    table = read_table(out)
+    assert 20 not in table["frame"].tolist() and len(table["frame"]) == 119
+    k = table["frame"].tolist().index(30)
+    assert table["meas_status"][k] == "no estimate (numbers missing in the table)"
+    # smooth's drive summary keeps the notes
+    out = tmp_path / "s.csv"
+    assert _run(capsys, "smooth", "--estimates", path, "--height", "1.65", "--out", out,
+                "--quiet")[0] == 0
+    notes = json.loads(out.with_suffix(".summary.json").read_text())["input_notes"]
+    assert len(notes) == 2 and "row 22 t " in notes[0] and "row 32 frame 30" in notes[1]
+
+
+def test_numbers_are_written_at_sensible_precision_with_one_line_ending(tmp_path, capsys):
+    from vipm_track.table import TableWriter
+
+    with TableWriter(tmp_path / "t.csv") as writer:
+        writer.write({"frame": 3, "t": 3 * 0.1, "pitch_deg": sum([0.1] * 10),
+                      "roll_deg": 1.0 / 3.0, "height_m": 1e-7 / 3})
+    data = (tmp_path / "t.csv").read_bytes()
+    assert data == (b"frame,t,pitch_deg,roll_deg,height_m,tx_m,tz_m,yaw_deg,status\n"
+                    b"3,0.3,1.0,0.333333333333333,3.33333333333333e-08,,,,\n")
+
+
+def test_fps_beside_times_txt_says_which_is_used(tmp_path, capsys):
+    from vipm_track.sources import open_source
+
+    images = tmp_path / "images"
+    images.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(images / f"{k:06d}.png"), np.zeros((8, 8), np.uint8))
+    (tmp_path / "times.txt").write_text("0.0\n0.1\n0.2\n")
+    source = open_source(images=images, fps=25.0)
+    assert [f.t for f in source] == [0.0, 0.1, 0.2]
+    err = capsys.readouterr().err
+    assert "--fps 25 not used" in err and "times.txt" in err
+
+
+def test_unknown_camera_yaml_key_is_named_with_the_valid_ones(tmp_path):
+    from conftest import CAR_CAMERA_YAML
+
+    from vipm_track.camera import CameraFileError, load_camera
+
+    path = tmp_path / "cam.yaml"
+    path.write_text(CAR_CAMERA_YAML + "distortion_coeficients: {data: [0.1, 0, 0, 0, 0]}\n")
+    with pytest.raises(CameraFileError, match=r"'distortion_coeficients'.*valid keys are "
+                       r"image_width, .*distortion_coefficients"):
+        load_camera(path)
+    path.write_text(CAR_CAMERA_YAML.replace("rows: 3, cols: 3", "rows: 3, colls: 3"))
+    with pytest.raises(CameraFileError, match=r"'camera_matrix.colls'.*rows, cols, data"):
+        load_camera(path)
+    fs = cv2.FileStorage(str(tmp_path / "cv.yaml"), cv2.FILE_STORAGE_WRITE)
+    fs.write("camera_matrix", np.array([[900.0, 0, 640], [0, 900, 360], [0, 0, 1]]))
+    fs.write("image_width", 1280)
+    fs.write("image_height", 720)
+    fs.write("image_widht", 1280)
+    fs.release()
+    with pytest.raises(CameraFileError, match=r"'image_widht'.*valid keys are camera_matrix"):
+        load_camera(tmp_path / "cv.yaml")
+
+
+def test_wrong_image_size_names_both_sizes(tmp_path):
+    from vipm_track.camera import CameraModel
+    from vipm_track.errors import InputError
+    from vipm_track.pipeline import run_sequence
+    from vipm_track.sources import open_source
+
+    images = tmp_path / "images"
+    images.mkdir()
+    camera = CameraModel(np.array([[50.0, 0, 20], [0, 50, 15], [0, 0, 1]]), 40, 30)
+    cv2.imwrite(str(images / "000000.png"), np.zeros((30, 41), np.uint8))
+    with pytest.raises(InputError, match=r"41×30 px but the camera model is 40×30 px"):
+        list(run_sequence(open_source(images=images, fps=10), camera, 1.0, estimator=object()))
+    cv2.imwrite(str(images / "000000.png"), np.zeros((30, 40), np.uint8))
+    cv2.imwrite(str(images / "000001.png"), np.zeros((24, 32), np.uint8))
+    steps = list(run_sequence(open_source(images=images, fps=10), camera, 1.0,
+                              estimator=object()))
+    assert steps[1].status == "wrong image size 32×24 (camera 40×30)"
+
+
+def test_simulate_into_an_earlier_run_leaves_no_stale_images(tmp_path, capsys):
+    out = tmp_path / "sim"
+    assert _run(capsys, "simulate", "--frames", "4", "--out", out)[0] == 0
+    rc, err = _run(capsys, "simulate", "--frames", "2", "--out", out)
+    assert rc == 0 and "removed 4 images of an earlier run" in err
+    assert sorted(p.name for p in (out / "images").iterdir()) == ["000000.png", "000001.png"]
+    assert len((out / "times.txt").read_text().splitlines()) == 2
+    (out / "images" / "mine.jpg").write_bytes(b"x")
+    rc, err = _run(capsys, "simulate", "--frames", "2", "--out", out)
+    assert rc == 2 and "mine.jpg" in err and (out / "images" / "mine.jpg").exists()
+
+
+def test_interrupted_can_speed_writes_the_samples_decoded_before_it(tmp_path, capsys, can_data,
+                                                                    monkeypatch):
+    import filters.can_logs
+
+    real = filters.can_logs.LogRecords.__iter__
+
+    def stopping(self):
+        for k, msg in enumerate(real(self)):
+            if k == 20000:
+                raise KeyboardInterrupt
+            yield msg
+
+    monkeypatch.setattr(filters.can_logs.LogRecords, "__iter__", stopping)
+    out = tmp_path / "speed.csv"
+    rc, err = _run(capsys, "can-speed", can_data / "rav4_drive.log", "--dbc",
+                   can_data / "toyota_2017.dbc", "--out", out)
+    assert rc == 130 and "interrupted after 20000 frames" in err
+    rows = _rows(out)
+    assert 500 < len(rows) < 2000 and all(len(r.split(",")) == 2 for r in rows)
