@@ -272,7 +272,5 @@ def test_nominal_yaml(data):
     _check(_load_nominal, _tmp("nominal.yaml"), damaged)
 
 
-@pytest.mark.xfail(raises=UnicodeDecodeError, strict=True,
-                   reason="load_nominal (filters/monitor.py) decodes the file as strict UTF-8")
 def test_nominal_yaml_with_undecodable_bytes():
     _check(_load_nominal, _tmp("nominal.yaml"), b"\xa3" + NOMINAL[1:])

@@ -467,16 +467,17 @@ def test_smooth_from_images_equals_smooth_of_the_saved_estimates(tmp_path):
 
 
 def test_cli_warns_when_no_pair_is_usable(tmp_path, capsys):
-    # a forward camera started cold from the default pitch fails every pair; the smoother
-    # then writes its priors, which must not pass for an answer
+    # a forward camera started cold from the default pitch fails every pair: nothing is
+    # usable, so no table and no summary (the priors must not pass for an answer), exit 1
     nan7, nan77 = np.full(7, np.nan), np.full((7, 7), np.nan)
     ms = [PairMeasurement(k, 0.05 * k, nan7, nan77, H0, "did not converge") for k in range(20)]
     est = tmp_path / "est.csv"
     write_table(est, [measurement_row(m) for m in ms], ESTIMATE_COLUMNS)
     assert main(["smooth", "--estimates", str(est), "--height", str(H0),
-                 "--out", str(tmp_path / "s.csv"), "--quiet"]) == 0
+                 "--out", str(tmp_path / "s.csv"), "--quiet"]) == 1
     err = capsys.readouterr().err
     assert "no frame has a usable pair" in err and "20× did not converge" in err
+    assert not (tmp_path / "s.summary.json").exists()
 
 
 def test_cli_smooths_an_estimates_table(tmp_path, capsys):
