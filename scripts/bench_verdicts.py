@@ -110,7 +110,8 @@ CASES: tuple[Case, ...] = (
 
 
 def _folder(case: Case, seed: int, cache: Path) -> Path:
-    return cache / f"{case.name.replace(' ', '_').replace(',', '').replace('+', '')}_s{seed}"
+    slug = "".join(c if c.isalnum() or c in "._-" else "_" for c in case.name)
+    return cache / f"{slug}_s{seed}"
 
 
 def render_and_estimate(case: Case, seed: int, cache: Path) -> float:

@@ -187,3 +187,21 @@ def test_sign_conflicts_shorter_than_the_span_are_not_reported():
     v[50:80] = -10.0  # 2.9 s
     z[60] = np.nan  # no pair: neither ends nor breaks the span
     assert M.speed_sign_conflicts(t, v, z) == [(5.0, 7.9)]
+
+
+def test_cli_warns_of_a_negated_wheel_speed_and_uses_its_magnitude(tmp_path, capsys):
+    gt = read_table(DATA / "cart_shaking_gt.csv")
+    outs = {}
+    for sign in (1.0, -1.0):
+        speed = tmp_path / f"speed{sign:+.0f}.csv"
+        speed.write_text("t,speed_mps\n" + "".join(
+            f"{t:.3f},{sign * v:.4f}\n" for t, v in zip(gt["t"], gt["speed_mps"], strict=True)))
+        outs[sign] = tmp_path / f"track{sign:+.0f}.csv"
+        assert main(["track", "--estimates", str(DATA / "cart_shaking_est.csv"),
+                     "--height", "0.7", "--speed-csv", str(speed), "--out", str(outs[sign]),
+                     "--quiet"]) == 0
+        err = capsys.readouterr().err
+        assert ("negative (reversing) from t=" in err) == (sign < 0), err
+    a, b = read_table(outs[1.0]), read_table(outs[-1.0])
+    np.testing.assert_allclose(b["mount_height_m"], a["mount_height_m"])
+    np.testing.assert_allclose(b["mount_pitch_deg"], a["mount_pitch_deg"])

@@ -53,6 +53,7 @@ def speed_on_camera_clock(
         return None, None
     if getattr(args, "clock_offset", 0.0) != "auto":
         check_speed_overlap(speed, [m.t for m in measurements], strict=True)
+        warn_speed_sign(speed, measurements)
         return speed, None
     from filters.clock_offset import estimate_clock_offset
 
@@ -62,7 +63,23 @@ def speed_on_camera_clock(
         print(f"vipm-track: {fit.line()}; the wheel speed puts the camera "
               f"{fit.height_m(assumed):.3f} m above the ground (assumed {assumed:.3f} m)",
               file=sys.stderr)
-    return speed.shifted(fit.offset_s), fit
+    shifted = speed.shifted(fit.offset_s)
+    warn_speed_sign(shifted, measurements)
+    return shifted, fit
+
+
+def warn_speed_sign(speed: SpeedSeries, measurements: list[PairMeasurement]) -> None:
+    """Warn (stderr) of each span of 2 s or more where the wheel speed says the vehicle
+    reverses while the images move forward: the filters then use the speed's magnitude."""
+    from filters.model import speed_sign_conflicts
+
+    t = np.array([m.t for m in measurements], dtype=float)
+    z = np.array([m.z if m.ok else np.full(7, np.nan) for m in measurements],
+                 dtype=float).reshape(-1, 7)
+    for first, last in speed_sign_conflicts(t, speed.speed_at(t), z):
+        print(f"vipm-track: warning: {speed.source or 'wheel speed'}: negative (reversing) "
+              f"from t={first:.2f} to {last:.2f} s while the images move forward; its "
+              "magnitude is used (a speed signed the other way round?)", file=sys.stderr)
 
 
 def check_speed_overlap(speed: SpeedSeries, frame_times: list[float], strict: bool) -> None:
