@@ -17,11 +17,20 @@ to the camera's new pose at the pace their information allows.
 The innovations of a filter whose model fits are white with unit variance, so the threshold
 sets the false-alarm rate: with shift 1 and threshold 20 Siegmund's approximation gives an
 average run length of ~3·10⁹ frames per one-sided test; a 3σ step (1° under 0.3° shaking)
-alarms after ~8 frames, a 1σ step after ~40.
+alarms after ~8 frames, a 1σ step after ~40. On real roads they are not white: the measured
+angles wander with camber and slope for seconds (KITTI 07: 1 s means scatter several times
+more than white innovations would), which the test would take for steps. So each whitened
+innovation is divided by the root of its measured long-run variance (at least 1): the mean
+square of the means of the innovations over blocks of ``block_s`` seconds, times their count,
+over the last ``blocks`` blocks — leaving out the newest ``holdout`` blocks, so that a step
+has alarmed before it could raise its own yardstick. Until ``min_blocks`` such blocks are in,
+the long-run variance is taken as ``unmeasured_variance``: a knock in the first seconds is
+caught later, a road's wander not taken for one.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +48,11 @@ class MountChangeConfig:
     shift_sigma: float = 1.0
     threshold: float = 20.0
     clip: float = 4.0
+    block_s: float = 1.0
+    blocks: int = 30
+    holdout: int = 2
+    min_blocks: int = 4
+    unmeasured_variance: float = 4.0
 
 
 class MountChangeDetector:
@@ -54,6 +68,14 @@ class MountChangeDetector:
         self._sum = np.zeros((2, 2))  # innovations since g was last zero, rad
         self._n = np.zeros((2, 2), dtype=np.int64)
         self._since = np.full((2, 2), np.nan)  # time of the first of those, s
+        cfg = self.config
+        # long-run variance of the whitened innovations, per axis: the open block (start
+        # time, sum, count) and n × mean² of the closed ones
+        self._block_t0 = np.full(2, np.nan)
+        self._block_sum = np.zeros(2)
+        self._block_n = np.zeros(2, dtype=np.int64)
+        self._blocks: list[deque[float]] = [
+            deque(maxlen=cfg.blocks + cfg.holdout) for _ in range(2)]
         #: per axis, the time (s) the change began for the last alarm (NaN: none)
         self.onset = np.full(2, np.nan)
 
@@ -71,7 +93,14 @@ class MountChangeDetector:
         for j in range(2):
             if not (np.isfinite(nu[j]) and var[j] > 0):
                 continue
-            x = float(np.clip(nu[j] / np.sqrt(var[j]), -cfg.clip, cfg.clip))
+            white = float(np.clip(nu[j] / np.sqrt(var[j]), -cfg.clip, cfg.clip))
+            x = white / np.sqrt(self._long_run_variance(j))
+            if not t - self._block_t0[j] < cfg.block_s:  # also the first (NaN)
+                if self._block_n[j]:
+                    self._blocks[j].append(self._block_sum[j] ** 2 / self._block_n[j])
+                self._block_t0[j], self._block_sum[j], self._block_n[j] = t, 0.0, 0
+            self._block_sum[j] += white
+            self._block_n[j] += 1
             for side, sign in enumerate((1.0, -1.0)):
                 g = self._g[j, side] + sign * x - 0.5 * cfg.shift_sigma
                 if g <= 0.0:
@@ -88,3 +117,12 @@ class MountChangeDetector:
                 self.onset[j] = self._since[j, side]
                 self._g[j], self._sum[j], self._n[j] = 0.0, 0.0, 0
         return out
+
+    def _long_run_variance(self, axis: int) -> float:
+        """Measured long-run variance of the axis's whitened innovations (module doc), ≥ 1;
+        ``unmeasured_variance`` until ``min_blocks`` blocks older than the holdout are in."""
+        cfg = self.config
+        blocks = list(self._blocks[axis])[: -cfg.holdout or None]
+        if len(blocks) < cfg.min_blocks:
+            return cfg.unmeasured_variance
+        return max(1.0, float(np.mean(blocks)))
