@@ -448,10 +448,11 @@ class ExtrinsicsEKF:
         """Re-open the mount angles for the found steps (pitch, roll; rad, NaN: none), and say
         so in the frame's reason.
 
-        Until now the bodies took the step (the frames' angles = mount + body fit the pairs):
-        what is uncertain is the split, so the variance d² goes along (mount, −body,
-        −previous body), leaving their sums as well known as before; the bodies then decay
-        to zero and the pairs move the mount."""
+        The step's variance d² is added to the mount and to both bodies, each alone: whether
+        the bodies took the step so far (the pairs' angles fitted) or the gate held it out,
+        the next pairs set the frames' angles and the bodies' decay to zero then moves the
+        mount (along (mount, −bodies) alone the frames' angles would stay pinned where a gate
+        left them)."""
         kf = self._kf
         assert kf is not None
         notes = []
@@ -460,9 +461,7 @@ class ExtrinsicsEKF:
         for j, ((mount, body, prev), d) in enumerate(zip(axes, step, strict=True)):
             if np.isfinite(d):
                 self.mount_changes.append((float(self._mount_change.onset[j]), j, float(d)))
-                v = np.zeros(M.STATE_DIM)
-                v[[mount, body, prev]] = (1.0, -1.0, -1.0)
-                kf.P += d * d * np.outer(v, v)
+                kf.P[[mount, body, prev], [mount, body, prev]] += d * d
                 notes.append(f"{('pitch', 'roll')[j]} {math.degrees(d):+.2f}°")
         self._add_motion_note("mount re-opened after a step of " + ", ".join(notes))
 

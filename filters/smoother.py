@@ -81,6 +81,8 @@ class SmootherConfig:
     #: mount steps (a knocked camera) found by the EKF's test (``filters.mount_change``) let
     #: the batch's mount jump there
     mount_change: MountChangeConfig = field(default_factory=MountChangeConfig)
+    #: ... unless undone within this many seconds (``persistent_changes``)
+    mount_change_persist_s: float = 5.0
     #: robust loss of the wheel-speed factors
     speed_loss: str = "huber"
     #: side slip allowed per frame by the no-side-slip process model, metres
@@ -390,10 +392,29 @@ def mount_jumps(
         ekf.step(m, m.t, float(v), m.frame)
     t = np.array([m.t for m in ms])
     out: dict[int, FloatArray] = {}
-    for onset, axis, step in ekf.mount_changes:
+    for onset, axis, step in persistent_changes(ekf.mount_changes, cfg.mount_change_persist_s):
         k = max(1, int(np.searchsorted(t, onset)))
         out.setdefault(k, np.zeros(2))[axis] += (2.0 * step) ** 2
     return out
+
+
+def persistent_changes(
+    changes: list[tuple[float, int, float]], persist_s: float
+) -> list[tuple[float, int, float]]:
+    """The mount changes (onset s, axis, step rad) that last: a change undone on its axis by
+    one of the other sign within ``persist_s`` seconds was a burst of bad pairs, not a
+    knock, and both are dropped (offline, the batch can see that; the EKF cannot)."""
+    keep = list(changes)
+    i = 0
+    while i < len(keep):
+        t0, axis, step = keep[i]
+        back = next((j for j in range(i + 1, len(keep)) if keep[j][1] == axis), None)
+        if (back is not None and keep[back][0] - t0 <= persist_s
+                and np.sign(keep[back][2]) == -np.sign(step)):
+            del keep[back], keep[i]
+            continue
+        i += 1
+    return keep
 
 
 class BodyTracker:

@@ -121,7 +121,8 @@ def render_and_estimate(case: Case, seed: int, cache: Path) -> float:
     t0 = time.perf_counter()
     folder = _folder(case, seed, cache)
     preset = PRESETS[case.preset]
-    if not (folder / "speed.csv").is_file():
+    images = folder / "images"
+    if not (images.is_dir() and len(list(images.glob("*.png"))) == case.frames()):
         effects = Effects(rolling_shutter=case.readout_frac, seed=seed, **case.effects)
         simulate_sequence(case.preset, case.frames(), folder, seed=seed, profile=case.profile,
                           effects=effects, speed=case.speed)

@@ -775,8 +775,9 @@ def test_fixed_lag_longer_than_the_drive_is_the_batch(start):
     tight = replace(cfg, lag_s=100.0, lag_tolerance_chi2=1e-10, lag_max_iterations=30)
     window = smooth(run.measurements, run.speed, tight)
     # the first frame's 3°-wide mount prior is centred on the median of the pairs each has at
-    # its start (batch: all, window: the first init_pairs): with only 30 pairs that shows
-    mount_atol = 1e-6 if start == "moving" else 1e-5
+    # its start (batch: all, window: the first 10, enough to measure the body's shaking):
+    # 1.2e-6 rad (0.00007°) on the moving drive, more with only 30 pairs standing
+    mount_atol = 2e-6 if start == "moving" else 1e-5
     for b, w in zip(batch, window, strict=True):
         assert b.frame == w.frame and b.status == w.status
         np.testing.assert_allclose(w.mount, b.mount, atol=mount_atol)
