@@ -246,6 +246,11 @@ class MonitorConfig:
     body_window_s: float = 6.0
     body_window_min_pairs: int = 10
     body_std_unknown_deg: float = 1.5
+    #: the measured heights (wheel speed) scatter with the body's heave and the pairs' scale
+    #: errors beyond their reported variance: the robust spread of the window's heights less
+    #: that variance is added as white noise (none in the model); this share of the nominal
+    #: height until measured
+    heave_std_unknown_frac: float = 0.02
     #: slow road-relative tilt on pitch and roll that is not a calibration change (road camber
     #: and slope, load, the front end's tracking correlation): Gauss–Markov, added to the
     #: long-run variance of the test. 0 = flat ground (test tracks, renders, the issue's
@@ -453,9 +458,13 @@ class MonitorCore:
                                   + [cfg.meas_height_std_m**2])
         self.w_nominal = self._typical_w(self.body_std)
         self._arl = self.n_tests * 3600.0 * cfg.fps / cfg.false_alarms_per_hour
-        # thresholds (log-likelihood units) at the model's body std and at larger adapted ones
+        # thresholds (log-likelihood units) at the model's body std and at larger adapted ones:
+        # angles at k × the model's std, height (no body in the model) where its long-run
+        # variance is k² × the measurement's alone
+        meas_h = math.sqrt(self._meas_var[2])
         self._threshold_table = np.stack([
-            self._thresholds(self._typical_w(self.body_std * np.array([k, k, 1.0])))
+            self._thresholds(self._typical_w(
+                np.array([sb * k, sb * k, meas_h * math.sqrt(k * k - 1.0)])))
             for k in _BODY_SCALES
         ])  # (S, 3, D)
         self.threshold = self._threshold_table[0]
@@ -552,12 +561,13 @@ class MonitorCore:
         ``t`` (B,) s; ``pose``/``pose_var`` (B, 3) measured frame pose (rad, rad, m; NaN =
         no information on that axis) and its variance; ``usable`` (B,); ``gated`` (B,) the
         filter rejected the frame; ``mount`` (B, 3) the filter's mount estimate or NaN;
-        ``body_std`` (B, 2) the body's stationary std (pitch, roll, rad) adapted to the data
-        (None: keep the current one; never below the configured ``body_std_deg``).
+        ``body_std`` (B, 2) the body's stationary std (pitch, roll, rad) adapted to the data,
+        or (B, 3) with the height's heave (m) (None: keep the current one; never below the
+        configured ``body_std_deg``).
         """
         s, cfg = self.s, self.config
         if body_std is not None:
-            self._set_body_std(np.asarray(body_std, dtype=float).reshape(self.batch, 2))
+            self._set_body_std(np.asarray(body_std, dtype=float).reshape(self.batch, -1))
         usable = np.asarray(usable, dtype=bool)
         if gated is not None:
             gated = np.asarray(gated, dtype=bool) & usable
@@ -641,20 +651,26 @@ class MonitorCore:
             a = np.where(tau > 0, np.exp(-dt / np.where(tau > 0, tau, 1.0)), 0.0)
         return a
 
-    def _set_body_std(self, angle_std: FloatArray) -> None:
-        """Adopt body stds (B, 2) for pitch and roll (floored at the configured one) and the
+    def _set_body_std(self, body_std: FloatArray) -> None:
+        """Adopt body stds (B, 2) for pitch and roll (floored at the configured one) or (B, 3)
+        with the height's heave too (m; none in the model: white, at least 0) and the
         thresholds that go with them."""
         s = self.s
-        std = np.maximum(angle_std, self.body_std[:2])
-        s.body_std[:, :2] = std
-        # log-linear interpolation of the threshold table in σ/σ₀ (clamped at its ends)
-        x = np.log(np.clip(std / self.body_std[:2], _BODY_SCALES[0], _BODY_SCALES[-1]))
+        n = body_std.shape[1]
+        std = np.maximum(body_std, self.body_std[:n])
+        s.body_std[:, :n] = std
+        scale = np.empty_like(std)
+        scale[:, :2] = std[:, :2] / self.body_std[:2]
+        if n == 3:  # the height's long-run variance over its measurement's alone, rooted
+            scale[:, 2] = np.sqrt(1.0 + std[:, 2] ** 2 / self._meas_var[2])
+        # log-linear interpolation of the threshold table (clamped at its ends)
+        x = np.log(np.clip(scale, _BODY_SCALES[0], _BODY_SCALES[-1]))
         grid = np.log(_BODY_SCALES)
-        hi = np.clip(np.searchsorted(grid, x, side="right"), 1, len(grid) - 1)  # (B, 2)
+        hi = np.clip(np.searchsorted(grid, x, side="right"), 1, len(grid) - 1)  # (B, n)
         lo = hi - 1
-        f = ((x - grid[lo]) / (grid[hi] - grid[lo]))[..., None]  # (B, 2, 1)
+        f = ((x - grid[lo]) / (grid[hi] - grid[lo]))[..., None]  # (B, n, 1)
         table = self._threshold_table  # (S, 3, D)
-        for j in range(2):
+        for j in range(n):
             s.threshold[:, j] = (1 - f[:, j]) * table[lo[:, j], j] + f[:, j] * table[hi[:, j], j]
 
     def _transition(
@@ -715,6 +731,33 @@ class MonitorCore:
         return np.where(usable, base, HOLD)
 
 
+class _HeaveScale:
+    """Trailing-window robust spread (m) of the measured heights beyond their reported
+    variance, for the monitor's height test (``MonitorConfig.heave_std_unknown_frac``); the
+    same start rule as ``body_scale.BodyScale``: ``unknown`` below three heights, then the
+    spread's upper 95 % bound until ``min_pairs``."""
+
+    def __init__(self, window_s: float, min_pairs: int, unknown: float) -> None:
+        self._window_s, self._min_pairs, self._unknown = window_s, min_pairs, unknown
+        self._seen: deque[tuple[float, float, float]] = deque()
+
+    def add(self, t: float, height: float, var: float) -> None:
+        if math.isfinite(height) and math.isfinite(var):
+            self._seen.append((t, height, var))
+        while self._seen and self._seen[0][0] < t - self._window_s:
+            self._seen.popleft()
+
+    def std(self) -> float:
+        n = len(self._seen)
+        if n < 3:
+            return self._unknown
+        h = np.array([x[1] for x in self._seen])
+        mad = float(np.median(np.abs(h - np.median(h))))
+        var = (1.4826 * mad) ** 2 - float(np.median([x[2] for x in self._seen]))
+        std = math.sqrt(max(0.0, var))
+        return std * (1.0 + 2.0 * 1.17 / math.sqrt(n)) if n < self._min_pairs else std
+
+
 def _pad(x: FloatArray, n: int) -> FloatArray:
     return np.concatenate([x, np.full(n - len(x), x[-1])])
 
@@ -747,6 +790,8 @@ class DriftMonitor:
         self._held = 0
         cfg = self.config
         self._body = BodyScale(cfg.body_noise(), cfg.body_window_s, cfg.body_window_min_pairs)
+        self._heave = _HeaveScale(cfg.body_window_s, cfg.body_window_min_pairs,
+                                  cfg.heave_std_unknown_frac * nominal.height_m)
 
     @property
     def thresholds(self) -> FloatArray:
@@ -770,7 +815,8 @@ class DriftMonitor:
             change_var = np.full(2, np.nan) if inp.change_var is None else inp.change_var
             self._body.add(float(inp.t), pose[:2], var[:2], np.asarray(inp.change, dtype=float),
                            np.asarray(change_var, dtype=float), float(inp.dt))
-            body_std = self._body.std()[None]
+            self._heave.add(float(inp.t), float(pose[2]), float(var[2]))
+            body_std = np.append(self._body.std(), self._heave.std())[None]
         code = int(core.step(
             np.array([float(inp.t)]), pose[None], var[None], np.array([bool(inp.usable)]),
             np.array([bool(inp.gated)]), mount, body_std,
