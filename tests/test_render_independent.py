@@ -117,12 +117,12 @@ def _offsets(img, uv, radius: int) -> np.ndarray:
 # (preset, pitch°, roll°, height m, world x/z m, heading°, range m, dot spacing/σ texels,
 # window radius px, bound px)
 CASES = {
-    "cart nominal": ("cart", 45.0, 0.0, 0.7, (0.4, -1.3), 0.0, 3.0, 64, 3.0, 9, 0.1),
-    "cart pitched, rolled, turned": ("cart", 38.0, 4.0, 0.65, (-1.7, 2.2), 25.0, 3.0, 64, 3.0,
+    "cart-nominal": ("cart", 45.0, 0.0, 0.7, (0.4, -1.3), 0.0, 3.0, 64, 3.0, 9, 0.1),
+    "cart-pitched-rolled-turned": ("cart", 38.0, 4.0, 0.65, (-1.7, 2.2), 25.0, 3.0, 64, 3.0,
                                      9, 0.1),
-    "cart rolled left, steep": ("cart", 70.0, -6.0, 0.8, (0.9, 0.3), -140.0, 3.0, 64, 3.0, 9,
+    "cart-steep-rolled-left": ("cart", 70.0, -6.0, 0.8, (0.9, 0.3), -140.0, 3.0, 64, 3.0, 9,
                                 0.1),
-    "car forward": ("car", 3.0, 1.5, 1.5, (3.0, -5.0), 10.0, 12.0, 48, 1.5, 8, 0.1),
+    "car-forward": ("car", 3.0, 1.5, 1.5, (3.0, -5.0), 10.0, 12.0, 48, 1.5, 8, 0.1),
 }
 
 
