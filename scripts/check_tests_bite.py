@@ -40,7 +40,7 @@ SMOOTHER_TESTS = (
     "tests/test_kitti.py::test_smoothed_summary_interval_is_honest_on_the_real_drive",
 )
 MONITOR_TESTS = (
-    "tests/test_monitor.py",
+    "tests/test_monitor.py", "tests/test_monitor_timing.py",
     "tests/test_kitti.py::test_monitor_on_the_real_drive_needs_the_road_model",
 )
 TABLE_TESTS = (
