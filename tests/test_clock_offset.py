@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 
 import numpy as np
 import pytest
@@ -108,12 +109,17 @@ def test_kitti_real_pairs(tmp_path, capsys):
         out = tmp_path / f"track_{offset}.csv"
         assert main([*common, "--clock-offset", offset, "--out", str(out)]) == 0
         heights[offset] = _final_height(out)
-    assert heights["auto"] == pytest.approx(heights["0.3"], rel=0.005)
+    # The offset is found to ±21–23 ms; a 0.3 s offset moves the height by ~4.6 %, so 1σ of
+    # offset is ~0.35 % of height: measured 0.37 % and −0.56 % on two estimates tables
+    # (draws) of this drive, held to 1 % (~3σ)
+    assert heights["auto"] == pytest.approx(heights["0.3"], rel=0.01)
     assert abs(heights["0"] / heights["0.3"] - 1) > 0.03
     assert main(["smooth", "--estimates", "tests/data/kitti07_estimates.csv", "--height",
                  "1.65", "--speed-csv", str(speed), "--clock-offset", "auto", "--out",
                  str(tmp_path / "s.csv")]) == 0
-    assert "clock offset +0.2" in capsys.readouterr().err
+    printed = re.search(r"clock offset ([+-]\d+\.\d+) s ± (\d+\.\d+) ms", capsys.readouterr().err)
+    assert printed, "no clock offset printed"
+    assert abs(float(printed[1]) - 0.3) < 3e-3 * float(printed[2])
     summary = json.loads((tmp_path / "s.summary.json").read_text())["smoother"]
     assert abs(summary["clock_offset_s"] - 0.3) < 3 * summary["clock_offset_std_s"]
     assert summary["clock_offset_std_s"] < 0.05

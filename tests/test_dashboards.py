@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from filters import drive_sim
+from vipm_track import estimator
 from vipm_track.cli import main
 from vipm_track.errors import InputError
 from vipm_track.measurement import PairMeasurement
@@ -198,7 +200,6 @@ def test_recording_entities_rows_and_values(tmp_path: Path) -> None:
 def test_recording_from_real_estimator(tmp_path: Path) -> None:
     """Two rendered pairs through the real estimator: camera image, patches, IPM images and
     series land with one row per pair (series only for pairs the estimator got)."""
-    estimator = pytest.importorskip("vipm_track.estimator")
     from vipm_track.sim import preset_texture, render_trajectory_frame
 
     preset = PRESETS["cart"]
@@ -288,7 +289,6 @@ def _non_trivial_png(path: Path) -> None:
 
 def test_report_with_ground_truth(tmp_path: Path) -> None:
     """Plots exist and are non-trivial; the summary's errors match the injected noise."""
-    pytest.importorskip("vipm_track.evaluate")
     from vipm_track.sinks.report import write_report
 
     gt_path = truth_table(tmp_path, "gradual", 200, seed=5)
@@ -343,8 +343,6 @@ def test_report_cli_and_errors(tmp_path: Path, capsys: pytest.CaptureFixture) ->
 
 def test_track_cli_writes_recording(tmp_path: Path) -> None:
     """``track --estimates ... --rerun``: measurements, filtered and mount series per frame."""
-    drive_sim = pytest.importorskip("filters.drive_sim")
-    pytest.importorskip("filters.track")
     from vipm_track.measurement import measurement_row
     from vipm_track.table import ESTIMATE_COLUMNS
 
@@ -375,7 +373,6 @@ def test_track_cli_writes_recording(tmp_path: Path) -> None:
 def test_demo_and_estimate_cli_write_recordings(tmp_path: Path) -> None:
     """``demo --rerun``: ground truth, per-frame series and camera/IPM views, one row per pair;
     ``estimate --rerun`` on the demo's frames: every 2nd pair's image, all pairs' series."""
-    pytest.importorskip("vipm_track.pipeline")
     rrd = tmp_path / "demo.rrd"
     assert main(["demo", "--out", str(tmp_path / "demo"), "--frames", "4", "--quiet",
                  "--rerun", str(rrd)]) == 0
@@ -414,7 +411,6 @@ def test_demo_and_estimate_cli_write_recordings(tmp_path: Path) -> None:
 def monitor_drive(tmp_path: Path) -> tuple[Path, Path, Path]:
     """Estimates and wheel-speed CSVs of a 20 s car drive whose mount pitch steps by 1° at 8 s,
     a camera file, the shipped nominal."""
-    drive_sim = pytest.importorskip("filters.drive_sim")
     from conftest import write_drive_inputs
 
     cfg = drive_sim.DriveConfig.preset(
@@ -508,11 +504,6 @@ def test_frame_errors_include_height(tmp_path: Path) -> None:
 def test_smooth_cli_writes_recording(tmp_path: Path, monitor_drive) -> None:
     """``smooth --rerun``: measurements, smoothed frame pose and mount with ±2σ bands (one row
     per frame with numbers; values equal the smoothed CSV's)."""
-    pytest.importorskip("filters.smoother")
-    from vipm_track.cli import COMMANDS
-
-    if "smooth" not in COMMANDS:
-        pytest.skip("the smooth command is not in this build")
     est, speed, _ = monitor_drive
     out, rrd = tmp_path / "smooth.csv", tmp_path / "smooth.rrd"
     assert main(["smooth", "--estimates", str(est), "--speed-csv", str(speed), "--height",

@@ -342,7 +342,13 @@ def _shaken(run, amp_deg: float, meas_std_deg: float, seed: int = 0):
     return out, pitch, roll
 
 
-@pytest.mark.parametrize("amp_deg", [0.2, 1.0])
+@pytest.mark.parametrize("amp_deg", [
+    0.2,
+    pytest.param(1.0, marks=pytest.mark.xfail(strict=True, reason=(
+        "known: at 3 × 1° shaking the mount starts off by the shaking and its covariance "
+        "collapses before the body std adapts (first ~10 pairs); measured mount/raw RMS "
+        "0.44 (pitch) / 0.82 (roll) after 5 s, 0.29 / 0.58 after 20 s"))),
+])
 def test_frame_pose_follows_shaking_beyond_the_body_model(amp_deg):
     # 1–3 Hz shaking of 3 × 0.2° (rendered drift profile) and 3 × 1° (a rough road) against
     # the model's Gauss–Markov body (τ 0.3 s, 0.2°): the filtered frame pose must not be
@@ -366,10 +372,9 @@ def test_frame_pose_follows_shaking_beyond_the_body_model(amp_deg):
     assert np.all(rms(pose - true_pose) <= 1.01 * rms(raw - true_pose)), (
         rms(pose - true_pose), rms(raw - true_pose))
     assert sum("pose" in s.gated for s in states) <= 0.03 * len(states)
-    if amp_deg <= 0.2:
-        # at 1° the mount starts off by the shaking and its covariance collapses before the
-        # body std has adapted (first 10 pairs): it converges slowly (known, see report)
-        assert np.all(rms(mount - true_mount) < 0.5 * rms(raw - true_mount))
+    # the mount, well below raw: measured 0.025 (pitch) / 0.029 (roll) × raw at 0.2°
+    assert np.all(rms(mount - true_mount) < 0.1 * rms(raw - true_mount)), (
+        rms(mount - true_mount), rms(raw - true_mount))
 
 
 @pytest.mark.parametrize("command", ["track", "smooth"])
@@ -440,3 +445,91 @@ def test_pair_covariance_widens_the_lateral_motion_of_a_turning_pair():
     np.testing.assert_allclose(out, expected, rtol=1e-15)
     assert np.array_equal(noise.pair_covariance(cov, 0.0), noise.pair_covariance(cov))
     assert np.array_equal(noise.pair_covariance(cov, math.nan), noise.pair_covariance(cov))
+
+
+# --- angle noise unlike the model's -------------------------------------------------------------
+
+
+def _angles_with_noise(run, kind: str, sd_deg: float = 0.3, amp_deg: float = 0.05,
+                       seed: int = 0):
+    """The drive's pairs with the angles replaced by true mount + a little 1–3 Hz shaking +
+    noise drawn here, not by the simulator: ``model`` white Gaussian of the reported std,
+    ``2x covariance`` white of √2 × it, ``student-t 3`` heavy-tailed of the same std,
+    ``coloured`` AR(1) with τ 1 s of the same std. The reported std is ``sd_deg`` always."""
+    rng = np.random.default_rng(seed)
+    t = run.truth.t
+    n = len(t)
+    shake = []
+    for _ in range(2):
+        f, ph = rng.uniform(1.0, 3.0, 3), rng.uniform(0, 2 * np.pi, 3)
+        shake.append(np.radians(amp_deg) * np.sin(2 * np.pi * f * t[:, None] + ph).sum(axis=1))
+    pitch, roll = run.truth.mount_pitch + shake[0], run.truth.mount_roll + shake[1]
+    sd = np.radians(sd_deg)
+    if kind == "model":
+        noise = rng.normal(0, sd, (n, 4))
+    elif kind == "2x covariance":
+        noise = rng.normal(0, sd * np.sqrt(2.0), (n, 4))
+    elif kind == "student-t 3":
+        noise = rng.standard_t(3, (n, 4)) * sd / np.sqrt(3.0)
+    else:
+        a = np.exp(-np.median(np.diff(t)) / 1.0)
+        noise = np.zeros((n, 4))
+        noise[0] = rng.normal(0, sd, 4)
+        for k in range(1, n):
+            noise[k] = a * noise[k - 1] + rng.normal(0, sd * np.sqrt(1 - a * a), 4)
+    out = []
+    for m in run.measurements:
+        k = m.frame
+        if not m.ok or k == 0:
+            out.append(m)
+            continue
+        z = m.z.copy()
+        z[:4] = np.array([pitch[k - 1], roll[k - 1], pitch[k], roll[k]]) + noise[k]
+        cov = m.covariance.copy()
+        cov[:4, :] = cov[:, :4] = 0.0
+        cov[:4, :4] = np.eye(4) * sd**2
+        out.append(replace(m, z=z, covariance=cov))
+    return out
+
+
+def _mount_scores(kind: str, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(mount RMS / raw RMS, mean normalised squared mount error) per axis after 5 s."""
+    run = _drive("cart", seed=4 + seed, duration_s=30.0)
+    meas = _angles_with_noise(run, kind, seed=seed)
+    states = run_filter(meas, None, EkfConfig(height_m=run.config.h0, noise=run.config.noise))
+    late = (run.truth.t >= 5.0) & np.array([m.ok for m in meas])
+    err = np.array([s.mount[:2] for s in states])[late] - np.stack(
+        [run.truth.mount_pitch, run.truth.mount_roll], axis=1)[late]
+    var = np.array([np.diag(s.covariance)[[M.MOUNT_PITCH, M.MOUNT_ROLL]] for s in states])[late]
+    raw = np.array([m.z[2:4] for m in meas])[late] - np.stack(
+        [run.truth.mount_pitch, run.truth.mount_roll], axis=1)[late]
+    ratio = np.sqrt(np.mean(err**2, axis=0) / np.mean(raw**2, axis=0))
+    return ratio, np.mean(err**2 / var, axis=0)
+
+
+@pytest.mark.parametrize("kind", ["model", "2x covariance", "student-t 3"])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_mount_under_white_noise_unlike_the_model(kind: str, seed: int):
+    # 0.3° angle noise (reported as 0.3°) over 0.05° shaking, 30 s cart drives. Measured over
+    # the two seeds: mount RMS / raw 0.04–0.11 (model), 0.06–0.11 (√2 × the std),
+    # 0.03–0.06 (Student-t); NEES per axis 0.07–0.57, 0.24–1.09, 0.03–0.10: the mount's
+    # covariance is cautious and stays so with twice the variance.
+    ratio, nees = _mount_scores(kind, seed)
+    assert np.all(ratio < 0.25), ratio
+    assert np.all(nees < 3.0), nees
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_mount_under_coloured_noise(seed: int):
+    # AR(1) angle noise with τ 1 s: the mount still ends well below raw (measured 0.10–0.42)
+    ratio, _ = _mount_scores("coloured", seed)
+    assert np.all(ratio < 0.6), ratio
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "known limitation: the pair model takes angle noise as white; with AR(1) noise of τ 1 s "
+    "the mount's covariance is overconfident (NEES per axis measured 3.96 / 1.73 and "
+    "11.2 / 0.38 on two drives)"))
+def test_mount_covariance_is_honest_under_coloured_noise():
+    worst = max(float(_mount_scores("coloured", seed)[1].max()) for seed in (0, 1))
+    assert worst < 3.0, worst

@@ -426,19 +426,29 @@ def test_fast_cart_cold_start_reports_no_wrong_minimum():
     # The cart at 6 m/s and 10 fps from the default 60° start: the frames are half a view
     # apart, and the image-plane cold start of this pair had converged to a wrong minimum
     # (29 % of the patches inliers, travel 89 % short) reported "ok". A steep camera's cold
-    # start now needs 40 % of its measured patches as inliers; a pair may fail, but what
-    # comes out "ok" is right.
+    # start now needs 40 % of its measured patches as inliers: these pairs fail cold, and
+    # say why. (A cold start that solves them should turn this into a check of the answer.)
     p = PRESETS["cart"]
     traj = make_trajectory("gradual", 6, fps=10.0, preset=p, seed=5, speed=6.0)
     tex, cam = preset_texture(p, seed=5), p.camera()  # as `vipm-track simulate --seed 5`
     imgs = [render_trajectory_frame(tex, cam, traj, k) for k in range(6)]
     est = TwoFrameEstimator(cam, p.height_m)
+    reasons = []
     for k in (4, 5):
-        result = est.estimate(imgs[k - 1], imgs[k])
-        if result.ok:
-            err = _errors(traj, k, result.pose_prev, result.pose_curr, result.motion)
-            assert err["dist_mm"] / (traj.motion(k).distance * 1e3) < 0.02, (k, err)
-            assert err["pitch"] < 0.2, (k, err)
+        cold = est.estimate(imgs[k - 1], imgs[k])
+        assert cold.status == STATUS_FEW_INLIERS, (k, cold.status, cold.reason)
+        reasons.append(cold.reason)
+    assert any("wrong minimum" in r for r in reasons), reasons
+    # The pairs themselves are solvable: tracked from the previous frame's true pose and
+    # motion they come out ok and right (measured: pitch <= 0.008°, roll 0.002°, travel
+    # 0.04 mm of 588 mm), so an estimator that always fails does not pass this test.
+    for k in (4, 5):
+        guess = PairGuess(traj.pose(k - 1), traj.pose(k - 1), traj.motion(k - 1))
+        tracked = est.estimate(imgs[k - 1], imgs[k], guess)
+        assert tracked.ok, (k, tracked.reason)
+        err = _errors(traj, k, tracked.pose_prev, tracked.pose_curr, tracked.motion)
+        assert err["pitch"] < 0.03 and err["roll"] < 0.01, (k, err)
+        assert err["dist_mm"] < 0.2 and err["yaw"] < 0.01, (k, err)
 
 
 def test_fast_car_starts_cold_from_the_whole_plane_shift():
@@ -646,9 +656,10 @@ def test_covariance_is_positive_definite_and_in_the_ballpark():
         est = bundle.pack(result.pose_prev, result.pose_curr, result.motion)
         ratios.append(np.abs(est - truth) / result.std)
     ratios = np.concatenate(ratios)
-    # Errors are a few standard deviations at most, and the std is not vastly pessimistic.
-    assert np.median(ratios) < 5.0, ratios
-    assert np.median(ratios) > 0.05, ratios
+    # |error|/σ of an honest std has a median of 0.67; measured 1.25 over these 14 entries
+    # (pitch of both frames ~3σ, the rest 0.2–2.5σ): a std 2× too small or too large fails.
+    assert np.median(ratios) < 2.5, ratios
+    assert np.median(ratios) > 0.5, ratios
 
 
 def test_to_measurement_carries_estimate():
@@ -748,7 +759,9 @@ def test_kitti_tracking_pairs():
         dist_err.append(abs(r.motion.distance / np.hypot(rel[0, 3], rel[2, 3]) - 1))
         yaw_err.append(abs(np.degrees(r.motion.yaw - np.arctan2(rel[0, 2], rel[2, 2]))))
         guess = PairGuess.from_previous(r)
-    assert np.median(dist_err) < 0.12, dist_err
+    # measured: distance 10.6 % (the cold start), then 1.2 / 0.6 / 1.6 % (median 1.4 %);
+    # yaw 0.02–0.06° (median 0.035°)
+    assert np.median(dist_err) < 0.04, dist_err
     assert np.median(yaw_err) < 0.1, yaw_err
 
 

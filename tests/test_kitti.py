@@ -58,47 +58,70 @@ def test_kitti_frames_through_the_cli(tmp_path: Path) -> None:
     assert np.median(np.abs(errors["yaw_deg"])) < 0.1
 
 
-#: ``vipm-track estimate`` on all 160 frames of KITTI 07 with the options above (seed 0; the
-#: run of scripts/results/kitti.md), kept so the filters can be checked on real estimates
-#: without re-running the estimator (~90 s)
+#: ``vipm-track estimate`` on all 160 frames of KITTI 07 with the options above (seed 0),
+#: kept so the filters can be checked on real estimates without re-running the estimator.
+#: Made by ``python scripts/eval_kitti.py --seeds 1 --out DIR`` (``DIR/estimates.csv``); on
+#: this code it scores 154/159 ok, median 3.25 %, p95 8.57 % (one draw: see kitti.md)
 KITTI_ESTIMATES = Path(__file__).parent / "data" / "kitti07_estimates.csv"
 
 
+def _kitti_truth() -> dict[str, np.ndarray]:
+    gt = planar_motion(read_poses(shared_data("kitti07", "poses.txt")), math.radians(1.0))
+    return {"frame": np.arange(1, gt.tx.size + 1), "tx_m": gt.tx, "tz_m": gt.tz,
+            "yaw_deg": np.degrees(gt.yaw)}
+
+
+def test_stored_kitti_estimates_score_as_stated():
+    # The pairs every filter row below is measured against (the numbers in the comment above).
+    errors = frame_errors(read_table(KITTI_ESTIMATES), _kitti_truth())
+    dist = np.abs(errors["distance_pct"])
+    assert errors["frame"].size == 154
+    assert np.median(dist) == pytest.approx(3.25, abs=0.01)
+    assert np.percentile(dist, 95) == pytest.approx(8.57, abs=0.01)
+
+
 @pytest.mark.parametrize(
-    ("method", "median_pct", "p95_pct"),
-    [("ekf", 3.0, 12.0), ("fixed-lag 2 s", 2.5, 9.0), ("batch", 2.5, 9.0)],
+    ("method", "frames", "median_ratio", "p95_ratio", "yaw_ratio"),
+    [("ekf", 155, 1.02, 1.4, 1.6), ("fixed-lag 2 s", 159, 0.92, 1.06, 1.3),
+     ("batch", 159, 0.92, 1.06, 1.3)],
 )
-def test_filters_follow_the_real_kitti_drive(method: str, median_pct: float, p95_pct: float):
+def test_filters_follow_the_real_kitti_drive(method: str, frames: int, median_ratio: float,
+                                             p95_ratio: float, yaw_ratio: float):
     # Real driving: a turn at 30°/s from standstill, then hard acceleration. The camera sits
     # ahead of the axle the car turns about, and the estimator's covariance is optimistic,
     # so a filter that trusts its motion model gates the pairs after the turn and keeps the
-    # old motion (fixed lag before: median travel error 27 %, EKF 7 %, p95 39 %). The
-    # filtered motion must stay as good as the pairs it is built from (2.6 %, p95 9.3 %;
-    # p95 9–13 % over sampler seeds); today EKF 2.5 / 11 %, smoothers 1.7 / 7.3 %.
+    # old motion (fixed lag before: median travel error 27 %, EKF 7 %, p95 39 %). Each
+    # filter is held against the pairs it is built from (same table, same truth). Measured,
+    # filter / pairs: EKF median 0.97, p95 1.28, yaw median 1.32 (on this drive the EKF's
+    # motion is no better than the pairs: this row checks that it does no harm; the
+    # simulated tests check what it adds); fixed-lag 2 s 0.85 / 0.98 / 1.05, batch
+    # 0.86 / 0.98 / 1.09, and the smoothers fill the 5 failed pairs (159 frames), so a
+    # smoother that passed the pairs through would fail here.
     from filters.ekf import EkfConfig, run_filter
     from filters.smoother import SmootherConfig, smooth
     from filters.track import track_row
     from vipm_track.measurement import measurements_from_table
 
-    gt = planar_motion(read_poses(shared_data("kitti07", "poses.txt")), math.radians(1.0))
-    ms = measurements_from_table(read_table(KITTI_ESTIMATES))
+    table = read_table(KITTI_ESTIMATES)
+    truth = _kitti_truth()
+    pairs = frame_errors(table, truth)
+    ms = measurements_from_table(table)
     if method == "ekf":
-        frames = run_filter(ms, None, EkfConfig(height_m=1.65))
+        states = run_filter(ms, None, EkfConfig(height_m=1.65))
     else:
         lag = 2.0 if method.startswith("fixed") else 0.0
-        frames = smooth(ms, None, SmootherConfig(height_m=1.65, lag_s=lag))
-    rows = [track_row(f, m, None) for f, m in zip(frames, ms, strict=True)]
+        states = smooth(ms, None, SmootherConfig(height_m=1.65, lag_s=lag))
+    rows = [track_row(f, m, None) for f, m in zip(states, ms, strict=True)]
     est = {k: np.array([r.get(k, np.nan) for r in rows]) for k in ("frame", "tx_m", "tz_m",
                                                                    "yaw_deg")}
     est["status"] = np.array([r.get("status", "skipped") for r in rows], dtype=object)
-    truth = {"frame": np.arange(1, gt.tx.size + 1), "tx_m": gt.tx, "tz_m": gt.tz,
-             "yaw_deg": np.degrees(gt.yaw)}
     errors = frame_errors(est, truth)
-    assert errors["frame"].size >= 150
-    dist = np.abs(errors["distance_pct"])
-    assert np.median(dist) < median_pct
-    assert np.percentile(dist, 95) < p95_pct
-    assert np.median(np.abs(errors["yaw_deg"])) < 0.05
+    assert errors["frame"].size == frames
+    dist, dist_pairs = np.abs(errors["distance_pct"]), np.abs(pairs["distance_pct"])
+    assert np.median(dist) < median_ratio * np.median(dist_pairs)
+    assert np.percentile(dist, 95) < p95_ratio * np.percentile(dist_pairs, 95)
+    assert (np.median(np.abs(errors["yaw_deg"]))
+            < yaw_ratio * np.median(np.abs(pairs["yaw_deg"])))
 
 
 def test_smoothed_summary_interval_is_honest_on_the_real_drive():

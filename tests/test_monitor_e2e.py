@@ -11,9 +11,6 @@ import cv2
 import numpy as np
 import pytest
 
-pytest.importorskip("vipm_track.estimator", reason="needs the two-frame estimator (branch est)")
-pytest.importorskip("vipm_track.pipeline", reason="needs the sequence runner (branch runner)")
-
 from vipm_track.cli import main
 from vipm_track.table import read_table
 

@@ -1,0 +1,316 @@
+"""Do the tests fail when the code is wrong? A small mutation check.
+
+Each mutant replaces one snippet of the source with a typical mistake (a sign flip, swapped
+columns, a dropped term, an off-by-one, a threshold moved) in a *copy* of the working tree
+(tracked and untracked-not-ignored files; the repository itself is never modified), runs the
+fast tests that cover that part there and records which of them fail. A mutant no test
+fails on is "survived": a test is missing. The unmutated copy is run first; a test that
+fails there is left out of the attribution.
+
+    python scripts/check_tests_bite.py [--only NAME ...] [--list] [--timeout 900]
+
+Prints a Markdown table and writes it to ``scripts/results/check_tests_bite.md``. The
+copy sits in a temporary folder beside a link to ``../shared`` so the real-data tests run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "scripts" / "results" / "check_tests_bite.md"
+
+#: fast tests per part (files or node ids), run on every mutant of that part
+ESTIMATOR_TESTS = (
+    "tests/test_estimator.py", "tests/test_pipeline.py", "tests/test_geometry.py",
+    "tests/test_render_independent.py",
+)
+EKF_TESTS = ("tests/test_ekf.py", "tests/test_kitti.py::test_filters_follow_the_real_kitti_drive")
+SMOOTHER_TESTS = (
+    "tests/test_smoother.py", "tests/test_kitti.py::test_filters_follow_the_real_kitti_drive",
+    "tests/test_kitti.py::test_smoothed_summary_interval_is_honest_on_the_real_drive",
+)
+MONITOR_TESTS = (
+    "tests/test_monitor.py", "tests/test_monitor_timing.py",
+    "tests/test_kitti.py::test_monitor_on_the_real_drive_needs_the_road_model",
+)
+TABLE_TESTS = (
+    "tests/test_pipeline.py", "tests/test_table_roundtrip.py", "tests/test_ekf.py",
+    "tests/test_kitti.py::test_stored_kitti_estimates_score_as_stated",
+)
+RENDER_TESTS = ("tests/test_render_independent.py",)
+
+
+@dataclass(frozen=True)
+class Mutant:
+    """One mistake: ``old`` (found exactly once in ``path``) replaced by ``new``."""
+
+    name: str
+    part: str
+    what: str
+    path: str
+    old: str
+    new: str
+    tests: tuple[str, ...]
+
+
+MUTANTS: tuple[Mutant, ...] = (
+    # --- estimator (and the geometry it shares with the renderer) ----------------------------
+    Mutant("geometry-pitch-sign", "estimator", "sign flip: R_GC = Rx(+pitch)·Rz(roll)",
+           "vipm_track/geometry.py", "return rot_x(-pitch) @ rot_z(roll)",
+           "return rot_x(pitch) @ rot_z(roll)", ESTIMATOR_TESTS),
+    Mutant("geometry-roll-sign", "estimator", "sign flip: R_GC = Rx(−pitch)·Rz(−roll)",
+           "vipm_track/geometry.py", "return rot_x(-pitch) @ rot_z(roll)",
+           "return rot_x(-pitch) @ rot_z(-roll)", ESTIMATOR_TESTS),
+    Mutant("measurement-prev-curr-swapped", "estimator",
+           "swapped: the pair's measurement packs frame k's pose first",
+           "vipm_track/estimator.py",
+           "z = pack(self.pose_prev, self.pose_curr, self.motion)[:7]",
+           "z = pack(self.pose_curr, self.pose_prev, self.motion)[:7]", ESTIMATOR_TESTS),
+    Mutant("guess-off-by-one-frame", "estimator",
+           "off-by-one: tracking seeds the next pair with frame k−1's pose",
+           "vipm_track/estimator.py",
+           "return cls(result.pose_curr, result.pose_curr, result.motion)",
+           "return cls(result.pose_prev, result.pose_prev, result.motion)", ESTIMATOR_TESTS),
+    Mutant("motion-yaw-sign", "estimator", "sign flip: the unpacked yaw",
+           "vipm_track/bundle.py", "PlanarMotion(float(x[4]), float(x[5]), float(x[6])),",
+           "PlanarMotion(float(x[4]), float(x[5]), -float(x[6])),", ESTIMATOR_TESTS),
+    Mutant("wrong-minimum-guard-off", "estimator",
+           "threshold: a cold start's inlier share needs 0 % (the wrong-minimum guard off)",
+           "vipm_track/estimator.py", "need = RETRY_MIN_INLIER_SHARE if retry else "
+           "COLD_MIN_INLIER_SHARE", "need = 0.0", ESTIMATOR_TESTS),
+    Mutant("covariance-10x", "estimator", "scale: the reported std 10× too small",
+           "vipm_track/estimator.py",
+           "return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))",
+           "return 0.1 * np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))",
+           ESTIMATOR_TESTS),
+    # --- renderer ----------------------------------------------------------------------------
+    Mutant("render-texel-half-offset", "renderer",
+           "off-by-half: texel centres at (u + 0.5)·mpt",
+           "vipm_track/render.py",
+           "texel_from_world = np.array([[1 / s, 0.0, 0.0], [0.0, -1 / s, 0.0], [0.0, 0.0, 1.0]])",
+           "texel_from_world = np.array([[1 / s, 0.0, 0.5], [0.0, -1 / s, 0.0], [0.0, 0.0, 1.0]])",
+           RENDER_TESTS),
+    Mutant("rolling-shutter-centred", "renderer",
+           "off-by-half: rolling-shutter rows timed from the image centre, not row 0",
+           "vipm_track/sim.py",
+           "centre = k + readout * (0.5 * (r0 + r1 - 1)) / camera.height",
+           "centre = k + readout * (0.5 * (r0 + r1 - 1) - 0.5 * camera.height) / camera.height",
+           RENDER_TESTS),
+    # --- EKF ---------------------------------------------------------------------------------
+    Mutant("ekf-no-pair-update", "EKF", "dropped term: pairs never update the state",
+           "filters/ekf.py", "        if keep:\n            rows = np.array(keep)",
+           "        if False:\n            rows = np.array(keep)", EKF_TESTS),
+    Mutant("ekf-pair-noise-100x", "EKF", "scale: pair covariance 100× too large",
+           "filters/ekf.py", "r = self._cfg.noise.pair_covariance(m.covariance, m.z[6])",
+           "r = 100.0 * self._cfg.noise.pair_covariance(m.covariance, m.z[6])", EKF_TESTS),
+    Mutant("ekf-gate-100x-tight", "EKF", "threshold: the pose/motion gate 100× too tight",
+           "filters/ekf.py", "self._gate_pose = float(chi2.ppf(self._cfg.gate_probability, 4))",
+           "self._gate_pose = 0.01 * float(chi2.ppf(self._cfg.gate_probability, 4))",
+           EKF_TESTS),
+    Mutant("model-scale-inverted", "EKF", "inverted: tx, tz scaled by h_m / h0",
+           "filters/model.py", "    k = height_assumed / h_m\n    # np.array",
+           "    k = h_m / height_assumed\n    # np.array", EKF_TESTS),
+    Mutant("model-yaw-sign", "EKF", "sign flip: the expected pair's yaw",
+           "filters/model.py", "        pose_curr[2] - pose_prev[2],\n    ]).T",
+           "        pose_prev[2] - pose_curr[2],\n    ]).T", EKF_TESTS),
+    Mutant("ekf-wheel-speed-ignored", "EKF", "dropped term: wheel speeds never applied",
+           "filters/ekf.py", "            speed_nis, speed_gated = self._update_speed(speed)",
+           "            speed_nis, speed_gated = float('nan'), False", EKF_TESTS),
+    # --- smoother ----------------------------------------------------------------------------
+    Mutant("smoother-pairs-weightless", "smoother",
+           "dropped term: pair factors carry no information (covariance × 10⁶)",
+           "filters/smoother.py", "cov = nz.pair_covariance(m.covariance, m.z[6])\n",
+           "cov = 1e6 * nz.pair_covariance(m.covariance, m.z[6])\n", SMOOTHER_TESTS),
+    Mutant("smoother-no-speed", "smoother", "dropped term: no wheel-speed factor",
+           "filters/smoother.py", "    if math.isfinite(speed):\n        out.append(F.speed_factor",
+           "    if False:\n        out.append(F.speed_factor", SMOOTHER_TESTS),
+    Mutant("smoother-dt-off-by-one", "smoother",
+           "off-by-one: each frame's interval is the next one's",
+           "filters/smoother.py", "dts = np.concatenate([[0.0], np.diff(t)])",
+           "dts = np.concatenate([np.diff(t), [0.0]])", SMOOTHER_TESTS),
+    # --- monitor -----------------------------------------------------------------------------
+    Mutant("monitor-threshold-3x", "monitor", "threshold: alarm at 3× the CUSUM threshold",
+           "filters/monitor.py", "alarm = usable & (top >= 1.0) & ~invalid_now",
+           "alarm = usable & (top >= 3.0) & ~invalid_now", MONITOR_TESTS),
+    Mutant("monitor-one-sided", "monitor", "dropped term: only the upward CUSUM side",
+           "filters/monitor.py", "signed = np.stack([u, -u], axis=2)[..., None]",
+           "signed = np.stack([u, u], axis=2)[..., None]", MONITOR_TESTS),
+    Mutant("monitor-no-road-term", "monitor", "dropped term: the road tilt's variance",
+           "filters/monitor.py", "w = sv / (rho * rho) + self._road_lrv(dt)",
+           "w = sv / (rho * rho)", MONITOR_TESTS),
+    Mutant("monitor-clear-off-by-one", "monitor",
+           "off-by-one: RECALIBRATE clears one frame late",
+           "filters/monitor.py",
+           "base = np.where(recal & (s.quiet >= self.clear_frames), CALIBRATED, base)",
+           "base = np.where(recal & (s.quiet > self.clear_frames), CALIBRATED, base)",
+           MONITOR_TESTS),
+    # --- table writer ------------------------------------------------------------------------
+    Mutant("table-pitch-prev-swapped", "table writer", "swapped columns: pitch ↔ prev_pitch",
+           "vipm_track/measurement.py",
+           '        "pitch_deg": val(z[2]),\n        "roll_deg": val(z[3]),',
+           '        "pitch_deg": val(z[0]),\n        "roll_deg": val(z[3]),', TABLE_TESTS),
+    Mutant("table-std-in-radians", "table writer", "unit: std columns written in radians",
+           "vipm_track/measurement.py",
+           "s = np.where(_ANGLE, np.degrees(m.std), m.std)", "s = m.std", TABLE_TESTS),
+    Mutant("table-3-decimals", "table writer", "precision: floats written with 3 decimals",
+           "vipm_track/table.py", 'return "" if math.isnan(v) else repr(v)',
+           'return "" if math.isnan(v) else f"{v:.3f}"', TABLE_TESTS),
+    Mutant("table-reader-skips-row", "table writer", "off-by-one: the reader drops the first row",
+           "vipm_track/table.py", "records = [r for r in reader if r]",
+           "records = [r for r in reader if r][1:]", TABLE_TESTS),
+)
+
+
+def _copy_tree(dest: Path) -> Path:
+    """Copy tracked and untracked-not-ignored files of the working tree to ``dest/repo``, with
+    ``dest/shared`` linking to the real ``../shared``; returns the copy's root."""
+    files = subprocess.run(["git", "ls-files", "-co", "--exclude-standard", "-z"], cwd=ROOT,
+                           check=True, capture_output=True).stdout.decode().split("\0")
+    repo = dest / "repo"
+    for name in filter(None, files):
+        src = ROOT / name
+        if not src.is_file():
+            continue
+        target = repo / name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(src, target)
+    shared = ROOT.parent / "shared"
+    if shared.exists():
+        (dest / "shared").symlink_to(shared)
+    return repo
+
+
+def _env(repo: Path) -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(repo) + os.pathsep + env.get("PYTHONPATH", "")
+    env["PYTHONDONTWRITEBYTECODE"] = "1"
+    return env
+
+
+def _run_tests(repo: Path, tests: tuple[str, ...], timeout: float) -> tuple[set[str], str]:
+    """Failing test ids (FAILED/ERROR, and xfail(strict) that passed) of one pytest run, and
+    a note ('' or 'timeout' / 'collection error')."""
+    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-rfEX",
+           "--no-header", "-o", "addopts=", *tests]
+    try:
+        out = subprocess.run(cmd, cwd=repo, env=_env(repo), capture_output=True, text=True,
+                             timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return set(), "timeout"
+    text = out.stdout + out.stderr
+    failed = set(re.findall(r"^(?:FAILED|ERROR|XPASS)\s+(\S+)", text, flags=re.M))
+    failed = {f.split(" - ")[0] for f in failed}
+    note = ""
+    if out.returncode not in (0, 1) and not failed:
+        note = f"pytest exit {out.returncode}: " + text.strip().splitlines()[-1][:120]
+    return failed, note
+
+
+def _short(test: str) -> str:
+    return test.removeprefix("tests/").replace(".py::", "::")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--only", nargs="*", help="mutant names to run (default: all)")
+    parser.add_argument("--list", action="store_true", help="list the mutants and exit")
+    parser.add_argument("--timeout", type=float, default=900.0,
+                        help="seconds per pytest run (a run past it counts as caught)")
+    parser.add_argument("--out", type=Path, default=RESULTS)
+    args = parser.parse_args(argv)
+    mutants = [m for m in MUTANTS if not args.only or m.name in args.only]
+    if args.list:
+        for m in mutants:
+            print(f"{m.name:32s} {m.part:13s} {m.what}")
+        return 0
+    start = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="bite-") as tmp:
+        repo = _copy_tree(Path(tmp))
+        probe = subprocess.run([sys.executable, "-c", "import vipm_track, filters; "
+                                "print(vipm_track.__file__); print(filters.__file__)"],
+                               cwd=repo, env=_env(repo), capture_output=True, text=True)
+        if not all(line.startswith(str(repo)) for line in probe.stdout.split()):
+            print(f"the copy does not import its own modules:\n{probe.stdout}{probe.stderr}",
+                  file=sys.stderr)
+            return 2
+        all_tests = tuple(dict.fromkeys(t for m in mutants for t in m.tests))
+        print(f"baseline: {len(all_tests)} test selections on the unmutated copy ...",
+              flush=True)
+        broken, note = _run_tests(repo, all_tests, args.timeout)
+        if note:
+            print(f"baseline run: {note}", file=sys.stderr)
+            return 2
+        if broken:
+            print(f"failing without any mutant (left out): {sorted(broken)}", flush=True)
+        rows = []
+        for m in mutants:
+            path = repo / m.path
+            original = path.read_text()
+            count = original.count(m.old)
+            if count != 1:
+                rows.append((m, None, f"snippet found {count}× in {m.path}: mutant out of date"))
+                print(f"{m.name}: snippet found {count}×", flush=True)
+                continue
+            path.write_text(original.replace(m.old, m.new))
+            t0 = time.perf_counter()
+            try:
+                failed, note = _run_tests(repo, m.tests, args.timeout)
+            finally:
+                path.write_text(original)
+            caught = sorted(failed - broken)
+            rows.append((m, caught, note))
+            verdict = "caught" if caught or note == "timeout" else "SURVIVED"
+            print(f"{m.name}: {verdict} by {len(caught)} tests ({time.perf_counter() - t0:.0f} s)"
+                  f"{' ' + note if note else ''}", flush=True)
+    text = _report(rows, broken, time.perf_counter() - start)
+    print(text)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(text)
+    survived = [m.name for m, caught, note in rows if not caught and note != "timeout"]
+    return 1 if survived else 0
+
+
+def _report(rows, broken: set[str], seconds: float) -> str:
+    n_caught = sum(1 for _, caught, note in rows if caught or note == "timeout")
+    lines = [
+        "# Do the tests bite? A mutation check",
+        "",
+        f"{n_caught} of {len(rows)} mutants caught. Each mutant is one typical mistake put into a "
+        "copy of the source; the tests listed ran on it and those that failed are named (the "
+        "first 6, then a count). Command: `python scripts/check_tests_bite.py` "
+        f"({seconds / 60:.0f} min on this machine, 2 shared cores).",
+        "",
+        "| mutant | part | mistake | caught by |",
+        "| --- | --- | --- | --- |",
+    ]
+    for m, caught, note in rows:
+        if caught is None:
+            cell = f"not run: {note}"
+        elif caught:
+            names = [_short(c) for c in caught]
+            cell = ", ".join(f"`{n}`" for n in names[:6])
+            if len(names) > 6:
+                cell += f" and {len(names) - 6} more"
+        elif note == "timeout":
+            cell = "the tests ran past the timeout (counted as caught)"
+        else:
+            cell = f"**survived**{': ' + note if note else ''}"
+        lines.append(f"| `{m.name}` | {m.part} | {m.what} | {cell} |")
+    if broken:
+        lines += ["", "Failing on the unmutated copy (left out of the table): "
+                  + ", ".join(f"`{_short(b)}`" for b in sorted(broken))]
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,66 @@
+"""Estimates tables: a measurement written as a row and read back is the same measurement,
+and the file's text says what CONVENTIONS.md says (checked with the csv module, not with
+the project's reader)."""
+
+from __future__ import annotations
+
+import csv
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from vipm_track.measurement import PairMeasurement, measurement_row, read_measurements
+from vipm_track.table import BASE_COLUMNS, ESTIMATE_COLUMNS, write_table
+
+_ANGLE = np.array([True, True, True, True, False, False, True])
+_Z_COLUMNS = ("prev_pitch_deg", "prev_roll_deg", "pitch_deg", "roll_deg", "tx_m", "tz_m",
+              "yaw_deg")
+_STD_COLUMNS = ("prev_pitch_std_deg", "prev_roll_std_deg", "pitch_std_deg", "roll_std_deg",
+                "tx_std_m", "tz_std_m", "yaw_std_deg")
+
+
+def _measurement(frame: int, seed: int, ok: bool = True) -> PairMeasurement:
+    rng = np.random.default_rng(seed)
+    z = rng.normal(0.0, 0.3, 7) if ok else np.full(7, np.nan)
+    a = rng.normal(size=(7, 7))
+    cov = (a @ a.T + 7 * np.eye(7)) * rng.uniform(1e-8, 1e-3)
+    if not ok:
+        cov = np.full((7, 7), np.nan)
+    return PairMeasurement(frame=frame, t=0.1 * frame + rng.uniform(0, 0.01), z=z,
+                           covariance=cov, height_assumed=1.0 + rng.uniform(0, 1),
+                           status="ok" if ok else "too few inliers",
+                           inliers=int(rng.integers(12, 99)))
+
+
+@settings(max_examples=25, deadline=None)
+@given(seeds=st.lists(st.integers(0, 2**31), min_size=1, max_size=6),
+       failed=st.lists(st.booleans(), min_size=6, max_size=6))
+def test_measurements_survive_the_table_exactly(seeds: list[int], failed: list[bool]) -> None:
+    ms = [_measurement(k + 1, s, ok=not failed[k]) for k, s in enumerate(seeds)]
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "est.csv"
+        write_table(path, [measurement_row(m) for m in ms], ESTIMATE_COLUMNS)
+        back = read_measurements(path)
+        with path.open(newline="") as f:
+            text_rows = list(csv.DictReader(f))
+        header = next(csv.reader(path.open(newline="")))
+    assert header[:len(BASE_COLUMNS)] == list(BASE_COLUMNS)
+    assert len(back) == len(ms) == len(text_rows)
+    for m, b, row in zip(ms, back, text_rows, strict=True):
+        assert (b.frame, b.status, b.inliers) == (m.frame, m.status, m.inliers)
+        assert b.t == m.t and b.height_assumed == m.height_assumed
+        assert int(row["frame"]) == m.frame and row["status"] == m.status
+        if not m.ok:
+            assert not b.ok and all(row[c] == "" for c in _Z_COLUMNS)
+            continue
+        # radians and metres in memory, degrees and metres in the file, to the last bit
+        np.testing.assert_allclose(b.z, m.z, rtol=1e-14, atol=0)
+        np.testing.assert_allclose(b.covariance, m.covariance, rtol=1e-12, atol=1e-30)
+        text_z = np.array([float(row[c]) for c in _Z_COLUMNS])
+        text_std = np.array([float(row[c]) for c in _STD_COLUMNS])
+        np.testing.assert_allclose(text_z, np.where(_ANGLE, np.degrees(m.z), m.z), rtol=1e-14)
+        np.testing.assert_allclose(text_std, np.where(_ANGLE, np.degrees(m.std), m.std),
+                                   rtol=1e-14)
