@@ -284,8 +284,8 @@ def _to_float(v: Any) -> float:
 def _require_pyarrow():
     try:
         import pyarrow
-    except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise RuntimeError(
+    except ImportError as exc:
+        raise InputError(
             "Parquet output needs pyarrow: pip install 'vipm-track[parquet]'"
         ) from exc
     return pyarrow

@@ -89,6 +89,9 @@ BAND_SIGMA = 2.0
 MONITOR_LEVELS = {"RECALIBRATE": "ERROR", "INVALID": "ERROR", "DRIFTING": "WARN"}
 
 
+#: seconds ``RerunSink.finish`` waits for the recording to reach its sinks
+FLUSH_TIMEOUT_S = 5.0
+
 class RerunSink:
     """Log a run to a rerun recording (see the module doc for the entities).
 
@@ -394,7 +397,14 @@ class RerunSink:
         if self._finished:
             return
         self._finished = True
-        self.rec.flush()
+        # bounded: a viewer that is not listening (--rerun-connect to nobody) would otherwise
+        # keep the command from ever exiting; the tables are written already
+        try:
+            self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+        except RuntimeError as exc:  # rerun: "Flush timed out - not all log messages were sent"
+            print(f"vipm-track: warning: rerun: the recording did not all reach its viewer "
+                  f"within {FLUSH_TIMEOUT_S:.0f} s ({exc}); the tables are complete",
+                  file=sys.stderr)
         self.rec.disconnect()
 
     def __enter__(self) -> RerunSink:
