@@ -313,20 +313,22 @@ def test_track_cli_errors(tmp_path, capsys):
 # --- shaking beyond the body model ----------------------------------------------------------
 
 
-def _shaken(run, amp_deg: float, meas_std_deg: float, seed: int = 0):
-    """The drive's pairs with the angles replaced: true mount + three 1–3 Hz sinusoids of
-    ``amp_deg`` each (like the sim's ``drift`` profile), measured with white noise of
-    ``meas_std_deg`` (reported as such). Returns (measurements, true frame pitch, roll)."""
-    rng = np.random.default_rng(seed)
+def _shaken_angles(run, rng: np.random.Generator, amp_deg: float):
+    """True frame pitch and roll (rad): the drive's mount + three 1–3 Hz sinusoids of
+    ``amp_deg`` each (like the sim's ``drift`` profile), drawn from ``rng``."""
     t = run.truth.t
     shake = []
     for _ in range(2):
         f = rng.uniform(1.0, 3.0, 3)
         ph = rng.uniform(0, 2 * np.pi, 3)
         shake.append(np.radians(amp_deg) * np.sin(2 * np.pi * f * t[:, None] + ph).sum(axis=1))
-    pitch = run.truth.mount_pitch + shake[0]
-    roll = run.truth.mount_roll + shake[1]
-    sd = np.radians(meas_std_deg)
+    return run.truth.mount_pitch + shake[0], run.truth.mount_roll + shake[1]
+
+
+def _with_angles(run, pitch, roll, noise_of, sd: float) -> list[PairMeasurement]:
+    """The drive's usable pairs (frame 0 and failed pairs kept) with their four angles
+    replaced by the true ones plus ``noise_of(frame)`` (4,) rad, called in frame order, and
+    reported with the std ``sd`` rad, uncorrelated with the motion."""
     out = []
     for m in run.measurements:
         k = m.frame
@@ -334,12 +336,22 @@ def _shaken(run, amp_deg: float, meas_std_deg: float, seed: int = 0):
             out.append(m)
             continue
         z = m.z.copy()
-        z[:4] = np.array([pitch[k - 1], roll[k - 1], pitch[k], roll[k]]) + rng.normal(0, sd, 4)
+        z[:4] = np.array([pitch[k - 1], roll[k - 1], pitch[k], roll[k]]) + noise_of(k)
         cov = m.covariance.copy()
         cov[:4, :] = cov[:, :4] = 0.0
         cov[:4, :4] = np.eye(4) * sd**2
         out.append(replace(m, z=z, covariance=cov))
-    return out, pitch, roll
+    return out
+
+
+def _shaken(run, amp_deg: float, meas_std_deg: float, seed: int = 0):
+    """The drive's pairs with the angles replaced (``_shaken_angles``), measured with white
+    noise of ``meas_std_deg`` (reported as such). Returns (measurements, true frame pitch,
+    roll)."""
+    rng = np.random.default_rng(seed)
+    pitch, roll = _shaken_angles(run, rng, amp_deg)
+    sd = np.radians(meas_std_deg)
+    return _with_angles(run, pitch, roll, lambda k: rng.normal(0, sd, 4), sd), pitch, roll
 
 
 @pytest.mark.parametrize("amp_deg", [0.2, 1.0])
@@ -454,11 +466,7 @@ def _angles_with_noise(run, kind: str, sd_deg: float = 0.3, amp_deg: float = 0.0
     rng = np.random.default_rng(seed)
     t = run.truth.t
     n = len(t)
-    shake = []
-    for _ in range(2):
-        f, ph = rng.uniform(1.0, 3.0, 3), rng.uniform(0, 2 * np.pi, 3)
-        shake.append(np.radians(amp_deg) * np.sin(2 * np.pi * f * t[:, None] + ph).sum(axis=1))
-    pitch, roll = run.truth.mount_pitch + shake[0], run.truth.mount_roll + shake[1]
+    pitch, roll = _shaken_angles(run, rng, amp_deg)
     sd = np.radians(sd_deg)
     if kind == "model":
         noise = rng.normal(0, sd, (n, 4))
@@ -472,19 +480,7 @@ def _angles_with_noise(run, kind: str, sd_deg: float = 0.3, amp_deg: float = 0.0
         noise[0] = rng.normal(0, sd, 4)
         for k in range(1, n):
             noise[k] = a * noise[k - 1] + rng.normal(0, sd * np.sqrt(1 - a * a), 4)
-    out = []
-    for m in run.measurements:
-        k = m.frame
-        if not m.ok or k == 0:
-            out.append(m)
-            continue
-        z = m.z.copy()
-        z[:4] = np.array([pitch[k - 1], roll[k - 1], pitch[k], roll[k]]) + noise[k]
-        cov = m.covariance.copy()
-        cov[:4, :] = cov[:, :4] = 0.0
-        cov[:4, :4] = np.eye(4) * sd**2
-        out.append(replace(m, z=z, covariance=cov))
-    return out
+    return _with_angles(run, pitch, roll, lambda k: noise[k], sd)
 
 
 def _mount_scores(kind: str, seed: int) -> tuple[np.ndarray, np.ndarray]:
