@@ -34,6 +34,18 @@ FloatArray = NDArray[np.float64]
 _FEWEST_PAIRS = 3
 
 
+def cautious_std(measured, n: int, min_pairs: int, unknown, floor=0.0):
+    """A std measured on ``n`` pairs as far as they can be trusted: ``unknown`` below three,
+    the spread's upper 95 % bound below ``min_pairs`` (a MAD's relative standard error is
+    about 1.17/√n: a few calm-looking pairs of a shaking vehicle are not taken as exact),
+    else ``measured``; never below ``floor``. Scalars or arrays alike."""
+    if n < _FEWEST_PAIRS:
+        return np.maximum(unknown, floor)
+    if n < min_pairs:
+        return np.maximum(floor, measured * (1.0 + 2.0 * 1.17 / math.sqrt(n)))
+    return np.maximum(floor, measured)
+
+
 def pairs_to_start(init_pairs: int, window_s: float, min_pairs: int) -> int:
     """Good pairs a filter collects before it starts: its ``init_pairs``, and enough for the
     body std to be measured (``min_pairs``) where it is adaptive (``window_s`` > 0); the
@@ -103,23 +115,15 @@ class BodyScale:
         return self._end - self._start
 
     def std(self) -> FloatArray:
-        """Stationary body std (pitch, roll), rad: the model's, or the robust scale of the
-        window's body less its measurement noise where that is larger."""
+        """Stationary body std (pitch, roll), rad: the model's, or the larger matched reading
+        of the window (module doc), as far as its pairs can be trusted (``cautious_std``)."""
         if self._window_s <= 0:
             return self._floor.copy()
         n = self._end - self._start
-        if n < self._min_pairs:
-            if n < _FEWEST_PAIRS:
-                return self._unknown.copy()
-            # few pairs: the spread's upper 95 % bound (a MAD's relative standard error is
-            # about 1.17/√n), so that a few calm-looking pairs of a shaking vehicle are not
-            # taken as exact
-            out = np.empty(2)
-            _matched_std(self._seen[self._start:self._end], self._floor, self._tau0, out)
-            return np.maximum(self._floor, out * (1.0 + 2.0 * 1.17 / math.sqrt(n)))
         out = np.empty(2)
-        _matched_std(self._seen[self._start:self._end], self._floor, self._tau0, out)
-        return out
+        if n >= _FEWEST_PAIRS:
+            _matched_std(self._seen[self._start:self._end], self._floor, self._tau0, out)
+        return cautious_std(out, n, self._min_pairs, self._unknown, self._floor)
 
 
 @kernel

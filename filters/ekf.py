@@ -224,7 +224,7 @@ class ExtrinsicsEKF:
         self._boot: list[tuple[PairMeasurement | None, float | None, float, str]] = []
         self._last_speed_t: float | None = None
         self._still = False  # the last _advance applied the standstill
-        #: the measured body (pair minus filtered mount) of recent ok pairs
+        #: the body's shaking measured on recent ok pairs (``body_scale``)
         cfg = self._cfg
         self._body = BodyScale(cfg.noise, cfg.body_window_s, cfg.body_window_min_pairs)
         self._start_pairs = pairs_to_start(cfg.init_pairs, cfg.body_window_s,
@@ -405,7 +405,6 @@ class ExtrinsicsEKF:
         # the pairs on both sides, use them (``model.motion_given_pose``)
         r[:4, 4:] = 0.0
         r[4:, :4] = 0.0
-
         y = m.z - zp
         y[6] = _wrap(y[6])
         s = h @ kf.P @ h.T + r

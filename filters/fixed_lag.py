@@ -43,7 +43,7 @@ from vipm_track.measurement import PairMeasurement
 from . import model as M
 from . import window_rows as W
 from .body_scale import pairs_to_start
-from .mount_change import MountChangeDetector
+from .mount_change import MountChangeDetector, jump_variance
 from .smoother import (
     BodyTracker,
     SmoothedFrame,
@@ -266,7 +266,7 @@ class FixedLagSmoother:
             p = next((i for i in range(len(self._c)) if self._ms[i + 1].t >= onset),
                      len(self._c) - 1)
             jump = np.zeros(2)
-            jump[j] = (2.0 * step[j]) ** 2
+            jump[j] = jump_variance(step[j])
             pm = self._ms[p + 1]
             W.apply_mount_jump(self._c.field("lin_jac", p), self._c.field("lin_b", p), pm,
                                pm.t - self._ms[p].t, self._cfg.noise, jump)

@@ -81,7 +81,7 @@ from scipy.optimize import brentq
 
 from vipm_track.errors import InputError
 
-from .body_scale import BodyScale
+from .body_scale import BodyScale, cautious_std
 from .long_run import batch_means
 from .model import NoiseParams
 
@@ -749,13 +749,13 @@ class _HeaveScale:
 
     def std(self) -> float:
         n = len(self._seen)
-        if n < 3:
-            return self._unknown
-        h = np.array([x[1] for x in self._seen])
-        mad = float(np.median(np.abs(h - np.median(h))))
-        var = (1.4826 * mad) ** 2 - float(np.median([x[2] for x in self._seen]))
-        std = math.sqrt(max(0.0, var))
-        return std * (1.0 + 2.0 * 1.17 / math.sqrt(n)) if n < self._min_pairs else std
+        std = 0.0
+        if n:
+            h = np.array([x[1] for x in self._seen])
+            mad = float(np.median(np.abs(h - np.median(h))))
+            var = (1.4826 * mad) ** 2 - float(np.median([x[2] for x in self._seen]))
+            std = math.sqrt(max(0.0, var))
+        return float(cautious_std(std, n, self._min_pairs, self._unknown))
 
 
 def _pad(x: FloatArray, n: int) -> FloatArray:

@@ -55,6 +55,22 @@ class MountChangeConfig:
     unmeasured_variance: float = 4.0
 
 
+def jump_variance(step: float) -> float:
+    """Variance (rad²) a smoother lets its mount jump by where the test found a ``step``
+    (rad): (2 × step)², wide enough that the pairs, not the prior, set the new mount."""
+    return (2.0 * step) ** 2
+
+
+def across_jump(covariance: FloatArray, jump_var: FloatArray) -> FloatArray:
+    """A pair's covariance (7×7, the filters' ``pair_covariance``) when the mount stepped by
+    variance ``jump_var`` (pitch, roll; rad²) between its two frames: it saw its previous
+    frame on the old mount, which a factor with one mount for both frames can only take with
+    the step's doubt on the previous angles. A copy."""
+    cov = np.array(covariance, dtype=float)
+    cov[[0, 1], [0, 1]] += jump_var
+    return cov
+
+
 class MountChangeDetector:
     """Two-sided CUSUM per axis (pitch, roll) on whitened innovations (module doc)."""
 

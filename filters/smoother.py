@@ -42,7 +42,7 @@ from .body_scale import BodyScale, pair_change
 from .ekf import EkfConfig, ExtrinsicsEKF, FrameStds, SpeedSource, speed_at
 from .long_run import batch_means
 from .model import NoiseParams
-from .mount_change import MountChangeConfig
+from .mount_change import MountChangeConfig, across_jump, jump_variance
 
 FloatArray = NDArray[np.float64]
 
@@ -359,9 +359,7 @@ def _frame_factors(
         if m.ok:
             cov = nz.pair_covariance(m.covariance, m.z[6])
             if mount_jump_var is not None:
-                # the pair across a mount step saw its previous frame on the old mount, which
-                # its factor (one mount for both frames) can only take with the step's doubt
-                cov[[0, 1], [0, 1]] += mount_jump_var
+                cov = across_jump(cov, mount_jump_var)
             out.append(F.pose_pair_factor(k, m.z[:4], cov[:4, :4], cfg.loss, cfg.pair_loss_k(4)))
             given = None
             if cfg.motion_given_pose:
@@ -383,7 +381,8 @@ def mount_jumps(
 ) -> dict[int, FloatArray]:
     """Where the mount stepped (a knocked camera): the EKF's mount-change test
     (``filters.mount_change``) run over the drive; key index → variance (pitch, roll; rad²)
-    to add to the mount's walk into that frame, (2 × the step)² on the axis that stepped."""
+    to add to the mount's walk into that frame (``mount_change.jump_variance``) on the axis
+    that stepped."""
     if not cfg.mount_change.enabled:
         return {}
     ekf = ExtrinsicsEKF(EkfConfig(height_m=cfg.height_m, noise=cfg.noise,
@@ -394,7 +393,7 @@ def mount_jumps(
     out: dict[int, FloatArray] = {}
     for onset, axis, step in persistent_changes(ekf.mount_changes, cfg.mount_change_persist_s):
         k = max(1, int(np.searchsorted(t, onset)))
-        out.setdefault(k, np.zeros(2))[axis] += (2.0 * step) ** 2
+        out.setdefault(k, np.zeros(2))[axis] += jump_variance(step)
     return out
 
 

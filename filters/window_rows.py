@@ -30,6 +30,7 @@ from vipm_track.measurement import PairMeasurement
 from . import factors as F
 from . import model as M
 from .model import NoiseParams
+from .mount_change import across_jump
 from .residuals import (
     motion_residual,
     process_constant_jacobian,
@@ -179,8 +180,7 @@ def apply_mount_jump(
     for i in range(2):  # mount walks: 1/√q → 1/√(q + jump)
         lin_jac[7 + i] *= math.sqrt(q[i] / (q[i] + jump_var[i]))
     if m.ok:
-        cov = noise.pair_covariance(m.covariance, m.z[6])
-        cov[[0, 1], [0, 1]] += jump_var
+        cov = across_jump(noise.pair_covariance(m.covariance, m.z[6]), jump_var)
         w_pose = F.whitener(cov[:4, :4])
         lin_jac[POSE_ROWS] = w_pose @ _J_POSE
         lin_b[POSE_ROWS] = w_pose @ np.asarray(m.z, dtype=float)[:4]
