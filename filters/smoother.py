@@ -25,7 +25,7 @@ mean mount with 95 % intervals and its drift.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -896,23 +896,35 @@ def smooth(
     progress: bool = False,
 ) -> list[SmoothedFrame]:
     """Smoothed estimate of every frame: batch if ``config.lag_s`` is 0, else fixed-lag."""
+    return list(smoothed_frames(measurements, speed_series, config, clock_offset_s, progress))
+
+
+def smoothed_frames(
+    measurements: Sequence[PairMeasurement],
+    speed_series: SpeedSource | None = None,
+    config: SmootherConfig | None = None,
+    clock_offset_s: float = 0.0,
+    progress: bool = False,
+) -> Iterator[SmoothedFrame]:
+    """``smooth``'s frames, each as soon as it is final: the fixed-lag smoother's as they
+    leave the window (so a caller can write them while the drive goes on), the batch's once
+    the whole drive is solved."""
     cfg = config or SmootherConfig()
     speeds = speeds_at_frames(measurements, speed_series, clock_offset_s)
     if cfg.lag_s == 0:
-        return smooth_batch(measurements, speeds, cfg, progress)[0]
+        yield from smooth_batch(measurements, speeds, cfg, progress)[0]
+        return
     from .fixed_lag import FixedLagSmoother
 
     sm = FixedLagSmoother(cfg)
-    out: list[SmoothedFrame] = []
     it = zip(measurements, speeds, strict=True)
     if progress:
         from tqdm import tqdm
 
         it = tqdm(it, total=len(measurements), desc="fixed-lag smoother", unit="frame")
     for m, v in it:
-        out.extend(sm.step(m, float(v)))
-    out.extend(sm.finish())
-    return out
+        yield from sm.step(m, float(v))
+    yield from sm.finish()
 
 
 def __getattr__(name: str) -> object:

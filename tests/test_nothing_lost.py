@@ -150,7 +150,7 @@ def test_sigterm_during_batch_smoothing_writes_the_measurements_with_a_status(
         os.kill(os.getpid(), signal.SIGTERM)
         raise AssertionError("SIGTERM did not interrupt")
 
-    monkeypatch.setattr(filters.smoother, "smooth", stopped)
+    monkeypatch.setattr(filters.smoother, "smooth_batch", stopped)  # the batch's solve
     out = tmp_path / "s.csv"
     rc, _err = _run(capsys, "smooth", "--estimates", est, "--height", "1.65", "--out", out,
                    "--quiet")

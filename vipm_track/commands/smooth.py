@@ -241,32 +241,13 @@ def run(args: argparse.Namespace) -> int:
 def _smoothed_rows(measurements, speed, config, progress: bool):
     """(smoothed frame, its track-table row) of every frame, each as soon as it is final:
     the fixed-lag smoother's frames as they leave the window, the batch's when it is done."""
-    from filters.smoother import smooth, speeds_at_frames
+    from filters.smoother import smoothed_frames, speeds_at_frames
 
     speeds = speeds_at_frames(measurements, speed)
     by_frame = {m.frame: (m, v) for m, v in zip(measurements, speeds, strict=True)}
-    if config.lag_s == 0:
-        frames = iter(smooth(measurements, speed, config, progress=progress))
-    else:
-        frames = _fixed_lag_frames(measurements, speeds, config, progress)
-    for f in frames:
+    for f in smoothed_frames(measurements, speed, config, progress=progress):
         m, v = by_frame.get(f.frame, (None, float("nan")))
         yield f, _row(f, m, v)
-
-
-def _fixed_lag_frames(measurements, speeds, config, progress: bool):
-    """The fixed-lag smoother's frames, each as it leaves the window (then the rest)."""
-    from filters.fixed_lag import FixedLagSmoother
-
-    sm = FixedLagSmoother(config)
-    it = zip(measurements, speeds, strict=True)
-    if progress:
-        from tqdm import tqdm
-
-        it = tqdm(it, total=len(measurements), desc="fixed-lag smoother", unit="frame")
-    for m, v in it:
-        yield from sm.step(m, float(v))
-    yield from sm.finish()
 
 
 def _row(f, m, v: float) -> dict:
