@@ -18,8 +18,8 @@ pair measurements the filter is fed, wheel speed, and the filter's states.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -28,6 +28,7 @@ from numpy.typing import NDArray
 from vipm_track.measurement import PairMeasurement
 
 from .body_scale import pair_change
+from .ekf import EkfConfig, ExtrinsicsEKF, speed_at
 from .monitor import (
     DriftMonitor,
     MonitorConfig,
@@ -251,25 +252,46 @@ def monitor_measurements(
     progress: bool = False,
     **options: Any,
 ) -> tuple[list[Any], list[MonitorOutput]]:
-    """The filter pipeline then the monitor over a whole sequence: the EKF
-    (``filters.ekf.run_filter``, with ``speed`` on the camera clock) gives the mount estimate
-    and the gating of each frame, then ``DriftMonitor`` judges every frame. ``config``
-    defaults to the EKF model's body noise at the measurements' median frame rate.
+    """The filter pipeline then the monitor over a whole sequence (``monitor_frames``).
     Returns (filter states, monitor outputs), one of each per measurement."""
-    from .ekf import EkfConfig, run_filter
+    frames = list(monitor_frames(measurements, nominal, speed, config, ekf_config, progress,
+                                 **options))
+    return [s for _, s, _ in frames], [o for _, _, o in frames]
 
+
+def monitor_frames(
+    measurements: Sequence[PairMeasurement],
+    nominal: NominalCalibration,
+    speed: Any | None = None,
+    config: MonitorConfig | None = None,
+    ekf_config: Any | None = None,
+    progress: bool = False,
+    **options: Any,
+) -> Iterator[tuple[PairMeasurement, Any, MonitorOutput]]:
+    """(measurement, EKF state, monitor output) of every frame, each as soon as it is
+    decided: the measurements' monitor inputs (they compare a pair with its neighbours) for
+    the whole list at once, then the EKF (``filters.ekf``, with ``speed`` on the camera
+    clock) steps frame by frame and ``DriftMonitor`` judges each frame with the filter's
+    mount and gating. ``config`` defaults to the EKF model's body noise at the
+    measurements' median frame rate; ``options``: those of ``input_arrays``."""
     ekf_config = ekf_config or EkfConfig(height_m=nominal.height_m)
     if config is None:
         config = MonitorConfig.from_noise(ekf_config.noise, fps=frame_rate(measurements))
-    states = run_filter(measurements, speed, ekf_config, progress=progress)
-    inputs = inputs_from_measurements(measurements, speed, states, **options)
+    ekf = ExtrinsicsEKF(ekf_config)
     mon = DriftMonitor(nominal, config)
-    it = inputs
+    inputs = inputs_from_measurements(measurements, speed, **options)
+    times = np.array([m.t for m in measurements], dtype=float)
+    speeds = speed_at(speed, times) if speed is not None else np.full(len(times), np.nan)
+    it: Any = zip(measurements, speeds, inputs, strict=True)
     if progress:
         from tqdm import tqdm
 
-        it = tqdm(inputs, desc="monitor", unit="frame")
-    return states, [mon.update(i) for i in it]
+        it = tqdm(it, total=len(measurements), desc="monitor", unit="frame")
+    for m, v, frame_input in it:
+        state = ekf.step(m, m.t, float(v), m.frame)
+        mount, mount_cov, gated = mount_from_state(state)
+        judged = replace(frame_input, mount=mount, mount_cov=mount_cov, gated=gated)
+        yield m, state, mon.update(judged)
 
 
 def frame_rate(measurements: Sequence[PairMeasurement], default: float = 10.0) -> float:

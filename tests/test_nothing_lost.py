@@ -197,12 +197,18 @@ def test_interrupted_monitor_keeps_complete_rows(tmp_path, capsys, est, nominal,
 
 
 def test_streamed_monitor_judges_as_the_whole_sequence_does(est, nominal):
-    from filters.ekf import EkfConfig
-    from filters.monitor import MonitorConfig, load_nominal
-    from filters.monitor_inputs import frame_rate, monitor_measurements
+    """The frame-by-frame monitor (``monitor_frames``, what the command streams) against
+    the whole sequence filtered first (``run_filter``), its states read into the inputs."""
+    from filters.ekf import EkfConfig, run_filter
+    from filters.monitor import DriftMonitor, MonitorConfig, load_nominal
+    from filters.monitor_inputs import frame_rate, inputs_from_measurements, monitor_frames
     from filters.wheel_speed import SpeedSeries
     from vipm_track.commands.inputs import read_estimates
-    from vipm_track.commands.monitor import monitor_stream
+
+    def monitor_measurements(ms, nom, sp, cfg, ekf):
+        states = run_filter(ms, sp, ekf)
+        mon = DriftMonitor(nom, cfg)
+        return states, [mon.update(i) for i in inputs_from_measurements(ms, sp, states)]
 
     ms = read_estimates(str(est))
     nom = load_nominal(nominal)
@@ -212,7 +218,7 @@ def test_streamed_monitor_judges_as_the_whole_sequence_does(est, nominal):
     speed = SpeedSeries(t, 8.0 + np.sin(t))
     for n, sp in ((120, None), (120, speed), (2, None), (1, None)):
         _states, whole = monitor_measurements(ms[:n], nom, sp, cfg, ekf)
-        streamed = list(monitor_stream(ms[:n], nom, sp, cfg, ekf))
+        streamed = list(monitor_frames(ms[:n], nom, sp, cfg, ekf))
         assert [o.state for _, _, o in streamed] == [o.state for o in whole]
         assert [o.reason for _, _, o in streamed] == [o.reason for o in whole]
         np.testing.assert_array_equal([o.statistic for _, _, o in streamed],

@@ -16,11 +16,7 @@ import json
 import math
 import sys
 from collections import Counter
-from collections.abc import Iterator
-from dataclasses import replace
 from typing import Any
-
-import numpy as np
 
 from ..camera import load_camera
 from ..errors import InputError
@@ -86,7 +82,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from filters.ekf import EkfConfig
     from filters.monitor import MonitorConfig, load_nominal
-    from filters.monitor_inputs import frame_rate
+    from filters.monitor_inputs import frame_rate, monitor_frames
 
     out = check_output(args.out, args.parquet)
     if args.events:
@@ -130,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
     events = open(args.events, "w", newline="\n") if args.events else None
     try:
         with TableWriter(out, MONITOR_COLUMNS, parquet) as writer:
-            for m, s, o in monitor_stream(measurements, nominal, speed, config, ekf_config,
+            for m, s, o in monitor_frames(measurements, nominal, speed, config, ekf_config,
                                           progress):
                 writer.write(monitor_row(m, s, o))
                 states.append(s)
@@ -166,40 +162,6 @@ def nominal_height(height: float | None, nominal_height_m: float, nominal_file: 
     raise InputError(f"--height {height:g} m contradicts the nominal calibration "
                      f"{nominal_file}: height_m {nominal_height_m:g} m; give the height in "
                      "one place (without --height the nominal file's is used)")
-
-
-def monitor_stream(
-    measurements: list[PairMeasurement],
-    nominal: Any,
-    speed: Any,
-    config: Any,
-    ekf_config: Any,
-    progress: bool = False,
-) -> Iterator[tuple[PairMeasurement, Any, Any]]:
-    """(measurement, EKF state, monitor output) of every frame, each as soon as it is
-    decided: the measurements' monitor inputs (``filters.monitor_inputs``: they compare a
-    pair with its neighbours) are found for the whole list at once, then the EKF steps frame
-    by frame and the monitor judges each frame with the filter's mount. The same answers as
-    ``filters.monitor_inputs.monitor_measurements``."""
-    from filters.ekf import ExtrinsicsEKF, speed_at
-    from filters.monitor import DriftMonitor
-    from filters.monitor_inputs import inputs_from_measurements, mount_from_state
-
-    ekf = ExtrinsicsEKF(ekf_config)
-    mon = DriftMonitor(nominal, config)
-    inputs = inputs_from_measurements(measurements, speed)
-    times = np.array([m.t for m in measurements], dtype=float)
-    speeds = speed_at(speed, times) if speed is not None else np.full(len(times), np.nan)
-    it: Any = zip(measurements, speeds, inputs, strict=True)
-    if progress:
-        from tqdm import tqdm
-
-        it = tqdm(it, total=len(measurements), desc="monitor", unit="frame")
-    for m, v, frame_input in it:
-        state = ekf.step(m, m.t, float(v), m.frame)
-        mount, mount_cov, gated = mount_from_state(state)
-        judged = replace(frame_input, mount=mount, mount_cov=mount_cov, gated=gated)
-        yield m, state, mon.update(judged)
 
 
 def monitor_row(m: PairMeasurement, state: Any, out: Any) -> dict[str, Any]:
