@@ -505,6 +505,34 @@ def covariance_from_jacobian(jac: FloatArray, residuals: FloatArray) -> FloatArr
         return np.full((n, n), np.nan)
 
 
+def block_jackknife_covariance(
+    model: DisplacementModel, x: FloatArray, idx: NDArray[np.intp], columns: int = 4,
+    rows: int = 2,
+) -> FloatArray:
+    """Delete-a-block jackknife covariance of the fit at ``x`` on the points ``idx``: the
+    points split into ``columns`` × ``rows`` blocks by their image position (quantiles), each
+    block left out in turn and the fit redone from ``x``;
+    ``(G − 1)/G · Σ (x_g − x̄)(x_g − x̄)ᵀ``. Unlike ``covariance_from_jacobian`` it does not
+    take the points' errors as independent: what the model misses on real frames (a road
+    that is not one plane, patches on a kerb or a vehicle's lower edge) is shared by
+    neighbouring patches, and leaving their block out moves the fit by what they held."""
+    n = len(x)
+    px = model.pixels_prev[idx]
+    col = np.searchsorted(np.quantile(px[:, 0], np.linspace(0, 1, columns + 1)[1:-1]), px[:, 0])
+    row = np.searchsorted(np.quantile(px[:, 1], np.linspace(0, 1, rows + 1)[1:-1]), px[:, 1])
+    block = col * rows + row
+    fits = []
+    for g in np.unique(block):
+        keep = idx[block != g]
+        if keep.size < max(8, n):
+            continue
+        fits.append(fit_lm(model, x, keep, max_nfev=30)[0])
+    if len(fits) < 3:
+        return np.full((n, n), np.nan)
+    d = np.array(fits) - np.mean(fits, axis=0)
+    return (len(fits) - 1) / len(fits) * d.T @ d
+
+
 def robust_fit(
     model: DisplacementModel,
     x0: FloatArray,
@@ -514,6 +542,7 @@ def robust_fit(
     inlier_px: float,
     rng: np.random.Generator,
     median_factor: float = 0.0,
+    jackknife: bool = False,
 ) -> FitResult:
     """Best of random-subset LM fits, scored on all usable points, re-fitted on its inliers.
 
@@ -589,7 +618,18 @@ def robust_fit(
         # The same solution in the canonical chart: re-evaluate its covariance there.
         _, _, jac, res, _ = fit_lm(model, xc, np.flatnonzero(inl), max_nfev=20)
         cov = covariance_from_jacobian(jac, res) if jac.shape[0] >= 2 * len(x0) else cov
+    if jackknife and np.all(np.isfinite(cov)):
+        cov = _at_least(cov, block_jackknife_covariance(model, xc, np.flatnonzero(inl)))
     return FitResult(xc, inl, errors, cov, rms, converged, nfev)
+
+
+def _at_least(cov: FloatArray, other: FloatArray) -> FloatArray:
+    """``cov`` with each parameter's standard deviation raised to ``other``'s where that is
+    larger (correlations kept)."""
+    if not np.all(np.isfinite(other)):
+        return cov
+    scale = np.sqrt(np.maximum(1.0, np.diag(other) / np.diag(cov)))
+    return cov * np.outer(scale, scale)
 
 
 def wrap_angles(x: FloatArray) -> FloatArray:

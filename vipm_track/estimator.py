@@ -60,6 +60,7 @@ STATUS_NO_MOTION = "no motion"
 STATUS_FEW_INLIERS = "too few inliers"
 STATUS_NOT_CONVERGED = "did not converge"
 STATUS_DEGENERATE = "degenerate"
+STATUS_NO_NOMINAL = "no nominal pose"
 
 
 #: nominal pitch below which a camera with the horizon in view gets the forward-looking
@@ -158,6 +159,17 @@ class EstimatorConfig:
         interval (:meth:`TwoFrameEstimator.estimate`).
     max_deviation_deg : estimates whose pitch or roll differ from the initial (nominal) pose
         by more than this are rejected ("did not converge").
+    max_roll_deg : plausible roll of a vehicle camera: estimates whose roll differs from the
+        nominal roll (``initial_roll_deg``: level unless the user says otherwise) by more
+        than this are rejected ("did not converge"); a roll fitted beyond it is vehicles or
+        walls taken for the ground, not the mount.
+    jackknife_covariance : each fit's covariance is at least its block jackknife's
+        (``bundle.block_jackknife_covariance``): the formal one takes the patches' errors as
+        independent, which real frames are not.
+    nominal_undetermined : why the nominal pose could not be found on the drive (empty: it
+        was given or found); every pair then has status "no nominal pose" — without a
+        nominal pose the cold start has nothing to rest on, and its estimates would be the
+        patches' second minima, not the camera's.
     ipm_resolution_scale : IPM metres per pixel as a multiple of the interest points'
         median ground sampling distance.
     ipm_max_side : largest IPM image side, pixels.
@@ -231,6 +243,9 @@ class EstimatorConfig:
     min_inliers: int = 12
     min_motion_px: float = 0.5
     max_deviation_deg: float = 25.0
+    max_roll_deg: float = 10.0
+    nominal_undetermined: str = ""
+    jackknife_covariance: bool = True
     cold_start_ipm: bool = True
     cold_pitch_steps_deg: tuple[float, ...] | None = None
     readout_s: float = 0.0
@@ -267,6 +282,7 @@ class EstimatorConfig:
             "roi_max_range_h": self.roi_max_range_h is None or self.roi_max_range_h > 0,
             "roi_max_lateral_h": self.roi_max_lateral_h > 0,
             "max_deviation_deg": self.max_deviation_deg > 0,
+            "max_roll_deg": 0 < self.max_roll_deg <= 90,
             "cold_pitch_steps_deg": self.cold_pitch_steps_deg is None or all(
                 np.isfinite(step) and abs(step) < self.max_deviation_deg
                 for step in self.cold_pitch_steps_deg),
@@ -480,6 +496,8 @@ class TwoFrameEstimator:
         between the frames, which the image-plane patches cannot match but the bird's-eye
         plane turns into a translation).
         """
+        if self.config.nominal_undetermined:
+            return PairResult(status=STATUS_NO_NOMINAL, reason=self.config.nominal_undetermined)
         t_start = time.perf_counter()
         self._readout_frames = self._shutter_readout_frames(frame_interval_s)
         # the interval before's motion (tracking), for the rolling shutter's acceleration
@@ -589,6 +607,13 @@ class TwoFrameEstimator:
                 stack = np.array([pack(*s) for s in result.stage_estimates])
                 result.pose_prev, result.pose_curr, result.motion = unpack(
                     np.median(stack, axis=0), self.height)
+                # the median is uncertain by what the stages disagree on: on real frames
+                # the image stage and the IPM refinements miss different parts of the model
+                # (measured in docs/traffic.md); on exact renders they agree
+                # (the stages' scatter about the median, as a covariance: they disagree on
+                # both frames' pose alike far more than on the change between them)
+                spread = stack[:, :4] - np.median(stack, axis=0)[:4]
+                result.covariance[:4, :4] += spread.T @ spread / (len(stack) - 1)
         except _StageFailure as failure:
             _mark_failed(result, failure.status, failure.reason)
         timings["total"] = time.perf_counter() - t_start
@@ -950,7 +975,7 @@ class TwoFrameEstimator:
                 f"{int(usable.sum())} usable patches (need {self.config.min_inliers})",
             )
         fit = robust_fit(model, x0, usable, n_subsets, self.config.subset_fraction, inlier_px,
-                         rng, median_factor)
+                         rng, median_factor, self.config.jackknife_covariance)
         result.timings["lm"] += time.perf_counter() - t0
         return fit
 
@@ -964,12 +989,13 @@ class TwoFrameEstimator:
             )
         pose_p, pose_c, motion = unpack(fit.x, self.height)
         dev = np.radians(cfg.max_deviation_deg)
+        roll_dev = min(dev, np.radians(cfg.max_roll_deg))
         plausible = (
             np.all(np.isfinite(fit.x))
             and all(-np.pi / 4 < p.pitch < 3 * np.pi / 4 for p in (pose_p, pose_c))
             and all(abs(p.roll) < np.pi / 4 for p in (pose_p, pose_c))
             and all(abs(p.pitch - self.nominal.pitch) < dev
-                    and abs(p.roll - self.nominal.roll) < dev for p in (pose_p, pose_c))
+                    and abs(p.roll - self.nominal.roll) < roll_dev for p in (pose_p, pose_c))
             and abs(motion.yaw) < np.pi / 4
         )
         if not (fit.converged and plausible):

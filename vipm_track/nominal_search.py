@@ -22,12 +22,13 @@ frames' road camber explains as well as the camera, so the nominal roll stays 0 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from .errors import InputError
+from .travel_direction import AGREE_DEG, TravelPitch, pitch_from_travel, travels_over
 
 if TYPE_CHECKING:
     from .camera import CameraModel
@@ -39,6 +40,8 @@ CANDIDATE_PITCHES_DEG: tuple[float, ...] = (75.0, 40.0, 25.0, 12.0, 5.0, 1.0)
 #: a found roll within this of level is the road's camber over the first frames, not the
 #: camera's (KITTI 07 starts at 1.5°); the nominal roll stays 0 [deg]
 CAMBER_ROLL_DEG = 3.0
+#: the ground fit's pitch may differ from the direction of travel's by this [deg]
+GROUND_AGREE_DEG = 2.0
 #: a default cold start that converges more than this from the configured pitch moves the
 #: nominal pose to where it converged [deg]
 SETTLE_PITCH_DEG = 5.0
@@ -58,13 +61,31 @@ class NominalSearch:
     frames: tuple[int, int]
     pairs: int = 1  # pairs whose median it is
     default_failed: bool = True
+    travel: TravelPitch | None = None  # the pitch against the travel, where it was needed
+    undetermined: str = ""  # why the pose found is not the camera's ("": it is)
+
+    @property
+    def determined(self) -> bool:
+        return not self.undetermined
 
     @property
     def roll_deg(self) -> float:
         return self.measured_roll_deg if abs(self.measured_roll_deg) > CAMBER_ROLL_DEG else 0.0
 
     def line(self) -> str:
+        if self.undetermined:
+            return (f"no --pitch given and the nominal pose was not determined: "
+                    f"{self.undetermined}; every pair is marked \"no nominal pose\" (give "
+                    f"--pitch/--roll)")
         frames = f"frames {self.frames[0]}-{self.frames[1]}"
+        if self.travel is not None and self.travel.determined:
+            return (f"no --pitch given; the direction of travel over {self.travel.pairs} "
+                    f"pairs (frames from {self.frames[0]}) puts the camera at pitch "
+                    f"{self.pitch_deg:.1f}° ({self.travel.agreeing} pairs within "
+                    f"{AGREE_DEG:g}°) and the ground fit from there at roll "
+                    f"{self.measured_roll_deg:.1f}° (median of {self.pairs} pairs); nominal "
+                    f"pose now pitch {self.pitch_deg:.1f}°, roll {self.roll_deg:.1f}° (give "
+                    f"--pitch/--roll to set it)")
         start = (f"the cold start from {self.default_pitch_deg:g}° failed on {frames}; from "
                  f"{self.start_pitch_deg:g}° it" if self.default_failed else
                  f"the cold start from {self.default_pitch_deg:g}° on {frames}")
@@ -114,6 +135,7 @@ def search_nominal_pose(
     # the default start alone: a forward camera fails from 60° however its pitch is stepped
     default = TwoFrameEstimator(camera, height, config_with(config, cold_pitch_steps_deg=()))
     failed = 0
+    travel: TravelPitch | None = None
     for i, pair in enumerate(pairs):
         frames = pair.frames
         result = estimate_pair(default, pair.before, pair.image, None, pair.interval_s)
@@ -123,6 +145,11 @@ def search_nominal_pose(
                 return None
             found: tuple[float, PairResult] | None = (config.initial_pitch_deg, result)
         else:
+            if travel is None:
+                travel = travel_pitch_over(source, camera, max_frames)
+            if travel.determined:
+                return _from_travel(camera, height, config, pairs[i:i + confirm_pairs],
+                                    travel, source, max_frames)
             # "no motion" included: the view moved (``moving_pairs``), so the default
             # start's patches sat on what did not (a level camera's sky)
             found = _best_start(camera, height, config, pair)
@@ -133,12 +160,81 @@ def search_nominal_pose(
             start, r = found
             pitch, roll, n = _settle(camera, height, config, pairs[i:i + confirm_pairs],
                                      r.pose_curr.pitch, r.pose_curr.roll)
-            return NominalSearch(round(math.degrees(pitch), 1), round(math.degrees(roll), 1),
-                                 start, config.initial_pitch_deg, frames, n,
-                                 default_failed=r is not result)
+            search = NominalSearch(round(math.degrees(pitch), 1), round(math.degrees(roll), 1),
+                                   start, config.initial_pitch_deg, frames, n,
+                                   default_failed=r is not result, travel=travel)
+            return replace(search, undetermined=_implausible_roll(search, config))
         if failed >= max_failed_pairs:
             break
     return None
+
+
+def travel_pitch_over(source: FrameSource, camera: CameraModel, max_frames: int,
+                      roll: float = 0.0) -> TravelPitch:
+    """The pitch against the direction of travel (``travel_direction``) over the first
+    ``max_frames`` readable frames of ``source``, with ``roll`` [rad]."""
+    from .pipeline import prepare_image
+
+    def images():
+        for n, frame in enumerate(source):
+            if n >= max_frames:
+                return
+            try:
+                image = None if frame.image is None else prepare_image(frame, camera)
+            except ValueError:
+                image = None
+            if image is not None:
+                yield frame.index, image
+
+    return pitch_from_travel(travels_over(images(), camera), roll)
+
+
+def _from_travel(
+    camera: CameraModel, height: float, config: EstimatorConfig, pairs: list[MovingPair],
+    travel: TravelPitch, source: FrameSource, max_frames: int,
+) -> NominalSearch:
+    """The nominal pose of a camera whose pitch the direction of travel gave: the roll of
+    the ground fit started from that pitch (level), the pitch again with that roll. Not
+    determined where the ground fit's pitch disagrees with the travel's by more than
+    ``GROUND_AGREE_DEG`` (vehicles or walls taken for the ground) or its roll is implausible
+    (``EstimatorConfig.max_roll_deg``)."""
+    from .estimator import STATUS_OK, TwoFrameEstimator
+    from .pipeline import config_with, estimate_pair
+
+    estimator = TwoFrameEstimator(camera, height, config_with(
+        config, initial_pitch_deg=round(travel.pitch_deg, 1)))
+    poses = [r.pose_curr for p in pairs
+             if (r := estimate_pair(estimator, p.before, p.image, None, p.interval_s)
+                 ).status == STATUS_OK and r.pose_curr is not None]
+    frames = pairs[0].frames
+    if not poses:  # the ground fit from the travel's pitch failed: the nominal roll stays
+        return NominalSearch(round(travel.pitch_deg, 1), config.initial_roll_deg,
+                             round(travel.pitch_deg, 1), config.initial_pitch_deg, frames, 0,
+                             travel=travel)
+    ground_pitch = math.degrees(float(np.median([p.pitch for p in poses])))
+    roll = math.degrees(float(np.median([p.roll for p in poses])))
+    search = NominalSearch(round(travel.pitch_deg, 1), round(roll, 1),
+                           round(travel.pitch_deg, 1), config.initial_pitch_deg, frames,
+                           len(poses), travel=travel)
+    undetermined = _implausible_roll(search, config)
+    if not undetermined and abs(ground_pitch - travel.pitch_deg) > GROUND_AGREE_DEG:
+        undetermined = (f"the ground fit's pitch {ground_pitch:.1f}° disagrees with the "
+                        f"direction of travel's {travel.pitch_deg:.1f}° (more than "
+                        f"{GROUND_AGREE_DEG:g}°: vehicles or walls taken for the ground?)")
+    if undetermined:
+        return replace(search, undetermined=undetermined)
+    with_roll = travel_pitch_over(source, camera, max_frames, math.radians(search.roll_deg)) \
+        if search.roll_deg else travel
+    return replace(search, pitch_deg=round(with_roll.pitch_deg, 1), travel=with_roll)
+
+
+def _implausible_roll(search: NominalSearch, config: EstimatorConfig) -> str:
+    """Why the search's roll is not a vehicle camera's ("" where it is plausible)."""
+    if abs(search.measured_roll_deg - config.initial_roll_deg) <= config.max_roll_deg:
+        return ""
+    return (f"the ground fit settled at roll {search.measured_roll_deg:.1f}° (pitch "
+            f"{search.pitch_deg:.1f}°), beyond the plausible ±{config.max_roll_deg:g}° of "
+            f"{config.initial_roll_deg:g}° (--max-roll; --roll for a camera mounted rolled)")
 
 
 def _best_start(

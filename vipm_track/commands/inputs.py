@@ -173,6 +173,9 @@ def with_searched_nominal(
     found = search_nominal_pose(source, camera, height, config)
     if found is None:
         return config
+    if not found.determined:
+        print(f"vipm-track: warning: {found.line()}", file=sys.stderr)
+        return config_with(config, nominal_undetermined=found.undetermined)
     if not getattr(args, "quiet", False):
         print(f"vipm-track: {found.line()}", file=sys.stderr)
     roll = found.roll_deg if getattr(args, "roll", None) is None else None
