@@ -28,7 +28,13 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from .errors import InputError
-from .travel_direction import AGREE_DEG, TravelPitch, pitch_from_travel, travels_over
+from .travel_direction import (
+    AGREE_DEG,
+    MAX_OFF_AXIS_DEG,
+    TravelPitch,
+    pitch_from_travel,
+    travels_over,
+)
 
 if TYPE_CHECKING:
     from .camera import CameraModel
@@ -40,6 +46,8 @@ CANDIDATE_PITCHES_DEG: tuple[float, ...] = (75.0, 40.0, 25.0, 12.0, 5.0, 1.0)
 #: a found roll within this of level is the road's camber over the first frames, not the
 #: camera's (KITTI 07 starts at 1.5°); the nominal roll stays 0 [deg]
 CAMBER_ROLL_DEG = 3.0
+#: a camera found below this pitch is forward-looking: its travel must be in view [deg]
+LEVEL_PITCH_DEG = 15.0
 #: the ground fit's pitch may differ from the direction of travel's by this [deg]
 GROUND_AGREE_DEG = 2.0
 #: a default cold start that converges more than this from the configured pitch moves the
@@ -163,7 +171,8 @@ def search_nominal_pose(
             search = NominalSearch(round(math.degrees(pitch), 1), round(math.degrees(roll), 1),
                                    start, config.initial_pitch_deg, frames, n,
                                    default_failed=r is not result, travel=travel)
-            return replace(search, undetermined=_implausible_roll(search, config))
+            return replace(search, undetermined=_implausible_roll(search, config)
+                           or _contradicts_travel(search, travel))
         if failed >= max_failed_pairs:
             break
     return None
@@ -226,6 +235,18 @@ def _from_travel(
     with_roll = travel_pitch_over(source, camera, max_frames, math.radians(search.roll_deg)) \
         if search.roll_deg else travel
     return replace(search, pitch_deg=round(with_roll.pitch_deg, 1), travel=with_roll)
+
+
+def _contradicts_travel(search: NominalSearch, travel: TravelPitch | None) -> str:
+    """Why a level camera found by the ground fit contradicts the direction of travel: a
+    forward-looking camera sees its focus of expansion, so travel measured far off its axis
+    means the fit found a second minimum ("" where nothing contradicts it)."""
+    if (travel is None or not search.pitch_deg < LEVEL_PITCH_DEG
+            or not travel.off_axis_deg > MAX_OFF_AXIS_DEG):
+        return ""
+    return (f"the ground fit found a forward-looking camera (pitch {search.pitch_deg:.1f}°, "
+            f"roll {search.measured_roll_deg:.1f}°) but the direction of travel lies "
+            f"{travel.off_axis_deg:.0f}° off its axis")
 
 
 def _implausible_roll(search: NominalSearch, config: EstimatorConfig) -> str:

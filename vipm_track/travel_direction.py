@@ -73,6 +73,8 @@ class TravelPitch:
     agreeing: int
     spread_deg: float
     reason: str = ""
+    off_axis_deg: float = math.nan  # median angle of all pairs' directions off the axis
+
 
     @property
     def determined(self) -> bool:
@@ -164,11 +166,14 @@ def pitch_from_travel(travels: list[PairTravel | None], roll: float = 0.0) -> Tr
     """The pitch [deg] the pairs' travel directions agree on (module doc), with ``roll``
     [rad]; not determined where fewer than ``MIN_PAIRS`` pairs gave a forward direction, or
     fewer than ``MIN_AGREEING_SHARE`` of them agree with their median."""
-    forward = [tr for tr in travels if tr is not None and math.degrees(
-        math.acos(min(1.0, tr.direction[2]))) <= MAX_OFF_AXIS_DEG]
+    known = [tr for tr in travels if tr is not None]
+    off_axis = [math.degrees(math.acos(min(1.0, tr.direction[2]))) for tr in known]
+    median_off = float(np.median(off_axis)) if off_axis else math.nan
+    forward = [tr for tr, off in zip(known, off_axis, strict=True) if off <= MAX_OFF_AXIS_DEG]
     if not forward:
         return TravelPitch(math.nan, 0, 0, math.nan,
-                           f"no pair of {len(travels)} gave a forward direction of travel")
+                           f"no pair of {len(travels)} gave a forward direction of travel",
+                           median_off)
     pitches = np.degrees([travel_pitch(tr.direction, roll) for tr in forward])
     median = float(np.median(pitches))
     agreeing = int(np.count_nonzero(np.abs(pitches - median) <= AGREE_DEG))
@@ -179,7 +184,7 @@ def pitch_from_travel(travels: list[PairTravel | None], roll: float = 0.0) -> Tr
     elif agreeing < MIN_AGREEING_SHARE * len(forward):
         reason = (f"the pairs' directions disagree: {agreeing} of {len(forward)} within "
                   f"{AGREE_DEG:g}° of their median pitch {median:.1f}°")
-    return TravelPitch(median, len(forward), agreeing, spread, reason)
+    return TravelPitch(median, len(forward), agreeing, spread, reason, median_off)
 
 
 def _grey_u8(image: NDArray) -> NDArray[np.uint8]:

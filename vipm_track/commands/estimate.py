@@ -72,6 +72,10 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
                        "(default: the estimator's, 60; give ~0-5 for forward cameras)")
     group.add_argument("--roll", type=float, default=None, metavar="DEG",
                        help="nominal roll for the cold start, degrees (default 0)")
+    group.add_argument("--max-roll", type=float, default=None, metavar="DEG",
+                       help="plausible roll of the camera about --roll (or level), degrees: "
+                       "pairs and nominal-pose searches that fit a roll beyond it are "
+                       "rejected (default 10)")
     group.add_argument("--pose-prior-deg", type=float, default=None, metavar="DEG",
                        help="standard deviation of a prior on pitch and roll around "
                        "--pitch/--roll inside the fit, degrees; resolves the pitch/travel "
@@ -202,6 +206,7 @@ def build_config(args: argparse.Namespace, camera: CameraModel):
         raise InputError(f"--patch-size must be a multiple of 16, >= 32, got {args.patch_size}")
     pitch = _angle(args.pitch, "--pitch", -10.0, 90.0)
     roll = _angle(args.roll, "--roll", -45.0, 45.0)
+    max_roll = _angle(getattr(args, "max_roll", None), "--max-roll", 0.1, 90.0)
     prior = getattr(args, "pose_prior_deg", None)
     if prior is not None and not (math.isfinite(prior) and 0 <= prior <= 45):
         raise InputError(f"--pose-prior-deg must be in [0, 45] degrees, got {prior}")
@@ -222,6 +227,7 @@ def build_config(args: argparse.Namespace, camera: CameraModel):
         patch_image=args.patch_size,
         initial_pitch_deg=pitch,
         initial_roll_deg=roll,
+        max_roll_deg=max_roll,
         roi=roi,
         vertical_motion=args.vertical_motion,
         pose_prior_deg=prior,
