@@ -18,7 +18,7 @@ radians (> 0 turned right). That is the planar motion W → G, so geometry's
 from __future__ import annotations
 
 import functools
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -101,6 +101,7 @@ def render_frame(
     frame_index: int = 0,
     exposure: Sequence[ExposureBand] | None = None,
     supersample: int = 2,
+    overlay: Callable[[NDArray[np.float32]], NDArray[np.float32]] | None = None,
 ) -> NDArray[np.uint8]:
     """Grey uint8 image (camera.height × camera.width) of the textured ground.
 
@@ -125,6 +126,9 @@ def render_frame(
         effect is on, else the whole image shows ``pose``.
     supersample : int
         Supersampling factor per axis (≥ 1).
+    overlay : callable, optional
+        Draws scene content over the ground (e.g. ``traffic.draw_traffic``): takes and
+        returns the ideal pinhole grey image (float32), before the photometric effects.
     """
     fx = effects or Effects()
     bands = list(exposure) if (fx.motion_blur > 0 or fx.rolling_shutter > 0) and exposure \
@@ -137,6 +141,8 @@ def render_frame(
             img[r0:r1] += _render_ground(texture, rows, h_img, sub_pose, supersample,
                                          fx.sky_level, (r0, camera.height))
         img[r0:r1] /= len(poses)
+    if overlay is not None:
+        img = overlay(img)
     if fx.obstacle:
         img = _draw_obstacle(img, fx.seed)
     if fx.highlights > 0:

@@ -6,7 +6,8 @@ of the frame's ground frame G and (derived from consecutive world poses with geo
 :func:`simulate_sequence` renders one (``render.render_frame``) and writes
 ``DIR/images/000000.png …``, ``DIR/camera.yaml`` (ROS camera_info), ``DIR/gt.csv`` and
 ``DIR/times.txt`` and ``DIR/speed.csv`` (a simulated wheel speed, :func:`wheel_speed_samples`:
-50 Hz, 0.5 % noise, 0.01 km/h resolution).
+50 Hz, 0.5 % noise, 0.01 km/h resolution); with ``traffic``, vehicles on the road
+(``traffic.py``) and ``DIR/traffic.csv``.
 
 Profiles follow the paper's experiments: ``static`` (constant pose), ``gradual`` (slow
 pitch/roll changes of a few degrees over seconds), ``shaking`` (1–3 Hz pitch/roll
@@ -23,10 +24,11 @@ trajectory's ``mount_*`` arrays hold the mount part and ``gt.csv`` has ``mount_*
 
 from __future__ import annotations
 
+import csv
 import errno
 import functools
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -48,6 +50,7 @@ from .geometry import (
 from .render import Effects, ExposureBand, ExposurePose, render_frame, world_pose_motion
 from .table import TableWriter
 from .texture import TEXTURES, GroundTexture, load_texture
+from .traffic import TRAFFIC_COLUMNS, Vehicle, draw_traffic, make_traffic, traffic_rows
 
 PROFILES: tuple[str, ...] = (
     "static", "gradual", "shaking", "height", "turn", "drift", "knock",
@@ -314,15 +317,22 @@ def preset_texture(
 def render_trajectory_frame(
     texture: GroundTexture, camera: CameraModel, traj: Trajectory, k: int,
     effects: Effects | None = None,
+    traffic: Sequence[Vehicle] | None = None,
 ) -> NDArray[np.uint8]:
     """Image of frame k of a trajectory (motion blur over the exposure centred on its time;
-    with a rolling shutter, each band of rows at its own time)."""
+    with a rolling shutter, each band of rows at its own time), with the ``traffic``
+    vehicles (``traffic.make_traffic``) drawn at frame k's time and pose."""
     exposure = None
     if effects is not None and (effects.motion_blur > 0 or effects.rolling_shutter > 0):
         exposure = exposure_bands(traj, k, effects, camera)
-    return render_frame(texture, camera, traj.pose(k), traj.world_xz[k],
-                        float(traj.world_heading[k]), effects, t=float(traj.t[k]),
-                        frame_index=k, exposure=exposure)
+    pose, xz, heading, t = traj.pose(k), traj.world_xz[k], float(traj.world_heading[k]), \
+        float(traj.t[k])
+    overlay = None
+    if traffic:
+        overlay = functools.partial(draw_traffic, vehicles=traffic, camera=camera, pose=pose,
+                                    world_xz=xz, world_heading=heading, t=t)
+    return render_frame(texture, camera, pose, xz, heading, effects, t=t, frame_index=k,
+                        exposure=exposure, overlay=overlay)
 
 
 def exposure_bands(
@@ -475,10 +485,14 @@ def simulate_sequence(
     speed: float | None = None,
     amplitude: float = 1.0,
     progress: bool = False,
+    traffic: str | None = None,
 ) -> Trajectory:
     """Render a sequence and write it to ``out_dir`` (see module doc); returns its truth.
 
     ``effects`` are used as given (their own ``seed`` fixes noise and highlight layout).
+    ``traffic``: a level of ``traffic.LEVELS`` to drive among vehicles (laid out from
+    ``seed`` along the world z axis at the nominal speed); their world positions per frame
+    go to ``traffic.csv``. The ground truth is unchanged.
     """
     p = PRESETS[preset] if isinstance(preset, str) else preset
     out = Path(out_dir)
@@ -490,6 +504,12 @@ def simulate_sequence(
     write_ros_yaml(camera, out / "camera.yaml", name=f"vipm_sim_{p.name}")
     (out / "times.txt").write_text("".join(f"{t:.6e}\n" for t in traj.t))
     write_wheel_speed_csv(traj, out / "speed.csv", seed=seed)
+    vehicles = None
+    (out / "traffic.csv").unlink(missing_ok=True)
+    if traffic:
+        vehicles = make_traffic(traffic, seed=seed, duration_s=float(traj.t[-1]),
+                                speed_mps=p.speed_mps if speed is None else speed)
+        _write_traffic_csv(out / "traffic.csv", vehicles, traj)
     iterator = range(frames)
     if progress:
         from tqdm import tqdm
@@ -497,9 +517,20 @@ def simulate_sequence(
         iterator = tqdm(iterator, desc=f"simulate {p.name}", unit="frame")
     with TableWriter(out / "gt.csv", GT_EXTRA_COLUMNS) as writer:
         for k, row in zip(iterator, gt_rows(traj), strict=True):
-            img = render_trajectory_frame(tex, camera, traj, k, effects)
+            img = render_trajectory_frame(tex, camera, traj, k, effects, vehicles)
             image_path = out / "images" / f"{k:06d}.png"
             if not cv2.imwrite(str(image_path), img):
                 raise OSError(errno.EIO, "OpenCV could not write the image", str(image_path))
             writer.write(row)
     return traj
+
+
+def _write_traffic_csv(path: Path, vehicles: Sequence[Vehicle], traj: Trajectory) -> None:
+    """Per frame, the vehicles near the camera (``traffic.traffic_rows``)."""
+    with path.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, TRAFFIC_COLUMNS, lineterminator="\n")
+        writer.writeheader()
+        for k in range(len(traj)):
+            for row in traffic_rows(vehicles, k, float(traj.t[k]), traj.world_xz[k]):
+                writer.writerow({c: f"{x:.6g}" if isinstance(x, float) else x
+                                 for c, x in row.items()})

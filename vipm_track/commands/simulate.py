@@ -9,6 +9,7 @@ from ..errors import InputError
 from ..render import Effects
 from ..sim import PRESETS, PROFILES, clear_earlier_run, simulate_sequence
 from ..texture import TEXTURES
+from ..traffic import LEVELS
 from .common import check_output_dir
 
 
@@ -34,6 +35,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--speed", type=float, default=None, help="speed [m/s] (default: preset)")
     p.add_argument("--amplitude", type=float, default=1.0,
                    help="scale of the profile's pose changes / turn rate (default 1)")
+    p.add_argument("--traffic", choices=LEVELS, nargs="?", const="mix", default=None,
+                   metavar="LEVEL", help="drive among box-shaped vehicles on a straight road "
+                   "along the start's heading: one ahead in our lane, others beside, oncoming "
+                   "and parked; LEVEL light, mix (if given alone) or dense (slow city traffic; "
+                   "pair with a low --speed); writes OUT/traffic.csv (vehicles' world "
+                   "positions per frame); gt.csv is unchanged")
     fx = p.add_argument_group("photometric effects")
     fx.add_argument("--noise", type=float, default=0.0, metavar="SIGMA",
                     help="Gaussian sensor noise, grey levels")
@@ -81,8 +88,9 @@ def run(args: argparse.Namespace) -> int:
     traj = simulate_sequence(
         args.preset, args.frames, args.out, seed=args.seed, profile=args.profile,
         effects=effects, texture=args.texture, fps=args.fps, speed=args.speed,
-        amplitude=args.amplitude, progress=True,
+        amplitude=args.amplitude, progress=True, traffic=args.traffic,
     )
     print(f"wrote {len(traj)} frames to {args.out} "
-          "(images/, camera.yaml, gt.csv, times.txt, speed.csv)", file=sys.stderr)
+          f"(images/, camera.yaml, gt.csv, times.txt, speed.csv"
+          f"{', traffic.csv' if args.traffic else ''})", file=sys.stderr)
     return 0
