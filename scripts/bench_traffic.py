@@ -44,10 +44,12 @@ WRONG_DEG = 1.5
 
 #: rendered scenes: name → (simulate options); each run with and without --pitch
 SCENES: dict[str, list[str]] = {
-    "dense city traffic, slow": ["--traffic", "dense", "--profile", "shaking", "--speed", "2.5"],
-    "light traffic, shaking": ["--traffic", "light", "--profile", "shaking"],
-    "light traffic, turn": ["--traffic", "light", "--profile", "turn"],
-    "dense traffic, gradual pose": ["--traffic", "dense", "--profile", "gradual", "--speed", "6"],
+    "dense city traffic, 3 m/s, gradual": ["--traffic", "dense", "--profile", "gradual",
+                                           "--speed", "3"],
+    "dense city traffic, 3 m/s, shaking": ["--traffic", "dense", "--profile", "shaking",
+                                           "--speed", "3"],
+    "mixed traffic, 12 m/s, shaking": ["--traffic", "mix", "--profile", "shaking"],
+    "light traffic, 12 m/s, turn": ["--traffic", "light", "--profile", "turn"],
 }
 
 
@@ -132,9 +134,16 @@ def mount_error(out_dir: Path, sequence: Path, est_csv: Path, height: float,
                   "--out", str(smoothed), "--quiet"])
     sm = read_table(smoothed)
     out = {}
+    index = {int(f): i for i, f in enumerate(truth["frame"])}
+    rows = np.array([i for i, f in enumerate(sm["frame"]) if int(f) in index
+                     and np.isfinite(sm["pitch_deg"][i])], int)
+    ti = np.array([index[int(sm["frame"][i])] for i in rows], int)
+    cos = np.clip(np.sum(_normal(sm["pitch_deg"][rows], sm["roll_deg"][rows])
+                         * _normal(truth["pitch_deg"][ti], truth["roll_deg"][ti]), axis=1), -1, 1)
+    out["smoothed_normal_err_mean_deg"] = float(np.degrees(np.mean(np.arccos(cos))))
     for angle in ("pitch", "roll"):
         col = f"mount_{angle}_deg"
-        if col in sm and f"mount_{angle}_deg" in truth:
+        if col in sm and np.all(np.isfinite(truth.get(col, [np.nan]))):
             out[f"mount_{angle}_err_deg"] = float(abs(np.nanmedian(sm[col])
                                                       - np.nanmedian(truth[col])))
     return out, cmd
@@ -149,6 +158,7 @@ COLUMNS = [
     ("pitch_change_z_rms", "z Δpitch", "{:.2f}"), ("roll_change_z_rms", "z Δroll", "{:.2f}"),
     ("dist_median_pct", "dist med %", "{:.2f}"), ("dist_p95_pct", "dist p95 %", "{:.1f}"),
     ("yaw_median_deg", "yaw med °", "{:.3f}"),
+    ("smoothed_normal_err_mean_deg", "smoothed normal err °", "{:.3f}"),
     ("mount_pitch_err_deg", "mount pitch °", "{:.3f}"),
     ("mount_roll_err_deg", "mount roll °", "{:.3f}"),
 ]
@@ -178,13 +188,13 @@ def main() -> int:
     commands: list[str] = []
     for scene, options in SCENES.items():
         for seed in range(args.seeds):
-            seq = args.out / f"{scene.split(',')[0].replace(' ', '_')}_{seed}"
+            slug = "".join(c if c.isalnum() else "_" for c in scene)
+            seq = args.out / f"{slug}_{seed}"
             cmd, _ = run(["simulate", "--preset", "car", "--frames", str(args.frames),
                           "--seed", str(seed), "--out", str(seq), *options])
             commands.append(cmd)
             truth = read_table(seq / "gt.csv")
-            height = float(truth["mount_height_m"][0]) if "mount_height_m" in truth \
-                else float(truth["height_m"][0])
+            height = float(np.nanmedian(truth["height_m"]))
             for label, extra in (("no --pitch", []), ("--pitch", ["--pitch", "3"])):
                 est_csv = args.out / f"{seq.name}_{'pitch' if extra else 'nopitch'}.csv"
                 cmd, _ = run(["estimate", "--images", str(seq / "images"), "--camera",

@@ -533,6 +533,34 @@ def block_jackknife_covariance(
     return (len(fits) - 1) / len(fits) * d.T @ d
 
 
+def heave_covariance(
+    model: DisplacementModel, x: FloatArray, idx: NDArray[np.intp], heave_std_m: float,
+) -> FloatArray:
+    """The covariance a 7-parameter fit at ``x`` on the points ``idx`` misses by leaving out
+    the camera's vertical motion within the pair (the 8th parameter), when that motion has
+    a standard deviation of ``heave_std_m`` [m]: the 7 parameters' covariance with the
+    heave marginalised under that prior, less the covariance with it held at zero. A level
+    camera's flow cannot tell a heave from a pitch change over a short travel, so a body
+    bouncing at slow speed moves the pitch by far more than the formal covariance says."""
+    n = len(x)
+    if heave_std_m <= 0 or n != N_PARAMS or idx.size < 2 * n:
+        return np.zeros((n, n))
+    x8 = np.append(x, 0.0)
+    res = model.residuals(x8, idx)
+    jac8 = model.jacobian(x8, idx)
+    dof = max(res.size - n, 1)
+    sigma2 = float(res @ res) / dof
+    info8 = jac8.T @ jac8 / sigma2
+    info8[n, n] += 1.0 / heave_std_m**2
+    try:
+        with_heave = np.linalg.inv(info8)[:n, :n]
+        without = np.linalg.inv(info8[:n, :n])
+    except np.linalg.LinAlgError:
+        return np.zeros((n, n))
+    extra = with_heave - without
+    return extra if np.all(np.isfinite(extra)) else np.zeros((n, n))
+
+
 def robust_fit(
     model: DisplacementModel,
     x0: FloatArray,

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 import cv2
@@ -28,7 +28,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import ipm, poc
-from .bundle import DisplacementModel, FitResult, SteadyPoseModel, pack, robust_fit, unpack
+from .bundle import (
+    DisplacementModel,
+    FitResult,
+    SteadyPoseModel,
+    heave_covariance,
+    pack,
+    robust_fit,
+    unpack,
+)
 from .camera import CameraModel
 from .errors import InputError
 from .geometry import (
@@ -166,6 +174,10 @@ class EstimatorConfig:
     jackknife_covariance : each fit's covariance is at least its block jackknife's
         (``bundle.block_jackknife_covariance``): the formal one takes the patches' errors as
         independent, which real frames are not.
+    heave_rate_mps : standard deviation of the body's vertical speed on its suspension
+        [m/s] (a car on an ordinary road: a few cm/s); without ``vertical_motion`` the
+        covariance includes what a heave of this speed over the pair's interval moves the
+        fit by (``bundle.heave_covariance``; 0: off).
     nominal_undetermined : why the nominal pose could not be found on the drive (empty: it
         was given or found); every pair then has status "no nominal pose" — without a
         nominal pose the cold start has nothing to rest on, and its estimates would be the
@@ -246,6 +258,7 @@ class EstimatorConfig:
     max_roll_deg: float = 10.0
     nominal_undetermined: str = ""
     jackknife_covariance: bool = True
+    heave_rate_mps: float = 0.05
     cold_start_ipm: bool = True
     cold_pitch_steps_deg: tuple[float, ...] | None = None
     readout_s: float = 0.0
@@ -471,6 +484,7 @@ class TwoFrameEstimator:
         self._cache: tuple[int, NDArray] | None = None
         self._noise: tuple[NDArray, float] | None = None  # the last prepared image's noise
         self._readout_frames = 0.0  # rolling shutter of the pair in hand (estimate())
+        self._heave_std_m = 0.0  # vertical motion the pair in hand may hide (estimate())
         self._previous_motion: FloatArray | None = None
         self._prior_mean, self._prior_sigma = self._pose_prior(None)
 
@@ -500,6 +514,8 @@ class TwoFrameEstimator:
             return PairResult(status=STATUS_NO_NOMINAL, reason=self.config.nominal_undetermined)
         t_start = time.perf_counter()
         self._readout_frames = self._shutter_readout_frames(frame_interval_s)
+        self._heave_std_m = self.config.heave_rate_mps * (
+            frame_interval_s if frame_interval_s and frame_interval_s > 0 else 0.1)
         # the interval before's motion (tracking), for the rolling shutter's acceleration
         self._previous_motion = None if guess is None else np.array(
             [guess.motion.tx, guess.motion.tz, guess.motion.yaw])
@@ -976,6 +992,9 @@ class TwoFrameEstimator:
             )
         fit = robust_fit(model, x0, usable, n_subsets, self.config.subset_fraction, inlier_px,
                          rng, median_factor, self.config.jackknife_covariance)
+        if not self.config.vertical_motion and np.all(np.isfinite(fit.covariance)):
+            fit = replace(fit, covariance=fit.covariance + heave_covariance(
+                model, fit.x, np.flatnonzero(fit.inliers), self._heave_std_m))
         result.timings["lm"] += time.perf_counter() - t0
         return fit
 

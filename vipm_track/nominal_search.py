@@ -220,16 +220,22 @@ def _from_travel(
         return NominalSearch(round(travel.pitch_deg, 1), config.initial_roll_deg,
                              round(travel.pitch_deg, 1), config.initial_pitch_deg, frames, 0,
                              travel=travel)
-    ground_pitch = math.degrees(float(np.median([p.pitch for p in poses])))
+    pitches = np.degrees([p.pitch for p in poses])
+    ground_pitch = float(np.median(pitches))
+    # the body pitches on its suspension from pair to pair: the median of a few pairs is
+    # only as sure as their scatter says (1.25 · 1.48 MAD / √n: its standard error)
+    ground_se = 1.86 * float(np.median(np.abs(pitches - ground_pitch))) / math.sqrt(len(poses))
     roll = math.degrees(float(np.median([p.roll for p in poses])))
     search = NominalSearch(round(travel.pitch_deg, 1), round(roll, 1),
                            round(travel.pitch_deg, 1), config.initial_pitch_deg, frames,
                            len(poses), travel=travel)
     undetermined = _implausible_roll(search, config)
-    if not undetermined and abs(ground_pitch - travel.pitch_deg) > GROUND_AGREE_DEG:
-        undetermined = (f"the ground fit's pitch {ground_pitch:.1f}° disagrees with the "
-                        f"direction of travel's {travel.pitch_deg:.1f}° (more than "
-                        f"{GROUND_AGREE_DEG:g}°: vehicles or walls taken for the ground?)")
+    tolerance = GROUND_AGREE_DEG + 3.0 * ground_se
+    if not undetermined and abs(ground_pitch - travel.pitch_deg) > tolerance:
+        undetermined = (f"the ground fit's pitch {ground_pitch:.1f}° (median of {len(poses)} "
+                        f"pairs) disagrees with the direction of travel's "
+                        f"{travel.pitch_deg:.1f}° (more than {tolerance:.1f}°: vehicles or "
+                        f"walls taken for the ground?)")
     if undetermined:
         return replace(search, undetermined=undetermined)
     with_roll = travel_pitch_over(source, camera, max_frames, math.radians(search.roll_deg)) \
