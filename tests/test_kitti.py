@@ -145,7 +145,7 @@ def test_smoothed_summary_interval_is_honest_on_the_real_drive():
 
 def test_monitor_on_the_real_drive_needs_the_road_model(tmp_path: Path):
     # KITTI's camera did not move, so any RECALIBRATE is a false alarm. The flat-ground
-    # monitor (the default) raises one within a second: the road's slow camber/slope
+    # monitor (the default) raises one within seconds: the road's slow camber/slope
     # excursions look like a moved camera to it. With the road-tilt model it stays quiet.
     nominal = tmp_path / "nominal.yaml"
     nominal.write_text("pitch_deg: 1.0\nroll_deg: 0.0\nheight_m: 1.65\n"
@@ -158,5 +158,5 @@ def test_monitor_on_the_real_drive_needs_the_road_model(tmp_path: Path):
         table = read_table(out)
         flagged = np.asarray(table["monitor_state"], dtype=object) == "RECALIBRATE"
         first[name] = float(np.asarray(table["t"])[flagged][0]) if flagged.any() else None
-    assert first["flat"] is not None and first["flat"] < 2.0
+    assert first["flat"] is not None and first["flat"] < 5.0
     assert first["road"] is None

@@ -538,27 +538,21 @@ def heave_covariance(
 ) -> FloatArray:
     """The covariance a 7-parameter fit at ``x`` on the points ``idx`` misses by leaving out
     the camera's vertical motion within the pair (the 8th parameter), when that motion has
-    a standard deviation of ``heave_std_m`` [m]: the 7 parameters' covariance with the
-    heave marginalised under that prior, less the covariance with it held at zero. A level
-    camera's flow cannot tell a heave from a pitch change over a short travel, so a body
-    bouncing at slow speed moves the pitch by far more than the formal covariance says."""
+    a standard deviation of ``heave_std_m`` [m]: a heave ``dh`` the fit does not model moves
+    its parameters by ``b · dh``, ``b = −(JᵀJ)⁻¹ Jᵀ j_h`` (the omitted parameter's bias), so
+    their covariance gains ``σ_h² b bᵀ``. Over a short travel a level camera's flow takes a
+    heave for a pitch change: a body bouncing at slow speed moves the pitch by far more than
+    the formal covariance says."""
     n = len(x)
     if heave_std_m <= 0 or n != N_PARAMS or idx.size < 2 * n:
         return np.zeros((n, n))
-    x8 = np.append(x, 0.0)
-    res = model.residuals(x8, idx)
-    jac8 = model.jacobian(x8, idx)
-    dof = max(res.size - n, 1)
-    sigma2 = float(res @ res) / dof
-    info8 = jac8.T @ jac8 / sigma2
-    info8[n, n] += 1.0 / heave_std_m**2
+    jac8 = model.jacobian(np.append(x, 0.0), idx)
+    jac, j_heave = jac8[:, :n], jac8[:, n]
     try:
-        with_heave = np.linalg.inv(info8)[:n, :n]
-        without = np.linalg.inv(info8[:n, :n])
+        b = -np.linalg.solve(jac.T @ jac, jac.T @ j_heave)
     except np.linalg.LinAlgError:
         return np.zeros((n, n))
-    extra = with_heave - without
-    return extra if np.all(np.isfinite(extra)) else np.zeros((n, n))
+    return heave_std_m**2 * np.outer(b, b) if np.all(np.isfinite(b)) else np.zeros((n, n))
 
 
 def robust_fit(
@@ -647,11 +641,11 @@ def robust_fit(
         _, _, jac, res, _ = fit_lm(model, xc, np.flatnonzero(inl), max_nfev=20)
         cov = covariance_from_jacobian(jac, res) if jac.shape[0] >= 2 * len(x0) else cov
     if jackknife and np.all(np.isfinite(cov)):
-        cov = _at_least(cov, block_jackknife_covariance(model, xc, np.flatnonzero(inl)))
+        cov = at_least(cov, block_jackknife_covariance(model, xc, np.flatnonzero(inl)))
     return FitResult(xc, inl, errors, cov, rms, converged, nfev)
 
 
-def _at_least(cov: FloatArray, other: FloatArray) -> FloatArray:
+def at_least(cov: FloatArray, other: FloatArray) -> FloatArray:
     """``cov`` with each parameter's standard deviation raised to ``other``'s where that is
     larger (correlations kept)."""
     if not np.all(np.isfinite(other)):

@@ -32,6 +32,8 @@ from .bundle import (
     DisplacementModel,
     FitResult,
     SteadyPoseModel,
+    at_least,
+    covariance_from_jacobian,
     heave_covariance,
     pack,
     robust_fit,
@@ -950,6 +952,17 @@ class TwoFrameEstimator:
             std[:2] = 1.0 / np.sqrt(w_n + w_t)
         return mean, std
 
+    def _untracked_prior(self, model: DisplacementModel) -> DisplacementModel | None:
+        """``model`` with its pose prior at the nominal pose's weight alone, where the prior
+        also holds the previous pair's estimate (tracking); None otherwise."""
+        if self._prior_mean is None or model.n_prior == 0:
+            return None
+        nominal = np.radians(self.config.pose_prior_deg or 0.0)
+        if np.allclose(self._prior_sigma, nominal):
+            return None
+        return replace(model, prior_scale=np.asarray(model.prior_scale)
+                       * self._prior_sigma / nominal)
+
     def _shutter_readout_frames(self, frame_interval_s: float | None) -> float:
         """The rolling shutter's readout in frame intervals of a pair ``frame_interval_s``
         seconds apart (``bundle.DisplacementModel``); 0 for a global shutter."""
@@ -992,9 +1005,19 @@ class TwoFrameEstimator:
             )
         fit = robust_fit(model, x0, usable, n_subsets, self.config.subset_fraction, inlier_px,
                          rng, median_factor, self.config.jackknife_covariance)
-        if not self.config.vertical_motion and np.all(np.isfinite(fit.covariance)):
+        if not np.all(np.isfinite(fit.covariance)):
+            return fit
+        inliers = np.flatnonzero(fit.inliers)
+        untracked = self._untracked_prior(model)
+        if untracked is not None and inliers.size >= len(fit.x):
+            # the previous pair's estimate of frame k-1 shares this pair's errors (the same
+            # image, the same road): it steadies the fit, but counted as independent evidence
+            # in the covariance it makes every tracked pair look surer than it is
+            fit = replace(fit, covariance=at_least(fit.covariance, covariance_from_jacobian(
+                untracked.jacobian(fit.x, inliers), untracked.residuals(fit.x, inliers))))
+        if not self.config.vertical_motion:
             fit = replace(fit, covariance=fit.covariance + heave_covariance(
-                model, fit.x, np.flatnonzero(fit.inliers), self._heave_std_m))
+                model, fit.x, inliers, self._heave_std_m))
         result.timings["lm"] += time.perf_counter() - t0
         return fit
 
