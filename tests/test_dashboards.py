@@ -15,7 +15,13 @@ from vipm_track import estimator
 from vipm_track.cli import main
 from vipm_track.errors import InputError
 from vipm_track.measurement import PairMeasurement
-from vipm_track.sim import GT_EXTRA_COLUMNS, PRESETS, gt_rows, make_trajectory
+from vipm_track.sim import (
+    GT_EXTRA_COLUMNS,
+    PRESETS,
+    gt_rows,
+    make_trajectory,
+    simulate_sequence,
+)
 from vipm_track.sinks.rerun_sink import (
     RerunSink,
     default_blueprint,
@@ -370,29 +376,11 @@ def test_track_cli_writes_recording(tmp_path: Path) -> None:
 # --- --rerun on the other subcommands --------------------------------------------------------
 
 
-def test_demo_and_estimate_cli_write_recordings(tmp_path: Path) -> None:
-    """``demo --rerun``: ground truth, per-frame series and camera/IPM views, one row per pair;
-    ``estimate --rerun`` on the demo's frames: every 2nd pair's image, all pairs' series."""
-    rrd = tmp_path / "demo.rrd"
-    assert main(["demo", "--out", str(tmp_path / "demo"), "--frames", "4", "--quiet",
-                 "--rerun", str(rrd)]) == 0
-    est = read_table(tmp_path / "demo" / "estimates.csv")
-    gt = read_table(tmp_path / "demo" / "sequence" / "gt.csv")
-    rows = recording_entities(rrd)
-    n_ok = int(np.sum(est["status"] == "ok"))
-    assert n_ok >= 2
-    assert rows["/series/pitch/truth"] == 4 and rows["/trajectory/truth"] == 3
-    assert rows["/series/pitch/per_frame"] == rows["/series/roll/per_frame_band"] == n_ok
-    assert rows["/camera/image"] == rows["/camera/patches"] == 3
-    assert rows["/ipm/prev/image"] == rows["/ipm/curr/image"] == n_ok
-    pitch = entity_rows(rrd, "/series/pitch/per_frame", "Scalars:scalars")
-    ok = np.flatnonzero(est["status"] == "ok")
-    np.testing.assert_allclose([pitch[int(est["frame"][i])][0] for i in ok],
-                               est["pitch_deg"][ok], rtol=1e-9)
-    truth = entity_rows(rrd, "/series/pitch/truth", "Scalars:scalars")
-    np.testing.assert_allclose([truth[k][0] for k in range(4)], gt["pitch_deg"])
-
-    seq = tmp_path / "demo" / "sequence"
+def test_estimate_cli_writes_a_recording(tmp_path: Path) -> None:
+    """``estimate --rerun`` on four rendered cart frames: every 2nd pair's image, all pairs'
+    series (the demo's recording: tests/test_demo.py)."""
+    seq = tmp_path / "sequence"
+    simulate_sequence("cart", 4, seq, seed=7, profile="shaking")
     rrd2 = tmp_path / "est.rrd"
     assert main(["estimate", "--images", str(seq / "images"), "--camera",
                  str(seq / "camera.yaml"), "--height", str(PRESETS["cart"].height_m),
