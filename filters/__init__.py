@@ -6,6 +6,7 @@
 - ``filters.ekf``: ``ExtrinsicsEKF`` (filterpy) and ``run_filter``.
 - ``filters.metrics``: accuracy and NEES / NIS consistency against a drive's truth.
 
-Submodules are imported on use (``from filters.ekf import ExtrinsicsEKF``) so importing
-``filters`` stays light.
+Shipped as ``vipm_track.filters`` (the folder stays at the repository root). Submodules are
+imported on use (``from vipm_track.filters.ekf import ExtrinsicsEKF``) so importing the
+package stays light.
 """

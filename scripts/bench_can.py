@@ -25,7 +25,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from filters.wheel_speed import (  # noqa: E402
+from vipm_track.filters.wheel_speed import (  # noqa: E402
     SpeedDecoder,
     align_to_frames,
     decode_can_log,

@@ -42,9 +42,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from filters.drive_sim import DriveConfig, DriveRun, simulate_drive  # noqa: E402
-from filters.ekf import EkfConfig, run_filter, speed_at  # noqa: E402
-from filters.metrics import (  # noqa: E402
+from vipm_track.filters.drive_sim import DriveConfig, DriveRun, simulate_drive  # noqa: E402
+from vipm_track.filters.ekf import EkfConfig, run_filter, speed_at  # noqa: E402
+from vipm_track.filters.metrics import (  # noqa: E402
     Consistency,
     Estimates,
     consistency,
@@ -52,7 +52,7 @@ from filters.metrics import (  # noqa: E402
     rms_after,
     score_run,
 )
-from filters.smoother import SmootherConfig, smooth  # noqa: E402
+from vipm_track.filters.smoother import SmootherConfig, smooth  # noqa: E402
 
 Method = Callable[[DriveRun, bool], Estimates]
 
@@ -82,7 +82,7 @@ def truth_model_states(run: DriveRun, use_speed: bool) -> np.ndarray:
     """(n, 16) true states of a drive in the ``filters.model`` layout (clone slots = the
     previous frame's). Without wheel speed the height is the nominal one (scale is
     unobservable, every method holds h at its prior, and so does the reference)."""
-    from filters import model as M
+    from vipm_track.filters import model as M
 
     tr = run.truth
     n = len(tr.t)
@@ -116,7 +116,7 @@ def clairvoyant(run: DriveRun, use_speed: bool, lags_s: tuple[float, ...] = (2.0
     the ``causal cov`` / ``batch cov`` (n, 16, 16). The prior is the EKF's (nominal height,
     3° mount angles, zero-mean body, ...); a 1 mm cross-track process noise per frame (the
     smoother's ``cross_track_std_m``) keeps the RTS gains defined."""
-    from filters import model as M
+    from vipm_track.filters import model as M
 
     nz = run.config.noise
     h0 = run.config.h0
@@ -215,7 +215,7 @@ _REFERENCE_CACHE: dict[tuple[int, bool], tuple[DriveRun, dict[str, np.ndarray]]]
 def reference_method(which: str) -> Method:
     """A method that returns the clairvoyant reference's ``which`` estimates (one KF + RTS
     pass per drive, shared by the three reference methods)."""
-    from filters import model as M
+    from vipm_track.filters import model as M
 
     idx = [M.MOUNT_PITCH, M.MOUNT_ROLL, M.MOUNT_HEIGHT, M.BODY_PITCH, M.BODY_ROLL]
 
@@ -287,7 +287,7 @@ def scenarios(duration_s: float, mount_rws: tuple[float, ...] = ()) -> list[Scen
     """The issue-7 scenarios (clean, wheel speed, outliers; car and cart), or with
     ``mount_rws`` the wheel-speed drives at each mount random-walk rate (°/√s; the sim draws
     the mount with it and every method, the reference included, is told it)."""
-    from filters.model import NoiseParams
+    from vipm_track.filters.model import NoiseParams
 
     out = []
     for preset, h0 in (("car", 1.5), ("cart", 0.7)):
@@ -617,8 +617,9 @@ def rendered_drive(case: RenderedCase, cache: Path) -> RenderedDrive:
     read truth, measurements and the sim's wheel speed back."""
     from types import SimpleNamespace
 
-    from filters.model import NoiseParams
-    from filters.wheel_speed import read_speed_csv
+    from vipm_track.filters.model import NoiseParams
+    from vipm_track.filters.wheel_speed import read_speed_csv
+
     from vipm_track.camera import load_camera
     from vipm_track.estimator import EstimatorConfig
     from vipm_track.measurement import read_measurements

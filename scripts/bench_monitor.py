@@ -51,9 +51,9 @@ from tqdm import tqdm
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from filters.drive_sim import DriveConfig, MountChange, simulate_drive  # noqa: E402
-from filters.model import NoiseParams  # noqa: E402
-from filters.monitor import (  # noqa: E402
+from vipm_track.filters.drive_sim import DriveConfig, MountChange, simulate_drive  # noqa: E402
+from vipm_track.filters.model import NoiseParams  # noqa: E402
+from vipm_track.filters.monitor import (  # noqa: E402
     INVALID,
     RECALIBRATE,
     MonitorConfig,
@@ -61,7 +61,7 @@ from filters.monitor import (  # noqa: E402
     NominalCalibration,
     long_run_variance,
 )
-from filters.monitor_inputs import input_arrays  # noqa: E402
+from vipm_track.filters.monitor_inputs import input_arrays  # noqa: E402
 
 FPS = 10.0
 NOMINAL = NominalCalibration(pitch_deg=3.0, roll_deg=0.0, height_m=1.5)

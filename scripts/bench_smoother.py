@@ -20,9 +20,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from filters.drive_sim import DriveConfig, simulate_drive  # noqa: E402
-from filters.ekf import EkfConfig, run_filter  # noqa: E402
-from filters.smoother import (  # noqa: E402
+from vipm_track.filters.drive_sim import DriveConfig, simulate_drive  # noqa: E402
+from vipm_track.filters.ekf import EkfConfig, run_filter  # noqa: E402
+from vipm_track.filters.smoother import (  # noqa: E402
     FixedLagSmoother,
     SmootherConfig,
     smooth_batch,

@@ -44,22 +44,23 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from filters.drive_sim import DriveConfig, simulate_drive  # noqa: E402
-from filters.ekf import EkfConfig, run_filter  # noqa: E402
-from filters.model import NoiseParams  # noqa: E402
-from filters.monitor import (  # noqa: E402
+from vipm_track.filters.drive_sim import DriveConfig, simulate_drive  # noqa: E402
+from vipm_track.filters.ekf import EkfConfig, run_filter  # noqa: E402
+from vipm_track.filters.model import NoiseParams  # noqa: E402
+from vipm_track.filters.monitor import (  # noqa: E402
     DriftMonitor,
     MonitorConfig,
     NominalCalibration,
     load_nominal,
 )
-from filters.monitor_inputs import (  # noqa: E402
+from vipm_track.filters.monitor_inputs import (  # noqa: E402
     frame_rate,
     inputs_from_measurements,
     monitor_measurements,
 )
-from filters.smoother import SmootherConfig, smooth  # noqa: E402
-from filters.wheel_speed import read_speed_csv  # noqa: E402
+from vipm_track.filters.smoother import SmootherConfig, smooth  # noqa: E402
+from vipm_track.filters.wheel_speed import read_speed_csv  # noqa: E402
+
 from vipm_track.camera import load_camera  # noqa: E402
 from vipm_track.estimator import EstimatorConfig  # noqa: E402
 from vipm_track.measurement import read_measurements  # noqa: E402

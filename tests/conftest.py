@@ -29,7 +29,8 @@ CAR_CAMERA_YAML = (
 def write_drive_inputs(run, folder: Path) -> tuple[Path, Path, Path]:
     """Write a drive_sim run as the files a user gives the CLI: ``est.csv`` (estimates table),
     ``speed.csv`` (t,speed_mps) and ``cam.yaml`` (:data:`CAR_CAMERA_YAML`) in ``folder``."""
-    from filters.wheel_speed import SpeedSeries, write_speed_csv
+    from vipm_track.filters.wheel_speed import SpeedSeries, write_speed_csv
+
     from vipm_track.measurement import measurement_row
     from vipm_track.table import ESTIMATE_COLUMNS, write_table
 
@@ -45,8 +46,7 @@ def stop_in_a_turn(seed: int = 0):
     stop (8–18 s) in the turn, then driving off straight (the last pairs before the stop
     still see ~1.4°/s); returns (run, first and last index of the stop)."""
     import numpy as np
-
-    from filters.drive_sim import DriveConfig, DriveProfile, simulate_drive
+    from vipm_track.filters.drive_sim import DriveConfig, DriveProfile, simulate_drive
 
     profile = DriveProfile(
         (0.0, 6.0, 8.0, 18.0, 20.0), (1.0, 1.0, 0.0, 0.0, 1.0), (0.25, 0.25, 0.25, 0.0, 0.0)

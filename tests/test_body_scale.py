@@ -9,9 +9,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import brentq
-
-from filters.body_scale import BodyScale, pair_change
-from filters.model import NoiseParams, body_transition
+from vipm_track.filters.body_scale import BodyScale, pair_change
+from vipm_track.filters.model import NoiseParams, body_transition
 
 Row = tuple[float, ...]  # t, level (2), level var (2), change (2), change var (2), dt
 

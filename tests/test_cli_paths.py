@@ -23,8 +23,8 @@ import cv2
 import numpy as np
 import pytest
 from conftest import shared_data, write_drive_inputs
+from vipm_track.filters.drive_sim import DriveConfig, simulate_drive
 
-from filters.drive_sim import DriveConfig, simulate_drive
 from vipm_track.cli import main
 from vipm_track.sim import PRESETS, simulate_sequence
 from vipm_track.table import read_table

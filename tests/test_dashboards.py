@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from vipm_track.filters import drive_sim
 
-from filters import drive_sim
 from vipm_track import estimator
 from vipm_track.cli import main
 from vipm_track.errors import InputError

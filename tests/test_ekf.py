@@ -9,11 +9,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from conftest import stop_in_a_turn
+from vipm_track.filters import model as M
+from vipm_track.filters.drive_sim import DriveConfig, MountChange, simulate_drive
+from vipm_track.filters.ekf import EkfConfig, ExtrinsicsEKF, run_filter
+from vipm_track.filters.metrics import consistency, from_filter_states, score_run
 
-from filters import model as M
-from filters.drive_sim import DriveConfig, MountChange, simulate_drive
-from filters.ekf import EkfConfig, ExtrinsicsEKF, run_filter
-from filters.metrics import consistency, from_filter_states, score_run
 from vipm_track.cli import main
 from vipm_track.measurement import PairMeasurement, measurement_row
 from vipm_track.table import ESTIMATE_COLUMNS, read_table, write_table
@@ -193,7 +193,7 @@ def test_hard_braking_and_pulling_away_keep_the_wheel_speed():
     # preset's speed random walk (0.1 m/s/√s), so a hard gate rejected the wheels while the
     # pairs, soft-gated, bent the height; once the state was lost, every later reading was
     # gated and the height froze ~26 % off (rendered stop-and-go)
-    from filters.drive_sim import DriveProfile
+    from vipm_track.filters.drive_sim import DriveProfile
 
     profile = DriveProfile((0.0, 8.0, 9.0, 12.0, 13.0), (1.2, 1.2, 0.0, 0.0, 1.2),
                            (0.0, 0.0, 0.0, 0.0, 0.0))

@@ -183,7 +183,7 @@ def _parquet_seed_cached() -> bytes:
 @FUZZ
 @given(st.data())
 def test_speed_csv(data):
-    from filters.wheel_speed import read_speed_csv
+    from vipm_track.filters.wheel_speed import read_speed_csv
 
     seed = ("t,speed_mps\n" + "".join(f"{0.02 * k:.6f},{5 + 0.01 * k:.5f}\n"
                                        for k in range(20))).encode()
@@ -200,8 +200,7 @@ _CAN: dict[str, object] = {}
 def _can(fmt: str) -> tuple[bytes, object]:
     """(a 400-frame log of the RAV4 drive in format ``fmt``, the loaded DBC)."""
     import can
-
-    from filters.can_decode import load_dbc
+    from vipm_track.filters.can_decode import load_dbc
 
     folder = shared_data("comma2k19_can")
     if "dbc" not in _CAN:
@@ -223,7 +222,7 @@ def _can(fmt: str) -> tuple[bytes, object]:
 @FUZZ
 @given(data=st.data())
 def test_can_logs(fmt, data):
-    from filters.wheel_speed import decode_can_log
+    from vipm_track.filters.wheel_speed import decode_can_log
 
     seed, dbc = _can(fmt)
     damaged = data.draw(mutations(seed))
@@ -244,7 +243,7 @@ def test_can_logs(fmt, data):
 @settings(max_examples=15, deadline=None, derandomize=True)
 @given(st.data())
 def test_dbc(data):
-    from filters.can_decode import load_dbc
+    from vipm_track.filters.can_decode import load_dbc
 
     seed = (shared_data("comma2k19_can") / "toyota_2017.dbc").read_bytes()
     _check(load_dbc, _tmp("car.dbc"), data.draw(mutations(seed)))
@@ -256,7 +255,7 @@ NOMINAL = (ROOT / "data" / "nominal_car.yaml").read_bytes()
 
 
 def _load_nominal(path: Path):
-    from filters.monitor import load_nominal
+    from vipm_track.filters.monitor import load_nominal
 
     return load_nominal(path)
 

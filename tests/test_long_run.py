@@ -6,8 +6,7 @@ import math
 
 import numpy as np
 from scipy.signal import lfilter
-
-from filters.long_run import batch_means
+from vipm_track.filters.long_run import batch_means
 
 
 def _ar1(rng: np.random.Generator, n: int, a: float, std: float) -> np.ndarray:

@@ -8,9 +8,8 @@ import math
 
 import numpy as np
 import pytest
-
-from filters.drive_sim import DriveConfig, MountChange, simulate_drive
-from filters.monitor import (
+from vipm_track.filters.drive_sim import DriveConfig, MountChange, simulate_drive
+from vipm_track.filters.monitor import (
     CALIBRATED,
     RECALIBRATE,
     DriftMonitor,
@@ -25,7 +24,12 @@ from filters.monitor import (
     write_events,
     write_nominal,
 )
-from filters.monitor_inputs import input_arrays, inputs_from_measurements, mount_from_state
+from vipm_track.filters.monitor_inputs import (
+    input_arrays,
+    inputs_from_measurements,
+    mount_from_state,
+)
+
 from vipm_track.errors import InputError
 
 NOMINAL = NominalCalibration(pitch_deg=3.0, roll_deg=0.0, height_m=1.5)
@@ -337,7 +341,7 @@ def test_batched_core_matches_streams():
     ])
     for i, r in enumerate(runs):
         _, out = monitor_run(r)
-        from filters.monitor import STATES
+        from vipm_track.filters.monitor import STATES
 
         assert [STATES[c] for c in codes[:, i]] == [o.state for o in out]
     assert (codes[:, 0] == CALIBRATED).any() and (codes[:, 2] == RECALIBRATE).any()
@@ -429,7 +433,7 @@ def test_cli_monitor_estimates_without_std_columns(cli_inputs, capsys):
 
 
 def test_height_needs_speed_without_gaps():
-    from filters.drive_sim import SpeedSamples
+    from vipm_track.filters.drive_sim import SpeedSamples
 
     run = drive(30.0, seed=22, stop_probability=0.0)
     keep = (run.speed.t < 10.0) | (run.speed.t > 12.0)  # a 2 s hole in the wheel speed

@@ -126,7 +126,7 @@ def _interrupt_after(monkeypatch, cls, method: str, calls: int, sig: bool = Fals
 
 def test_ctrl_c_during_fixed_lag_smoothing_writes_what_is_decided(tmp_path, capsys, est,
                                                                   monkeypatch):
-    from filters.fixed_lag import FixedLagSmoother
+    from vipm_track.filters.fixed_lag import FixedLagSmoother
 
     out = tmp_path / "s.csv"
     _interrupt_after(monkeypatch, FixedLagSmoother, "step", 60)
@@ -144,13 +144,13 @@ def test_ctrl_c_during_fixed_lag_smoothing_writes_what_is_decided(tmp_path, caps
 
 def test_sigterm_during_batch_smoothing_writes_the_measurements_with_a_status(
         tmp_path, capsys, est, monkeypatch):
-    import filters.smoother
+    import vipm_track.filters.smoother
 
     def stopped(*a, **k):
         os.kill(os.getpid(), signal.SIGTERM)
         raise AssertionError("SIGTERM did not interrupt")
 
-    monkeypatch.setattr(filters.smoother, "smooth_batch", stopped)  # the batch's solve
+    monkeypatch.setattr(vipm_track.filters.smoother, "smooth_batch", stopped)  # the batch's solve
     out = tmp_path / "s.csv"
     rc, _err = _run(capsys, "smooth", "--estimates", est, "--height", "1.65", "--out", out,
                    "--quiet")
@@ -163,7 +163,7 @@ def test_sigterm_during_batch_smoothing_writes_the_measurements_with_a_status(
 
 
 def test_fixed_lag_rows_are_on_disk_as_they_leave_the_window(tmp_path, capsys, est, monkeypatch):
-    from filters.fixed_lag import FixedLagSmoother
+    from vipm_track.filters.fixed_lag import FixedLagSmoother
 
     out = tmp_path / "s.csv"
     seen: list[int] = []
@@ -182,7 +182,7 @@ def test_fixed_lag_rows_are_on_disk_as_they_leave_the_window(tmp_path, capsys, e
 
 @pytest.mark.parametrize("sig", [False, True])
 def test_interrupted_monitor_keeps_complete_rows(tmp_path, capsys, est, nominal, monkeypatch, sig):
-    from filters.monitor import DriftMonitor
+    from vipm_track.filters.monitor import DriftMonitor
 
     out, events = tmp_path / "m.csv", tmp_path / "e.jsonl"
     _interrupt_after(monkeypatch, DriftMonitor, "update", 50, sig=sig)
@@ -199,10 +199,15 @@ def test_interrupted_monitor_keeps_complete_rows(tmp_path, capsys, est, nominal,
 def test_streamed_monitor_judges_as_the_whole_sequence_does(est, nominal):
     """The frame-by-frame monitor (``monitor_frames``, what the command streams) against
     the whole sequence filtered first (``run_filter``), its states read into the inputs."""
-    from filters.ekf import EkfConfig, run_filter
-    from filters.monitor import DriftMonitor, MonitorConfig, load_nominal
-    from filters.monitor_inputs import frame_rate, inputs_from_measurements, monitor_frames
-    from filters.wheel_speed import SpeedSeries
+    from vipm_track.filters.ekf import EkfConfig, run_filter
+    from vipm_track.filters.monitor import DriftMonitor, MonitorConfig, load_nominal
+    from vipm_track.filters.monitor_inputs import (
+        frame_rate,
+        inputs_from_measurements,
+        monitor_frames,
+    )
+    from vipm_track.filters.wheel_speed import SpeedSeries
+
     from vipm_track.commands.inputs import read_estimates
 
     def monitor_measurements(ms, nom, sp, cfg, ekf):
@@ -249,7 +254,7 @@ def asc_lines(can_data, tmp_path_factory) -> list[str]:
 
 
 def _decode(path: Path, can_data: Path):
-    from filters.wheel_speed import decode_can_log
+    from vipm_track.filters.wheel_speed import decode_can_log
 
     return decode_can_log(path, can_data / "toyota_2017.dbc")
 
@@ -470,9 +475,9 @@ def test_simulate_into_an_earlier_run_leaves_no_stale_images(tmp_path, capsys):
 
 def test_interrupted_can_speed_writes_the_samples_decoded_before_it(tmp_path, capsys, can_data,
                                                                     monkeypatch):
-    import filters.can_logs
+    import vipm_track.filters.can_logs
 
-    real = filters.can_logs.LogRecords.__iter__
+    real = vipm_track.filters.can_logs.LogRecords.__iter__
 
     def stopping(self):
         for k, msg in enumerate(real(self)):
@@ -480,7 +485,7 @@ def test_interrupted_can_speed_writes_the_samples_decoded_before_it(tmp_path, ca
                 raise KeyboardInterrupt
             yield msg
 
-    monkeypatch.setattr(filters.can_logs.LogRecords, "__iter__", stopping)
+    monkeypatch.setattr(vipm_track.filters.can_logs.LogRecords, "__iter__", stopping)
     out = tmp_path / "speed.csv"
     rc, err = _run(capsys, "can-speed", can_data / "rav4_drive.log", "--dbc",
                    can_data / "toyota_2017.dbc", "--out", out)

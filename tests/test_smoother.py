@@ -10,15 +10,14 @@ import gtsam
 import numpy as np
 import pytest
 from conftest import stop_in_a_turn
-
-from filters import factors as F
-from filters import model as M
-from filters import window_rows as W
-from filters.drive_sim import DriveConfig, DriveProfile, simulate_drive
-from filters.ekf import EkfConfig, run_filter
-from filters.fixed_lag import SolveError
-from filters.metrics import from_filter_states, rms_after
-from filters.smoother import (
+from vipm_track.filters import factors as F
+from vipm_track.filters import model as M
+from vipm_track.filters import window_rows as W
+from vipm_track.filters.drive_sim import DriveConfig, DriveProfile, simulate_drive
+from vipm_track.filters.ekf import EkfConfig, run_filter
+from vipm_track.filters.fixed_lag import SolveError
+from vipm_track.filters.metrics import from_filter_states, rms_after
+from vipm_track.filters.smoother import (
     FixedLagSmoother,
     SmootherConfig,
     block_marginals,
@@ -27,6 +26,7 @@ from filters.smoother import (
     speeds_at_frames,
     summarize_mount,
 )
+
 from vipm_track.cli import main
 from vipm_track.measurement import PairMeasurement, measurement_row
 from vipm_track.table import ESTIMATE_COLUMNS, read_table, write_table
@@ -231,7 +231,7 @@ def _state_covariance(joint, state: np.ndarray) -> np.ndarray:
 def test_block_marginals_equal_gtsams():
     run = _drive(2, duration=6.0)
     sp = speeds_at_frames(run.measurements, run.speed)
-    import filters.smoother as S
+    import vipm_track.filters.smoother as S
 
     captured = {}
     original = S._gauss_newton
@@ -910,7 +910,7 @@ def test_yaw_outliers_barely_bend_the_trajectory():
 def test_mount_rw_sweep_drives_walk_at_their_rate(bench_filters):
     """``bench_filters --mount-rw-sweep``: each scenario's sim draws the mount at the rate in
     its name, and the methods are told it (the drive config carries it)."""
-    from filters.drive_sim import DriveConfig, simulate_drive
+    from vipm_track.filters.drive_sim import DriveConfig, simulate_drive
 
     scs = bench_filters.scenarios(300.0, (0.002, 0.05))
     assert [s.name for s in scs] == [

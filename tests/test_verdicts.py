@@ -17,16 +17,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from filters import model as M
-from filters.ekf import EkfConfig, run_filter
-from filters.monitor import (
+from vipm_track.filters import model as M
+from vipm_track.filters.ekf import EkfConfig, run_filter
+from vipm_track.filters.monitor import (
     DriftMonitor,
     MonitorConfig,
     MonitorInput,
     NominalCalibration,
     write_nominal,
 )
+
 from vipm_track.cli import main
 from vipm_track.table import read_table
 
@@ -162,7 +162,7 @@ def test_drifting_reason_states_the_statistic_and_the_deviation():
 def test_a_negated_wheel_speed_is_reported_and_its_magnitude_used():
     """A speed source whose sign is the opposite of ours (the camera sees forward motion):
     the filter's result equals the one with the right sign, and the span is reported."""
-    from filters.drive_sim import DriveConfig, simulate_drive
+    from vipm_track.filters.drive_sim import DriveConfig, simulate_drive
 
     run = simulate_drive(DriveConfig.preset("car", duration_s=20.0), 4)
     cfg = EkfConfig(height_m=run.config.h0, noise=run.config.noise)

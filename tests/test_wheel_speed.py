@@ -10,9 +10,8 @@ import can
 import cantools
 import numpy as np
 import pytest
-
-from filters.can_decode import DbcError, MessageDecoder, parse_signal_specs, unit_factor
-from filters.wheel_speed import (
+from vipm_track.filters.can_decode import DbcError, MessageDecoder, parse_signal_specs, unit_factor
+from vipm_track.filters.wheel_speed import (
     SpeedDecoder,
     SpeedSeries,
     align_to_frames,
@@ -23,6 +22,7 @@ from filters.wheel_speed import (
     speed_from_args,
     write_speed_csv,
 )
+
 from tests.conftest import shared_data
 from vipm_track.cli import main
 from vipm_track.commands.common import add_speed_options
@@ -237,8 +237,8 @@ def test_virtual_bus_speed_streams_into_the_ekf_and_makes_height_observable(dbc)
     virtual bus; each camera frame steps the EKF with its pair measurement and the latest
     speed decoded off the bus. The true height is 2 % above the nominal one: the metric speed
     pulls the filter to it, while without speed the height stays at the nominal."""
-    from filters.drive_sim import DriveConfig, simulate_drive
-    from filters.ekf import EkfConfig, ExtrinsicsEKF
+    from vipm_track.filters.drive_sim import DriveConfig, simulate_drive
+    from vipm_track.filters.ekf import EkfConfig, ExtrinsicsEKF
 
     cfg = DriveConfig.preset("car", duration_s=20.0, height_m=1.53, height_assumed_m=1.5)
     run = simulate_drive(cfg, seed=2)

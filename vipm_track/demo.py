@@ -35,18 +35,18 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from filters.ekf import EkfConfig, speed_at
-from filters.monitor import NominalCalibration, load_nominal, write_events
-from filters.monitor_inputs import inputs_from_measurements, monitor_frames
-from filters.smoother import (
+from vipm_track.filters.ekf import EkfConfig, speed_at
+from vipm_track.filters.monitor import NominalCalibration, load_nominal, write_events
+from vipm_track.filters.monitor_inputs import inputs_from_measurements, monitor_frames
+from vipm_track.filters.smoother import (
     SmootherConfig,
     mount_jumps,
     smooth,
     speeds_at_frames,
     summarize_mount,
 )
-from filters.track import TRACK_COLUMNS, track_row, write_track
-from filters.wheel_speed import read_speed_csv
+from vipm_track.filters.track import TRACK_COLUMNS, track_row, write_track
+from vipm_track.filters.wheel_speed import read_speed_csv
 
 from .camera import load_camera
 from .commands.monitor import MONITOR_COLUMNS, monitor_row

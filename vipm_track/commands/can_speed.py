@@ -48,7 +48,7 @@ def _read_times(path: str) -> np.ndarray:
 
 
 def run(args: argparse.Namespace) -> int:
-    from filters.wheel_speed import (
+    from vipm_track.filters.wheel_speed import (
         SpeedSeries,
         align_to_frames,
         decode_bus,

@@ -19,8 +19,8 @@ from ..errors import InputError, NothingUsable
 from ..measurement import PairMeasurement, in_sequence, read_measurements
 
 if TYPE_CHECKING:
-    from filters.clock_offset import ClockOffsetFit
-    from filters.wheel_speed import SpeedSeries
+    from vipm_track.filters.clock_offset import ClockOffsetFit
+    from vipm_track.filters.wheel_speed import SpeedSeries
 
     from ..estimator import EstimatorConfig
     from ..sources import FrameSource
@@ -29,7 +29,7 @@ if TYPE_CHECKING:
 def load_speed(args: argparse.Namespace) -> SpeedSeries | None:
     """Wheel speed [t on the camera clock in s, m/s] from ``--speed-csv`` or ``--can``
     (``filters.wheel_speed.speed_from_args``); None when neither is given."""
-    from filters.wheel_speed import speed_from_args
+    from vipm_track.filters.wheel_speed import speed_from_args
 
     try:
         quiet = getattr(args, "quiet", False)
@@ -55,7 +55,7 @@ def speed_on_camera_clock(
         check_speed_overlap(speed, [m.t for m in measurements], strict=True)
         warn_speed_sign(speed, measurements)
         return speed, None
-    from filters.clock_offset import estimate_clock_offset
+    from vipm_track.filters.clock_offset import estimate_clock_offset
 
     fit = estimate_clock_offset(measurements, speed)
     if not getattr(args, "quiet", False):
@@ -71,7 +71,7 @@ def speed_on_camera_clock(
 def warn_speed_sign(speed: SpeedSeries, measurements: list[PairMeasurement]) -> None:
     """Warn (stderr) of each span of 2 s or more where the wheel speed says the vehicle
     reverses while the images move forward: the filters then use the speed's magnitude."""
-    from filters.model import speed_sign_conflicts
+    from vipm_track.filters.model import speed_sign_conflicts
 
     t = np.array([m.t for m in measurements], dtype=float)
     z = np.array([m.z if m.ok else np.full(7, np.nan) for m in measurements],

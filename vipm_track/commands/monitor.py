@@ -80,9 +80,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from filters.ekf import EkfConfig
-    from filters.monitor import MonitorConfig, load_nominal
-    from filters.monitor_inputs import frame_rate, monitor_frames
+    from vipm_track.filters.ekf import EkfConfig
+    from vipm_track.filters.monitor import MonitorConfig, load_nominal
+    from vipm_track.filters.monitor_inputs import frame_rate, monitor_frames
 
     out = check_output(args.out, args.parquet)
     if args.events:

@@ -13,8 +13,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from filters.factors import LOSSES
-from filters.smoother import SmootherConfig
+from vipm_track.filters.factors import LOSSES
+from vipm_track.filters.smoother import SmootherConfig
 
 from ..errors import InputError
 from .common import (
@@ -137,7 +137,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def build_config(args: argparse.Namespace):
     """``SmootherConfig`` of the command-line options (InputError on a bad value)."""
-    from filters.model import NoiseParams
+    from vipm_track.filters.model import NoiseParams
 
     height = check_height(args.height)
     if not (math.isfinite(args.lag) and args.lag >= 0):
@@ -175,8 +175,8 @@ def build_config(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from filters.smoother import summarize_mount, summary_markdown
-    from filters.track import TRACK_COLUMNS
+    from vipm_track.filters.smoother import summarize_mount, summary_markdown
+    from vipm_track.filters.track import TRACK_COLUMNS
 
     from ..table import TableWriter
 
@@ -241,7 +241,7 @@ def run(args: argparse.Namespace) -> int:
 def _smoothed_rows(measurements, speed, config, progress: bool):
     """(smoothed frame, its track-table row) of every frame, each as soon as it is final:
     the fixed-lag smoother's frames as they leave the window, the batch's when it is done."""
-    from filters.smoother import smoothed_frames, speeds_at_frames
+    from vipm_track.filters.smoother import smoothed_frames, speeds_at_frames
 
     speeds = speeds_at_frames(measurements, speed)
     by_frame = {m.frame: (m, v) for m, v in zip(measurements, speeds, strict=True)}
@@ -251,7 +251,7 @@ def _smoothed_rows(measurements, speed, config, progress: bool):
 
 
 def _row(f, m, v: float) -> dict:
-    from filters.track import track_row
+    from vipm_track.filters.track import track_row
 
     row = track_row(f, m, float(v) if np.isfinite(v) else None)
     if not f.initialised:
@@ -266,7 +266,7 @@ NOT_SMOOTHED = "interrupted: not smoothed"
 def _write_interrupted(writer, measurements, frames: list, rows: list[dict]) -> str:
     """After an interrupt: one row per frame not yet written, holding its measurement with
     :data:`NOT_SMOOTHED`; the summary's status line."""
-    from filters.track import track_row
+    from vipm_track.filters.track import track_row
 
     done = len(rows)
     idle = SimpleNamespace(initialised=False, status="interrupted", nis=float("nan"), gated="",

@@ -53,9 +53,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from filters.ekf import EkfConfig
-    from filters.model import NoiseParams
-    from filters.track import track, write_track
+    from vipm_track.filters.ekf import EkfConfig
+    from vipm_track.filters.model import NoiseParams
+    from vipm_track.filters.track import track, write_track
 
     out = check_output(args.out, args.parquet)
     check_rerun_output(args)

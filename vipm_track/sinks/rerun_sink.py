@@ -638,7 +638,7 @@ def log_track_steps(sink: RerunSink | None, steps: Any) -> Any:
     the sink is finished when the steps end. ``sink`` None: ``steps`` unchanged."""
     if sink is None:
         return steps
-    from filters.track import track_row
+    from vipm_track.filters.track import track_row
 
     def logged() -> Any:
         try:
@@ -681,7 +681,7 @@ def log_monitor_run(sink: RerunSink | None, measurements: Sequence[Any], states:
     ``sink`` None: nothing. The sink is finished afterwards."""
     if sink is None:
         return
-    from filters.track import track_row
+    from vipm_track.filters.track import track_row
 
     try:
         rows = [track_row(s, m, None) for m, s in zip(measurements, states, strict=True)
