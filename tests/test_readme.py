@@ -1,27 +1,122 @@
-"""The README's results tables are exactly what the benchmarks last wrote."""
+"""The README and docs/ say what is true: short README, links that resolve inside the repository,
+results tables that are what the benchmarks last wrote, status numbers that quote them, and
+set-up and tour commands that exist."""
 
 from __future__ import annotations
 
+import importlib
 import importlib.util
+import re
+import shlex
+import tomllib
 
+import pytest
 from conftest import ROOT
 
+README = ROOT / "README.md"
+DOCS = ROOT / "docs"
+RESULTS = ROOT / "scripts" / "results"
+LINK = re.compile(r"\[[^\]]*\]\(([^)\s]+)\)")
 
-def test_readme_results_tables_match_scripts_results():
-    spec = importlib.util.spec_from_file_location(
-        "update_readme", ROOT / "scripts" / "update_readme.py"
-    )
+
+def _load_update_docs():
+    path = ROOT / "scripts" / "update_docs.py"
+    spec = importlib.util.spec_from_file_location("update_docs", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    readme = (ROOT / "README.md").read_text()
-    assert module.update(readme) == readme, "run: python scripts/update_readme.py"
-    assert readme.count("<!-- results:") >= 8
+    return module
 
 
-# --- numbers in the status prose -------------------------------------------------------------
+def test_readme_is_short():
+    lines = README.read_text().splitlines()
+    assert len(lines) <= 200, f"README.md has {len(lines)} lines; move detail into docs/"
 
-RESULTS = ROOT / "scripts" / "results"
 
+@pytest.mark.parametrize("page", [README, *sorted(DOCS.glob("*.md"))], ids=lambda p: p.name)
+def test_links_resolve_inside_the_repository(page):
+    root = ROOT.resolve()
+    bad = []
+    for target in LINK.findall(page.read_text()):
+        if re.match(r"[a-z]+:", target) or target.startswith("#"):
+            continue  # a web address or an anchor on the same page
+        path = (page.parent / target.split("#")[0]).resolve()
+        if not path.is_relative_to(root):
+            bad.append(f"{target} (outside the repository)")
+        elif not path.exists():
+            bad.append(f"{target} (no such file)")
+    assert not bad, f"{page.relative_to(ROOT)}: {bad}"
+
+
+def test_docs_results_are_what_the_benchmarks_last_wrote():
+    module = _load_update_docs()
+    page = (DOCS / "results.md").read_text()
+    assert module.update(page) == page, "run: python scripts/update_docs.py"
+    assert page.count("<!-- results:") >= 20
+    assert "<!-- results:index -->" in page
+
+
+def test_conventions_copy_agrees_with_the_shared_one():
+    shared = ROOT.parent / "shared" / "CONVENTIONS.md"
+    if not shared.is_file():
+        pytest.skip(f"{shared} not present")
+    ours = (DOCS / "conventions.md").read_text().splitlines()
+    missing = [line for line in shared.read_text().splitlines()[1:] if line and line not in ours]
+    assert not missing, f"docs/conventions.md differs from {shared}: {missing[:3]}"
+
+
+# --- the set-up and tour commands -------------------------------------------------------------
+
+def _commands(text: str) -> list[str]:
+    """The commands of the indented code blocks, continuation lines joined, comments dropped."""
+    out, current = [], ""
+    for line in text.splitlines():
+        if not line.startswith("    "):
+            current = ""
+            continue
+        part = line.strip().split("  #")[0]
+        if part.startswith("#"):
+            continue
+        current += part.removesuffix("\\").strip() + " "
+        if not part.endswith("\\"):
+            out.append(current.strip())
+            current = ""
+    return out
+
+
+def test_readme_set_up_commands_are_what_ci_runs():
+    readme = _commands(README.read_text())
+    assert "pip install . && vipm-track demo --out out/demo" in readme
+    ci = (ROOT / ".ci" / "run").read_text().strip().splitlines()[-1].strip()
+    assert ci == 'pip install ".[test]" && python -m pytest', f".ci/run runs {ci!r}"
+    assert ci in readme, "the README's test command is not the one .ci/run runs"
+
+
+def _parser():
+    script = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
+    module = importlib.import_module(script["vipm-track"].split(":")[0])
+    return module.build_parser()
+
+
+def test_documented_vipm_track_commands_parse():
+    parser = _parser()
+    pages = [README, DOCS / "usage.md", DOCS / "demo.md"]
+    lines = [c for p in pages for c in _commands(p.read_text())]
+    calls = [seg.strip() for c in lines for seg in c.split("&&")
+             if seg.strip().startswith("vipm-track ")]
+    assert len(calls) >= 20
+    for call in calls:
+        try:
+            parser.parse_args(shlex.split(call)[1:])
+        except SystemExit:
+            pytest.fail(f"documented command does not parse: {call}")
+
+
+def test_readme_tour_has_the_five_steps():
+    calls = [c.split()[1] for c in _commands(README.read_text()) if c.startswith("vipm-track ")]
+    assert calls == ["simulate", "estimate", "smooth", "monitor", "report"]
+
+
+# --- numbers in the status table ----------------------------------------------------------------
 
 def _rows(path) -> list[list[str]]:
     """Cells of every Markdown table row of a results file."""
@@ -31,58 +126,126 @@ def _rows(path) -> list[list[str]]:
 
 
 def _status(part: str) -> str:
-    readme = (ROOT / "README.md").read_text()
-    return next(line for line in readme.splitlines() if line.startswith(f"| {part} |"))
+    """The README status row of a part: 'metric | target | now'."""
+    row = next((line for line in README.read_text().splitlines()
+                if line.startswith(f"| {part} |")), None)
+    assert row is not None, f"no status row for {part!r}"
+    return row
 
 
-def _pct(cell: str) -> float:
-    return float(cell.replace("%", "").replace("°", "").strip())
+def _num(cell: str) -> float:
+    return float(re.sub(r"[^0-9.+-]", "", cell.split("(")[0].split("/")[0].split()[0]))
+
+
+def _range(values, fmt: str) -> str:
+    lo, hi = min(values), max(values)
+    return f"{lo:{fmt}}" if f"{lo:{fmt}}" == f"{hi:{fmt}}" else f"{lo:{fmt}}–{hi:{fmt}}"
+
+
+def test_status_rows_are_short():
+    table = [line for line in README.read_text().splitlines() if line.startswith("| ")]
+    assert len(table) >= 15
+    assert max(len(line) for line in table) <= 160
+
+
+def test_front_end_status_quotes_the_results_files():
+    poc = next(r for r in _rows(RESULTS / "bench_poc.md") if r[1] == "vipm_track.poc (batch)")
+    assert f"| {float(poc[2]):.3f} px; {float(poc[5]):.2f} ms |" in _status("POC")
+    acc = {(r[0], r[1]): r for r in _rows(RESULTS / "bench_accuracy.md")}
+    static = [acc["Static", q][3].split()[0] for q in ("Pitch [deg]", "Roll [deg]", "Dist. [mm]")]
+    assert f"| {static[0]}° / {static[1]}° / {static[2]} mm |" in _status("two-frame estimator")
+    weak = "Weak texture (corridor + highlights)"
+    pitch, roll = (acc[weak, q][3].split()[0] for q in ("Pitch [deg]", "Roll [deg]"))
+    assert f"| {pitch}° / {roll}° |" in _status("weak texture")
+    rows = [r for r in _rows(RESULTS / "bench_camera_pitch.md") if r[0] in ("car", "cart")]
+    ok = sum(int(r[3].split("/")[0]) for r in rows)
+    total = sum(int(r[3].split("/")[1]) for r in rows)
+    worst = max(float(r[4]) for r in rows)
+    assert f"| {ok}/{total}, pitch within {worst:.3f}° |" in _status("camera pitch")
+    rows = [r for r in _rows(RESULTS / "bench_motion_range.md") if r[0] in ("car", "cart")]
+    most = {p: max(float(r[4]) for r in rows if r[0] == p
+                   and r[6].split("/")[0] == r[6].split("/")[1]) for p in ("cart", "car")}
+    assert f"| cart {most['cart']:.2f} m, car {most['car']:.2f} m |" in _status("motion per frame")
+    rows = [r for r in _rows(RESULTS / "bench_rolling_shutter.md")
+            if r[0] in ("car", "cart") and float(r[3]) > 0]
+    pitch = max(float(r[9].split("/")[1]) for r in rows)
+    dist = max(float(r[10].split("/")[1]) for r in rows)
+    assert f"| ≤ {pitch:.3f}° / ≤ {dist:.2f} % |" in _status("rolling shutter")
+    par = {(r[0], r[1]): r for r in _rows(RESULTS / "bench_parallel.md")}
+    two = [par[p, "chunks of 60, 2 processes"][4] for p in ("cart", "car")]
+    assert f"| {two[0]} cart, {two[1]} car |" in _status("long recordings")
 
 
 def test_kitti_status_quotes_the_results_files():
     rows = _rows(RESULTS / "kitti.md")
     row = _status("KITTI 07")
     ok = next(r for r in rows if r[0] == "frames with status ok")[1]  # "154/159 (96.9 %)"
-    assert f"{ok.split()[0]} pairs ok ({ok.split('(')[1]}" in row
     yaw = next(r for r in rows if r[0] == "yaw-change error, median")[1]
-    assert f"{yaw} median yaw error" in row
-    n, mean, sd, lo, hi = next(r for r in rows if r[0].startswith("seeds × heights"))[1:6]
-    assert f"**{mean} mean, sd {sd}, over {n} draws**" in row
-    assert f"range {_pct(lo):.2f}–{_pct(hi):.2f} %" in row
-    seeds = [r for r in rows if r[0].isdigit()]
-    assert f"seed 0 (the CLI's default run) {seeds[0][2]}" in row
-    p95 = [_pct(r[4]) for r in seeds]
-    assert f"p95 {min(p95):.2f}–{max(p95):.2f} % over seeds 0–{len(seeds) - 1}" in row
-    # the filters' rows of kitti_filters.md
+    n, mean, _sd, lo, hi = next(r for r in rows if r[0].startswith("seeds × heights"))[1:6]
+    share = ok.split("(")[1].rstrip(")")
+    assert f"| {share}; {mean} ({n} draws, {_num(lo):.2f}–{hi}); {yaw} |" in row
     filters = {r[0].split(" (")[0]: r for r in _rows(RESULTS / "kitti_filters.md")}
-    ekf, fixed, batch = filters["EKF"], filters["fixed-lag 2 s"], filters["batch"]
-    assert f"EKF {ekf[2]}, p95 {ekf[4]}" in row
-    med = sorted(_pct(r[2]) for r in (fixed, batch))
-    p95s = sorted(_pct(r[4]) for r in (fixed, batch))
-    assert f"{med[0]:.2f}–{med[1]:.2f} % median, p95 {p95s[0]:.2f}–{p95s[1]:.2f} %" in row
-    pairs = filters["pairs"]
-    assert f"(pairs {pairs[2]}, p95 {pairs[4]})" in row
-    fl_mgp = filters["fixed-lag 2 s, motion given pose"]
-    b_mgp = filters["batch, motion given pose"]
-    assert f"{fl_mgp[2]} (fixed-lag 2 s) / {b_mgp[2]} (batch)" in row
-    assert f"p95 {_pct(fl_mgp[4]):.2f} / {_pct(b_mgp[4]):.2f} %" in row
+    batch, pairs = filters["batch"], filters["pairs"]
+    assert (f"| {batch[2]} / {batch[4]} (pairs {pairs[2]} / {pairs[4]}) |"
+            in _status("KITTI 07 smoothed"))
 
 
-def test_poc_and_monitor_status_quote_the_results_files():
-    poc = next(r for r in _rows(RESULTS / "bench_poc.md") if r[1] == "vipm_track.poc (batch)")
-    row = _status("POC")
-    assert f"{float(poc[2]):.3f} px RMSE" in row and f"{float(poc[5]):.2f} ms per 128²" in row
+def test_filter_status_quotes_the_results_files():
+    rows = _rows(RESULTS / "bench_filters.md")
+    ekf = [r for r in rows if len(r) == 13 and r[1] == "ekf"]
+    angles = [float(r[c]) for r in ekf for c in (2, 3)]
+    heights = [float(r[6]) for r in ekf if "speed" in r[0]]
+    assert f"| {_range(angles, '.3f')}°; {_range(heights, '.2f')} % |" in _status("EKF")
+    ratios = [r for r in rows if len(r) == 11 and r[0] != "scenario"]
+
+    def ratio(method):
+        return _range([_num(r[c]) for r in ratios if r[1] == method for c in (6, 7)], ".2f")
+
+    assert f"| {ratio('batch')} / {ratio('fixed-lag 2 s')} |" in _status("smoother")
+    speed = {r[0]: r[3] for r in _rows(RESULTS / "bench_smoother.md")}
+    assert f"| {speed['batch']} / {speed['fixed-lag 2 s']} |" in _status("smoother speed")
+
+
+def test_monitor_status_quotes_the_results_files():
     rows = _rows(RESULTS / "bench_monitor.md")
     steps = [r for r in rows if r[0] == "shaking 0.2°" and r[1] in ("pitch step 0.5°",
                                                                       "roll step 0.5°")]
     medians = {r[2] for r in steps}
-    p95 = sorted(float(r[3]) for r in steps)
-    row = _status("monitor")
-    assert len(medians) == 1 and f"0.5° step flagged in {medians.pop()} s median" in row
-    assert f"/ {p95[0]}–{p95[-1]} s p95" in row
+    p95 = [float(r[3]) for r in steps]
     clean = [r for r in rows if len(r) == 7 and r[1] in ("clean", "10 % outliers")]
-    rates = sorted(float(r[4]) for r in clean)
-    assert f"{rates[0]:.2f}–{rates[-1]:.2f} false alarms per hour" in row
-    road = next(r for r in rows if r[:2] == ["road tilt", "road model 0.5° / 2 s"]
-                and len(r) == 6)
-    assert f"raised {road[3]} false alarm in {road[2]} h" in row
+    rates = [float(r[4]) for r in clean]
+    assert len(medians) == 1
+    assert (f"| {medians.pop()} s / {_range(p95, '.1f')} s; {_range(rates, '.2f')} per h |"
+            in _status("monitor"))
+    kitti = _rows(RESULTS / "kitti_monitor.md")
+    flat = next(r for r in kitti if r[0].startswith("1.0°") and r[1] == "flat (default)")
+    road = [r for r in kitti if r[1] == "road 0.5° / 2 s"]
+    assert road and all(set(r[2].split(", ")) == {"never"} for r in road)
+    assert f"| never flagged (flat default: {flat[2].split(',')[0]} s) |" in _status(
+        "monitor on roads")
+    verdicts = _rows(RESULTS / "bench_verdicts.md")
+    knock = [float(x) for r in verdicts if len(r) == 14 and r[0].startswith(("cart knock",
+                                                                              "car knock"))
+             for x in r[10].split(" / ")]
+    hours = next(r for r in verdicts if len(r) == 5 and r[0].startswith("cart, simulated"))
+    assert (f"| {_range(knock, '.1f')} s; {hours[2]} in {hours[1]} h |" in _status("verdicts"))
+
+
+def test_other_status_rows_quote_the_results_files():
+    can = {r[0]: r[1] for r in _rows(RESULTS / "bench_can.md")}
+    decode = can["decode 100 k WHEEL_SPEEDS frames (4 signals), batch (numpy bit decode)"]
+    gnss = can["same, tyre scale 1.0095 fitted on the first 30 s, checked on the last 30 s"]
+    assert f"| {decode}; {gnss} |" in _status("CAN")
+    rows = [r for r in _rows(RESULTS / "bench_clock_offset.md") if len(r) == 12
+            and r[0] in ("car", "cart")]
+    drives = sum(int(r[3].split("/")[1]) for r in rows)
+    wrong = sum(int(r[5]) for r in rows)
+    rms = [float(r[6]) for r in rows]
+    assert f"| {wrong} of {drives}; {_range(rms, '.1f')} ms |" in _status("clock offset")
+    speed = [r for r in _rows(RESULTS / "bench_speed.md") if len(r) == 7 and r[0] != "preset"]
+    assert f"| {_range([float(r[5]) for r in speed], '.1f')} % |" in _status("dashboards")
+    bite = (RESULTS / "check_tests_bite.md").read_text()
+    caught, total = re.search(r"(\d+) of (\d+) mutants caught", bite).groups()
+    assert f"| {caught} of {total} |" in _status("tests")
+    assert "see [docs/traffic.md](docs/traffic.md)" in _status(
+        "forward cameras in traffic (issue 33)")
