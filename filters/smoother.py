@@ -25,7 +25,7 @@ mean mount with 95 % intervals and its drift.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -39,7 +39,7 @@ from vipm_track.measurement import PairMeasurement
 from . import factors as F
 from . import model as M
 from .body_scale import BodyScale, pair_change
-from .ekf import EkfConfig, ExtrinsicsEKF, FrameStds, SpeedSource, speed_at
+from .ekf import EkfConfig, ExtrinsicsEKF, FrameStds
 from .long_run import batch_means
 from .model import NoiseParams
 from .mount_change import MountChangeConfig, across_jump, jump_variance
@@ -871,69 +871,6 @@ def _gauss_newton(
     if lin is None:
         lin = graph.linearize(values)
     return values, it, float(err0), float(err), lin
-
-
-# --- entry points -----------------------------------------------------------------------------
-
-
-def speeds_at_frames(
-    measurements: Sequence[PairMeasurement],
-    speed_series: SpeedSource | None,
-    clock_offset_s: float = 0.0,
-) -> FloatArray:
-    """Wheel speed (m/s) at each measurement's time (NaN where none), as the EKF reads it."""
-    times = np.array([m.t for m in measurements], dtype=float)
-    if speed_series is None:
-        return np.full(len(times), np.nan)
-    return speed_at(speed_series, times, clock_offset_s)
-
-
-def smooth(
-    measurements: Sequence[PairMeasurement],
-    speed_series: SpeedSource | None = None,
-    config: SmootherConfig | None = None,
-    clock_offset_s: float = 0.0,
-    progress: bool = False,
-) -> list[SmoothedFrame]:
-    """Smoothed estimate of every frame: batch if ``config.lag_s`` is 0, else fixed-lag."""
-    return list(smoothed_frames(measurements, speed_series, config, clock_offset_s, progress))
-
-
-def smoothed_frames(
-    measurements: Sequence[PairMeasurement],
-    speed_series: SpeedSource | None = None,
-    config: SmootherConfig | None = None,
-    clock_offset_s: float = 0.0,
-    progress: bool = False,
-) -> Iterator[SmoothedFrame]:
-    """``smooth``'s frames, each as soon as it is final: the fixed-lag smoother's as they
-    leave the window (so a caller can write them while the drive goes on), the batch's once
-    the whole drive is solved."""
-    cfg = config or SmootherConfig()
-    speeds = speeds_at_frames(measurements, speed_series, clock_offset_s)
-    if cfg.lag_s == 0:
-        yield from smooth_batch(measurements, speeds, cfg, progress)[0]
-        return
-    from .fixed_lag import FixedLagSmoother
-
-    sm = FixedLagSmoother(cfg)
-    it = zip(measurements, speeds, strict=True)
-    if progress:
-        from tqdm import tqdm
-
-        it = tqdm(it, total=len(measurements), desc="fixed-lag smoother", unit="frame")
-    for m, v in it:
-        yield from sm.step(m, float(v))
-    yield from sm.finish()
-
-
-def __getattr__(name: str) -> object:
-    # ``FixedLagSmoother`` lives in ``filters.fixed_lag`` (which imports this module)
-    if name == "FixedLagSmoother":
-        from .fixed_lag import FixedLagSmoother
-
-        return FixedLagSmoother
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 # --- drive summary ----------------------------------------------------------------------------

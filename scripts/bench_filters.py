@@ -52,7 +52,8 @@ from vipm_track.filters.metrics import (  # noqa: E402
     rms_after,
     score_run,
 )
-from vipm_track.filters.smoother import SmootherConfig, smooth  # noqa: E402
+from vipm_track.filters.smoother import SmootherConfig  # noqa: E402
+from vipm_track.filters.smoothing import smooth  # noqa: E402
 
 Method = Callable[[DriveRun, bool], Estimates]
 
@@ -617,13 +618,13 @@ def rendered_drive(case: RenderedCase, cache: Path) -> RenderedDrive:
     read truth, measurements and the sim's wheel speed back."""
     from types import SimpleNamespace
 
-    from vipm_track.filters.model import NoiseParams
-    from vipm_track.filters.wheel_speed import read_speed_csv
-
     from vipm_track.camera import load_camera
     from vipm_track.estimator import EstimatorConfig
+    from vipm_track.filters.model import NoiseParams
+    from vipm_track.filters.wheel_speed import read_speed_csv
     from vipm_track.measurement import read_measurements
-    from vipm_track.pipeline import config_with, estimate_sequence
+    from vipm_track.pipeline import config_with
+    from vipm_track.runs import estimate_sequence
     from vipm_track.sim import PRESETS, simulate_sequence
     from vipm_track.sources import open_source
     from vipm_track.table import read_table

@@ -33,7 +33,8 @@ sys.path.insert(0, str(ROOT))
 from vipm_track.camera import load_camera  # noqa: E402
 from vipm_track.estimator import EstimatorConfig  # noqa: E402
 from vipm_track.evaluate import frame_errors  # noqa: E402
-from vipm_track.pipeline import config_with, estimate_sequence  # noqa: E402
+from vipm_track.pipeline import config_with  # noqa: E402
+from vipm_track.runs import estimate_sequence  # noqa: E402
 from vipm_track.sim import PRESETS, simulate_sequence  # noqa: E402
 from vipm_track.sources import open_source  # noqa: E402
 from vipm_track.table import read_table  # noqa: E402

@@ -22,12 +22,9 @@ sys.path.insert(0, str(ROOT))
 
 from vipm_track.filters.drive_sim import DriveConfig, simulate_drive  # noqa: E402
 from vipm_track.filters.ekf import EkfConfig, run_filter  # noqa: E402
-from vipm_track.filters.smoother import (  # noqa: E402
-    FixedLagSmoother,
-    SmootherConfig,
-    smooth_batch,
-    speeds_at_frames,
-)
+from vipm_track.filters.fixed_lag import FixedLagSmoother  # noqa: E402
+from vipm_track.filters.smoother import SmootherConfig, smooth_batch  # noqa: E402
+from vipm_track.filters.smoothing import speeds_at_frames  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:

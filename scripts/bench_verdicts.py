@@ -44,6 +44,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from vipm_track.camera import load_camera  # noqa: E402
+from vipm_track.estimator import EstimatorConfig  # noqa: E402
 from vipm_track.filters.drive_sim import DriveConfig, simulate_drive  # noqa: E402
 from vipm_track.filters.ekf import EkfConfig, run_filter  # noqa: E402
 from vipm_track.filters.model import NoiseParams  # noqa: E402
@@ -58,14 +60,13 @@ from vipm_track.filters.monitor_inputs import (  # noqa: E402
     inputs_from_measurements,
     monitor_measurements,
 )
-from vipm_track.filters.smoother import SmootherConfig, smooth  # noqa: E402
+from vipm_track.filters.smoother import SmootherConfig  # noqa: E402
+from vipm_track.filters.smoothing import smooth  # noqa: E402
 from vipm_track.filters.wheel_speed import read_speed_csv  # noqa: E402
-
-from vipm_track.camera import load_camera  # noqa: E402
-from vipm_track.estimator import EstimatorConfig  # noqa: E402
 from vipm_track.measurement import read_measurements  # noqa: E402
-from vipm_track.pipeline import config_with, estimate_sequence  # noqa: E402
+from vipm_track.pipeline import config_with  # noqa: E402
 from vipm_track.render import Effects  # noqa: E402
+from vipm_track.runs import estimate_sequence  # noqa: E402
 from vipm_track.sim import PRESETS, knock_time, simulate_sequence  # noqa: E402
 from vipm_track.sources import open_source  # noqa: E402
 from vipm_track.table import read_table  # noqa: E402

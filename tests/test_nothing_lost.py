@@ -144,13 +144,13 @@ def test_ctrl_c_during_fixed_lag_smoothing_writes_what_is_decided(tmp_path, caps
 
 def test_sigterm_during_batch_smoothing_writes_the_measurements_with_a_status(
         tmp_path, capsys, est, monkeypatch):
-    import vipm_track.filters.smoother
+    import vipm_track.filters.smoothing
 
     def stopped(*a, **k):
         os.kill(os.getpid(), signal.SIGTERM)
         raise AssertionError("SIGTERM did not interrupt")
 
-    monkeypatch.setattr(vipm_track.filters.smoother, "smooth_batch", stopped)  # the batch's solve
+    monkeypatch.setattr(vipm_track.filters.smoothing, "smooth_batch", stopped)  # the solve
     out = tmp_path / "s.csv"
     rc, _err = _run(capsys, "smooth", "--estimates", est, "--height", "1.65", "--out", out,
                    "--quiet")
@@ -199,6 +199,7 @@ def test_interrupted_monitor_keeps_complete_rows(tmp_path, capsys, est, nominal,
 def test_streamed_monitor_judges_as_the_whole_sequence_does(est, nominal):
     """The frame-by-frame monitor (``monitor_frames``, what the command streams) against
     the whole sequence filtered first (``run_filter``), its states read into the inputs."""
+    from vipm_track.commands.inputs import read_estimates
     from vipm_track.filters.ekf import EkfConfig, run_filter
     from vipm_track.filters.monitor import DriftMonitor, MonitorConfig, load_nominal
     from vipm_track.filters.monitor_inputs import (
@@ -207,8 +208,6 @@ def test_streamed_monitor_judges_as_the_whole_sequence_does(est, nominal):
         monitor_frames,
     )
     from vipm_track.filters.wheel_speed import SpeedSeries
-
-    from vipm_track.commands.inputs import read_estimates
 
     def monitor_measurements(ms, nom, sp, cfg, ekf):
         states = run_filter(ms, sp, ekf)

@@ -14,16 +14,8 @@ from vipm_track.camera import CameraModel
 from vipm_track.errors import InputError
 from vipm_track.geometry import GroundPose, PlanarMotion
 from vipm_track.measurement import PairMeasurement, read_measurements
-from vipm_track.pipeline import (
-    FIRST_FRAME,
-    NO_PREVIOUS,
-    UNREADABLE,
-    WRONG_SIZE,
-    RunSummary,
-    estimate_sequence,
-    run_sequence,
-    step_row,
-)
+from vipm_track.pipeline import FIRST_FRAME, NO_PREVIOUS, UNREADABLE, WRONG_SIZE, run_sequence
+from vipm_track.runs import RunSummary, estimate_sequence, step_row
 from vipm_track.sources import ArraySource, open_source
 from vipm_track.table import read_table
 
@@ -135,7 +127,7 @@ def test_row_of_a_step_without_result_has_empty_numbers() -> None:
 
 
 def test_parse_grid_and_roi(tmp_path: Path) -> None:
-    from vipm_track.commands.estimate import parse_grid, parse_roi
+    from vipm_track.commands.estimator_options import parse_grid, parse_roi
 
     assert parse_grid("11x9") == (11, 9) and parse_grid("5×4") == (5, 4)
     for bad in ("11", "ax9", "1x9"):
@@ -344,7 +336,7 @@ def test_refinement_weights_option_sets_the_estimator(choice: str, steep: bool,
                                                       expected: tuple) -> None:
     import argparse
 
-    from vipm_track.commands.estimate import add_estimator_options, build_config
+    from vipm_track.commands.estimator_options import add_estimator_options, build_config
     from vipm_track.estimator import TwoFrameEstimator
     from vipm_track.sim import PRESETS
 
@@ -367,7 +359,7 @@ def test_vertical_motion_option_sets_the_estimator(flag: list[str], steep: bool,
                                                    expected: bool) -> None:
     import argparse
 
-    from vipm_track.commands.estimate import add_estimator_options, build_config
+    from vipm_track.commands.estimator_options import add_estimator_options, build_config
     from vipm_track.estimator import TwoFrameEstimator
     from vipm_track.sim import PRESETS
 

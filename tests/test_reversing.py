@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from vipm_track.filters import model as M
 from vipm_track.filters.drive_sim import DriveConfig, DriveProfile, simulate_drive
 from vipm_track.filters.ekf import EkfConfig, run_filter
-from vipm_track.filters.smoother import SmootherConfig, smooth
+from vipm_track.filters.smoother import SmootherConfig
+from vipm_track.filters.smoothing import smooth
 
 H_TRUE, H0 = 1.53, 1.5
 

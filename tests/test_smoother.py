@@ -10,24 +10,22 @@ import gtsam
 import numpy as np
 import pytest
 from conftest import stop_in_a_turn
+
+from vipm_track.cli import main
 from vipm_track.filters import factors as F
 from vipm_track.filters import model as M
 from vipm_track.filters import window_rows as W
 from vipm_track.filters.drive_sim import DriveConfig, DriveProfile, simulate_drive
 from vipm_track.filters.ekf import EkfConfig, run_filter
-from vipm_track.filters.fixed_lag import SolveError
+from vipm_track.filters.fixed_lag import FixedLagSmoother, SolveError
 from vipm_track.filters.metrics import from_filter_states, rms_after
 from vipm_track.filters.smoother import (
-    FixedLagSmoother,
     SmootherConfig,
     block_marginals,
-    smooth,
     smooth_batch,
-    speeds_at_frames,
     summarize_mount,
 )
-
-from vipm_track.cli import main
+from vipm_track.filters.smoothing import smooth, speeds_at_frames
 from vipm_track.measurement import PairMeasurement, measurement_row
 from vipm_track.table import ESTIMATE_COLUMNS, read_table, write_table
 

@@ -3,7 +3,7 @@ CLI as a user runs it: a cart whose body shakes by ~1° (the README's example) a
 (0.5 m/s, pitch 44°, fixed mount, body shaking ±0.8° at 1–3 Hz, 200 frames at 10 fps).
 
 The estimates are stored (``tests/data/*_shaking_est.csv``; rendered truth beside them), made
-by ``vipm_track.sim.simulate_sequence`` and ``pipeline.estimate_sequence``: the cart with
+by ``vipm_track.sim.simulate_sequence`` and ``runs.estimate_sequence``: the cart with
 ``simulate --preset cart --frames 100 --profile shaking`` then ``estimate --height 0.7``; the
 robot with the cart preset at pitch 44°, seed 3, ``speed=0.5``, 200 frames, ``--pitch 44``.
 """
@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from vipm_track.cli import main
 from vipm_track.filters import model as M
 from vipm_track.filters.ekf import EkfConfig, run_filter
 from vipm_track.filters.monitor import (
@@ -26,8 +28,6 @@ from vipm_track.filters.monitor import (
     NominalCalibration,
     write_nominal,
 )
-
-from vipm_track.cli import main
 from vipm_track.table import read_table
 
 DATA = Path(__file__).parent / "data"

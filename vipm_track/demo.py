@@ -38,24 +38,20 @@ from numpy.typing import NDArray
 from vipm_track.filters.ekf import EkfConfig, speed_at
 from vipm_track.filters.monitor import NominalCalibration, load_nominal, write_events
 from vipm_track.filters.monitor_inputs import inputs_from_measurements, monitor_frames
-from vipm_track.filters.smoother import (
-    SmootherConfig,
-    mount_jumps,
-    smooth,
-    speeds_at_frames,
-    summarize_mount,
-)
+from vipm_track.filters.smoother import SmootherConfig, mount_jumps, summarize_mount
+from vipm_track.filters.smoothing import smooth, speeds_at_frames
 from vipm_track.filters.track import TRACK_COLUMNS, track_row, write_track
 from vipm_track.filters.wheel_speed import read_speed_csv
 
 from .camera import load_camera
-from .commands.monitor import MONITOR_COLUMNS, monitor_row
 from .errors import InputError
 from .estimator import EstimatorConfig
 from .evaluate import ErrorStats, error_stats
+from .filters.monitor_table import MONITOR_COLUMNS, monitor_row
 from .measurement import PairMeasurement, read_measurements
-from .pipeline import SequenceStep, estimate_sequence
+from .pipeline import SequenceStep
 from .resources import data_path
+from .runs import estimate_sequence
 from .sim import PRESETS, simulate_sequence
 from .sinks.report import frame_errors, write_demo_figure
 from .sources import open_source

@@ -1,8 +1,7 @@
 """Sequence runner: every consecutive pair of a frame source through the two-frame estimator.
 
 :func:`run_sequence` yields one :class:`SequenceStep` per frame (frame k's motion is from
-frame k-1); :func:`estimate_sequence` streams their rows into a per-frame table
-(``CONVENTIONS.md`` columns + ``ESTIMATE_COLUMNS``), flushing each row, with a progress bar.
+frame k-1); ``runs.estimate_sequence`` streams their rows into a per-frame table.
 
 Tracking mode (the default) seeds each pair from the previous result: the previous frame's
 pose for the virtual IPM and the previous motion (scaled by the ratio of frame intervals) to
@@ -17,12 +16,9 @@ having no predecessor, a row with status ``no previous frame``; the run goes on.
 
 from __future__ import annotations
 
-import sys
 import time
-from collections import Counter
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -31,9 +27,7 @@ from numpy.typing import NDArray
 from .camera import CameraModel
 from .errors import InputError
 from .geometry import PlanarMotion
-from .measurement import measurement_row
 from .sources import Frame, FrameSource
-from .table import ESTIMATE_COLUMNS, TableWriter
 
 if TYPE_CHECKING:
     from .estimator import EstimatorConfig, PairGuess, PairResult, TwoFrameEstimator
@@ -149,28 +143,6 @@ def run_sequence(
         yield SequenceStep(frame.index, frame.t, result, result.status, guess is not None, seconds)
 
 
-def sequence_steps(
-    source: FrameSource,
-    camera: CameraModel,
-    height: float,
-    config: EstimatorConfig | None = None,
-    tracking: bool = True,
-    estimator: TwoFrameEstimator | None = None,
-    workers: int = 1,
-    chunk_frames: int | None = None,
-) -> Iterator[SequenceStep]:
-    """:func:`run_sequence`, or, with ``workers`` > 1 or ``chunk_frames`` given, its steps
-    from chunks of ``chunk_frames`` frames (default 500) run in ``workers`` processes
-    (:mod:`vipm_track.parallel`: each chunk's first pair starts cold, and ``estimator`` is
-    then each chunk's own)."""
-    if workers <= 1 and chunk_frames is None:
-        return run_sequence(source, camera, height, config, tracking, estimator)
-    from .parallel import DEFAULT_CHUNK_FRAMES, run_chunked
-
-    return run_chunked(source, camera, height, config, tracking, workers,
-                       chunk_frames or DEFAULT_CHUNK_FRAMES)
-
-
 def estimate_pair(
     estimator: TwoFrameEstimator, prev: NDArray, curr: NDArray, guess: PairGuess | None,
     frame_interval_s: float | None = None,
@@ -193,111 +165,6 @@ class _FailedResult:
 
     def to_measurement(self, frame: int, t: float) -> Any:
         return None
-
-
-# --- rows ------------------------------------------------------------------------------------
-
-ROW_COLUMNS: tuple[str, ...] = ESTIMATE_COLUMNS
-
-
-def step_row(step: SequenceStep, height: float) -> dict[str, Any]:
-    """The estimates-table row of a step: measurement columns, ``patches`` (patches matched in
-    the last stage) and ``residual_px``; numbers empty unless the status is ``ok``."""
-    result = step.result
-    measurement = result.to_measurement(step.frame, step.t) if result is not None else None
-    if measurement is None:
-        return {"frame": step.frame, "t": step.t, "height_m": height, "status": step.status}
-    row = measurement_row(measurement)
-    row["status"] = step.status
-    stages = getattr(result, "stages", None) or []
-    row["patches"] = len(stages[-1].centres) if stages else None
-    residual = getattr(result, "residual_px", None)
-    row["residual_px"] = float(residual) if residual is not None and step.ok else None
-    return row
-
-
-# --- whole runs ------------------------------------------------------------------------------
-
-
-@dataclass
-class RunSummary:
-    """Counts and timing of a run: frames seen, rows ok, statuses, estimator and wall time."""
-
-    frames: int = 0
-    ok: int = 0
-    pairs: int = 0
-    statuses: Counter = field(default_factory=Counter)
-    estimator_seconds: float = 0.0
-    wall_seconds: float = 0.0
-
-    def add(self, step: SequenceStep) -> None:
-        self.frames += 1
-        self.ok += step.ok
-        self.pairs += step.result is not None
-        self.statuses[step.status] += 1
-        self.estimator_seconds += step.seconds
-
-    @property
-    def pairs_per_second(self) -> float:
-        return self.pairs / self.wall_seconds if self.wall_seconds > 0 else float("nan")
-
-    def line(self) -> str:
-        """One-line summary: frames ok / total, pairs per second, other statuses."""
-        others = ", ".join(
-            f"{n}× {s}" for s, n in self.statuses.most_common() if s not in ("ok", FIRST_FRAME)
-        )
-        text = (
-            f"{self.ok}/{self.frames} frames ok ({100.0 * self.ok / max(self.frames, 1):.1f} %), "
-            f"{self.pairs_per_second:.2f} pairs/s"
-        )
-        return text + (f"; {others}" if others else "")
-
-
-def estimate_sequence(
-    source: FrameSource,
-    camera: CameraModel,
-    height: float,
-    out: str | Path,
-    config: EstimatorConfig | None = None,
-    tracking: bool = True,
-    parquet: bool = False,
-    progress: bool | None = None,
-    on_step: Callable[[SequenceStep], None] | None = None,
-    estimator: TwoFrameEstimator | None = None,
-    workers: int = 1,
-    chunk_frames: int | None = None,
-) -> RunSummary:
-    """Run ``source`` and stream one row per frame into the CSV ``out`` (and Parquet beside it
-    with ``parquet``). Rows are flushed as they come, so an interrupted run keeps them.
-
-    ``progress``: show a tqdm bar on stderr (``None``: only when stderr is a terminal).
-    ``on_step`` is called with every step (e.g. a live display); ``estimator`` replaces the
-    one built from ``camera``, ``height`` and ``config``; ``workers``, ``chunk_frames``: as
-    :func:`sequence_steps`."""
-    from tqdm import tqdm
-
-    out = Path(out)
-    parquet_path = out.with_suffix(".parquet") if parquet else None
-    if progress is None:
-        progress = sys.stderr.isatty()
-    summary = RunSummary()
-    start = time.perf_counter()
-    steps = sequence_steps(source, camera, height, config, tracking, estimator, workers,
-                           chunk_frames)
-    with (
-        TableWriter(out, ROW_COLUMNS, parquet_path) as writer,
-        tqdm(total=len(source), disable=not progress, file=sys.stderr, unit="frame") as bar,
-    ):
-        for step in steps:
-            writer.write(step_row(step, height))
-            summary.add(step)
-            summary.wall_seconds = time.perf_counter() - start
-            bar.update(1)
-            bar.set_postfix(ok=summary.ok, refresh=False)
-            if on_step is not None:
-                on_step(step)
-    summary.wall_seconds = time.perf_counter() - start
-    return summary
 
 
 def config_with(config: EstimatorConfig, **changes: Any) -> EstimatorConfig:

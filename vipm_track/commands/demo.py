@@ -19,7 +19,7 @@ import time
 
 from ..errors import InputError
 from .common import add_rerun_options, check_output_dir, check_rerun_output
-from .estimate import add_estimator_options, build_config
+from .estimator_options import add_estimator_options, build_config
 
 MAX_FRAMES = 2000
 

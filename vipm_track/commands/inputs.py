@@ -142,7 +142,7 @@ def estimator_config(
     are given (e.g. the monitor's nominal calibration)."""
     from ..estimator import EstimatorConfig
     from ..pipeline import config_with
-    from .estimate import build_config
+    from .estimator_options import build_config
 
     config = build_config(args, camera) if hasattr(args, "grid") else EstimatorConfig()
     return config_with(
@@ -244,9 +244,9 @@ def estimate_stream(
     (tracking mode) at the assumed ``height`` [m]; frames without an estimate carry their
     status and NaNs. With a rerun ``sink`` each pair's images, patches and IPM views are
     logged as they come. ``config`` defaults to :func:`estimator_config` of ``args``."""
-    from ..pipeline import sequence_steps
+    from ..runs import sequence_steps
     from ..sources import open_source
-    from .estimate import parallel_settings
+    from .estimator_options import parallel_settings
 
     if not args.camera:
         raise InputError("--images/--video need --camera CAMERA.yaml")

@@ -26,7 +26,7 @@ from .common import (
     check_rerun_output,
     check_writable,
 )
-from .estimate import add_estimator_options, add_parallel_options
+from .estimator_options import add_estimator_options, add_parallel_options
 from .inputs import load_speed, measurements_from_args, speed_on_camera_clock
 
 
@@ -241,7 +241,7 @@ def run(args: argparse.Namespace) -> int:
 def _smoothed_rows(measurements, speed, config, progress: bool):
     """(smoothed frame, its track-table row) of every frame, each as soon as it is final:
     the fixed-lag smoother's frames as they leave the window, the batch's when it is done."""
-    from vipm_track.filters.smoother import smoothed_frames, speeds_at_frames
+    from vipm_track.filters.smoothing import smoothed_frames, speeds_at_frames
 
     speeds = speeds_at_frames(measurements, speed)
     by_frame = {m.frame: (m, v) for m, v in zip(measurements, speeds, strict=True)}

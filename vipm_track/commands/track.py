@@ -17,7 +17,7 @@ from .common import (
     check_output,
     check_rerun_output,
 )
-from .estimate import add_estimator_options, add_parallel_options
+from .estimator_options import add_estimator_options, add_parallel_options
 from .inputs import (
     check_speed_overlap,
     estimate_stream,

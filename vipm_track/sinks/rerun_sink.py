@@ -584,7 +584,7 @@ class ImageTap:
 class RunLogging:
     """What a command needs to log a sequence run: the source to iterate (an
     :class:`ImageTap` when logging), the estimator config (IPM images kept when logging), the
-    ``on_step`` callback for ``pipeline.estimate_sequence`` and ``finish``. Without a sink
+    ``on_step`` callback for ``runs.estimate_sequence`` and ``finish``. Without a sink
     everything passes through unchanged and ``on_step`` is None."""
 
     sink: RerunSink | None

@@ -1,0 +1,66 @@
+"""Smoothing a drive: the batch smoother (``smoother``) or the fixed-lag one (``fixed_lag``)
+over its pair measurements and wheel speed, frame by frame as each becomes final."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from vipm_track.measurement import PairMeasurement
+
+from .ekf import SpeedSource, speed_at
+from .fixed_lag import FixedLagSmoother
+from .smoother import SmoothedFrame, SmootherConfig, smooth_batch
+
+FloatArray = NDArray[np.float64]
+
+
+def speeds_at_frames(
+    measurements: Sequence[PairMeasurement],
+    speed_series: SpeedSource | None,
+    clock_offset_s: float = 0.0,
+) -> FloatArray:
+    """Wheel speed (m/s) at each measurement's time (NaN where none), as the EKF reads it."""
+    times = np.array([m.t for m in measurements], dtype=float)
+    if speed_series is None:
+        return np.full(len(times), np.nan)
+    return speed_at(speed_series, times, clock_offset_s)
+
+
+def smooth(
+    measurements: Sequence[PairMeasurement],
+    speed_series: SpeedSource | None = None,
+    config: SmootherConfig | None = None,
+    clock_offset_s: float = 0.0,
+    progress: bool = False,
+) -> list[SmoothedFrame]:
+    """Smoothed estimate of every frame: batch if ``config.lag_s`` is 0, else fixed-lag."""
+    return list(smoothed_frames(measurements, speed_series, config, clock_offset_s, progress))
+
+
+def smoothed_frames(
+    measurements: Sequence[PairMeasurement],
+    speed_series: SpeedSource | None = None,
+    config: SmootherConfig | None = None,
+    clock_offset_s: float = 0.0,
+    progress: bool = False,
+) -> Iterator[SmoothedFrame]:
+    """``smooth``'s frames, each as soon as it is final: the fixed-lag smoother's as they
+    leave the window (so a caller can write them while the drive goes on), the batch's once
+    the whole drive is solved."""
+    cfg = config or SmootherConfig()
+    speeds = speeds_at_frames(measurements, speed_series, clock_offset_s)
+    if cfg.lag_s == 0:
+        yield from smooth_batch(measurements, speeds, cfg, progress)[0]
+        return
+    sm = FixedLagSmoother(cfg)
+    it = zip(measurements, speeds, strict=True)
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(it, total=len(measurements), desc="fixed-lag smoother", unit="frame")
+    for m, v in it:
+        yield from sm.step(m, float(v))
+    yield from sm.finish()

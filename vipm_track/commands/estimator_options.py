@@ -1,0 +1,235 @@
+"""The estimator's command-line options, shared by every command that estimates pairs
+(estimate, track, smooth, monitor, demo): adding them to a parser and turning the parsed
+values into an ``EstimatorConfig`` and parallel-run settings."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from ..camera import CameraModel
+from ..errors import InputError
+from ..estimator import REFINEMENT_WEIGHTING
+from .common import seconds_or_auto
+
+#: ``--refinement-weights`` → EstimatorConfig fields ("auto": the estimator's per-camera
+#: default)
+REFINEMENT_WEIGHTS: dict[str, dict[str, object]] = {
+    "auto": {}, **REFINEMENT_WEIGHTING,
+}
+
+
+def add_estimator_options(parser: argparse.ArgumentParser) -> None:
+    """Estimator options shared by ``estimate``, ``demo`` and the benchmarks."""
+    group = parser.add_argument_group("estimator")
+    group.add_argument("--roi", metavar="x0,y0,x1,y1|FILE",
+                       help="where the ground is: a pixel rectangle x0,y0,x1,y1, a polygon "
+                       "file (x y per line) or a mask image (non-zero = ground); "
+                       "default: the estimator's")
+    group.add_argument("--refinements", type=int, default=None, metavar="N",
+                       help="virtual-IPM refinement passes (default: the estimator's, 2 for level "
+                       "cameras (horizon in view, pitch < 10°), 1 for all others)")
+    group.add_argument("--grid", default=None, metavar="COLSxROWS",
+                       help="patch grid, e.g. 11x9 (default: the estimator's)")
+    group.add_argument("--patch-size", type=int, default=None, metavar="PX",
+                       help="largest image-plane patch size in pixels, a multiple of 16 "
+                       "(default: the estimator's, 128)")
+    group.add_argument("--pitch", type=float, default=None, metavar="DEG",
+                       help="nominal pitch for the cold start, degrees, > 0 looking down "
+                       "(default: the estimator's, 60; give ~0-5 for forward cameras)")
+    group.add_argument("--roll", type=float, default=None, metavar="DEG",
+                       help="nominal roll for the cold start, degrees (default 0)")
+    group.add_argument("--max-roll", type=float, default=None, metavar="DEG",
+                       help="plausible roll of the camera about --roll (or level), degrees: "
+                       "pairs and nominal-pose searches that fit a roll beyond it are "
+                       "rejected (default 10)")
+    group.add_argument("--pose-prior-deg", type=float, default=None, metavar="DEG",
+                       help="standard deviation of a prior on pitch and roll around "
+                       "--pitch/--roll inside the fit, degrees; resolves the pitch/travel "
+                       "ambiguity of near-level cameras; 0 turns it off (default: the "
+                       "estimator's, 2 for level cameras (horizon in view, pitch < 10°), off for "
+                       "others)")
+    group.add_argument("--vertical-motion", action=argparse.BooleanOptionalAction,
+                       default=None,
+                       help="estimate the camera's vertical motion within a pair (an 8th "
+                       "parameter; default: on for steep cameras, off for level ones, where "
+                       "it trades against pitch: on KITTI 07 median distance error 2.6 -> "
+                       "2.9 %%; on rendered cars whose body bounces 2 cm per frame pitch "
+                       "error 0.18-0.54 -> 0.02 deg RMS)")
+    group.add_argument("--readout-time", type=seconds_or_auto, default=0.0,
+                       metavar="SECONDS|auto",
+                       help="rolling shutter: time from the exposure of the image's first row "
+                       "to its last, seconds (a CMOS dashcam's is 10-35 ms; see the sensor's "
+                       "datasheet), or 'auto': found from pairs that move in the first 300 "
+                       "frames (the readout whose fit leaves the smallest residual, printed "
+                       "with its uncertainty, ~25 s; where the residual shows no clear dip, a "
+                       "warning and a global shutter); the fit then gives each patch the motion "
+                       "over its rows' exposure times. Default 0: global shutter (on a "
+                       "rendered car at 0.6 m per frame a 33 ms readout left unmodelled "
+                       "biases pitch by -0.4 deg and distance by +6.5 %%)")
+    group.add_argument("--subset-seed", type=int, default=None, metavar="N",
+                       help="seed of the random-subset sampler (default: the estimator's, 0); "
+                       "a run is deterministic for a given seed, and another seed shows how "
+                       "much a result owes to the subsets drawn")
+    group.add_argument("--refinement-weights", choices=tuple(REFINEMENT_WEIGHTS),
+                       default="auto",
+                       help="virtual-IPM patches in the refinement fit: 'noise' weights each "
+                       "by its modelled noise, re-centres the POC windows on the measured "
+                       "shift and tightens the inlier threshold to the residuals; 'uniform' "
+                       "is the paper's (all alike); 'auto' (default): uniform for level "
+                       "cameras (horizon in view, pitch < 10°), noise for all others")
+
+
+def add_parallel_options(parser: argparse.ArgumentParser) -> None:
+    """``--workers``, ``--chunk-frames``: a long recording estimated in parallel chunks."""
+    group = parser.add_argument_group("parallel (long recordings)")
+    group.add_argument("--workers", type=int, default=1, metavar="N",
+                       help="processes that estimate chunks of the recording in parallel "
+                       "(default 1: one sequential run); results depend on --chunk-frames, "
+                       "not on N")
+    group.add_argument("--chunk-frames", type=int, default=None, metavar="K",
+                       help="frames per chunk (default with --workers > 1: 500; given with "
+                       "--workers 1, the same chunks run one after another); each chunk's "
+                       "first pair starts cold, as after a failed pair")
+
+
+def parallel_settings(args: argparse.Namespace) -> dict[str, Any]:
+    """``workers`` and ``chunk_frames`` of ``args`` for ``estimate_sequence`` /
+    ``sequence_steps``; InputError for unusable values (and for ``--rerun`` with workers)."""
+    from ..parallel import MIN_CHUNK_FRAMES
+    from ..sinks.rerun_sink import wants_rerun
+
+    workers = getattr(args, "workers", 1)
+    chunk = getattr(args, "chunk_frames", None)
+    if workers < 1:
+        raise InputError(f"--workers must be >= 1, got {workers}")
+    if chunk is not None and chunk < MIN_CHUNK_FRAMES:
+        raise InputError(f"--chunk-frames must be >= {MIN_CHUNK_FRAMES}, got {chunk}")
+    if workers > 1 and wants_rerun(args):
+        raise InputError("--rerun logs the frames as they are estimated: use it with --workers 1")
+    return {"workers": workers, "chunk_frames": chunk}
+
+
+def build_config(args: argparse.Namespace, camera: CameraModel):
+    """The estimator configuration from the estimator options of ``args``."""
+    from ..estimator import EstimatorConfig
+    from ..pipeline import config_with
+
+    grid = parse_grid(args.grid) if args.grid else None
+    if args.refinements is not None and not 0 <= args.refinements <= 10:
+        raise InputError(f"--refinements must be between 0 and 10, got {args.refinements}")
+    if args.patch_size is not None and (args.patch_size < 32 or args.patch_size % 16):
+        raise InputError(f"--patch-size must be a multiple of 16, >= 32, got {args.patch_size}")
+    pitch = _angle(args.pitch, "--pitch", -10.0, 90.0)
+    roll = _angle(args.roll, "--roll", -45.0, 45.0)
+    max_roll = _angle(getattr(args, "max_roll", None), "--max-roll", 0.1, 90.0)
+    prior = getattr(args, "pose_prior_deg", None)
+    if prior is not None and not (math.isfinite(prior) and 0 <= prior <= 45):
+        raise InputError(f"--pose-prior-deg must be in [0, 45] degrees, got {prior}")
+    roi = parse_roi(args.roi, camera) if args.roi else None
+    seed = getattr(args, "subset_seed", None)
+    if seed is not None and seed < 0:
+        raise InputError(f"--subset-seed must be >= 0, got {seed}")
+    readout = getattr(args, "readout_time", 0.0)
+    if readout == "auto":
+        readout = 0.0  # searched on the frames (commands.inputs.with_searched_setup)
+    if not (math.isfinite(readout) and 0 <= readout <= 1):
+        raise InputError(f"--readout-time must be in [0, 1] seconds, got {readout}")
+    return config_with(
+        EstimatorConfig(),
+        readout_s=float(readout),
+        grid=grid,
+        refinements=args.refinements,
+        patch_image=args.patch_size,
+        initial_pitch_deg=pitch,
+        initial_roll_deg=roll,
+        max_roll_deg=max_roll,
+        roi=roi,
+        vertical_motion=args.vertical_motion,
+        pose_prior_deg=prior,
+        seed=seed,
+        **REFINEMENT_WEIGHTS[getattr(args, "refinement_weights", "auto")],
+    )
+
+
+def _angle(value: float | None, option: str, low: float, high: float) -> float | None:
+    if value is None:
+        return None
+    if not (math.isfinite(value) and low <= value <= high):
+        raise InputError(f"{option} must be in [{low}, {high}] degrees, got {value}")
+    return float(value)
+
+
+def parse_grid(text: str) -> tuple[int, int]:
+    """``"11x9"`` → (11, 9) (columns, rows)."""
+    parts = text.lower().replace("×", "x").split("x")
+    try:
+        cols, rows = (int(p) for p in parts)
+    except ValueError as exc:
+        raise InputError(f"--grid must look like 11x9 (columns x rows), got {text!r}") from exc
+    if cols < 2 or rows < 2:
+        raise InputError(f"--grid needs at least 2x2 patches, got {text!r}")
+    return cols, rows
+
+
+def parse_roi(text: str, camera: CameraModel) -> NDArray[np.bool_]:
+    """Ground mask (H, W) of the camera's image from ``--roi``: a rectangle ``x0,y0,x1,y1``
+    in pixels, a polygon file (one ``x y`` or ``x,y`` vertex per line, pixels) or a mask
+    image of the camera's size (non-zero = ground)."""
+    shape = (camera.height, camera.width)
+    path = Path(text)
+    if not path.exists():
+        parts = text.split(",")
+        if len(parts) != 4:
+            raise InputError(
+                f"--roi {text!r}: neither a file nor a rectangle x0,y0,x1,y1 in pixels"
+            )
+        try:
+            x0, y0, x1, y1 = (float(p) for p in parts)
+        except ValueError as exc:
+            raise InputError(f"--roi {text!r}: rectangle values must be numbers") from exc
+        if not (0 <= x0 < x1 <= camera.width and 0 <= y0 < y1 <= camera.height):
+            raise InputError(
+                f"--roi {text!r}: need 0 <= x0 < x1 <= {camera.width} and "
+                f"0 <= y0 < y1 <= {camera.height} (the camera image)"
+            )
+        mask = np.zeros(shape, bool)
+        mask[round(y0):round(y1), round(x0):round(x1)] = True
+        return mask
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) if path.suffix.lower() in {
+        ".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm"} else None
+    if image is not None:
+        if image.shape != shape:
+            raise InputError(
+                f"--roi {path}: mask is {image.shape[1]}×{image.shape[0]} px but the camera "
+                f"image is {camera.width}×{camera.height} px"
+            )
+        mask = image > 0
+    else:
+        mask = _polygon_mask(path, shape)
+    if mask.sum() < 0.01 * mask.size:
+        raise InputError(f"--roi {path}: the region covers less than 1 % of the image")
+    return mask
+
+
+def _polygon_mask(path: Path, shape: tuple[int, int]) -> NDArray[np.bool_]:
+    vertices = []
+    for lineno, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
+        text = line.split("#", 1)[0].replace(",", " ").split()
+        if not text:
+            continue
+        try:
+            vertices.append([float(text[0]), float(text[1])])
+        except (ValueError, IndexError) as exc:
+            raise InputError(f"--roi {path}: line {lineno}: expected 'x y' in pixels") from exc
+    if len(vertices) < 3:
+        raise InputError(f"--roi {path}: a polygon needs at least 3 vertices, got {len(vertices)}")
+    mask = np.zeros(shape, np.uint8)
+    cv2.fillPoly(mask, [np.round(np.asarray(vertices)).astype(np.int32)], 1)
+    return mask.astype(bool)
