@@ -22,7 +22,6 @@ counted apart: they are not errors.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import io
 import math
@@ -677,46 +676,6 @@ def write_speed_csv(series: SpeedSeries, path: str | Path) -> Path:
     finally:
         partial.unlink(missing_ok=True)
     return path
-
-
-def speed_from_args(args: argparse.Namespace, progress: bool = True,
-                    report: Callable[[str], None] | None = None) -> SpeedSeries | None:
-    """Speed series [t in the camera clock, m/s] from the shared CLI options
-    (``add_speed_options``), or None when neither ``--speed-csv`` nor ``--can`` is given.
-
-    ``--clock-offset`` is already added to ``t`` (``auto`` adds nothing: the offset is then
-    found against the pairs, ``filters.clock_offset``) and ``--speed-scale`` applied; the
-    decode summary is written through ``report`` (default: stderr)."""
-    report = report or (lambda line: print(line, file=sys.stderr))
-    speed_csv, log = getattr(args, "speed_csv", None), getattr(args, "can", None)
-    dbc, signals = getattr(args, "dbc", None), getattr(args, "signals", None)
-    scale = float(getattr(args, "speed_scale", 1.0) or 1.0)
-    offset = getattr(args, "clock_offset", 0.0) or 0.0
-    offset = 0.0 if offset == "auto" else float(offset)
-    if speed_csv and log:
-        raise InputError("give either --speed-csv or --can, not both")
-    if not speed_csv and not log:
-        if dbc or signals:
-            raise InputError("--dbc/--signals need --can LOG")
-        return None
-    if speed_csv:
-        if not (math.isfinite(scale) and scale > 0):
-            raise InputError(f"--speed-scale {scale!r} must be a positive number")
-        series = read_speed_csv(speed_csv).scaled(scale)
-    else:
-        if not dbc:
-            raise InputError(f"--can {log} needs --dbc DBC to decode it")
-        series, _ = decode_can_log(log, dbc, signals, combine=getattr(args, "combine", "mean"),
-                                   channel=getattr(args, "can_channel", None), scale=scale,
-                                   progress=progress)
-    if series.summary is not None:
-        for line in series.summary.lines():
-            report(line)
-        if series.summary.interrupted:
-            raise KeyboardInterrupt
-    if len(series) == 0:
-        raise InputError(f"{series.source}: no speed samples")
-    return series.shifted(offset) if offset else series
 
 
 def fit_speed_scale(series: SpeedSeries, ref_times: ArrayLike, ref_speed_mps: ArrayLike,

@@ -9,11 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from vipm_track.filters import drive_sim
 
 from vipm_track import estimator
 from vipm_track.cli import main
+from vipm_track.commands.rerun_options import sink_from_args
 from vipm_track.errors import InputError
+from vipm_track.filters import drive_sim
 from vipm_track.measurement import PairMeasurement
 from vipm_track.sim import (
     GT_EXTRA_COLUMNS,
@@ -27,7 +28,6 @@ from vipm_track.sinks.rerun_sink import (
     default_blueprint,
     grpc_url,
     recording_entities,
-    sink_from_args,
 )
 from vipm_track.sinks.trajectory import planar_path
 from vipm_track.table import read_table, write_table

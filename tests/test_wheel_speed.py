@@ -10,6 +10,12 @@ import can
 import cantools
 import numpy as np
 import pytest
+
+from tests.conftest import shared_data
+from vipm_track.cli import main
+from vipm_track.commands.common import add_speed_options
+from vipm_track.commands.inputs import speed_from_args
+from vipm_track.errors import InputError
 from vipm_track.filters.can_decode import DbcError, MessageDecoder, parse_signal_specs, unit_factor
 from vipm_track.filters.wheel_speed import (
     SpeedDecoder,
@@ -19,14 +25,8 @@ from vipm_track.filters.wheel_speed import (
     decode_can_log,
     fit_speed_scale,
     read_speed_csv,
-    speed_from_args,
     write_speed_csv,
 )
-
-from tests.conftest import shared_data
-from vipm_track.cli import main
-from vipm_track.commands.common import add_speed_options
-from vipm_track.errors import InputError
 
 WHEELS = ("FL", "FR", "RL", "RR")
 ALL_WHEELS = ",".join(f"WHEEL_SPEEDS.WHEEL_SPEED_{w}" for w in WHEELS)

@@ -62,9 +62,9 @@ def run(args: argparse.Namespace) -> int:
     from ..demo import default_frames, demo_lines, files_lines, render_drive, run_demo
     from ..pipeline import config_with
     from ..sim import PRESETS
-    from ..sinks.rerun_sink import sink_from_args
     from ..sources import open_source
     from .inputs import with_searched_readout
+    from .rerun_options import sink_from_args
 
     out = check_output_dir(args.out)
     frames = default_frames(args.preset) if args.frames is None else args.frames

@@ -72,8 +72,9 @@ def run(args: argparse.Namespace) -> int:
     parallel = parallel_settings(args)
     config = with_searched_setup(args, source, camera, height, config)
     from ..sinks.rerun_sink import run_logging
+    from .rerun_options import sink_from_args
 
-    logging = run_logging(args, "vipm-track estimate", source, camera, config)
+    logging = run_logging(sink_from_args(args, "vipm-track estimate"), source, camera, config)
     try:
         summary = estimate_sequence(
             logging.source, camera, height, out, logging.config, tracking=not args.no_tracking,

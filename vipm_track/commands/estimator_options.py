@@ -103,7 +103,7 @@ def parallel_settings(args: argparse.Namespace) -> dict[str, Any]:
     """``workers`` and ``chunk_frames`` of ``args`` for ``estimate_sequence`` /
     ``sequence_steps``; InputError for unusable values (and for ``--rerun`` with workers)."""
     from ..parallel import MIN_CHUNK_FRAMES
-    from ..sinks.rerun_sink import wants_rerun
+    from .rerun_options import wants_rerun
 
     workers = getattr(args, "workers", 1)
     chunk = getattr(args, "chunk_frames", None)

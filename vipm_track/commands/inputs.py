@@ -6,13 +6,16 @@ read the same files the same way."""
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections import Counter
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from vipm_track.filters.wheel_speed import SpeedSeries, decode_can_log, read_speed_csv
 
 from ..camera import CameraModel, load_camera
 from ..errors import InputError, NothingUsable
@@ -20,7 +23,6 @@ from ..measurement import PairMeasurement, in_sequence, read_measurements
 
 if TYPE_CHECKING:
     from vipm_track.filters.clock_offset import ClockOffsetFit
-    from vipm_track.filters.wheel_speed import SpeedSeries
 
     from ..estimator import EstimatorConfig
     from ..sources import FrameSource
@@ -28,9 +30,7 @@ if TYPE_CHECKING:
 
 def load_speed(args: argparse.Namespace) -> SpeedSeries | None:
     """Wheel speed [t on the camera clock in s, m/s] from ``--speed-csv`` or ``--can``
-    (``filters.wheel_speed.speed_from_args``); None when neither is given."""
-    from vipm_track.filters.wheel_speed import speed_from_args
-
+    (:func:`speed_from_args`); None when neither is given."""
     try:
         quiet = getattr(args, "quiet", False)
         return speed_from_args(args, progress=not quiet,
@@ -39,6 +39,46 @@ def load_speed(args: argparse.Namespace) -> SpeedSeries | None:
         if isinstance(exc, InputError):
             raise
         raise InputError(str(exc)) from exc
+
+
+def speed_from_args(args: argparse.Namespace, progress: bool = True,
+                    report: Callable[[str], None] | None = None) -> SpeedSeries | None:
+    """Speed series [t in the camera clock, m/s] from the shared CLI options
+    (``add_speed_options``), or None when neither ``--speed-csv`` nor ``--can`` is given.
+
+    ``--clock-offset`` is already added to ``t`` (``auto`` adds nothing: the offset is then
+    found against the pairs, ``filters.clock_offset``) and ``--speed-scale`` applied; the
+    decode summary is written through ``report`` (default: stderr)."""
+    report = report or (lambda line: print(line, file=sys.stderr))
+    speed_csv, log = getattr(args, "speed_csv", None), getattr(args, "can", None)
+    dbc, signals = getattr(args, "dbc", None), getattr(args, "signals", None)
+    scale = float(getattr(args, "speed_scale", 1.0) or 1.0)
+    offset = getattr(args, "clock_offset", 0.0) or 0.0
+    offset = 0.0 if offset == "auto" else float(offset)
+    if speed_csv and log:
+        raise InputError("give either --speed-csv or --can, not both")
+    if not speed_csv and not log:
+        if dbc or signals:
+            raise InputError("--dbc/--signals need --can LOG")
+        return None
+    if speed_csv:
+        if not (math.isfinite(scale) and scale > 0):
+            raise InputError(f"--speed-scale {scale!r} must be a positive number")
+        series = read_speed_csv(speed_csv).scaled(scale)
+    else:
+        if not dbc:
+            raise InputError(f"--can {log} needs --dbc DBC to decode it")
+        series, _ = decode_can_log(log, dbc, signals, combine=getattr(args, "combine", "mean"),
+                                   channel=getattr(args, "can_channel", None), scale=scale,
+                                   progress=progress)
+    if series.summary is not None:
+        for line in series.summary.lines():
+            report(line)
+        if series.summary.interrupted:
+            raise KeyboardInterrupt
+    if len(series) == 0:
+        raise InputError(f"{series.source}: no speed samples")
+    return series.shifted(offset) if offset else series
 
 
 def speed_on_camera_clock(

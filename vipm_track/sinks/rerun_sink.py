@@ -35,7 +35,6 @@ the overhead against the estimator.
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 from collections.abc import Callable, Mapping, Sequence
@@ -597,11 +596,10 @@ class RunLogging:
             self.sink.finish()
 
 
-def run_logging(args: argparse.Namespace, app_id: str, source: Any, camera: Any,
+def run_logging(sink: RerunSink | None, source: Any, camera: Any,
                 config: Any = None) -> RunLogging:
-    """:class:`RunLogging` for the ``add_rerun_options`` flags of ``args`` (see
-    :func:`sink_from_args`); ``config`` is an ``EstimatorConfig`` or None (defaults)."""
-    sink = sink_from_args(args, app_id)
+    """:class:`RunLogging` of a sequence run into ``sink`` (None: nothing logged); ``config``
+    is an ``EstimatorConfig`` or None (defaults)."""
     if sink is None:
         return RunLogging(None, source, config)
     from ..estimator import EstimatorConfig
@@ -759,46 +757,38 @@ def default_blueprint() -> Any:
     )
 
 
-# --- CLI glue ------------------------------------------------------------------------------
+# --- opening a recording ----------------------------------------------------------------------
 
 
-def wants_rerun(args: argparse.Namespace) -> bool:
-    """Whether the parsed ``add_rerun_options`` flags ask for a recording."""
-    return bool(getattr(args, "rerun", None) or getattr(args, "rerun_spawn", False)
-                or getattr(args, "rerun_connect", None))
-
-
-def sink_from_args(args: argparse.Namespace, app_id: str, **options: Any) -> RerunSink | None:
-    """The sink the ``--rerun OUT.rrd`` / ``--rerun-spawn`` / ``--rerun-connect ADDR`` flags ask
-    for (any combination), or None. ``--rerun-image-every`` and ``--rerun-jpeg-quality`` are
-    read where the parser has them; ``options`` override them."""
-    if not wants_rerun(args):
+def open_sink(app_id: str, path: str | Path | None = None, spawn: bool = False,
+              connect: str | None = None, image_every: int = 1,
+              jpeg_quality: int = 75) -> RerunSink | None:
+    """A sink recording to the .rrd file ``path``, to a viewer it spawns (``spawn``) and/or to
+    a viewer at ``connect`` (``host:port`` or a ``rerun+http://`` URL), any combination; None
+    where none is asked for. ``image_every``: log every n-th frame's images; ``jpeg_quality``
+    of the logged images."""
+    if not (path or spawn or connect):
         return None
     import rerun as rr
 
     sinks: list[Any] = []
     rec = rr.RecordingStream(app_id)
-    if getattr(args, "rerun", None):
-        path = Path(args.rerun)
+    if path:
+        path = Path(path)
         if path.is_dir():
             raise InputError(f"--rerun {path}: is a folder; give a .rrd file name")
         path.parent.mkdir(parents=True, exist_ok=True)
         sinks.append(rr.FileSink(str(path)))
-    if getattr(args, "rerun_spawn", False):
+    if spawn:
         try:
             rr.spawn(connect=False, recording=rec)
         except Exception as exc:  # the viewer binary may be missing or fail to start
             raise InputError(f"--rerun-spawn: could not start the rerun viewer: {exc}") from exc
         sinks.append(rr.GrpcSink())
-    if getattr(args, "rerun_connect", None):
-        sinks.append(rr.GrpcSink(grpc_url(args.rerun_connect)))
+    if connect:
+        sinks.append(rr.GrpcSink(grpc_url(connect)))
     rec.set_sinks(*sinks)
-    settings = {
-        "image_every": getattr(args, "rerun_image_every", 1),
-        "jpeg_quality": getattr(args, "rerun_jpeg_quality", 75),
-    }
-    settings.update(options)
-    return RerunSink(rec, **settings)
+    return RerunSink(rec, image_every=image_every, jpeg_quality=jpeg_quality)
 
 
 def grpc_url(address: str) -> str:
@@ -844,9 +834,8 @@ __all__: Sequence[str] = [
     "log_monitor_run",
     "log_steps",
     "log_track_steps",
+    "open_sink",
     "recording_entities",
     "run_logging",
-    "sink_from_args",
     "table_columns",
-    "wants_rerun",
 ]
