@@ -44,16 +44,8 @@ from . import model as M
 from . import window_rows as W
 from .body_scale import pairs_to_start
 from .mount_change import MountChangeDetector, jump_variance
-from .smoother import (
-    BodyTracker,
-    SmoothedFrame,
-    SmootherConfig,
-    _initial_guess,
-    _make_frame,
-    _skipped,
-    _status,
-    dead_reckoned,
-)
+from .smoother import BodyTracker, _initial_guess, _make_frame, _skipped, _status, dead_reckoned
+from .smoother_config import SmoothedFrame, SmootherConfig
 
 FloatArray = NDArray[np.float64]
 

@@ -14,171 +14,37 @@ priors, and priors on frame 0 (the EKF's). Pair factors use a redescending robus
 - ``FixedLagSmoother`` (``filters.fixed_lag``): Gauss–Newton over a sliding window of
   ``lag_s`` seconds of the same factors, the past folded into a Gaussian prior; each frame
   is reported once ``lag_s`` of later data is in, with its marginal covariance.
-- ``smooth``: either, by ``SmootherConfig.lag_s`` (0 = batch).
+- ``smoothing.smooth``: either, by ``SmootherConfig.lag_s`` (0 = batch).
 
 Every frame gets a :class:`SmoothedFrame` with the fields of ``filters.ekf.FilterState``
 (mount, frame pose, metric motion, 16-state and covariance in the model's layout), so the
-EKF's metrics and table rows apply unchanged. ``summarize_mount`` condenses a drive into the
-mean mount with 95 % intervals and its drift.
+EKF's metrics and table rows apply unchanged (``smoother_config``; marginals in
+``smoother_marginals``); ``drive_summary.summarize_mount`` condenses a drive into the mean
+mount with 95 % intervals and its drift.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
-from functools import lru_cache
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2
 
 from vipm_track.measurement import PairMeasurement
 
 from . import factors as F
 from . import model as M
 from .body_scale import BodyScale, pair_change
-from .ekf import EkfConfig, ExtrinsicsEKF, FrameStds
-from .long_run import batch_means
+from .ekf import EkfConfig, ExtrinsicsEKF
 from .model import NoiseParams
-from .mount_change import MountChangeConfig, across_jump, jump_variance
+from .mount_change import across_jump, jump_variance
+from .smoother_config import SmoothedFrame, SmootherConfig, chi_norm
+from .smoother_marginals import block_marginals, block_norms, state_covariances, states_of
 
 FloatArray = NDArray[np.float64]
-
-_LETTERS = "XVWMHYB"
-
-
-@dataclass(frozen=True)
-class SmootherConfig:
-    """Smoother settings (units in the names). Noise and priors are the EKF's
-    (``filters.model.NoiseParams``); ``height_m`` is the nominal height (prior mean)."""
-
-    height_m: float = 1.5
-    noise: NoiseParams = field(default_factory=NoiseParams)
-    #: sliding-window length; 0 smooths the whole drive in one batch
-    lag_s: float = 0.0
-    #: robust loss of the pair factors (``factors.LOSSES``); its threshold on the whitened
-    #: norm of a block is √χ²(loss_probability, dof) (× ``factors.LOSS_K_SCALE``). Geman–McClure:
-    #: its influence falls as 1/r³ (Cauchy's as 1/r), so a wrong pair ends with almost no
-    #: pull, like the EKF's gate: with Cauchy, strong yaw outliers on the cart bent the
-    #: trajectory (1.30× the EKF's RMS at 10 % outliers; GM: 0.92×, clean drives unchanged)
-    loss: str = "geman-mcclure"
-    loss_probability: float = 0.99
-    #: the pair's motion given its angles (``model.motion_given_pose``): the estimator's tz is
-    #: correlated ~−0.95 with its pitch, so a smoothed frame pose better than the pair's own
-    #: corrects the pair's motion, as far as the robust loss trusts the pair's angles
-    #: (``factors.GivenPose``). KITTI 07: distance error median 2.92 → 2.49 % (fixed-lag 2 s),
-    #: 2.85 % (batch). Off by default: the batch's factor then acts on seven variables
-    #: instead of four (batch 623 → 469 frames/s on a 120 s drive, below #7's 500) and the
-    #: rendered car's trajectory was 12 % worse (docs/filters.md)
-    motion_given_pose: bool = False
-    #: adaptive body shaking, as the EKF's (``body_scale``): each frame's body std is the
-    #: larger of the model's ``body_std_deg`` and the robust spread of the pairs' pitch/roll
-    #: over this many seconds up to it, less their measurement noise; 0 keeps the model's
-    body_window_s: float = 6.0
-    body_window_min_pairs: int = 10
-    #: mount steps (a knocked camera) found by the EKF's test (``filters.mount_change``) let
-    #: the batch's mount jump there
-    mount_change: MountChangeConfig = field(default_factory=MountChangeConfig)
-    #: ... unless undone within this many seconds (``persistent_changes``)
-    mount_change_persist_s: float = 5.0
-    #: robust loss of the wheel-speed factors
-    speed_loss: str = "huber"
-    #: side slip allowed per frame by the no-side-slip process model, metres
-    cross_track_std_m: float = 0.001
-    #: a pair block whose whitened norm exceeds √χ²(report_probability, dof) is reported
-    #: as rejected in the frame status ('partial' / 'gated', as the EKF's gate)
-    report_probability: float = 0.999
-    max_iterations: int = 30
-    #: Gauss–Newton stops when a step's predicted relative decrease of the error is below this
-    #: (1e-5: the mount within ~1e-5 ° and the height within ~1 µm of the converged answer on
-    #: the simulated drives, one step fewer than 1e-6)
-    tolerance: float = 1e-5
-    #: ... or below this many χ² units (half the step's squared Mahalanobis length), as the
-    #: fixed-lag window's ``lag_tolerance_chi2``: the redescending loss's reweighting otherwise
-    #: creeps on (rendered car: 26 steps, the last 15 moving the mount < 3e-4° and the height
-    #: < 3 µm; with 0.1 it stops after 11)
-    tolerance_chi2: float = 0.1
-    marginals: bool = True
-    #: fixed lag: Gauss–Newton over the window stops when a step's predicted decrease of the
-    #: cost is below this (χ² units: half the step's squared Mahalanobis length), or after
-    #: ``lag_max_iterations`` steps; the window is solved again, warm-started, at each later
-    #: frame. 0.1: ~2 steps per frame (0.01: 2.6) with the same answers to the printed digits
-    #: of the simulated and rendered benchmarks; 1 or 10 (one step for most frames) left
-    #: the rendered cart's height 0.05 mm worse (0.24 → 0.28 mm RMS)
-    lag_tolerance_chi2: float = 0.1
-    lag_max_iterations: int = 3
-    #: fixed-lag: good pairs whose medians start the window (as the EKF's bootstrap)
-    init_pairs: int = 5
-    #: a pair moves the height only with a wheel speed within this many seconds of it (the
-    #: EKF's rule: without a metric speed, scale is unobservable)
-    speed_timeout_s: float = 1.0
-
-    def __post_init__(self) -> None:
-        if self.height_m <= 0:
-            raise ValueError(f"nominal height must be > 0, got {self.height_m}")
-        if self.lag_s < 0:
-            raise ValueError(f"lag must be >= 0 s, got {self.lag_s}")
-        if self.loss not in F.LOSSES:
-            raise ValueError(f"loss must be one of {F.LOSSES}, got {self.loss!r}")
-
-    def loss_k(self, dof: int) -> float:
-        """Robust-loss threshold on the whitened norm of a ``dof``-dimensional block."""
-        return chi_norm(self.loss_probability, dof)
-
-    def pair_loss_k(self, dof: int) -> float:
-        """Threshold of the pair factors' loss on the whitened norm of a ``dof``-dim block."""
-        return F.LOSS_K_SCALE.get(self.loss, 1.0) * self.loss_k(dof)
-
-
-@lru_cache(maxsize=64)
-def chi_norm(probability: float, dof: int) -> float:
-    """√(χ² quantile): the whitened norm a ``dof``-dim Gaussian stays below with ``probability``."""
-    return float(math.sqrt(chi2.ppf(probability, dof)))
-
-
-@dataclass(frozen=True)
-class SmoothedFrame(FrameStds):
-    """Smoothed estimate of one frame (radians, metres, seconds; frames of filters.model),
-    field for field like ``filters.ekf.FilterState``.
-
-    ``status``: ``ok`` (pair used), ``partial`` / ``gated`` (one / both pair blocks
-    rejected as outliers by the robust loss), ``predicted`` (no usable pair: ``reason`` gives
-    the input status; the estimate comes from the neighbours), ``reset`` (fixed lag: the
-    window was restarted at this frame, ``reason`` says why), ``skipped`` (not smoothed,
-    e.g. a time not after the previous frame; numbers NaN)."""
-
-    frame: int
-    t: float
-    status: str
-    mount: FloatArray  # (pitch_m, roll_m, h_m)
-    mount_cov: FloatArray
-    mount_yaw: float
-    pose: FloatArray  # frame pose (pitch, roll, h) = mount + body
-    pose_cov: FloatArray
-    motion: FloatArray  # (tx, tz, yaw) frame k-1 → k, metric, G_{k-1}; NaN at the first frame
-    motion_cov: FloatArray
-    speed: float
-    yaw_rate: float
-    position: FloatArray  # (x, y) world, metres
-    heading: float
-    state: FloatArray  # 16-vector, filters.model layout
-    covariance: FloatArray  # 16×16
-    nis: float = float("nan")
-    gated: str = ""
-    reason: str = ""
-    standstill: bool = False  # the standstill factor (model.standstill_states) holds here
-
-    @property
-    def initialised(self) -> bool:
-        return self.status != "skipped"
-
-    @property
-    def reset_reason(self) -> str:
-        """The EKF's note column: here why a frame has no pair or was skipped."""
-        return self.reason
-
 
 
 # --- shared pieces ----------------------------------------------------------------------------
@@ -461,157 +327,6 @@ def _metric_frames(t: FloatArray, speeds: FloatArray, timeout_s: float) -> NDArr
     return near <= timeout_s
 
 
-def _states_of(values: gtsam.Values, n: int) -> FloatArray:
-    """(n, 16) states (filters.model layout) of key indices 0..n-1; frame 0's prev slots NaN."""
-    u = gtsam.utilities
-    s = np.full((n, M.STATE_DIM), np.nan)
-    vec = {c: np.asarray(u.extractVectors(values, c)).reshape(n, -1) for c in "VWMHYB"}
-    pose = np.asarray(u.extractPose2(values)).reshape(n, 3)  # Pose2 (x, y, θ) = model (y, x, ψ)
-    s[:, [M.MOUNT_PITCH, M.MOUNT_ROLL]] = vec["M"]
-    s[:, M.MOUNT_HEIGHT] = vec["H"][:, 0]
-    s[:, M.MOUNT_YAW] = vec["Y"][:, 0]
-    s[:, M.BODY] = vec["B"]
-    s[:, M.SPEED] = vec["V"][:, 0]
-    s[:, M.YAW_RATE] = vec["W"][:, 0]
-    s[:, M.POS_X], s[:, M.POS_Y], s[:, M.HEADING] = pose[:, 1], pose[:, 0], pose[:, 2]
-    s[1:, M.PREV_BODY] = s[:-1, M.BODY]
-    s[1:, M.PREV_POSE] = s[:-1, M.POSE]
-    return s
-
-
-# layout of a frame's block in the block-tridiagonal information matrix: letter → offset, dim
-_DIMS = {"X": 3, "V": 1, "W": 1, "M": 2, "H": 1, "Y": 1, "B": 2}
-_BLOCK = {c: (sum(_DIMS[d] for d in _LETTERS[: _LETTERS.index(c)]), _DIMS[c]) for c in _LETTERS}
-_BLOCK_DIM = sum(_DIMS.values())
-# state indices (model layout) of each block entry, for frame k and (prev slots) frame k-1
-_STATE_OF_BLOCK = np.array(
-    [
-        M.POS_X,
-        M.POS_Y,
-        M.HEADING,
-        M.SPEED,
-        M.YAW_RATE,
-        M.MOUNT_PITCH,
-        M.MOUNT_ROLL,
-        M.MOUNT_HEIGHT,
-        M.MOUNT_YAW,
-        M.BODY_PITCH,
-        M.BODY_ROLL,
-    ]
-)
-
-
-def block_marginals(lin: gtsam.GaussianFactorGraph, n: int) -> tuple[FloatArray, FloatArray]:
-    """Marginal covariances of every frame's variables from the linearised graph of ``n``
-    frames whose factors only join consecutive frames: (n, D, D) blocks Σ_k and (n-1, D, D)
-    cross blocks Σ_{k-1,k} in the tangent layout ``_BLOCK`` (D = 11).
-
-    The information matrix AᵀA is block tridiagonal in frame order, so a forward Schur
-    complement and a backward covariance sweep (as in a Rauch–Tung–Striebel smoother) give
-    exactly the blocks ``gtsam.Marginals`` would, in O(n) small dense operations."""
-    from scipy import sparse
-
-    d = _BLOCK_DIM
-    ij = lin.sparseJacobian_()
-    rows, cols, vals = ij[0].astype(np.int64) - 1, ij[1].astype(np.int64) - 1, ij[2]
-    n_cols = n * d
-    keep = cols < n_cols  # the last column holds b
-    a = sparse.csr_matrix(
-        (vals[keep], (rows[keep], cols[keep])), shape=(int(rows.max()) + 1, n_cols)
-    )
-    # natural ordering = keys sorted: letters alphabetically, then frame index
-    perm = np.empty(n_cols, dtype=np.int64)
-    col = 0
-    for c in sorted(_LETTERS):
-        off, dim = _BLOCK[c]
-        frames = np.repeat(np.arange(n), dim)
-        comp = np.tile(np.arange(dim), n)
-        perm[col : col + n * dim] = frames * d + off + comp
-        col += n * dim
-    info = (a.T @ a).tocoo()
-    r, c_, v = perm[info.row], perm[info.col], info.data
-    fr, fc = r // d, c_ // d
-    if np.any(np.abs(fr - fc) > 1):
-        raise ValueError("graph is not block tridiagonal in frame order")
-    diag = np.zeros((n, d, d))
-    upper = np.zeros((max(n - 1, 0), d, d))
-    sel = fr == fc
-    np.add.at(diag, (fr[sel], r[sel] % d, c_[sel] % d), v[sel])
-    sel = fc == fr + 1
-    np.add.at(upper, (fr[sel], r[sel] % d, c_[sel] % d), v[sel])
-    s_inv = np.empty((n, d, d))
-    s = diag[0]
-    for k in range(n):
-        if k > 0:
-            s = diag[k] - upper[k - 1].T @ s_inv[k - 1] @ upper[k - 1]
-        s_inv[k] = np.linalg.inv(s)
-    sigma = np.empty((n, d, d))
-    cross = np.empty((max(n - 1, 0), d, d))
-    sigma[-1] = s_inv[-1]
-    for k in range(n - 2, -1, -1):
-        g = s_inv[k] @ upper[k]
-        cross[k] = -g @ sigma[k + 1]
-        sigma[k] = s_inv[k] - cross[k] @ g.T
-    sigma = 0.5 * (sigma + np.swapaxes(sigma, 1, 2))
-    return sigma, cross
-
-
-def _state_covariances(
-    states: FloatArray, sigma: FloatArray, cross: FloatArray, chunk: int = 4096
-) -> FloatArray:
-    """(n, 16, 16) model-layout covariances of n consecutive frames from their block marginals
-    (``block_marginals``: Σ_k and the cross blocks Σ_{k-1,k}); Pose2 tangents mapped to
-    (x, y, ψ). Frame 0's prev slots are NaN. Computed in chunks of ``chunk`` frames."""
-    n, d = len(states), _BLOCK_DIM
-    xo, bo = _BLOCK["X"][0], _BLOCK["B"][0]
-    out = np.empty((n, M.STATE_DIM, M.STATE_DIM))
-    for lo in range(0, n, chunk):
-        hi = min(n, lo + chunk)
-        m = hi - lo
-        psi = states[lo:hi, M.HEADING]
-        psi_prev = np.where(np.arange(lo, hi) > 0, states[lo:hi, M.PREV_HEADING], 0.0)
-        tk = np.zeros((m, M.STATE_DIM, 2 * d))
-        tk[:, _STATE_OF_BLOCK, d + np.arange(d)] = 1.0
-        tk[:, M.POSE, d + xo : d + xo + 3] = F.tangent_jacobian(psi)
-        tk[:, M.PREV_BODY, bo : bo + 2] = np.eye(2)
-        tk[:, M.PREV_POSE, xo : xo + 3] = F.tangent_jacobian(psi_prev)
-        joint = np.zeros((m, 2 * d, 2 * d))
-        joint[:, d:, d:] = sigma[lo:hi]
-        first = max(lo, 1)
-        joint[first - lo :, :d, :d] = sigma[first - 1 : hi - 1]
-        joint[first - lo :, :d, d:] = cross[first - 1 : hi - 1]
-        joint[first - lo :, d:, :d] = np.swapaxes(cross[first - 1 : hi - 1], 1, 2)
-        out[lo:hi] = tk @ joint @ np.swapaxes(tk, 1, 2)
-    if n:
-        out[0, M.PREV_BODY, :] = out[0, :, M.PREV_BODY] = np.nan
-        out[0, M.PREV_POSE, :] = out[0, :, M.PREV_POSE] = np.nan
-    return out
-
-
-def _block_norms(
-    graph_factors: dict[int, tuple[gtsam.CustomFactor, gtsam.CustomFactor]], values: gtsam.Values
-) -> dict[int, tuple[float, float]]:
-    """Whitened (Gaussian) norms of each key index's pose and motion pair blocks."""
-    out = {}
-    for k, (fp, fm) in graph_factors.items():
-        out[k] = tuple(  # type: ignore[assignment]
-            float(
-                np.sqrt(
-                    _gaussian_part(f.noiseModel()).squaredMahalanobisDistance(
-                        f.unwhitenedError(values)
-                    )
-                )
-            )
-            for f in (fp, fm)
-        )
-    return out
-
-
-def _gaussian_part(noise: gtsam.noiseModel.Base) -> gtsam.noiseModel.Base:
-    """The Gaussian model inside a robust one (its ``whiten`` would apply the M-estimator)."""
-    return noise.noise() if isinstance(noise, gtsam.noiseModel.Robust) else noise
-
-
 def _make_frames(
     ms: Sequence[PairMeasurement],
     states: FloatArray,
@@ -787,11 +502,11 @@ def smooth_batch(
     t0 = time.perf_counter()
     if cfg.marginals:
         sigma, cross = block_marginals(lin, len(ms))
-    norms = _block_norms(pairs, values)
+    norms = block_norms(pairs, values)
     n_kept = len(ms)
-    states = _states_of(values, n_kept)
+    states = states_of(values, n_kept)
     if cfg.marginals:
-        covs = _state_covariances(states, sigma, cross)
+        covs = state_covariances(states, sigma, cross)
     else:
         covs = np.full((n_kept, M.STATE_DIM, M.STATE_DIM), np.nan)
     statuses, gated, reasons, stills = [], [], [], []
@@ -871,103 +586,3 @@ def _gauss_newton(
     if lin is None:
         lin = graph.linearize(values)
     return values, it, float(err0), float(err), lin
-
-
-# --- drive summary ----------------------------------------------------------------------------
-
-
-def summarize_mount(
-    frames: Sequence[SmoothedFrame], measurements: Sequence[PairMeasurement] | None = None
-) -> dict[str, object]:
-    """The drive's extrinsics in brief (degrees, metres, minutes): for mount pitch, roll and
-    height the mean with a 95 % interval, its 1-σ, the start and end values, the drift
-    (least-squares slope per minute and max − min), plus the frame counts by status.
-
-    Model interval: mean ± 1.96 × the mean per-frame σ (the smoothed mount of neighbouring
-    frames is almost fully correlated, so the per-frame σ is what the mean is known to).
-    With ``measurements`` (the pairs that were smoothed), pitch and roll are also checked
-    against the data: the batch-means standard error (``filters.long_run``) of the measured
-    frame pose minus the smoothed mount, i.e. of what the model calls body shaking and
-    noise. Where slow errors the model lacks (road camber, load, the front end's tracking
-    correlation) make that wider, the interval is the data's (``interval_from``: ``data``);
-    ``std_model`` / ``std_data`` give both."""
-    good = [f for f in frames if f.initialised and np.all(np.isfinite(f.mount))]
-    counts: dict[str, int] = {}
-    for f in frames:
-        counts[f.status] = counts.get(f.status, 0) + 1
-    out: dict[str, object] = {"frames": len(frames), "status_counts": counts}
-    if not good:
-        out["note"] = "no frame has an estimate"
-        return out
-    t = np.array([f.t for f in good])
-    mount = np.array([f.mount for f in good])
-    std = np.array([f.mount_std for f in good])
-    residual = _pose_residuals(good, measurements)
-    out["duration_s"] = float(t[-1] - t[0])
-    for i, (name, unit, conv) in enumerate(
-        (("pitch", "deg", np.degrees), ("roll", "deg", np.degrees), ("height", "m", np.asarray))
-    ):
-        v = np.asarray(conv(mount[:, i]), dtype=float)
-        sd = np.asarray(conv(std[:, i]), dtype=float)
-        mean = float(np.mean(v))
-        sigma = float(np.nanmean(sd)) if np.any(np.isfinite(sd)) else float("nan")
-        half, source, sigma_data = 1.96 * sigma, "model", float("nan")
-        data = batch_means(conv(residual[:, i])) if residual is not None and i < 2 else None
-        if data is not None:
-            sigma_data = data.std
-            if not data.half_width95 <= half:  # also where the model gave no σ
-                half, source = data.half_width95, "data"
-        slope = float(np.polyfit(t / 60.0, v, 1)[0]) if len(t) > 1 and t[-1] > t[0] else 0.0
-        out[name] = {
-            "unit": unit,
-            "mean": mean,
-            "ci95": [mean - half, mean + half],
-            "std": sigma if source == "model" else sigma_data,
-            "std_model": sigma,
-            "std_data": sigma_data,
-            "interval_from": source,
-            "start": float(v[0]),
-            "end": float(v[-1]),
-            "drift_per_min": slope,
-            "max_minus_min": float(np.max(v) - np.min(v)),
-        }
-    return out
-
-
-def _pose_residuals(
-    frames: Sequence[SmoothedFrame], measurements: Sequence[PairMeasurement] | None
-) -> FloatArray | None:
-    """(n, 2) measured pitch/roll of each frame's pair minus the frame's smoothed mount
-    (rad; NaN where the pair is not usable), or None without measurements."""
-    if measurements is None:
-        return None
-    by_frame = {m.frame: m for m in measurements}
-    out = np.full((len(frames), 2), np.nan)
-    for i, f in enumerate(frames):
-        m = by_frame.get(f.frame)
-        if m is not None and m.ok:
-            out[i] = m.z[2:4] - f.mount[:2]
-    return out
-
-
-def summary_markdown(summary: dict[str, object]) -> str:
-    """A Markdown table of ``summarize_mount``'s result."""
-    lines = [
-        f"Frames: {summary['frames']} ({', '.join(f'{k} {v}' for k, v in sorted(summary['status_counts'].items()))})",  # type: ignore[union-attr]  # noqa: E501
-        "",
-        "| mount | mean | 95 % interval | 1-σ | interval from | start | end | drift / min "
-        "| max − min |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
-    ]
-    for name in ("pitch", "roll", "height"):
-        d = summary.get(name)
-        if not isinstance(d, dict):
-            continue
-        fmt = "{:.4f}" if d["unit"] == "m" else "{:.3f}"
-        f = fmt.format
-        lines.append(
-            f"| {name} ({d['unit']}) | {f(d['mean'])} | [{f(d['ci95'][0])}, {f(d['ci95'][1])}] | "
-            f"{f(d['std'])} | {d.get('interval_from', 'model')} | {f(d['start'])} | "
-            f"{f(d['end'])} | {f(d['drift_per_min'])} | {f(d['max_minus_min'])} |"
-        )
-    return "\n".join(lines) + "\n"

@@ -12,7 +12,8 @@ from vipm_track.measurement import PairMeasurement
 
 from .ekf import SpeedSource, speed_at
 from .fixed_lag import FixedLagSmoother
-from .smoother import SmoothedFrame, SmootherConfig, smooth_batch
+from .smoother import smooth_batch
+from .smoother_config import SmoothedFrame, SmootherConfig
 
 FloatArray = NDArray[np.float64]
 

@@ -52,7 +52,7 @@ from vipm_track.filters.metrics import (  # noqa: E402
     rms_after,
     score_run,
 )
-from vipm_track.filters.smoother import SmootherConfig  # noqa: E402
+from vipm_track.filters.smoother_config import SmootherConfig  # noqa: E402
 from vipm_track.filters.smoothing import smooth  # noqa: E402
 
 Method = Callable[[DriveRun, bool], Estimates]

@@ -60,7 +60,7 @@ from vipm_track.filters.monitor_inputs import (  # noqa: E402
     inputs_from_measurements,
     monitor_measurements,
 )
-from vipm_track.filters.smoother import SmootherConfig  # noqa: E402
+from vipm_track.filters.smoother_config import SmootherConfig  # noqa: E402
 from vipm_track.filters.smoothing import smooth  # noqa: E402
 from vipm_track.filters.wheel_speed import read_speed_csv  # noqa: E402
 from vipm_track.measurement import read_measurements  # noqa: E402

@@ -99,7 +99,7 @@ def test_filters_follow_the_real_kitti_drive(method: str, frames: int, median_ra
     # smoother that passed the pairs through would fail here. The EKF starts once it has
     # measured the body's shaking on 10 good pairs (150 frames).
     from vipm_track.filters.ekf import EkfConfig, run_filter
-    from vipm_track.filters.smoother import SmootherConfig
+    from vipm_track.filters.smoother_config import SmootherConfig
     from vipm_track.filters.smoothing import smooth
     from vipm_track.filters.track import track_row
     from vipm_track.measurement import measurements_from_table
@@ -131,7 +131,8 @@ def test_smoothed_summary_interval_is_honest_on_the_real_drive():
     # slope, the front end's tracking correlation): 1 s means scatter 10–20× more than the
     # model says. The model alone gives about ±0.1° for the drive's mean mount; the data's
     # batch means widen it (±0.4–0.5°), which is what a 16 s drive can tell.
-    from vipm_track.filters.smoother import SmootherConfig, summarize_mount
+    from vipm_track.filters.drive_summary import summarize_mount
+    from vipm_track.filters.smoother_config import SmootherConfig
     from vipm_track.filters.smoothing import smooth
     from vipm_track.measurement import measurements_from_table
 

@@ -8,7 +8,7 @@ import pytest
 from vipm_track.filters import model as M
 from vipm_track.filters.drive_sim import DriveConfig, DriveProfile, simulate_drive
 from vipm_track.filters.ekf import EkfConfig, run_filter
-from vipm_track.filters.smoother import SmootherConfig
+from vipm_track.filters.smoother_config import SmootherConfig
 from vipm_track.filters.smoothing import smooth
 
 H_TRUE, H0 = 1.53, 1.5

@@ -16,15 +16,13 @@ from vipm_track.filters import factors as F
 from vipm_track.filters import model as M
 from vipm_track.filters import window_rows as W
 from vipm_track.filters.drive_sim import DriveConfig, DriveProfile, simulate_drive
+from vipm_track.filters.drive_summary import summarize_mount
 from vipm_track.filters.ekf import EkfConfig, run_filter
 from vipm_track.filters.fixed_lag import FixedLagSmoother, SolveError
 from vipm_track.filters.metrics import from_filter_states, rms_after
-from vipm_track.filters.smoother import (
-    SmootherConfig,
-    block_marginals,
-    smooth_batch,
-    summarize_mount,
-)
+from vipm_track.filters.smoother import smooth_batch
+from vipm_track.filters.smoother_config import SmootherConfig
+from vipm_track.filters.smoother_marginals import block_marginals
 from vipm_track.filters.smoothing import smooth, speeds_at_frames
 from vipm_track.measurement import PairMeasurement, measurement_row
 from vipm_track.table import ESTIMATE_COLUMNS, read_table, write_table

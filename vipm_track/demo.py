@@ -35,10 +35,12 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from vipm_track.filters.drive_summary import summarize_mount
 from vipm_track.filters.ekf import EkfConfig, speed_at
 from vipm_track.filters.monitor import NominalCalibration, load_nominal, write_events
 from vipm_track.filters.monitor_inputs import inputs_from_measurements, monitor_frames
-from vipm_track.filters.smoother import SmootherConfig, mount_jumps, summarize_mount
+from vipm_track.filters.smoother import mount_jumps
+from vipm_track.filters.smoother_config import SmootherConfig
 from vipm_track.filters.smoothing import smooth, speeds_at_frames
 from vipm_track.filters.track import TRACK_COLUMNS, track_row, write_track
 from vipm_track.filters.wheel_speed import read_speed_csv

@@ -14,7 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from vipm_track.filters.factors import LOSSES
-from vipm_track.filters.smoother import SmootherConfig
+from vipm_track.filters.smoother_config import SmootherConfig
 
 from ..errors import InputError
 from .common import (
@@ -175,7 +175,7 @@ def build_config(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from vipm_track.filters.smoother import summarize_mount, summary_markdown
+    from vipm_track.filters.drive_summary import summarize_mount, summary_markdown
     from vipm_track.filters.track import TRACK_COLUMNS
 
     from ..table import TableWriter

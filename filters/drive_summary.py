@@ -1,0 +1,114 @@
+"""A smoothed drive condensed: the mean mount with 95 % intervals (the model's and the
+data's, from batch means of measured pose − smoothed mount) and its drift
+(``summarize_mount``), as JSON-ready numbers and a Markdown table."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from vipm_track.measurement import PairMeasurement
+
+from .long_run import batch_means
+from .smoother_config import SmoothedFrame
+
+FloatArray = NDArray[np.float64]
+
+
+def summarize_mount(
+    frames: Sequence[SmoothedFrame], measurements: Sequence[PairMeasurement] | None = None
+) -> dict[str, object]:
+    """The drive's extrinsics in brief (degrees, metres, minutes): for mount pitch, roll and
+    height the mean with a 95 % interval, its 1-σ, the start and end values, the drift
+    (least-squares slope per minute and max − min), plus the frame counts by status.
+
+    Model interval: mean ± 1.96 × the mean per-frame σ (the smoothed mount of neighbouring
+    frames is almost fully correlated, so the per-frame σ is what the mean is known to).
+    With ``measurements`` (the pairs that were smoothed), pitch and roll are also checked
+    against the data: the batch-means standard error (``filters.long_run``) of the measured
+    frame pose minus the smoothed mount, i.e. of what the model calls body shaking and
+    noise. Where slow errors the model lacks (road camber, load, the front end's tracking
+    correlation) make that wider, the interval is the data's (``interval_from``: ``data``);
+    ``std_model`` / ``std_data`` give both."""
+    good = [f for f in frames if f.initialised and np.all(np.isfinite(f.mount))]
+    counts: dict[str, int] = {}
+    for f in frames:
+        counts[f.status] = counts.get(f.status, 0) + 1
+    out: dict[str, object] = {"frames": len(frames), "status_counts": counts}
+    if not good:
+        out["note"] = "no frame has an estimate"
+        return out
+    t = np.array([f.t for f in good])
+    mount = np.array([f.mount for f in good])
+    std = np.array([f.mount_std for f in good])
+    residual = _pose_residuals(good, measurements)
+    out["duration_s"] = float(t[-1] - t[0])
+    for i, (name, unit, conv) in enumerate(
+        (("pitch", "deg", np.degrees), ("roll", "deg", np.degrees), ("height", "m", np.asarray))
+    ):
+        v = np.asarray(conv(mount[:, i]), dtype=float)
+        sd = np.asarray(conv(std[:, i]), dtype=float)
+        mean = float(np.mean(v))
+        sigma = float(np.nanmean(sd)) if np.any(np.isfinite(sd)) else float("nan")
+        half, source, sigma_data = 1.96 * sigma, "model", float("nan")
+        data = batch_means(conv(residual[:, i])) if residual is not None and i < 2 else None
+        if data is not None:
+            sigma_data = data.std
+            if not data.half_width95 <= half:  # also where the model gave no σ
+                half, source = data.half_width95, "data"
+        slope = float(np.polyfit(t / 60.0, v, 1)[0]) if len(t) > 1 and t[-1] > t[0] else 0.0
+        out[name] = {
+            "unit": unit,
+            "mean": mean,
+            "ci95": [mean - half, mean + half],
+            "std": sigma if source == "model" else sigma_data,
+            "std_model": sigma,
+            "std_data": sigma_data,
+            "interval_from": source,
+            "start": float(v[0]),
+            "end": float(v[-1]),
+            "drift_per_min": slope,
+            "max_minus_min": float(np.max(v) - np.min(v)),
+        }
+    return out
+
+
+def _pose_residuals(
+    frames: Sequence[SmoothedFrame], measurements: Sequence[PairMeasurement] | None
+) -> FloatArray | None:
+    """(n, 2) measured pitch/roll of each frame's pair minus the frame's smoothed mount
+    (rad; NaN where the pair is not usable), or None without measurements."""
+    if measurements is None:
+        return None
+    by_frame = {m.frame: m for m in measurements}
+    out = np.full((len(frames), 2), np.nan)
+    for i, f in enumerate(frames):
+        m = by_frame.get(f.frame)
+        if m is not None and m.ok:
+            out[i] = m.z[2:4] - f.mount[:2]
+    return out
+
+
+def summary_markdown(summary: dict[str, object]) -> str:
+    """A Markdown table of ``summarize_mount``'s result."""
+    lines = [
+        f"Frames: {summary['frames']} ({', '.join(f'{k} {v}' for k, v in sorted(summary['status_counts'].items()))})",  # type: ignore[union-attr]  # noqa: E501
+        "",
+        "| mount | mean | 95 % interval | 1-σ | interval from | start | end | drift / min "
+        "| max − min |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for name in ("pitch", "roll", "height"):
+        d = summary.get(name)
+        if not isinstance(d, dict):
+            continue
+        fmt = "{:.4f}" if d["unit"] == "m" else "{:.3f}"
+        f = fmt.format
+        lines.append(
+            f"| {name} ({d['unit']}) | {f(d['mean'])} | [{f(d['ci95'][0])}, {f(d['ci95'][1])}] | "
+            f"{f(d['std'])} | {d.get('interval_from', 'model')} | {f(d['start'])} | "
+            f"{f(d['end'])} | {f(d['drift_per_min'])} | {f(d['max_minus_min'])} |"
+        )
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,150 @@
+"""The smoothers' settings and output: ``SmootherConfig`` (the batch's and the fixed-lag's
+common settings) and ``SmoothedFrame`` (one frame's smoothed state, with the fields of the
+EKF's ``FilterState``)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.stats import chi2
+
+from . import factors as F
+from .ekf import FrameStds
+from .model import NoiseParams
+from .mount_change import MountChangeConfig
+
+FloatArray = NDArray[np.float64]
+
+@dataclass(frozen=True)
+class SmootherConfig:
+    """Smoother settings (units in the names). Noise and priors are the EKF's
+    (``filters.model.NoiseParams``); ``height_m`` is the nominal height (prior mean)."""
+
+    height_m: float = 1.5
+    noise: NoiseParams = field(default_factory=NoiseParams)
+    #: sliding-window length; 0 smooths the whole drive in one batch
+    lag_s: float = 0.0
+    #: robust loss of the pair factors (``factors.LOSSES``); its threshold on the whitened
+    #: norm of a block is √χ²(loss_probability, dof) (× ``factors.LOSS_K_SCALE``). Geman–McClure:
+    #: its influence falls as 1/r³ (Cauchy's as 1/r), so a wrong pair ends with almost no
+    #: pull, like the EKF's gate: with Cauchy, strong yaw outliers on the cart bent the
+    #: trajectory (1.30× the EKF's RMS at 10 % outliers; GM: 0.92×, clean drives unchanged)
+    loss: str = "geman-mcclure"
+    loss_probability: float = 0.99
+    #: the pair's motion given its angles (``model.motion_given_pose``): the estimator's tz is
+    #: correlated ~−0.95 with its pitch, so a smoothed frame pose better than the pair's own
+    #: corrects the pair's motion, as far as the robust loss trusts the pair's angles
+    #: (``factors.GivenPose``). KITTI 07: distance error median 2.92 → 2.49 % (fixed-lag 2 s),
+    #: 2.85 % (batch). Off by default: the batch's factor then acts on seven variables
+    #: instead of four (batch 623 → 469 frames/s on a 120 s drive, below #7's 500) and the
+    #: rendered car's trajectory was 12 % worse (docs/filters.md)
+    motion_given_pose: bool = False
+    #: adaptive body shaking, as the EKF's (``body_scale``): each frame's body std is the
+    #: larger of the model's ``body_std_deg`` and the robust spread of the pairs' pitch/roll
+    #: over this many seconds up to it, less their measurement noise; 0 keeps the model's
+    body_window_s: float = 6.0
+    body_window_min_pairs: int = 10
+    #: mount steps (a knocked camera) found by the EKF's test (``filters.mount_change``) let
+    #: the batch's mount jump there
+    mount_change: MountChangeConfig = field(default_factory=MountChangeConfig)
+    #: ... unless undone within this many seconds (``persistent_changes``)
+    mount_change_persist_s: float = 5.0
+    #: robust loss of the wheel-speed factors
+    speed_loss: str = "huber"
+    #: side slip allowed per frame by the no-side-slip process model, metres
+    cross_track_std_m: float = 0.001
+    #: a pair block whose whitened norm exceeds √χ²(report_probability, dof) is reported
+    #: as rejected in the frame status ('partial' / 'gated', as the EKF's gate)
+    report_probability: float = 0.999
+    max_iterations: int = 30
+    #: Gauss–Newton stops when a step's predicted relative decrease of the error is below this
+    #: (1e-5: the mount within ~1e-5 ° and the height within ~1 µm of the converged answer on
+    #: the simulated drives, one step fewer than 1e-6)
+    tolerance: float = 1e-5
+    #: ... or below this many χ² units (half the step's squared Mahalanobis length), as the
+    #: fixed-lag window's ``lag_tolerance_chi2``: the redescending loss's reweighting otherwise
+    #: creeps on (rendered car: 26 steps, the last 15 moving the mount < 3e-4° and the height
+    #: < 3 µm; with 0.1 it stops after 11)
+    tolerance_chi2: float = 0.1
+    marginals: bool = True
+    #: fixed lag: Gauss–Newton over the window stops when a step's predicted decrease of the
+    #: cost is below this (χ² units: half the step's squared Mahalanobis length), or after
+    #: ``lag_max_iterations`` steps; the window is solved again, warm-started, at each later
+    #: frame. 0.1: ~2 steps per frame (0.01: 2.6) with the same answers to the printed digits
+    #: of the simulated and rendered benchmarks; 1 or 10 (one step for most frames) left
+    #: the rendered cart's height 0.05 mm worse (0.24 → 0.28 mm RMS)
+    lag_tolerance_chi2: float = 0.1
+    lag_max_iterations: int = 3
+    #: fixed-lag: good pairs whose medians start the window (as the EKF's bootstrap)
+    init_pairs: int = 5
+    #: a pair moves the height only with a wheel speed within this many seconds of it (the
+    #: EKF's rule: without a metric speed, scale is unobservable)
+    speed_timeout_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.height_m <= 0:
+            raise ValueError(f"nominal height must be > 0, got {self.height_m}")
+        if self.lag_s < 0:
+            raise ValueError(f"lag must be >= 0 s, got {self.lag_s}")
+        if self.loss not in F.LOSSES:
+            raise ValueError(f"loss must be one of {F.LOSSES}, got {self.loss!r}")
+
+    def loss_k(self, dof: int) -> float:
+        """Robust-loss threshold on the whitened norm of a ``dof``-dimensional block."""
+        return chi_norm(self.loss_probability, dof)
+
+    def pair_loss_k(self, dof: int) -> float:
+        """Threshold of the pair factors' loss on the whitened norm of a ``dof``-dim block."""
+        return F.LOSS_K_SCALE.get(self.loss, 1.0) * self.loss_k(dof)
+
+
+@lru_cache(maxsize=64)
+def chi_norm(probability: float, dof: int) -> float:
+    """√(χ² quantile): the whitened norm a ``dof``-dim Gaussian stays below with ``probability``."""
+    return float(math.sqrt(chi2.ppf(probability, dof)))
+
+
+@dataclass(frozen=True)
+class SmoothedFrame(FrameStds):
+    """Smoothed estimate of one frame (radians, metres, seconds; frames of filters.model),
+    field for field like ``filters.ekf.FilterState``.
+
+    ``status``: ``ok`` (pair used), ``partial`` / ``gated`` (one / both pair blocks
+    rejected as outliers by the robust loss), ``predicted`` (no usable pair: ``reason`` gives
+    the input status; the estimate comes from the neighbours), ``reset`` (fixed lag: the
+    window was restarted at this frame, ``reason`` says why), ``skipped`` (not smoothed,
+    e.g. a time not after the previous frame; numbers NaN)."""
+
+    frame: int
+    t: float
+    status: str
+    mount: FloatArray  # (pitch_m, roll_m, h_m)
+    mount_cov: FloatArray
+    mount_yaw: float
+    pose: FloatArray  # frame pose (pitch, roll, h) = mount + body
+    pose_cov: FloatArray
+    motion: FloatArray  # (tx, tz, yaw) frame k-1 → k, metric, G_{k-1}; NaN at the first frame
+    motion_cov: FloatArray
+    speed: float
+    yaw_rate: float
+    position: FloatArray  # (x, y) world, metres
+    heading: float
+    state: FloatArray  # 16-vector, filters.model layout
+    covariance: FloatArray  # 16×16
+    nis: float = float("nan")
+    gated: str = ""
+    reason: str = ""
+    standstill: bool = False  # the standstill factor (model.standstill_states) holds here
+
+    @property
+    def initialised(self) -> bool:
+        return self.status != "skipped"
+
+    @property
+    def reset_reason(self) -> str:
+        """The EKF's note column: here why a frame has no pair or was skipped."""
+        return self.reason
