@@ -28,7 +28,8 @@ from numpy.typing import NDArray
 from vipm_track.measurement import PairMeasurement
 
 from .body_scale import pair_change
-from .ekf import EkfConfig, ExtrinsicsEKF, speed_at
+from .ekf import ExtrinsicsEKF, speed_at
+from .ekf_state import EkfConfig
 from .monitor import (
     DriftMonitor,
     MonitorConfig,

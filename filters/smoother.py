@@ -38,7 +38,8 @@ from vipm_track.measurement import PairMeasurement
 from . import factors as F
 from . import model as M
 from .body_scale import BodyScale, pair_change
-from .ekf import EkfConfig, ExtrinsicsEKF
+from .ekf import ExtrinsicsEKF
+from .ekf_state import EkfConfig
 from .model import NoiseParams
 from .mount_change import across_jump, jump_variance
 from .smoother_config import SmoothedFrame, SmootherConfig, chi_norm

@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 from scipy.stats import chi2
 
 from . import factors as F
-from .ekf import FrameStds
+from .ekf_state import FrameStds
 from .model import NoiseParams
 from .mount_change import MountChangeConfig
 

@@ -33,7 +33,8 @@ import numpy as np
 from vipm_track.measurement import PairMeasurement
 from vipm_track.table import TableWriter
 
-from .ekf import EkfConfig, ExtrinsicsEKF, FilterState, SpeedSource, speed_at
+from .ekf import ExtrinsicsEKF, SpeedSource, speed_at
+from .ekf_state import EkfConfig, FilterState
 
 TRACK_COLUMNS: tuple[str, ...] = (
     "pitch_std_deg", "roll_std_deg", "height_std_m", "tx_std_m", "tz_std_m", "yaw_std_deg",

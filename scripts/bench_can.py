@@ -25,12 +25,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from vipm_track.filters.wheel_speed import (  # noqa: E402
-    SpeedDecoder,
-    align_to_frames,
-    decode_can_log,
-    fit_speed_scale,
-)
+from vipm_track.filters.speed_decoder import SpeedDecoder, decode_can_log  # noqa: E402
+from vipm_track.filters.wheel_speed import align_to_frames, fit_speed_scale  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "comma2k19_can"
 ALL_WHEELS = ",".join(f"WHEEL_SPEEDS.WHEEL_SPEED_{w}" for w in ("FL", "FR", "RL", "RR"))

@@ -43,7 +43,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from vipm_track.filters.drive_sim import DriveConfig, DriveRun, simulate_drive  # noqa: E402
-from vipm_track.filters.ekf import EkfConfig, run_filter, speed_at  # noqa: E402
+from vipm_track.filters.ekf import run_filter, speed_at  # noqa: E402
+from vipm_track.filters.ekf_state import EkfConfig  # noqa: E402
 from vipm_track.filters.metrics import (  # noqa: E402
     Consistency,
     Estimates,

@@ -21,7 +21,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from vipm_track.filters.drive_sim import DriveConfig, simulate_drive  # noqa: E402
-from vipm_track.filters.ekf import EkfConfig, run_filter  # noqa: E402
+from vipm_track.filters.ekf import run_filter  # noqa: E402
+from vipm_track.filters.ekf_state import EkfConfig  # noqa: E402
 from vipm_track.filters.fixed_lag import FixedLagSmoother  # noqa: E402
 from vipm_track.filters.smoother import smooth_batch  # noqa: E402
 from vipm_track.filters.smoother_config import SmootherConfig  # noqa: E402

@@ -9,12 +9,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from conftest import stop_in_a_turn
-from vipm_track.filters import model as M
-from vipm_track.filters.drive_sim import DriveConfig, MountChange, simulate_drive
-from vipm_track.filters.ekf import EkfConfig, ExtrinsicsEKF, run_filter
-from vipm_track.filters.metrics import consistency, from_filter_states, score_run
 
 from vipm_track.cli import main
+from vipm_track.filters import model as M
+from vipm_track.filters.drive_sim import DriveConfig, MountChange, simulate_drive
+from vipm_track.filters.ekf import ExtrinsicsEKF, run_filter
+from vipm_track.filters.ekf_state import EkfConfig
+from vipm_track.filters.metrics import consistency, from_filter_states, score_run
 from vipm_track.measurement import PairMeasurement, measurement_row
 from vipm_track.table import ESTIMATE_COLUMNS, read_table, write_table
 

@@ -200,6 +200,7 @@ _CAN: dict[str, object] = {}
 def _can(fmt: str) -> tuple[bytes, object]:
     """(a 400-frame log of the RAV4 drive in format ``fmt``, the loaded DBC)."""
     import can
+
     from vipm_track.filters.can_decode import load_dbc
 
     folder = shared_data("comma2k19_can")
@@ -222,7 +223,7 @@ def _can(fmt: str) -> tuple[bytes, object]:
 @FUZZ
 @given(data=st.data())
 def test_can_logs(fmt, data):
-    from vipm_track.filters.wheel_speed import decode_can_log
+    from vipm_track.filters.speed_decoder import decode_can_log
 
     seed, dbc = _can(fmt)
     damaged = data.draw(mutations(seed))

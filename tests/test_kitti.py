@@ -98,7 +98,8 @@ def test_filters_follow_the_real_kitti_drive(method: str, frames: int, median_ra
     # 0.86 / 0.98 / 1.09, and the smoothers fill the 5 failed pairs (159 frames), so a
     # smoother that passed the pairs through would fail here. The EKF starts once it has
     # measured the body's shaking on 10 good pairs (150 frames).
-    from vipm_track.filters.ekf import EkfConfig, run_filter
+    from vipm_track.filters.ekf import run_filter
+    from vipm_track.filters.ekf_state import EkfConfig
     from vipm_track.filters.smoother_config import SmootherConfig
     from vipm_track.filters.smoothing import smooth
     from vipm_track.filters.track import track_row

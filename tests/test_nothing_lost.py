@@ -200,7 +200,8 @@ def test_streamed_monitor_judges_as_the_whole_sequence_does(est, nominal):
     """The frame-by-frame monitor (``monitor_frames``, what the command streams) against
     the whole sequence filtered first (``run_filter``), its states read into the inputs."""
     from vipm_track.commands.inputs import read_estimates
-    from vipm_track.filters.ekf import EkfConfig, run_filter
+    from vipm_track.filters.ekf import run_filter
+    from vipm_track.filters.ekf_state import EkfConfig
     from vipm_track.filters.monitor import DriftMonitor, MonitorConfig, load_nominal
     from vipm_track.filters.monitor_inputs import (
         frame_rate,
@@ -253,7 +254,7 @@ def asc_lines(can_data, tmp_path_factory) -> list[str]:
 
 
 def _decode(path: Path, can_data: Path):
-    from vipm_track.filters.wheel_speed import decode_can_log
+    from vipm_track.filters.speed_decoder import decode_can_log
 
     return decode_can_log(path, can_data / "toyota_2017.dbc")
 

@@ -7,7 +7,8 @@ import pytest
 
 from vipm_track.filters import model as M
 from vipm_track.filters.drive_sim import DriveConfig, DriveProfile, simulate_drive
-from vipm_track.filters.ekf import EkfConfig, run_filter
+from vipm_track.filters.ekf import run_filter
+from vipm_track.filters.ekf_state import EkfConfig
 from vipm_track.filters.smoother_config import SmootherConfig
 from vipm_track.filters.smoothing import smooth
 

@@ -17,7 +17,8 @@ from vipm_track.filters import model as M
 from vipm_track.filters import window_rows as W
 from vipm_track.filters.drive_sim import DriveConfig, DriveProfile, simulate_drive
 from vipm_track.filters.drive_summary import summarize_mount
-from vipm_track.filters.ekf import EkfConfig, run_filter
+from vipm_track.filters.ekf import run_filter
+from vipm_track.filters.ekf_state import EkfConfig
 from vipm_track.filters.fixed_lag import FixedLagSmoother, SolveError
 from vipm_track.filters.metrics import from_filter_states, rms_after
 from vipm_track.filters.smoother import smooth_batch

@@ -20,7 +20,8 @@ import pytest
 
 from vipm_track.cli import main
 from vipm_track.filters import model as M
-from vipm_track.filters.ekf import EkfConfig, run_filter
+from vipm_track.filters.ekf import run_filter
+from vipm_track.filters.ekf_state import EkfConfig
 from vipm_track.filters.monitor import (
     DriftMonitor,
     MonitorConfig,

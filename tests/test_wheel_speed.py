@@ -17,12 +17,10 @@ from vipm_track.commands.common import add_speed_options
 from vipm_track.commands.inputs import speed_from_args
 from vipm_track.errors import InputError
 from vipm_track.filters.can_decode import DbcError, MessageDecoder, parse_signal_specs, unit_factor
+from vipm_track.filters.speed_decoder import SpeedDecoder, decode_bus, decode_can_log
 from vipm_track.filters.wheel_speed import (
-    SpeedDecoder,
     SpeedSeries,
     align_to_frames,
-    decode_bus,
-    decode_can_log,
     fit_speed_scale,
     read_speed_csv,
     write_speed_csv,
@@ -238,7 +236,8 @@ def test_virtual_bus_speed_streams_into_the_ekf_and_makes_height_observable(dbc)
     speed decoded off the bus. The true height is 2 % above the nominal one: the metric speed
     pulls the filter to it, while without speed the height stays at the nominal."""
     from vipm_track.filters.drive_sim import DriveConfig, simulate_drive
-    from vipm_track.filters.ekf import EkfConfig, ExtrinsicsEKF
+    from vipm_track.filters.ekf import ExtrinsicsEKF
+    from vipm_track.filters.ekf_state import EkfConfig
 
     cfg = DriveConfig.preset("car", duration_s=20.0, height_m=1.53, height_assumed_m=1.5)
     run = simulate_drive(cfg, seed=2)

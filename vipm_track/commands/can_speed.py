@@ -48,13 +48,8 @@ def _read_times(path: str) -> np.ndarray:
 
 
 def run(args: argparse.Namespace) -> int:
-    from vipm_track.filters.wheel_speed import (
-        SpeedSeries,
-        align_to_frames,
-        decode_bus,
-        decode_can_log,
-        write_speed_csv,
-    )
+    from vipm_track.filters.speed_decoder import decode_bus, decode_can_log
+    from vipm_track.filters.wheel_speed import SpeedSeries, align_to_frames, write_speed_csv
 
     check_writable(args.out, "--out")
     if args.log is not None:

@@ -15,7 +15,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from vipm_track.filters.wheel_speed import SpeedSeries, decode_can_log, read_speed_csv
+from vipm_track.filters.speed_decoder import decode_can_log
+from vipm_track.filters.wheel_speed import SpeedSeries, read_speed_csv
 
 from ..camera import CameraModel, load_camera
 from ..errors import InputError, NothingUsable

@@ -72,7 +72,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from vipm_track.filters.ekf import EkfConfig
+    from vipm_track.filters.ekf_state import EkfConfig
     from vipm_track.filters.monitor import MonitorConfig, load_nominal
     from vipm_track.filters.monitor_inputs import frame_rate, monitor_frames
 

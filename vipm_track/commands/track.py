@@ -53,7 +53,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from vipm_track.filters.ekf import EkfConfig
+    from vipm_track.filters.ekf_state import EkfConfig
     from vipm_track.filters.model import NoiseParams
     from vipm_track.filters.track import track, write_track
 

@@ -1,0 +1,387 @@
+"""Wheel speed decoded from CAN: ``SpeedDecoder`` turns frames of the wanted messages into a
+``wheel_speed.SpeedSeries`` through a DBC (cantools), from a log file (``decode_can_log``,
+any format python-can reads) or a live bus (``decode_bus``), counting bad data in a
+``DecodeSummary`` instead of failing."""
+
+from __future__ import annotations
+
+import math
+import re
+import statistics
+import sys
+import time
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import cantools
+import numpy as np
+from numpy.typing import NDArray
+
+from vipm_track.errors import InputError
+
+from .can_decode import MessageDecoder, SignalSpec, load_dbc, parse_signal_specs
+from .can_logs import LogRecords
+from .wheel_speed import (
+    COMBINE_RULES,
+    MAX_EXAMPLES,
+    MAX_READ_ERRORS,
+    DecodeSummary,
+    SpeedSeries,
+)
+
+_COMBINE_SCALAR: dict[str, Callable[[list[float]], float]] = {
+    "mean": lambda v: sum(v) / len(v),
+    "median": statistics.median, "min": min, "max": max,
+}
+
+
+
+def _channel_matches(channel: object, want: str) -> bool:
+    """``can0`` matches channel index 0 (ASC/BLF number channels) but never ``can1``."""
+    have = str(channel)
+    if have == want:
+        return True
+    mh, mw = re.search(r"(\d+)$", have), re.search(r"(\d+)$", want)
+    if not mh or not mw or int(mh.group(1)) != int(mw.group(1)):
+        return False
+    return have.isdigit() or want.isdigit()
+
+
+@dataclass
+class _Wanted:
+    """One DBC message carrying wanted signals: its decoder and where its columns go."""
+
+    decoder: MessageDecoder
+    columns: NDArray[np.intp]
+    t_last: float = -math.inf
+
+    @property
+    def column_list(self) -> list[int]:
+        return self.columns.tolist()
+
+
+class SpeedDecoder:
+    """Streaming speed decoder: feed python-can messages, get speed samples.
+
+    Parameters
+    ----------
+    dbc : DBC path or a loaded cantools database.
+    signals : ``"MSG.SIG[:UNIT],..."``, a list of such specs, or None for the rear wheels.
+    combine : rule combining several signals (``mean``, ``median``, ``min``, ``max``).
+    channel : only frames from this channel (``can0`` also matches index 0), or None.
+    scale : factor on the speed (tyre-radius correction).
+    source : name used in the summary and errors.
+
+    Signals from several messages are combined with each signal's latest value; a sample is
+    produced at each wanted frame once every signal has been seen, and only if its time is
+    after every earlier wanted frame's, so the output times strictly increase.
+    ``feed(msg)`` (live buses) and ``feed_many(msgs)`` (logs, vectorised) give identical
+    samples and share state.
+    """
+
+    def __init__(self, dbc: str | Path | cantools.database.can.Database,
+                 signals: str | list[str] | None = None, combine: str = "mean",
+                 channel: str | None = None, scale: float = 1.0, source: str = "CAN"):
+        db = dbc if isinstance(dbc, cantools.database.can.Database) else load_dbc(dbc)
+        dbc_name = "DBC" if isinstance(dbc, cantools.database.can.Database) else str(dbc)
+        if combine not in COMBINE_RULES:
+            raise InputError(f"combine rule {combine!r} is not one of {sorted(COMBINE_RULES)}")
+        if not (np.isfinite(scale) and scale > 0):
+            raise InputError(f"speed scale {scale!r} must be a positive number")
+        self.specs: list[SignalSpec] = parse_signal_specs(db, signals, dbc_name)
+        self.combine, self.channel, self.scale = combine, channel, float(scale)
+        self.summary = DecodeSummary(source=source)
+        self._known = {(m.frame_id, bool(m.is_extended_frame)) for m in db.messages}
+        by_message: dict[str, list[int]] = {}
+        for j, spec in enumerate(self.specs):
+            by_message.setdefault(spec.message, []).append(j)
+        self._wanted: dict[tuple[int, bool], _Wanted] = {}
+        for name, cols in by_message.items():
+            msg = db.get_message_by_name(name)
+            dec = MessageDecoder(msg, [self.specs[j].signal for j in cols])
+            self._wanted[(msg.frame_id, bool(msg.is_extended_frame))] = _Wanted(dec, np.array(cols))
+        self._to_mps = np.array([s.to_mps for s in self.specs])
+        self._to_mps_list = self._to_mps.tolist()
+        self._hold = [math.nan] * len(self.specs)   # latest value of each signal [m/s]
+        self._t_max = -math.inf                      # latest accepted wanted-frame time
+        self._t: list[NDArray[np.float64]] = []     # emitted samples, in chunks
+        self._v: list[NDArray[np.float64]] = []
+        self._pending_t: list[float] = []           # samples from feed() not yet chunked
+        self._pending_v: list[float] = []
+        #: position of the message being screened: its line in a text log (``position_kind``
+        #: "line", set by the log reader) or its frame index
+        self.position: Callable[[], int] = lambda: self.summary.frames - 1
+        self.position_kind = "frame"
+
+    @property
+    def signal_names(self) -> tuple[str, ...]:
+        return tuple(s.name for s in self.specs)
+
+    def where(self, position: int | None = None) -> str:
+        """``FILE:LINE`` or ``FILE: frame N`` of ``position`` (default: the current message)."""
+        position = self.position() if position is None else position
+        if self.position_kind == "line":
+            return f"{self.summary.source}:{position}"
+        return f"{self.summary.source}: frame {position}"
+
+    # -- per-frame screening (shared by feed and feed_many) ---------------------------------
+    def _screen(self, msg) -> _Wanted | None:
+        s = self.summary
+        s.frames += 1
+        t = float(msg.timestamp)
+        if s.frames == 1:
+            s.t_first = t
+        s.t_last = t
+        s.channels[msg.channel] += 1
+        if msg.is_error_frame or msg.is_remote_frame:
+            s.error_frames += 1
+            return None
+        if self.channel is not None and not _channel_matches(msg.channel, self.channel):
+            s.other_channel += 1
+            return None
+        key = (msg.arbitration_id, bool(msg.is_extended_id))
+        wanted = self._wanted.get(key)
+        if wanted is None:
+            if key in self._known:
+                s.other_ids += 1
+            else:
+                s.unknown_ids += 1
+                s.unknown_id_set.add(msg.arbitration_id)
+            return None
+        if len(msg.data) != wanted.decoder.length:
+            s.length_mismatch += 1
+            s.note(self.where(), f"{len(msg.data)} data bytes, the DBC's "
+                   f"{wanted.decoder.message.name} has {wanted.decoder.length}")
+            return None
+        return wanted
+
+    def feed(self, msg) -> tuple[float, float] | None:
+        """Screen and decode one ``can.Message``; the (t [s], speed [m/s]) sample it yields,
+        or None (other id, bad frame, or not every signal seen yet). Same rules and results
+        as :meth:`feed_many`, in scalar Python for per-frame speed."""
+        wanted = self._screen(msg)
+        if wanted is None:
+            return None
+        s = self.summary
+        t = float(msg.timestamp)
+        if not (math.isfinite(t) and t > wanted.t_last):
+            s.non_monotonic += 1
+            s.note(self.where(), f"time {t} not after the previous frame's {wanted.t_last}")
+            return None
+        wanted.t_last = t
+        values = wanted.decoder.decode_one(bytes(msg.data))
+        if values is None:
+            s.decode_errors += 1
+            s.note(self.where(), "undecodable or outside the DBC's range")
+            return None
+        s.used += 1
+        hold = self._hold
+        for col, value in zip(wanted.column_list, values, strict=True):
+            hold[col] = value * self._to_mps_list[col]
+        emit = t > self._t_max and not any(math.isnan(h) for h in hold)
+        self._t_max = max(self._t_max, t)
+        if not emit:
+            return None
+        speed = float(_COMBINE_SCALAR[self.combine](hold)) * self.scale
+        self._pending_t.append(t)
+        self._pending_v.append(speed)
+        s.samples += 1
+        return t, speed
+
+    def feed_many(self, messages: Iterable, progress: bool = False,
+                  resume: Callable[[], Iterator] | None = None) -> SpeedSeries:
+        """Screen all ``messages``, decode the wanted ones at once; the samples they yield.
+
+        An exception from the iterator (an unreadable record) is recorded in
+        ``summary.read_errors``; reading goes on with ``resume()`` (a fresh iterator that
+        continues after the bad record) where given, else stops keeping what was read. An
+        interrupt (Ctrl-C) stops the reading too: the frames read before it are decoded and
+        ``summary.interrupted`` is set."""
+        batches: dict[int, tuple[list[float], list[bytes], list[int], list[int]]] = {}
+        seq = 0
+        iterator = iter(messages)
+        bar = _progress(progress, self.summary.source)
+        while True:
+            try:
+                msg = next(iterator)
+            except StopIteration:
+                break
+            except KeyboardInterrupt:
+                self.summary.interrupted = True
+                break
+            except InputError:  # the log cannot be opened at all: nothing to go on with
+                raise
+            except Exception as exc:  # python-can readers raise assorted types on bad files
+                errors = self.summary.read_errors
+                go_on = resume is not None and len(errors) < MAX_READ_ERRORS
+                errors.append(f"unreadable record after frame {self.summary.frames} "
+                              f"({type(exc).__name__}: {exc}); "
+                              + ("skipped" if go_on else "reading stopped there"))
+                if not go_on:
+                    break
+                iterator = resume()
+                continue
+            if bar is not None and seq % 4096 == 0:
+                bar.update(self.summary.frames - bar.n)
+            seq += 1
+            wanted = self._screen(msg)
+            if wanted is None:
+                continue
+            ts, data, order, where = batches.setdefault(id(wanted), ([], [], [], []))
+            ts.append(float(msg.timestamp))
+            data.append(bytes(msg.data))
+            order.append(seq)
+            where.append(self.position())
+        if bar is not None:
+            bar.update(self.summary.frames - bar.n)
+            bar.close()
+        t, v = self._process(batches)
+        return SpeedSeries(t, v, source=self.summary.source, signals=self.signal_names,
+                           scale=self.scale, summary=self.summary)
+
+    def _flush(self) -> None:
+        if self._pending_t:
+            self._t.append(np.array(self._pending_t))
+            self._v.append(np.array(self._pending_v))
+            self._pending_t, self._pending_v = [], []
+
+    def series(self) -> SpeedSeries:
+        """Every sample produced so far (by ``feed`` and ``feed_many``)."""
+        self._flush()
+        t = np.concatenate(self._t) if self._t else np.zeros(0)
+        v = np.concatenate(self._v) if self._v else np.zeros(0)
+        return SpeedSeries(t, v, source=self.summary.source, signals=self.signal_names,
+                           scale=self.scale, summary=self.summary)
+
+    # -- vectorised decode and combination --------------------------------------------------
+    def _process(self, batches: dict[int, tuple[list[float], list[bytes], list[int], list[int]]]
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        self._flush()
+        by_id = {id(w): w for w in self._wanted.values()}
+        ev_t, ev_order, ev_rows, ev_msg = [], [], [], []
+        for m_index, (key, (ts, data, order, where)) in enumerate(batches.items()):
+            wanted = by_id[key]
+            t = np.asarray(ts, dtype=np.float64)
+            # Accept a frame only if its time is after every earlier frame of its id.
+            prior = np.maximum.accumulate(np.concatenate([[wanted.t_last], t[:-1]]))
+            mono = np.isfinite(t) & (t > prior)
+            self.summary.non_monotonic += int((~mono).sum())
+            for i in np.flatnonzero(~mono)[:MAX_EXAMPLES]:
+                self.summary.note(self.where(where[i]),
+                                  f"time {t[i]} not after the previous frame's {prior[i]}")
+            if mono.any():
+                wanted.t_last = max(wanted.t_last, float(t[mono].max()))
+            payload = np.frombuffer(b"".join(data), dtype=np.uint8).reshape(len(ts), -1)
+            values, ok = wanted.decoder.decode(payload[mono])
+            self.summary.decode_errors += int((~ok).sum())
+            for i in np.flatnonzero(mono)[~ok][:MAX_EXAMPLES]:
+                self.summary.note(self.where(where[i]), "undecodable or outside the DBC's range")
+            self.summary.used += int(ok.sum())
+            rows = np.full((int(ok.sum()), len(self.specs)), np.nan)
+            rows[:, wanted.columns] = values[ok] * self._to_mps[wanted.columns]
+            ev_t.append(t[mono][ok])
+            ev_order.append(np.asarray(order)[mono][ok])
+            ev_rows.append(rows)
+            ev_msg.append(np.full(rows.shape[0], m_index))
+        if not ev_t or sum(a.size for a in ev_t) == 0:
+            return np.zeros(0), np.zeros(0)
+        order = np.argsort(np.concatenate(ev_order), kind="stable")
+        t = np.concatenate(ev_t)[order]
+        rows = np.concatenate(ev_rows)[order]
+        n = t.size
+        # Sample-and-hold: each signal takes its latest value (or the held one from before).
+        hold = np.array(self._hold, dtype=np.float64)
+        filled = np.empty_like(rows)
+        for j in range(len(self.specs)):
+            src = np.where(np.isfinite(rows[:, j]), np.arange(n), -1)
+            src = np.maximum.accumulate(src)
+            filled[:, j] = np.where(src >= 0, rows[np.maximum(src, 0), j], hold[j])
+        prior = np.maximum.accumulate(np.concatenate([[self._t_max], t[:-1]]))
+        emit = np.all(np.isfinite(filled), axis=1) & (t > prior)
+        self._hold = filled[-1].tolist()
+        self._t_max = max(self._t_max, float(t.max()))
+        speed = COMBINE_RULES[self.combine](filled[emit], axis=1) * self.scale
+        self._t.append(t[emit])
+        self._v.append(speed)
+        self.summary.samples += int(emit.sum())
+        return t[emit], speed
+
+
+def _progress(enabled: bool, what: str):
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(desc=f"decoding {Path(what).name}", unit=" frames", file=sys.stderr,
+                mininterval=0.5, leave=False)
+
+
+def decode_can_log(path: str | Path, dbc: str | Path | cantools.database.can.Database,
+                   signals: str | list[str] | None = None, combine: str = "mean",
+                   channel: str | None = None, scale: float = 1.0,
+                   progress: bool = False) -> tuple[SpeedSeries, DecodeSummary]:
+    """Speed series [t s in the log's time base, m/s] decoded from a CAN log, and the summary.
+
+    ``path`` is any log python-can's ``LogReader`` reads (candump .log, Vector .asc/.blf,
+    PCAN .trc, .csv, .mf4 with asammdf), read by ``filters.can_logs.LogRecords``: a line or
+    record that is not a frame is skipped, counted and (the first few) named by line or frame
+    index, and reading goes on. See :class:`SpeedDecoder` for the other parameters. A log
+    that yields no speed sample raises :class:`InputError` with the summary.
+    """
+    path = Path(path)
+    decoder = SpeedDecoder(dbc, signals, combine=combine, channel=channel, scale=scale,
+                           source=str(path))
+    summary = decoder.summary
+
+    def bad(position: int, why: str) -> None:
+        summary.bad_lines += 1
+        summary.note(decoder.where(position), why)
+
+    records = LogRecords(path, bad)
+    decoder.position_kind = records.kind
+    decoder.position = lambda: records.position
+    series = decoder.feed_many(records, progress=progress)
+    if records.stopped:
+        summary.read_errors.append(f"{decoder.where(records.position)}: {records.stopped}")
+    if summary.interrupted and len(series) == 0:
+        raise KeyboardInterrupt
+    if len(series) == 0:
+        raise InputError(f"{path}: no speed sample decoded for {', '.join(decoder.signal_names)}"
+                         "\n" + str(summary))
+    return series, summary
+
+
+def iter_bus(bus, duration: float | None = None, max_messages: int | None = None,
+             idle_timeout: float = 1.0) -> Iterator:
+    """Messages from a python-can ``bus`` until ``duration`` [s] passes, ``max_messages`` are
+    received, or none arrives for ``idle_timeout`` [s]."""
+    end = None if duration is None else time.monotonic() + duration
+    n = 0
+    while max_messages is None or n < max_messages:
+        wait = idle_timeout if end is None else min(idle_timeout, end - time.monotonic())
+        if wait <= 0:
+            return
+        msg = bus.recv(timeout=wait)
+        if msg is None:
+            return
+        n += 1
+        yield msg
+
+
+def decode_bus(bus, dbc: str | Path | cantools.database.can.Database,
+               signals: str | list[str] | None = None, combine: str = "mean",
+               channel: str | None = None, scale: float = 1.0, duration: float | None = None,
+               max_messages: int | None = None, idle_timeout: float = 1.0,
+               on_sample: Callable[[float, float], None] | None = None
+               ) -> tuple[SpeedSeries, DecodeSummary]:
+    """Speed series decoded live from a python-can ``bus`` (e.g. ``can.Bus(interface=
+    "virtual", channel=...)``), message by message; ``on_sample(t, speed_mps)`` is called for
+    each sample as it arrives. Stops as :func:`iter_bus` says."""
+    decoder = SpeedDecoder(dbc, signals, combine=combine, channel=channel, scale=scale,
+                           source=f"bus {getattr(bus, 'channel_info', bus)}")
+    for msg in iter_bus(bus, duration, max_messages, idle_timeout):
+        sample = decoder.feed(msg)
+        if sample is not None and on_sample is not None:
+            on_sample(*sample)
+    return decoder.series(), decoder.summary
