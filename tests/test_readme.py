@@ -247,5 +247,8 @@ def test_other_status_rows_quote_the_results_files():
     bite = (RESULTS / "check_tests_bite.md").read_text()
     caught, total = re.search(r"(\d+) of (\d+) mutants caught", bite).groups()
     assert f"| {caught} of {total} |" in _status("tests")
-    assert "see [docs/traffic.md](docs/traffic.md)" in _status(
-        "forward cameras in traffic (issue 33)")
+    traffic = [r for r in _rows(RESULTS / "bench_traffic.md") if len(r) == 16]
+    wrong = [int(r[2]) for r in traffic if "seed" in r[0] and "no --pitch" in r[0]]
+    kitti = next(r for r in traffic if r[0] == "KITTI 07 (no --pitch)")
+    assert (f"| {_range(wrong, 'd')}; {kitti[4]} / {kitti[5]} |"
+            in _status("forward cameras in traffic"))
