@@ -23,9 +23,9 @@ import cv2
 import numpy as np
 import pytest
 from conftest import shared_data, write_drive_inputs
-from vipm_track.filters.drive_sim import DriveConfig, simulate_drive
 
 from vipm_track.cli import main
+from vipm_track.filters.drive_sim import DriveConfig, simulate_drive
 from vipm_track.sim import PRESETS, simulate_sequence
 from vipm_track.table import read_table
 
@@ -361,3 +361,62 @@ def test_installed_wheel_finds_its_data(tmp_path: Path) -> None:
                          capture_output=True, text=True, check=True).stdout.split()
     assert all(line.startswith(str(target)) for line in out), out
     assert "pitch_deg" in Path(out[1]).read_text()
+
+
+# --- what the data already says -------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def short_cart(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp("short")
+    simulate_sequence("cart", 8, folder, seed=5, profile="shaking")
+    return folder
+
+
+def test_camera_beside_the_images_and_height_from_the_table_are_used(short_cart: Path,
+                                                                      tmp_path: Path, capsys):
+    est = tmp_path / "est.csv"
+    # no --camera: the simulator's camera.yaml sits beside images/
+    assert main(["estimate", "--images", str(short_cart / "images"), "--height", "0.7",
+                 "--pitch", "45", "--out", str(est)]) == 0
+    assert f"--camera {short_cart / 'camera.yaml'} (found beside the images)" in (
+        capsys.readouterr().err)
+    given = tmp_path / "given.csv"
+    assert main(["estimate", "--images", str(short_cart / "images"), "--height", "0.7",
+                 "--pitch", "45", "--camera", str(short_cart / "camera.yaml"), "--out",
+                 str(given), "--quiet"]) == 0
+    assert est.read_bytes() == given.read_bytes()
+    # no --height: the table was estimated at 0.7 m
+    inferred, explicit = tmp_path / "a.csv", tmp_path / "b.csv"
+    assert main(["smooth", "--estimates", str(est), "--out", str(inferred)]) == 0
+    assert "--height 0.7 (the height" in capsys.readouterr().err
+    assert main(["smooth", "--estimates", str(est), "--height", "0.7", "--out", str(explicit),
+                 "--quiet"]) == 0
+    assert inferred.read_bytes() == explicit.read_bytes()
+
+
+def test_missing_camera_and_height_say_what_to_give(tmp_path: Path, capsys):
+    (tmp_path / "images").mkdir()
+    assert main(["estimate", "--images", str(tmp_path / "images"), "--height", "1", "--out",
+                 str(tmp_path / "e.csv")]) == 2
+    assert "give --camera" in capsys.readouterr().err
+    table = tmp_path / "t.csv"
+    table.write_text("frame,t,status\n0,0.0,first frame\n")
+    assert main(["track", "--estimates", str(table), "--out", str(tmp_path / "o.csv")]) == 2
+    assert "has no height_m" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("command", ["track", "smooth", "monitor"])
+def test_start_and_max_frames_window_every_filter(short_cart: Path, tmp_path: Path,
+                                                  command: str):
+    est = tmp_path / "est.csv"
+    assert main(["estimate", "--images", str(short_cart / "images"), "--height", "0.7",
+                 "--pitch", "45", "--out", str(est), "--quiet"]) == 0
+    out = tmp_path / f"{command}.csv"
+    extra = ["--nominal", str(ROOT / "data" / "nominal_cart.yaml")] if command == "monitor" \
+        else ["--height", "0.7"]
+    assert main([command, "--estimates", str(est), "--start", "2", "--max-frames", "4",
+                 "--out", str(out), "--quiet", *extra]) == 0
+    assert list(read_table(out)["frame"]) == [2, 3, 4, 5]
+    assert main([command, "--estimates", str(est), "--max-frames", "0", "--out", str(out),
+                 "--quiet", *extra]) == 2

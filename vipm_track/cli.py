@@ -9,6 +9,7 @@ import signal
 import sys
 from collections.abc import Sequence
 
+from .commands.common import infer_inputs
 from .errors import InputError, NothingUsable, os_error_line, printable
 
 #: Subcommand modules under ``vipm_track.commands``, in the order ``--help`` lists them.
@@ -49,6 +50,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError:  # not the main thread (an embedding program): leave SIGTERM alone
         previous = None
     try:
+        infer_inputs(args)
         return int(args.handler(args) or 0)
     except InputError as exc:
         print(f"{name}: error: {printable(exc, 2000)}", file=sys.stderr)

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 import tempfile
 from pathlib import Path
+
+import numpy as np
 
 from ..errors import InputError, os_error_line
 
@@ -26,7 +29,8 @@ def add_camera_options(
     """``--camera`` (intrinsics file) and ``--height`` (nominal camera height, metres)."""
     parser.add_argument("--camera", metavar="CAMERA.yaml", required=camera_required,
                         help="intrinsics: ROS camera_info YAML, OpenCV FileStorage YAML or "
-                        "KITTI calib.txt")
+                        "KITTI calib.txt (default: camera.yaml or calib.txt in or beside the "
+                        "--images folder)")
     parser.add_argument("--height", type=float, required=height_required, metavar="H",
                         help="nominal camera height above the ground [m]")
 
@@ -41,7 +45,70 @@ def add_filter_inputs(parser: argparse.ArgumentParser, verb: str,
                         help=f"skip estimation: {verb} this estimates table (written by "
                         "'vipm-track estimate') instead of --images/--video")
     add_camera_options(parser, height_required=height_required, camera_required=False)
+    parser.add_argument("--start", type=int, default=0, metavar="K",
+                        help="first frame index to use (default 0)")
+    parser.add_argument("--max-frames", type=int, default=None, metavar="N",
+                        help="use at most N frames from --start")
     add_speed_options(parser)
+
+
+#: intrinsics files looked for beside an image folder (in it, then in its parent), in order
+CAMERA_FILES: tuple[str, ...] = ("camera.yaml", "camera.yml", "camera_info.yaml", "calib.txt")
+
+
+def camera_beside(images: str | Path) -> Path | None:
+    """The intrinsics file that sits with an image folder (``CAMERA_FILES`` in it, then in
+    its parent: the simulator's ``camera.yaml`` beside ``images/``, KITTI's ``calib.txt``
+    beside ``image_0/``); None where there is none."""
+    folder = Path(images)
+    for place in (folder, folder.parent):
+        for name in CAMERA_FILES:
+            if (place / name).is_file():
+                return place / name
+    return None
+
+
+def height_of_table(path: str | Path) -> float | None:
+    """The camera height an estimates table was made with: the median of its ``height_m``
+    column [m]; None where it has none."""
+    from ..table import read_table
+
+    heights = np.asarray(read_table(path).get("height_m", []), dtype=float)
+    heights = heights[np.isfinite(heights) & (heights > 0)]
+    return float(np.median(heights)) if heights.size else None
+
+
+def infer_inputs(args: argparse.Namespace) -> None:
+    """Fill in what the data already says where the user left it out (said on stderr unless
+    ``--quiet``): ``--camera`` from the file beside ``--images``; ``--height`` of ``track`` and
+    ``smooth`` from the ``--estimates`` table's ``height_m``."""
+    quiet = getattr(args, "quiet", False)
+    command = f"vipm-track {getattr(args, 'command', '')}".strip()
+    if hasattr(args, "camera") and not args.camera and getattr(args, "images", None):
+        found = camera_beside(args.images)
+        if found is not None:
+            args.camera = str(found)
+            if not quiet:
+                print(f"{command}: --camera {found} (found beside the images)", file=sys.stderr)
+    if (getattr(args, "command", None) in ("track", "smooth") and args.height is None
+            and getattr(args, "estimates", None)):
+        args.height = height_of_table(args.estimates)
+        if args.height is None:
+            raise InputError(f"--height not given and {args.estimates} has no height_m to take "
+                             "it from; give --height")
+        if not quiet:
+            print(f"{command}: --height {args.height:g} (the height {args.estimates} was "
+                  "estimated with)", file=sys.stderr)
+
+
+def frame_window(items: list, frame_of, start: int, max_frames: int | None) -> list:
+    """The ``items`` whose frame (``frame_of(item)``) is at least ``start``, at most
+    ``max_frames`` of them (``--start`` / ``--max-frames``; InputError for negative values)."""
+    if start < 0 or (max_frames is not None and max_frames < 1):
+        raise InputError(f"--start must be >= 0 and --max-frames >= 1, got {start} and "
+                         f"{max_frames}")
+    kept = [item for item in items if frame_of(item) >= start]
+    return kept if max_frames is None else kept[:max_frames]
 
 
 def check_height(height: float | None) -> float:

@@ -7,7 +7,7 @@ import sys
 from collections import Counter
 
 from ..camera import load_camera
-from ..errors import NothingUsable
+from ..errors import InputError, NothingUsable
 from .common import (
     add_camera_options,
     add_input_options,
@@ -33,7 +33,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "image folder and write one row per frame (CONVENTIONS.md columns + std, inliers).",
     )
     add_input_options(parser)
-    add_camera_options(parser)
+    add_camera_options(parser, camera_required=False)
     add_output_options(parser, "per-frame estimates CSV")
     add_estimator_options(parser)
     add_run_options(parser)
@@ -64,6 +64,9 @@ def run(args: argparse.Namespace) -> int:
 
     out = check_output(args.out, args.parquet)
     check_rerun_output(args)
+    if not args.camera:
+        raise InputError("--camera not given and no camera.yaml or calib.txt beside the "
+                         "images (or a --video): give --camera CAMERA.yaml")
     camera = load_camera(args.camera)
     height = check_height(args.height)
     config = build_config(args, camera)

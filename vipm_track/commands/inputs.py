@@ -21,6 +21,7 @@ from vipm_track.filters.wheel_speed import SpeedSeries, read_speed_csv
 from ..camera import CameraModel, load_camera
 from ..errors import InputError, NothingUsable
 from ..measurement import PairMeasurement, in_sequence, read_measurements
+from .common import frame_window
 
 if TYPE_CHECKING:
     from vipm_track.filters.clock_offset import ClockOffsetFit
@@ -290,11 +291,15 @@ def estimate_stream(
     from .estimator_options import parallel_settings
 
     if not args.camera:
-        raise InputError("--images/--video need --camera CAMERA.yaml")
+        raise InputError("--images/--video need --camera CAMERA.yaml (none found beside the "
+                         "images)")
     parallel = parallel_settings(args)
     camera = camera or load_camera(args.camera)
     config = config or estimator_config(args, camera)
-    source = open_source(images=args.images, video=args.video, fps=args.fps)
+    frame_window([], int, getattr(args, "start", 0), getattr(args, "max_frames", None))
+    source = open_source(images=args.images, video=args.video, fps=args.fps,
+                         start=getattr(args, "start", 0),
+                         max_frames=getattr(args, "max_frames", None))
     config = with_searched_setup(args, source, camera, height, config)
     if sink is not None:
         from ..sinks.rerun_sink import ImageTap
@@ -333,6 +338,8 @@ def measurements_from_args(
         args.input_notes = []
         measurements = read_estimates(args.estimates, getattr(args, "quiet", False),
                                       args.input_notes)
+        measurements = frame_window(measurements, lambda m: m.frame,
+                                    getattr(args, "start", 0), getattr(args, "max_frames", None))
         require_usable(measurements, args.estimates)
         return measurements
     stream = estimate_stream(args, height, config, sink, camera)

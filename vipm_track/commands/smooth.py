@@ -41,7 +41,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "of a sliding window. Writes the track table, and a summary of the drive's mount "
         "extrinsics (mean, 95 % interval, drift) as JSON and Markdown.",
     )
-    add_filter_inputs(parser, "smooth")
+    add_filter_inputs(parser, "smooth", height_required=False)
     add_output_options(parser, "per-frame smoothed CSV")
     parser.add_argument(
         "--summary",

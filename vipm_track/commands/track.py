@@ -16,6 +16,7 @@ from .common import (
     check_height,
     check_output,
     check_rerun_output,
+    frame_window,
 )
 from .estimator_options import add_estimator_options, add_parallel_options
 from .inputs import (
@@ -38,7 +39,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(pitch, roll, height: the calibration), the body shaking and the planar motion. "
         "A wheel speed makes the height observable; without one it stays at --height.",
     )
-    add_filter_inputs(parser, "filter")
+    add_filter_inputs(parser, "filter", height_required=False)
     add_output_options(parser, "per-frame track CSV")
     group = parser.add_argument_group("filter")
     group.add_argument("--vehicle", choices=("car", "cart"), default="car",
@@ -78,7 +79,8 @@ def run(args: argparse.Namespace) -> int:
     elif args.estimates:
         if args.images or args.video:
             raise InputError("give --estimates or --images/--video, not both")
-        measurements = read_estimates(args.estimates, args.quiet)
+        measurements = frame_window(read_estimates(args.estimates, args.quiet),
+                                    lambda m: m.frame, args.start, args.max_frames)
         require_usable(measurements, args.estimates)
         speed, _ = speed_on_camera_clock(args, speed, measurements)
         stream = iter(measurements)
