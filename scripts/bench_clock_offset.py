@@ -29,12 +29,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from vipm_track.cli import main as cli  # noqa: E402
+from vipm_track.errors import InputError  # noqa: E402
 from vipm_track.filters.clock_offset import estimate_clock_offset  # noqa: E402
 from vipm_track.filters.drive_sim import DriveConfig, DriveProfile, simulate_drive  # noqa: E402
 from vipm_track.filters.wheel_speed import SpeedSeries, write_speed_csv  # noqa: E402
-
-from vipm_track.cli import main as cli  # noqa: E402
-from vipm_track.errors import InputError  # noqa: E402
 from vipm_track.kitti import planar_motion, read_poses  # noqa: E402
 from vipm_track.measurement import read_measurements  # noqa: E402
 

@@ -30,7 +30,6 @@ def write_drive_inputs(run, folder: Path) -> tuple[Path, Path, Path]:
     """Write a drive_sim run as the files a user gives the CLI: ``est.csv`` (estimates table),
     ``speed.csv`` (t,speed_mps) and ``cam.yaml`` (:data:`CAR_CAMERA_YAML`) in ``folder``."""
     from vipm_track.filters.wheel_speed import SpeedSeries, write_speed_csv
-
     from vipm_track.measurement import measurement_row
     from vipm_track.table import ESTIMATE_COLUMNS, write_table
 
@@ -46,6 +45,7 @@ def stop_in_a_turn(seed: int = 0):
     stop (8–18 s) in the turn, then driving off straight (the last pairs before the stop
     still see ~1.4°/s); returns (run, first and last index of the stop)."""
     import numpy as np
+
     from vipm_track.filters.drive_sim import DriveConfig, DriveProfile, simulate_drive
 
     profile = DriveProfile(

@@ -9,6 +9,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import brentq
+
 from vipm_track.filters.body_scale import BodyScale, pair_change
 from vipm_track.filters.model import NoiseParams, body_transition
 

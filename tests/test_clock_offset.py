@@ -11,12 +11,12 @@ import re
 import numpy as np
 import pytest
 from conftest import shared_data, write_drive_inputs
-from vipm_track.filters.clock_offset import estimate_clock_offset
-from vipm_track.filters.drive_sim import DriveConfig, DriveProfile, simulate_drive
-from vipm_track.filters.wheel_speed import SpeedSeries, write_speed_csv
 
 from vipm_track.cli import main
 from vipm_track.errors import InputError
+from vipm_track.filters.clock_offset import estimate_clock_offset
+from vipm_track.filters.drive_sim import DriveConfig, DriveProfile, simulate_drive
+from vipm_track.filters.wheel_speed import SpeedSeries, write_speed_csv
 from vipm_track.kitti import planar_motion, read_poses
 
 

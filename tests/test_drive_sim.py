@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from vipm_track.filters.drive_sim import DriveConfig, MountChange, simulate_drive
 
+from vipm_track.filters.drive_sim import DriveConfig, MountChange, simulate_drive
 from vipm_track.geometry import PlanarMotion, compose_motion
 
 

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 from scipy.signal import lfilter
+
 from vipm_track.filters.long_run import batch_means
 
 

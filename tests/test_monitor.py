@@ -8,6 +8,8 @@ import math
 
 import numpy as np
 import pytest
+
+from vipm_track.errors import InputError
 from vipm_track.filters.drive_sim import DriveConfig, MountChange, simulate_drive
 from vipm_track.filters.monitor import (
     CALIBRATED,
@@ -29,8 +31,6 @@ from vipm_track.filters.monitor_inputs import (
     inputs_from_measurements,
     mount_from_state,
 )
-
-from vipm_track.errors import InputError
 
 NOMINAL = NominalCalibration(pitch_deg=3.0, roll_deg=0.0, height_m=1.5)
 FPS = 10.0

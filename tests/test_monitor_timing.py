@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+
 from vipm_track.filters.monitor import DriftMonitor, MonitorConfig, MonitorInput, NominalCalibration
 
 FPS = 10.0
