@@ -1,4 +1,4 @@
-"""Per-frame monitor inputs (``filters.monitor.MonitorInput``) from the filter pipeline: the
+"""Per-frame monitor inputs (``filters.monitor_types.MonitorInput``) from the filter pipeline: the
 pair measurements the filter is fed, wheel speed, and the filter's states.
 
 - pitch, roll: the measured pose of frame k (``z[2:4]`` of its pair) and its variance;
@@ -30,13 +30,9 @@ from vipm_track.measurement import PairMeasurement
 from .body_scale import pair_change
 from .ekf import ExtrinsicsEKF, speed_at
 from .ekf_state import EkfConfig
-from .monitor import (
-    DriftMonitor,
-    MonitorConfig,
-    MonitorInput,
-    MonitorOutput,
-    NominalCalibration,
-)
+from .monitor import DriftMonitor
+from .monitor_types import MonitorConfig, MonitorInput, MonitorOutput
+from .nominal import NominalCalibration
 from .wheel_speed import cumulative_distance
 
 FloatArray = NDArray[np.float64]

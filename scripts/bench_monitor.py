@@ -9,7 +9,7 @@ per-frame angle / translation noise, wheel speed; no rendering), at 10 fps, car 
 - false alarms per hour of nominal driving with shaking (stops, failed frames; and with 10 %
   outlier pairs).
 
-Both detectors see the same drives. The monitor is ``filters.monitor.MonitorCore`` (the very
+Both detectors see the same drives. The monitor is ``filters.monitor_core.MonitorCore`` (the very
 code behind ``DriftMonitor`` and the CLI) batched over runs, fed by
 ``filters.monitor_inputs.input_arrays`` from the measurements and the wheel speed. The EKF is
 not in the loop here (0.6 ms/frame in Python: hours of Monte Carlo would take hours); its only
@@ -53,15 +53,11 @@ sys.path.insert(0, str(ROOT))
 
 from vipm_track.filters.drive_sim import DriveConfig, MountChange, simulate_drive  # noqa: E402
 from vipm_track.filters.model import NoiseParams  # noqa: E402
-from vipm_track.filters.monitor import (  # noqa: E402
-    INVALID,
-    RECALIBRATE,
-    MonitorConfig,
-    MonitorCore,
-    NominalCalibration,
-    long_run_variance,
-)
+from vipm_track.filters.monitor_core import MonitorCore  # noqa: E402
 from vipm_track.filters.monitor_inputs import input_arrays  # noqa: E402
+from vipm_track.filters.monitor_stats import long_run_variance  # noqa: E402
+from vipm_track.filters.monitor_types import INVALID, RECALIBRATE, MonitorConfig  # noqa: E402
+from vipm_track.filters.nominal import NominalCalibration  # noqa: E402
 
 FPS = 10.0
 NOMINAL = NominalCalibration(pitch_deg=3.0, roll_deg=0.0, height_m=1.5)

@@ -50,17 +50,14 @@ from vipm_track.filters.drive_sim import DriveConfig, simulate_drive  # noqa: E4
 from vipm_track.filters.ekf import run_filter  # noqa: E402
 from vipm_track.filters.ekf_state import EkfConfig  # noqa: E402
 from vipm_track.filters.model import NoiseParams  # noqa: E402
-from vipm_track.filters.monitor import (  # noqa: E402
-    DriftMonitor,
-    MonitorConfig,
-    NominalCalibration,
-    load_nominal,
-)
+from vipm_track.filters.monitor import DriftMonitor  # noqa: E402
 from vipm_track.filters.monitor_inputs import (  # noqa: E402
     frame_rate,
     inputs_from_measurements,
     monitor_measurements,
 )
+from vipm_track.filters.monitor_types import MonitorConfig  # noqa: E402
+from vipm_track.filters.nominal import NominalCalibration, load_nominal  # noqa: E402
 from vipm_track.filters.smoother_config import SmootherConfig  # noqa: E402
 from vipm_track.filters.smoothing import smooth  # noqa: E402
 from vipm_track.filters.wheel_speed import read_speed_csv  # noqa: E402

@@ -250,13 +250,13 @@ def test_dbc(data):
     _check(load_dbc, _tmp("car.dbc"), data.draw(mutations(seed)))
 
 
-# -- nominal calibration (filters.monitor.load_nominal) ----------------------------------------
+# -- nominal calibration (filters.nominal.load_nominal) ----------------------------------------
 
 NOMINAL = (ROOT / "data" / "nominal_car.yaml").read_bytes()
 
 
 def _load_nominal(path: Path):
-    from vipm_track.filters.monitor import load_nominal
+    from vipm_track.filters.nominal import load_nominal
 
     return load_nominal(path)
 

@@ -11,26 +11,22 @@ import pytest
 
 from vipm_track.errors import InputError
 from vipm_track.filters.drive_sim import DriveConfig, MountChange, simulate_drive
-from vipm_track.filters.monitor import (
-    CALIBRATED,
-    RECALIBRATE,
-    DriftMonitor,
-    MonitorConfig,
-    MonitorCore,
-    MonitorInput,
-    NominalCalibration,
-    cusum_log_arl,
-    cusum_threshold,
-    load_nominal,
-    run_monitor,
-    write_events,
-    write_nominal,
-)
+from vipm_track.filters.monitor import DriftMonitor, run_monitor, write_events
+from vipm_track.filters.monitor_core import MonitorCore
 from vipm_track.filters.monitor_inputs import (
     input_arrays,
     inputs_from_measurements,
     mount_from_state,
 )
+from vipm_track.filters.monitor_stats import cusum_log_arl, cusum_threshold
+from vipm_track.filters.monitor_types import (
+    CALIBRATED,
+    RECALIBRATE,
+    STATES,
+    MonitorConfig,
+    MonitorInput,
+)
+from vipm_track.filters.nominal import NominalCalibration, load_nominal, write_nominal
 
 NOMINAL = NominalCalibration(pitch_deg=3.0, roll_deg=0.0, height_m=1.5)
 FPS = 10.0
@@ -341,8 +337,6 @@ def test_batched_core_matches_streams():
     ])
     for i, r in enumerate(runs):
         _, out = monitor_run(r)
-        from vipm_track.filters.monitor import STATES
-
         assert [STATES[c] for c in codes[:, i]] == [o.state for o in out]
     assert (codes[:, 0] == CALIBRATED).any() and (codes[:, 2] == RECALIBRATE).any()
 

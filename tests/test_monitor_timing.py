@@ -9,7 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from vipm_track.filters.monitor import DriftMonitor, MonitorConfig, MonitorInput, NominalCalibration
+from vipm_track.filters.monitor import DriftMonitor
+from vipm_track.filters.monitor_types import MonitorConfig, MonitorInput
+from vipm_track.filters.nominal import NominalCalibration
 
 FPS = 10.0
 

@@ -202,12 +202,14 @@ def test_streamed_monitor_judges_as_the_whole_sequence_does(est, nominal):
     from vipm_track.commands.inputs import read_estimates
     from vipm_track.filters.ekf import run_filter
     from vipm_track.filters.ekf_state import EkfConfig
-    from vipm_track.filters.monitor import DriftMonitor, MonitorConfig, load_nominal
+    from vipm_track.filters.monitor import DriftMonitor
     from vipm_track.filters.monitor_inputs import (
         frame_rate,
         inputs_from_measurements,
         monitor_frames,
     )
+    from vipm_track.filters.monitor_types import MonitorConfig
+    from vipm_track.filters.nominal import load_nominal
     from vipm_track.filters.wheel_speed import SpeedSeries
 
     def monitor_measurements(ms, nom, sp, cfg, ekf):

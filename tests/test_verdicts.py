@@ -22,13 +22,9 @@ from vipm_track.cli import main
 from vipm_track.filters import model as M
 from vipm_track.filters.ekf import run_filter
 from vipm_track.filters.ekf_state import EkfConfig
-from vipm_track.filters.monitor import (
-    DriftMonitor,
-    MonitorConfig,
-    MonitorInput,
-    NominalCalibration,
-    write_nominal,
-)
+from vipm_track.filters.monitor import DriftMonitor
+from vipm_track.filters.monitor_types import MonitorConfig, MonitorInput
+from vipm_track.filters.nominal import NominalCalibration, write_nominal
 from vipm_track.table import read_table
 
 DATA = Path(__file__).parent / "data"

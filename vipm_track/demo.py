@@ -38,8 +38,9 @@ from numpy.typing import NDArray
 from vipm_track.filters.drive_summary import summarize_mount
 from vipm_track.filters.ekf import speed_at
 from vipm_track.filters.ekf_state import EkfConfig
-from vipm_track.filters.monitor import NominalCalibration, load_nominal, write_events
+from vipm_track.filters.monitor import write_events
 from vipm_track.filters.monitor_inputs import inputs_from_measurements, monitor_frames
+from vipm_track.filters.nominal import NominalCalibration, load_nominal
 from vipm_track.filters.smoother import mount_jumps
 from vipm_track.filters.smoother_config import SmootherConfig
 from vipm_track.filters.smoothing import smooth, speeds_at_frames

@@ -73,8 +73,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from vipm_track.filters.ekf_state import EkfConfig
-    from vipm_track.filters.monitor import MonitorConfig, load_nominal
     from vipm_track.filters.monitor_inputs import frame_rate, monitor_frames
+    from vipm_track.filters.monitor_types import MonitorConfig
+    from vipm_track.filters.nominal import load_nominal
 
     out = check_output(args.out, args.parquet)
     if args.events:

@@ -1,0 +1,400 @@
+"""The drift monitor's statistics and state machine for many streams at once
+(``MonitorCore``); ``filters.monitor.DriftMonitor`` wraps one stream with events, reasons and
+estimates.
+
+The test and why it runs on the per-frame poses
+-----------------------------------------------
+The filter's mount state is a random walk with a tiny rate, so a step enters it over tens of
+seconds. The monitor instead tests the frame poses the filter is fed (the pair measurements
+it gates, with their covariance) against the nominal calibration, treating the body shaking
+of the filter's model (``filters.model``: Gauss–Markov, ``body_tau_s``, ``body_std_deg``) as
+part of the noise. Per axis j (pitch, roll, height), with d_k = y_k − y_nominal:
+
+    d_k = Δ + b_k + n_k,   b_k = a b_{k-1} + process noise,  a = exp(−dt/τ),  n_k ~ N(0, r_k)
+
+Δ is the mount change under test, b the body (AR(1) at the frame rate), r_k the estimator's
+variance. A scalar Kalman filter on b assuming Δ = 0 whitens d into innovations ν_k with
+variance S_k. A constant Δ leaves a steady innovation ρΔ with ρ = (1 − a)/(1 − a + aK)
+(K the Kalman gain), so u_k = ν_k/ρ is a per-frame observation of Δ with variance
+w_k = S_k/ρ², which in steady state is the long-run variance σ_b²(1 + a)/(1 − a) + r:
+the test uses all the information the data hold about Δ. Innovations are clipped at
+``huber_k``·√S_k (outliers cannot push a statistic far; a real step still can).
+
+Real roads add a slow term g_k to d_k that is not a calibration change either: camber and
+slope changes, load, and the front end's tracking correlation (on KITTI 07 the 1 s means of
+the measured roll scatter 10–20× more than b + n explain, and the test above, told only of
+b + n, flags a correctly mounted camera within seconds). ``road_std_deg`` / ``road_tau_s``
+model it as a second Gauss–Markov process whose long-run variance σ_g²(1 + a_g)/(1 − a_g) is
+added to w_k (and σ_g² to the clipping variance): slow excursions then count for what they
+are worth, at the price of a longer delay for small steps (``scripts/bench_monitor.py``,
+"road" rows). The default 0 keeps the flat-ground model.
+
+For each axis, each side (+/−) and each design shift δ of ``MonitorConfig`` a CUSUM of the
+log-likelihood ratio of Δ = tol + δ against Δ = tol (tol = the nominal file's tolerance):
+
+    S_k = max(0, S_{k-1} + (δ/w_k)(±u_k − tol − δ/2)),   alarm when S_k ≥ h
+
+so a deviation inside the tolerance drifts the statistic down and is never flagged on
+average. The threshold h comes from the requested false-alarm rate: the in-control average
+run length of each one-sided CUSUM (Siegmund's approximation for Gaussian increments,
+computed at the nominal deviation Δ = 0 and the typical w) is set to
+``n_tests × 3600 × fps / false_alarms_per_hour``, a union bound over all tests;
+``scripts/bench_monitor.py`` checks the resulting rate by simulation.
+
+INVALID uses a 1 s exponential average of the deviations (and the filter's mount estimate
+where given) against the physical limits. The new extrinsics reported with DRIFTING and
+RECALIBRATE are ``filters.monitor.DriftMonitor``'s, from the change time ``change_onset``
+estimates.
+
+Height is tested only on frames with a metric travel (wheel speed; see
+``inputs_from_measurements``): h_k = h_assumed · d_wheel / ‖t_est‖ (CONVENTIONS.md, Scale).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .monitor_stats import (
+    BODY_SCALES,
+    ar1_coefficient,
+    cusum_threshold,
+    interpolate_thresholds,
+    long_run_variance,
+)
+from .monitor_types import (
+    CALIBRATED,
+    DRIFTING,
+    HOLD,
+    INVALID,
+    RECALIBRATE,
+    UNCALIBRATED,
+    MonitorConfig,
+)
+from .nominal import NominalCalibration
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class _Arrays:
+    """Mutable state of ``MonitorCore`` for B streams (leading axis)."""
+
+    body: FloatArray  # (B, 3) body estimate
+    body_var: FloatArray  # (B, 3)
+    body_std: FloatArray  # (B, 3) stationary body std (rad, rad, m): the model's or adapted
+    threshold: FloatArray  # (B, 3, D) CUSUM thresholds at that body std
+    invalid_axis: NDArray[np.int64]  # (B,) axis that made the last frame INVALID
+    invalid_dev: FloatArray  # (B,) its deviation from nominal (rad or m)
+    invalid_mount: NDArray[np.bool_]  # (B,) True: the filter's mount said so, else the frames
+    onset: NDArray[np.int64]  # (B,) usable-frame count where the last alarm's change began
+    t_last: FloatArray  # (B, 3) time of the last used frame per axis
+    cusum: FloatArray  # (B, 3, 2, D)
+    zero_count: NDArray[np.int64]  # (B, 3, 2, D) value of ``count`` when the CUSUM was 0
+    used: NDArray[np.int64]  # (B, 3) used frames per axis
+    count: NDArray[np.int64]  # (B,) usable frames
+    ema: FloatArray  # (B, 3)
+    base: NDArray[np.int64]  # (B,)
+    evidence: NDArray[np.int64]  # (B,) usable frames since UNCALIBRATED began
+    quiet: NDArray[np.int64]  # (B,) frames below warn_exit while RECALIBRATE / INVALID
+    gated_run: NDArray[np.int64]  # (B,)
+    alarm_axis: NDArray[np.int64]  # (B,) axis of the last alarm / warning
+
+
+class MonitorCore:
+    """The monitor's statistics and state machine for ``batch`` independent streams at once
+    (arrays with a leading batch axis), so Monte Carlo runs share one loop over time.
+
+    ``step`` takes one frame of every stream and returns the state codes (``STATES``
+    indices). ``DriftMonitor`` wraps one stream with events, reasons and estimates.
+    """
+
+    def __init__(
+        self, nominal: NominalCalibration, config: MonitorConfig | None = None, batch: int = 1
+    ) -> None:
+        self.nominal = nominal
+        self.config = cfg = config or MonitorConfig()
+        self.batch = batch
+        ang = np.radians(np.asarray(cfg.angle_shifts_deg, dtype=float))
+        hgt = np.asarray(cfg.height_shifts_m, dtype=float)
+        d = max(len(ang), len(hgt))
+        # pad the shorter bank by repeating its last shift (an identical, harmless test)
+        self.delta = np.stack([_pad(ang, d), _pad(ang, d), _pad(hgt, d)])  # (3, D)
+        self.n_tests = 2 * (len(ang) * 2 + len(hgt))
+        tol = nominal.tolerances
+        self.ref = tol[:, None] + self.delta / 2.0  # (3, D)
+        self.tau = np.array([cfg.body_tau_s, cfg.body_tau_s, 0.0])
+        sb = math.radians(cfg.body_std_deg)
+        self.body_std = np.array([sb, sb, 0.0])
+        sr = math.radians(cfg.road_std_deg)
+        self.road_std = np.array([sr, sr, 0.0])
+        self._meas_var = np.array([math.radians(cfg.meas_angle_std_deg) ** 2] * 2
+                                  + [cfg.meas_height_std_m**2])
+        self.w_nominal = self._typical_w(self.body_std)
+        self._arl = self.n_tests * 3600.0 * cfg.fps / cfg.false_alarms_per_hour
+        # thresholds (log-likelihood units) at the model's body std and at larger adapted ones:
+        # angles at k × the model's std, height (no body in the model) where its long-run
+        # variance is k² × the measurement's alone
+        meas_h = math.sqrt(self._meas_var[2])
+        self._threshold_table = np.stack([
+            self._thresholds(self._typical_w(
+                np.array([sb * k, sb * k, meas_h * math.sqrt(k * k - 1.0)])))
+            for k in BODY_SCALES
+        ])  # (S, 3, D)
+        self.threshold = self._threshold_table[0]
+        self.limits = nominal.limits
+        self.nominal_values = nominal.values
+        self.calib_frames = max(1, round(cfg.calibrate_after_s * cfg.fps))
+        self.clear_frames = max(1, round(cfg.clear_after_s * cfg.fps))
+        self.max_gated = max(0, round(cfg.max_gated_run_s * cfg.fps))
+        self.reset()
+
+    def _typical_w(self, body_std: FloatArray) -> FloatArray:
+        """(3,) long-run variance per frame at the configured frame rate and measurement
+        noise for a body of stationary std ``body_std`` (3,)."""
+        dt = np.full(3, 1.0 / self.config.fps)
+        a = ar1_coefficient(dt, self.body_tau(body_std))
+        return np.array([long_run_variance(body_std[j], a[j], self._meas_var[j])
+                         for j in range(3)]) + self._road_lrv(dt)
+
+    def _thresholds(self, w: FloatArray) -> FloatArray:
+        """(3, D) CUSUM thresholds for the requested false-alarm rate at long-run
+        variances ``w`` (3,)."""
+        out = np.empty(self.delta.shape)
+        for j in range(3):
+            sd = math.sqrt(w[j])
+            for i in range(self.delta.shape[1]):
+                b = cusum_threshold(self._arl, -self.ref[j, i] / sd)
+                out[j, i] = b * self.delta[j, i] / sd
+        return out
+
+    # -- public ---------------------------------------------------------------------------
+
+    def body_tau(self, body_std: FloatArray) -> FloatArray:
+        """Body time constants (s) at stationary std ``body_std`` (..., 3): the model's
+        τ·(σ₀/σ)², as ``filters.model.body_transition`` (the body's low-frequency power stays
+        the model's; the shaking beyond it is fast)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(body_std > 0, self.body_std / body_std, 1.0)
+        return self.tau * np.where(self.body_std > 0, ratio, 1.0) ** 2
+
+    def reset(self, streams: NDArray[np.bool_] | None = None) -> None:
+        """Start over (UNCALIBRATED, statistics at zero) for ``streams`` (mask), or all."""
+        b, d = self.batch, self.delta.shape[1]
+        fresh = _Arrays(
+            body=np.zeros((b, 3)), body_var=np.tile(self.body_std**2, (b, 1)),
+            body_std=np.tile(self.body_std, (b, 1)),
+            threshold=np.tile(self.threshold, (b, 1, 1)),
+            invalid_axis=np.zeros(b, dtype=np.int64), invalid_dev=np.zeros(b),
+            invalid_mount=np.zeros(b, dtype=bool), onset=np.zeros(b, dtype=np.int64),
+            t_last=np.full((b, 3), np.nan), cusum=np.zeros((b, 3, 2, d)),
+            zero_count=np.zeros((b, 3, 2, d), dtype=np.int64),
+            used=np.zeros((b, 3), dtype=np.int64), count=np.zeros(b, dtype=np.int64),
+            ema=np.zeros((b, 3)),
+            base=np.full(b, UNCALIBRATED, dtype=np.int64), evidence=np.zeros(b, dtype=np.int64),
+            quiet=np.zeros(b, dtype=np.int64), gated_run=np.zeros(b, dtype=np.int64),
+            alarm_axis=np.zeros(b, dtype=np.int64),
+        )
+        if streams is None or not hasattr(self, "s"):
+            self.s = fresh
+            return
+        for name in fresh.__dataclass_fields__:
+            getattr(self.s, name)[streams] = getattr(fresh, name)[streams]
+
+    def change_onset(self, axis: NDArray[np.int64]) -> NDArray[np.int64]:
+        """(B,) usable-frame count at which the change on ``axis`` (B,) began: on that axis's
+        leading side, the earliest last zero of the tests still above zero (the small design
+        shifts keep evidence longer than a large one, whose last zero may be a few frames
+        back and would leave a noisy median)."""
+        s = self.s
+        rows = np.arange(self.batch)
+        cus = s.cusum[rows, axis]  # (B, 2, D)
+        norm = cus / s.threshold[rows, axis][:, None, :]
+        side = np.argmax(norm.max(axis=2), axis=1)
+        live = cus[rows, side] > 0  # (B, D)
+        zeros = np.where(live, s.zero_count[rows, axis][rows, side], np.iinfo(np.int64).max)
+        first = zeros.min(axis=1)
+        return np.where(live.any(axis=1), first, s.count)
+
+    def normalised_statistic(self) -> FloatArray:
+        """(B, 3): per axis, the largest CUSUM divided by its threshold (1 = alarm)."""
+        return (self.s.cusum / self.s.threshold[:, :, None, :]).max(axis=(2, 3))
+
+    def step(
+        self,
+        t: FloatArray,
+        pose: FloatArray,
+        pose_var: FloatArray,
+        usable: NDArray[np.bool_],
+        gated: NDArray[np.bool_] | None = None,
+        mount: FloatArray | None = None,
+        body_std: FloatArray | None = None,
+    ) -> NDArray[np.int64]:
+        """Advance every stream by one frame; return the state codes (B,).
+
+        ``t`` (B,) s; ``pose``/``pose_var`` (B, 3) measured frame pose (rad, rad, m; NaN =
+        no information on that axis) and its variance; ``usable`` (B,); ``gated`` (B,) the
+        filter rejected the frame; ``mount`` (B, 3) the filter's mount estimate or NaN;
+        ``body_std`` (B, 2) the body's stationary std (pitch, roll, rad) adapted to the data,
+        or (B, 3) with the height's heave (m) (None: keep the current one; never below the
+        configured ``body_std_deg``).
+        """
+        s, cfg = self.s, self.config
+        if body_std is not None:
+            self._set_body_std(np.asarray(body_std, dtype=float).reshape(self.batch, -1))
+        usable = np.asarray(usable, dtype=bool)
+        if gated is not None:
+            gated = np.asarray(gated, dtype=bool) & usable
+            s.gated_run = np.where(gated, s.gated_run + 1, 0)
+            usable = usable & ~(gated & (s.gated_run <= self.max_gated))
+        dev = np.asarray(pose, dtype=float) - self.nominal_values
+        var = np.asarray(pose_var, dtype=float)
+        use = usable[:, None] & np.isfinite(dev) & np.isfinite(var)  # (B, 3)
+        dev0 = np.where(use, dev, 0.0)
+        var0 = np.where(use, var, 1.0)
+
+        # whitening Kalman filter on the body (Δ = 0), then the offset observation u
+        dt = np.where(np.isfinite(s.t_last), t[:, None] - s.t_last, np.inf)
+        dt = np.where(dt > 0, dt, 1.0 / cfg.fps)
+        a = ar1_coefficient(dt, self.body_tau(s.body_std))
+        x_pred = a * s.body
+        p_pred = a * a * s.body_var + s.body_std**2 * (1.0 - a * a)
+        nu = dev0 - x_pred
+        sv = p_pred + var0
+        road_var = self.road_std**2
+        lim = cfg.huber_k * np.sqrt(sv + road_var)
+        nu_c = np.clip(nu, -lim, lim)
+        gain = p_pred / sv
+        rho = (1.0 - a) / (1.0 - a + a * gain)
+        u = nu_c / rho
+        w = sv / (rho * rho) + self._road_lrv(dt)
+        s.body = np.where(use, x_pred + gain * nu_c, s.body)
+        s.body_var = np.where(use, (1.0 - gain) * p_pred, s.body_var)
+        s.t_last = np.where(use, t[:, None], s.t_last)
+        s.used = s.used + use
+        s.count = s.count + usable
+
+        # CUSUM bank: (B, 3, side, D)
+        signed = np.stack([u, -u], axis=2)[..., None]  # (B, 3, 2, 1)
+        inc = (self.delta / w[..., None])[:, :, None, :] * (signed - self.ref[None, :, None, :])
+        new = np.maximum(0.0, s.cusum + inc)
+        use4 = use[:, :, None, None]
+        s.cusum = np.where(use4, new, s.cusum)
+        s.zero_count = np.where(use4 & (new <= 0.0), s.count[:, None, None, None], s.zero_count)
+
+        # short average of the deviation (INVALID check)
+        alpha = 1.0 - np.exp(-np.minimum(dt, 1e6) / cfg.invalid_tau_s)
+        first = use & (s.used == 1)
+        s.ema = np.where(first, dev0, np.where(use, s.ema + alpha * (dev0 - s.ema), s.ema))
+        settled = s.used >= max(1, round(cfg.invalid_tau_s * cfg.fps))
+        bad = settled & (np.abs(s.ema) > self.limits)
+        bad[:, 2] |= settled[:, 2] & (self.nominal_values[2] + s.ema[:, 2] <= 0.0)
+        # which axis and which source (frames or the filter's mount) is furthest out
+        excess = np.where(bad, np.abs(s.ema) / self.limits, -np.inf)
+        source_dev = np.where(bad, s.ema, 0.0)
+        from_mount = np.zeros_like(bad)
+        if mount is not None:
+            mdev = np.asarray(mount, dtype=float) - self.nominal_values
+            mbad = np.isfinite(mdev) & (np.abs(mdev) > self.limits)
+            mexcess = np.where(mbad, np.abs(mdev) / self.limits, -np.inf)
+            from_mount = mexcess > excess
+            excess = np.maximum(excess, mexcess)
+            source_dev = np.where(from_mount, mdev, source_dev)
+            bad |= mbad
+        invalid_now = bad.any(axis=1)
+        worst = np.argmax(excess, axis=1)
+        rows = np.arange(self.batch)
+        s.invalid_axis = np.where(invalid_now, worst, s.invalid_axis)
+        s.invalid_dev = np.where(invalid_now, source_dev[rows, worst], s.invalid_dev)
+        s.invalid_mount = np.where(invalid_now, from_mount[rows, worst], s.invalid_mount)
+
+        return self._transition(usable, invalid_now)
+
+    # -- internals --------------------------------------------------------------------------
+
+    def _road_lrv(self, dt: FloatArray) -> FloatArray:
+        """Long-run variance per frame of the road tilt (Gauss–Markov, ``road_*``) at frame
+        spacing ``dt`` (per axis; 0 where the road term is off)."""
+        a = np.exp(-np.minimum(dt, 1e6) / self.config.road_tau_s)
+        return long_run_variance(self.road_std, a, 0.0)
+
+    def _set_body_std(self, body_std: FloatArray) -> None:
+        """Adopt body stds (B, 2) for pitch and roll (floored at the configured one) or (B, 3)
+        with the height's heave too (m; none in the model: white, at least 0) and the
+        thresholds that go with them."""
+        s = self.s
+        n = body_std.shape[1]
+        std = np.maximum(body_std, self.body_std[:n])
+        s.body_std[:, :n] = std
+        scale = np.empty_like(std)
+        scale[:, :2] = std[:, :2] / self.body_std[:2]
+        if n == 3:  # the height's long-run variance over its measurement's alone, rooted
+            scale[:, 2] = np.sqrt(1.0 + std[:, 2] ** 2 / self._meas_var[2])
+        s.threshold[:, :n] = interpolate_thresholds(self._threshold_table, scale)
+
+    def _transition(
+        self, usable: NDArray[np.bool_], invalid_now: NDArray[np.bool_]
+    ) -> NDArray[np.int64]:
+        s, cfg = self.s, self.config
+        stat = self.normalised_statistic()
+        self.last_statistic = stat  # before any alarm restarts the statistics
+        top = stat.max(axis=1)
+        axis = stat.argmax(axis=1)
+        base = s.base.copy()
+        alarm = usable & (top >= 1.0) & ~invalid_now
+        warn = top >= cfg.warn_enter
+        calm = top < cfg.warn_exit
+
+        # INVALID: enter at once, leave after clear_after_s of plausible frames
+        entering_invalid = usable & invalid_now
+        s.quiet = np.where(entering_invalid, 0, s.quiet)
+        base = np.where(entering_invalid, INVALID, base)
+        in_invalid = usable & ~invalid_now & (base == INVALID)
+        s.quiet = np.where(in_invalid, s.quiet + 1, s.quiet)
+        cleared = in_invalid & (s.quiet >= self.clear_frames)
+        if cleared.any():
+            self.reset(cleared)
+            base = np.where(cleared, UNCALIBRATED, base)
+        # alarm: RECALIBRATE (latched); restart the statistics so persistence re-alarms
+        was_recal = base == RECALIBRATE
+        base = np.where(alarm, RECALIBRATE, base)
+        s.alarm_axis = np.where(alarm | (warn & usable & (base != RECALIBRATE)), axis, s.alarm_axis)
+        s.quiet = np.where(alarm, 0, s.quiet)
+        if alarm.any():
+            s.onset = np.where(alarm, self.change_onset(axis), s.onset)
+            s.cusum[alarm] = 0.0
+            s.zero_count[alarm] = s.count[alarm][:, None, None, None]
+        # RECALIBRATE → CALIBRATED after clear_after_s of frames without a warning
+        recal = usable & was_recal & ~alarm & (base == RECALIBRATE)
+        s.quiet = np.where(recal, np.where(warn, 0, s.quiet + 1), s.quiet)
+        base = np.where(recal & (s.quiet >= self.clear_frames), CALIBRATED, base)
+        # UNCALIBRATED / CALIBRATED / DRIFTING
+        normal = usable & ~alarm & np.isin(base, (UNCALIBRATED, CALIBRATED, DRIFTING))
+        s.evidence = np.where(normal, s.evidence + 1, s.evidence)
+        enough = s.evidence >= self.calib_frames
+        nxt = np.where(
+            warn & enough, DRIFTING,
+            np.where(
+                base == DRIFTING,
+                np.where(calm, np.where(enough, CALIBRATED, UNCALIBRATED), DRIFTING),
+                np.where(enough, CALIBRATED, UNCALIBRATED),
+            ),
+        )
+        base = np.where(normal, nxt, base)
+        # implausible extrinsics say nothing about a small change: the test restarts after
+        inv = base == INVALID
+        if inv.any():
+            s.cusum[inv] = 0.0
+            s.zero_count[inv] = s.count[inv][:, None, None, None]
+        s.base = base
+        return np.where(usable, base, HOLD)
+
+
+def _pad(x: FloatArray, n: int) -> FloatArray:
+    return np.concatenate([x, np.full(n - len(x), x[-1])])
+
+
+__all__ = ["MonitorCore"]
