@@ -461,7 +461,7 @@ def speed_measurement(state: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 
 #: pair status of the two-frame estimator when the image did not move
-#: (``vipm_track.estimator.STATUS_NO_MOTION``; a test holds them equal)
+#: (``vipm_track.pair_result.STATUS_NO_MOTION``; a test holds them equal)
 NO_MOTION_STATUS = "no motion"
 
 

@@ -29,11 +29,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from vipm_track.baseline import homography_baseline  # noqa: E402
-from vipm_track.estimator import (  # noqa: E402
-    REFINEMENT_WEIGHTING,
-    EstimatorConfig,
-    TwoFrameEstimator,
-)
+from vipm_track.estimator import TwoFrameEstimator  # noqa: E402
+from vipm_track.estimator_config import REFINEMENT_WEIGHTING, EstimatorConfig  # noqa: E402
 from vipm_track.render import Effects  # noqa: E402
 from vipm_track.sim import (  # noqa: E402
     PRESETS,

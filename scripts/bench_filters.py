@@ -620,7 +620,7 @@ def rendered_drive(case: RenderedCase, cache: Path) -> RenderedDrive:
     from types import SimpleNamespace
 
     from vipm_track.camera import load_camera
-    from vipm_track.estimator import EstimatorConfig
+    from vipm_track.estimator_config import EstimatorConfig
     from vipm_track.filters.model import NoiseParams
     from vipm_track.filters.wheel_speed import read_speed_csv
     from vipm_track.measurement import read_measurements

@@ -25,7 +25,7 @@ sys.path.insert(0, str(ROOT))
 
 from bench_camera_pitch import score, write_report  # noqa: E402
 
-from vipm_track.estimator import LEVEL_MAX_PITCH_DEG  # noqa: E402
+from vipm_track.estimator_config import LEVEL_MAX_PITCH_DEG  # noqa: E402
 from vipm_track.sim import PRESETS, simulate_sequence  # noqa: E402
 
 #: (preset, profile, frame rate [Hz], speed [m/s]) per row

@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from vipm_track.camera import load_camera  # noqa: E402
-from vipm_track.estimator import EstimatorConfig  # noqa: E402
+from vipm_track.estimator_config import EstimatorConfig  # noqa: E402
 from vipm_track.evaluate import frame_errors  # noqa: E402
 from vipm_track.pipeline import config_with  # noqa: E402
 from vipm_track.runs import estimate_sequence  # noqa: E402

@@ -24,7 +24,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from vipm_track.estimator import EstimatorConfig, PairGuess, TwoFrameEstimator  # noqa: E402
+from vipm_track.estimator import TwoFrameEstimator  # noqa: E402
+from vipm_track.estimator_config import EstimatorConfig  # noqa: E402
+from vipm_track.pair_result import PairGuess  # noqa: E402
 from vipm_track.sim import (  # noqa: E402
     PRESETS,
     make_trajectory,

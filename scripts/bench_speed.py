@@ -37,7 +37,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from vipm_track.estimator import EstimatorConfig, TwoFrameEstimator  # noqa: E402
+from vipm_track.estimator import TwoFrameEstimator  # noqa: E402
+from vipm_track.estimator_config import EstimatorConfig  # noqa: E402
 from vipm_track.pipeline import config_with, run_sequence  # noqa: E402
 from vipm_track.render import Effects  # noqa: E402
 from vipm_track.sim import PRESETS, simulate_sequence  # noqa: E402

@@ -45,7 +45,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from vipm_track.camera import load_camera  # noqa: E402
-from vipm_track.estimator import EstimatorConfig  # noqa: E402
+from vipm_track.estimator_config import EstimatorConfig  # noqa: E402
 from vipm_track.filters.drive_sim import DriveConfig, simulate_drive  # noqa: E402
 from vipm_track.filters.ekf import run_filter  # noqa: E402
 from vipm_track.filters.ekf_state import EkfConfig  # noqa: E402

@@ -23,17 +23,15 @@ sys.path.insert(0, str(ROOT))
 
 from vipm_track import ipm  # noqa: E402
 from vipm_track.bundle import DisplacementModel, pack, unpack  # noqa: E402
-from vipm_track.estimator import (  # noqa: E402
-    STATUS_OK,
-    EstimatorConfig,
-    PairResult,
-    TwoFrameEstimator,
-)
+from vipm_track.estimator import TwoFrameEstimator  # noqa: E402
+from vipm_track.estimator_config import EstimatorConfig  # noqa: E402
 from vipm_track.geometry import (  # noqa: E402
     apply_homography,
     image_from_ipm_homography,
     ipm_from_image_homography,
 )
+from vipm_track.pair_result import STATUS_OK, PairResult  # noqa: E402
+from vipm_track.refinement import refine  # noqa: E402
 from vipm_track.sim import (  # noqa: E402
     PRESETS,
     make_trajectory,
@@ -60,8 +58,8 @@ def true_residuals(pairs: int, profile: str, seed: int) -> list[tuple]:
         x = np.append(pack(traj.pose(k - 1), traj.pose(k), traj.motion(k)), 0.0)
         result = PairResult(status=STATUS_OK, timings={"poc": 0.0, "warp": 0.0, "lm": 0.0},
                             height=h)
-        prev, curr = est._prepare(frames[k - 1], "previous"), est._prepare(frames[k], "current")
-        est._refine(prev, curr, x, np.random.default_rng(0), result)
+        prev, curr = est.prepare(frames[k - 1], "previous"), est.prepare(frames[k], "current")
+        refine(est.stage_context(prev, curr), prev, curr, x, np.random.default_rng(0), result)
         stage = result.stages[-1]
         pose_p, pose_c, _ = unpack(x, h)
         a = ipm_from_image_homography(est.k, pose_c, stage.grid)

@@ -155,7 +155,7 @@ def test_predicts_through_gaps():
 
 
 def test_standstill_rule():
-    from vipm_track.estimator import STATUS_NO_MOTION
+    from vipm_track.pair_result import STATUS_NO_MOTION
 
     nz = M.NoiseParams()
     assert M.NO_MOTION_STATUS == STATUS_NO_MOTION

@@ -14,16 +14,16 @@ from hypothesis import strategies as st
 
 from vipm_track import bundle, geometry
 from vipm_track.errors import InputError
-from vipm_track.estimator import (
+from vipm_track.estimator import TwoFrameEstimator
+from vipm_track.estimator_config import EstimatorConfig
+from vipm_track.measurement import PairMeasurement
+from vipm_track.pair_result import (
     STATUS_FEW_INLIERS,
     STATUS_NO_MOTION,
     STATUS_NO_TEXTURE,
-    EstimatorConfig,
     PairGuess,
     PairResult,
-    TwoFrameEstimator,
 )
-from vipm_track.measurement import PairMeasurement
 from vipm_track.render import OBSTACLE_POLYGON, Effects
 from vipm_track.sim import (
     PRESETS,
@@ -32,6 +32,7 @@ from vipm_track.sim import (
     preset_texture,
     render_trajectory_frame,
 )
+from vipm_track.stage_context import pose_prior
 from vipm_track.static_content import noise_sigma, on_static, static_pixels, static_share
 
 
@@ -205,10 +206,10 @@ def test_forward_and_steep_defaults():
     car = TwoFrameEstimator(PRESETS["car"].camera(), 1.5, EstimatorConfig(initial_pitch_deg=3.0))
     assert not car.steep and car.level
     assert car.config.refinements == 2 and car.config.pose_prior_deg == 2.0
-    assert car._prior(3.0)["prior_scale"] == pytest.approx(1.0 / np.radians(2.0))
+    assert pose_prior(car.config, car.nominal, None)[1] == pytest.approx(np.radians(2.0))
     cart = TwoFrameEstimator(PRESETS["cart"].camera(), 0.7)
     assert cart.steep and cart.config.refinements == 1 and cart.config.pose_prior_deg == 0.0
-    assert cart._prior(3.0) == {}
+    assert pose_prior(cart.config, cart.nominal, None)[0] is None
     assert car.config.stage_median and not cart.config.stage_median
     assert cart.config.weight_patches and cart.config.recentre_windows
     assert cart.config.inlier_median_factor == 6.0

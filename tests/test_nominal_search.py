@@ -11,7 +11,7 @@ import pytest
 
 from tests.conftest import shared_data
 from vipm_track.camera import load_camera
-from vipm_track.estimator import EstimatorConfig
+from vipm_track.estimator_config import EstimatorConfig
 from vipm_track.nominal_search import search_nominal_pose
 from vipm_track.sim import PRESETS, simulate_sequence
 from vipm_track.sources import open_source
@@ -113,7 +113,8 @@ def _level_wide_rig():
 
 
 def test_default_start_calling_a_moving_view_still_is_a_failed_start(tmp_path):
-    from vipm_track.estimator import STATUS_NO_MOTION, TwoFrameEstimator
+    from vipm_track.estimator import TwoFrameEstimator
+    from vipm_track.pair_result import STATUS_NO_MOTION
     from vipm_track.pipeline import estimate_pair, prepare_image
 
     preset = _level_wide_rig()

@@ -13,7 +13,7 @@ import pytest
 from tests.conftest import shared_data
 from vipm_track.camera import load_camera
 from vipm_track.commands.common import seconds_or_auto
-from vipm_track.estimator import EstimatorConfig
+from vipm_track.estimator_config import EstimatorConfig
 from vipm_track.readout_search import _pooled_vertex, search_readout
 from vipm_track.render import Effects
 from vipm_track.sim import PRESETS, simulate_sequence

@@ -16,7 +16,7 @@ from tests.conftest import shared_data
 from vipm_track import bundle, geometry
 from vipm_track.camera import load_camera
 from vipm_track.cli import main
-from vipm_track.estimator import EstimatorConfig
+from vipm_track.estimator_config import EstimatorConfig
 from vipm_track.sim import PRESETS, simulate_sequence
 from vipm_track.sources import open_source
 from vipm_track.table import read_table

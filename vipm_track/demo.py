@@ -49,7 +49,7 @@ from vipm_track.filters.wheel_speed import read_speed_csv
 
 from .camera import load_camera
 from .errors import InputError
-from .estimator import EstimatorConfig
+from .estimator_config import EstimatorConfig
 from .evaluate import ErrorStats, error_stats
 from .filters.monitor_table import MONITOR_COLUMNS, monitor_row
 from .measurement import PairMeasurement, read_measurements

@@ -38,7 +38,8 @@ from .travel_direction import (
 
 if TYPE_CHECKING:
     from .camera import CameraModel
-    from .estimator import EstimatorConfig, PairResult
+    from .estimator_config import EstimatorConfig
+    from .pair_result import PairResult
     from .sources import FrameSource
 
 #: cold-start pitches tried when the configured one fails [deg], steep to level
@@ -136,7 +137,8 @@ def search_nominal_pose(
     reports its failures). A pair the default start calls "no motion" although the view
     moved is a failing pair; one that every start calls so (traffic past a standing
     vehicle) is skipped."""
-    from .estimator import STATUS_NO_MOTION, STATUS_OK, TwoFrameEstimator
+    from .estimator import TwoFrameEstimator
+    from .pair_result import STATUS_NO_MOTION, STATUS_OK
     from .pipeline import config_with, estimate_pair
 
     pairs = moving_pairs(source, camera, max_pairs, max_frames)
@@ -207,7 +209,8 @@ def _from_travel(
     determined where the ground fit's pitch disagrees with the travel's by more than
     ``GROUND_AGREE_DEG`` (vehicles or walls taken for the ground) or its roll is implausible
     (``EstimatorConfig.max_roll_deg``)."""
-    from .estimator import STATUS_OK, TwoFrameEstimator
+    from .estimator import TwoFrameEstimator
+    from .pair_result import STATUS_OK
     from .pipeline import config_with, estimate_pair
 
     estimator = TwoFrameEstimator(camera, height, config_with(
@@ -276,7 +279,9 @@ def _best_start(
     KITTI 07 the 12° start beat the level ones by that alone (settling at 13°: distance error
     47 %). The region of interest, the number of refinements and the pose prior still follow
     each start's camera type."""
-    from .estimator import REFINEMENT_WEIGHTING, STATUS_OK, TwoFrameEstimator
+    from .estimator import TwoFrameEstimator
+    from .estimator_config import REFINEMENT_WEIGHTING
+    from .pair_result import STATUS_OK
     from .pipeline import config_with, estimate_pair
 
     alike = {"vertical_motion": False, **REFINEMENT_WEIGHTING["uniform"]}
@@ -310,7 +315,8 @@ def _settle(
     """Fixed point of "nominal → median pose of the pairs cold-started from it" (radians),
     from (``pitch``, ``roll``), at most ``rounds`` rounds; with the number of pairs behind
     the last median."""
-    from .estimator import STATUS_OK, TwoFrameEstimator
+    from .estimator import TwoFrameEstimator
+    from .pair_result import STATUS_OK
     from .pipeline import config_with, estimate_pair
 
     n = 1

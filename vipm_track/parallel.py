@@ -22,7 +22,7 @@ from .pipeline import SequenceStep, run_sequence
 
 if TYPE_CHECKING:
     from .camera import CameraModel
-    from .estimator import EstimatorConfig
+    from .estimator_config import EstimatorConfig
     from .sources import FrameSource
 
 #: Frames per chunk by default: a cold start per 500 frames costs ~0.1 % of a run's time.

@@ -30,7 +30,9 @@ from .geometry import PlanarMotion
 from .sources import Frame, FrameSource
 
 if TYPE_CHECKING:
-    from .estimator import EstimatorConfig, PairGuess, PairResult, TwoFrameEstimator
+    from .estimator import TwoFrameEstimator
+    from .estimator_config import EstimatorConfig
+    from .pair_result import PairGuess, PairResult
 
 FIRST_FRAME = "first frame"
 NO_PREVIOUS = "no previous frame"
@@ -70,7 +72,7 @@ def prepare_image(frame: Frame, camera: CameraModel) -> NDArray[np.uint8]:
 def predict_guess(previous: PairResult, dt_prev: float, dt: float) -> PairGuess:
     """Seed for the next pair from an ok result: its current pose for both frames and its
     motion scaled by ``dt / dt_prev`` (clipped to [0.25, 4])."""
-    from .estimator import PairGuess
+    from .pair_result import PairGuess
 
     ratio = dt / dt_prev if dt_prev > 0 and dt > 0 else 1.0
     ratio = float(np.clip(ratio, *_DT_RATIO_RANGE))

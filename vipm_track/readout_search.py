@@ -32,7 +32,7 @@ from .nominal_search import moving_pairs
 
 if TYPE_CHECKING:
     from .camera import CameraModel
-    from .estimator import EstimatorConfig
+    from .estimator_config import EstimatorConfig
     from .sources import FrameSource
 
 FloatArray = NDArray[np.float64]
@@ -121,7 +121,8 @@ def search_readout(
     median frame interval); the ``max_pairs`` of them that travel furthest (the rolling
     shutter's effect grows with the motion) then at every other one. None where fewer than
     ``MIN_PAIRS`` pairs are solved at the readouts around the best one."""
-    from .estimator import STATUS_OK, TwoFrameEstimator
+    from .estimator import TwoFrameEstimator
+    from .pair_result import STATUS_OK
     from .pipeline import config_with, estimate_pair
 
     stride = max(1, min(len(source), max_frames) // max(scan_pairs, 1))

@@ -20,7 +20,8 @@ from .sources import FrameSource
 from .table import ESTIMATE_COLUMNS, TableWriter
 
 if TYPE_CHECKING:
-    from .estimator import EstimatorConfig, TwoFrameEstimator
+    from .estimator import TwoFrameEstimator
+    from .estimator_config import EstimatorConfig
 
 
 def sequence_steps(

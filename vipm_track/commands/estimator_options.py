@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from ..camera import CameraModel
 from ..errors import InputError
-from ..estimator import REFINEMENT_WEIGHTING
+from ..estimator_config import REFINEMENT_WEIGHTING
 from .common import seconds_or_auto
 
 #: ``--refinement-weights`` → EstimatorConfig fields ("auto": the estimator's per-camera
@@ -118,7 +118,7 @@ def parallel_settings(args: argparse.Namespace) -> dict[str, Any]:
 
 def build_config(args: argparse.Namespace, camera: CameraModel):
     """The estimator configuration from the estimator options of ``args``."""
-    from ..estimator import EstimatorConfig
+    from ..estimator_config import EstimatorConfig
     from ..pipeline import config_with
 
     grid = parse_grid(args.grid) if args.grid else None

@@ -26,7 +26,7 @@ from .common import frame_window
 if TYPE_CHECKING:
     from vipm_track.filters.clock_offset import ClockOffsetFit
 
-    from ..estimator import EstimatorConfig
+    from ..estimator_config import EstimatorConfig
     from ..sources import FrameSource
 
 
@@ -182,7 +182,7 @@ def estimator_config(
     """The estimator configuration of the estimator options in ``args`` (where the command
     has them); ``pitch_deg``/``roll_deg`` seed the cold start unless ``--pitch``/``--roll``
     are given (e.g. the monitor's nominal calibration)."""
-    from ..estimator import EstimatorConfig
+    from ..estimator_config import EstimatorConfig
     from ..pipeline import config_with
     from .estimator_options import build_config
 
@@ -205,7 +205,7 @@ def with_searched_nominal(
     first frames of ``source`` where the user gave no ``--pitch`` and the cold start from the
     default pitch fails (a forward-looking camera) or converges far from it (a camera 35°
     down); unchanged otherwise. Says so on stderr unless ``--quiet``."""
-    from ..estimator import EstimatorConfig
+    from ..estimator_config import EstimatorConfig
     from ..nominal_search import search_nominal_pose
     from ..pipeline import config_with
 

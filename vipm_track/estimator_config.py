@@ -1,0 +1,264 @@
+"""Settings of the two-frame estimator: :class:`EstimatorConfig`, its per-camera defaults
+(:func:`with_camera_defaults`, level vs steep cameras) and the constants they rest on."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InputError
+from .roi import RoiSpec
+
+#: nominal pitch below which a camera with the horizon in view gets the forward-looking
+#: (level-camera) defaults of ``EstimatorConfig`` [deg]
+LEVEL_MAX_PITCH_DEG = 10.0
+
+#: forward reach of a level camera's automatic region of interest, camera heights: beyond
+#: it the road's image is over 10x more compressed along than across the road, and leaving
+#: it out made the estimates better (rendered level cars at 3°: pitch error 0.086 → 0.037°
+#: RMS, distance 0.33 → 0.10 % median; KITTI 07: median distance error 3.28 → 2.62 %,
+#: three seeds; 8 h was better on renders, worse in KITTI's tail; docs/kitti.md)
+LEVEL_ROI_RANGE_H = 10.0
+#: pitch steps from the nominal pose [deg] of the cold starts tried, in turn, where the
+#: nominal one fails (too few inliers, no convergence): the further the vehicle moves per
+#: frame, the closer to the true pitch a cold start must begin (a level car at 2.5 m per frame
+#: converges from its true pitch but not from 1.5° off; a camera 45.8° down at 0.55 camera
+#: heights per frame from 50° and 52°, not from 40° or 60°), and the road's slope alone puts a
+#: car 2° off its nominal
+COLD_PITCH_STEPS_DEG: dict[str, tuple[float, ...]] = {
+    "level": (2.0, -2.0),
+    "steep": (5.0, -5.0),
+}
+
+#: The refinement's patch weighting, as EstimatorConfig fields: "noise" (the steep-camera
+#: default: modelled patch noise, re-centred windows, self-tightening inlier threshold) or
+#: "uniform" (the paper's: every patch alike).
+REFINEMENT_WEIGHTING: dict[str, dict[str, bool | float]] = {
+    "noise": {"weight_patches": True, "recentre_windows": True, "inlier_median_factor": 6.0},
+    "uniform": {"weight_patches": False, "recentre_windows": False, "inlier_median_factor": 0.0},
+}
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """Settings of :class:`TwoFrameEstimator` (defaults follow the paper where it says).
+
+    Fields left None take per-camera defaults: "forward-looking" below means a *level*
+    camera (horizon in view and nominal pitch below ``LEVEL_MAX_PITCH_DEG``, 10°), "steep"
+    every other one (the cold start alone goes by the horizon: ``cold_start_ipm``).
+
+    Attributes
+    ----------
+    grid : interest points (nx, ny) over the region of interest.
+    roi : region of interest (``roi.RoiSpec``); None picks the ground below the horizon
+        within ``roi_max_range_h`` and ``roi_max_lateral_h`` camera heights.
+    roi_max_range_h : forward reach of the automatic region, camera heights; None (default):
+        ``LEVEL_ROI_RANGE_H`` (10) for forward-looking cameras, 15 for others (which rarely
+        see that far). At a distance of Z the ground's image is Z/h times more compressed
+        along the road than across it, so the far road's patches carry little and warp
+        worst onto the bird's-eye plane.
+    horizon_margin_deg : rays kept at least this far below the horizon (auto ROI, IPM).
+    patch_image, patch_ipm : patch sizes on the image and virtual IPM planes, pixels.
+    min_patch_image, min_patch_ipm : patches shrunk below these are dropped, pixels.
+    n_subsets, subset_fraction : random subsets of the initial LM (paper: 50, 0.6).
+    refine_subsets : random subsets in each refinement (0: one LM plus inlier trimming).
+    refinements : virtual-IPM refinements after the initial estimate; None (default): 1 for
+        steep cameras (the paper's), 2 for forward-looking ones (each refinement removes
+        part of the pitch/travel coupling left by the distorted image patches).
+    initial_pitch_deg, initial_roll_deg : cold-start pose (paper: 60°, 0°); give the nominal
+        calibration for cameras far from it (forward-looking ones).
+    coarse_scale, coarse_patch : downsampling and patch size (downsampled pixels) of the
+        cold-start coarse pass (``coarse_scale = 1`` disables it).
+    coarse_inlier_px : inlier threshold of the coarse pass, full-resolution pixels.
+    coarse_peak_ratio : coarse patches whose POC peak is below this fraction of the 90th
+        percentile peak are not used.
+    min_peak : POC peaks below this mark a patch unusable.
+    max_displacement_factor : image-plane displacements longer than this times the median
+        (plus the patch size / 8) are obvious outliers.
+    inlier_px_image, inlier_px_ipm : inlier residual thresholds, image / IPM pixels.
+    refine_outlier_px : IPM displacements further than this from the prediction of the
+        previous estimate are outliers, IPM pixels.
+    min_inliers : fewer inliers than this fail the pair.
+    min_motion_px : a median image displacement below this is "no motion", pixels.
+    cold_start_ipm : a cold start also tries the median translation on the nominal pose's
+        virtual IPM: forward cameras first (then the coarse image-plane pass), steep ones
+        where the coarse image-plane pass fails (off: the image-plane pass alone).
+    cold_pitch_steps_deg : where both cold starts fail (too few inliers, no convergence),
+        they are tried again from the nominal pose with its pitch moved by each of these in
+        turn [deg]; the first that succeeds is the result. Default per camera
+        (``COLD_PITCH_STEPS_DEG``: ±2° level, ±5° others); ``()`` disables it.
+    readout_s : rolling shutter: time from the exposure of the image's first row to its
+        last [s] (0: global shutter); the residual model then moves each patch by the motion
+        over its rows' exposure times (``bundle`` module doc), given each pair's frame
+        interval (:meth:`TwoFrameEstimator.estimate`).
+    max_deviation_deg : estimates whose pitch or roll differ from the initial (nominal) pose
+        by more than this are rejected ("did not converge").
+    max_roll_deg : plausible roll of a vehicle camera: estimates whose roll differs from the
+        nominal roll (``initial_roll_deg``: level unless the user says otherwise) by more
+        than this are rejected ("did not converge"); a roll fitted beyond it is vehicles or
+        walls taken for the ground, not the mount.
+    jackknife_covariance : each fit's covariance is at least its block jackknife's
+        (``bundle.block_jackknife_covariance``): the formal one takes the patches' errors as
+        independent, which real frames are not.
+    heave_rate_mps : standard deviation of the body's vertical speed on its suspension
+        [m/s] (a car on an ordinary road: a few cm/s); without ``vertical_motion`` the
+        covariance includes what a heave of this speed over the pair's interval moves the
+        fit by (``bundle.heave_covariance``; 0: off).
+    nominal_undetermined : why the nominal pose could not be found on the drive (empty: it
+        was given or found); every pair then has status "no nominal pose" — without a
+        nominal pose the cold start has nothing to rest on, and its estimates would be the
+        patches' second minima, not the camera's.
+    ipm_resolution_scale : IPM metres per pixel as a multiple of the interest points'
+        median ground sampling distance.
+    ipm_max_side : largest IPM image side, pixels.
+    vertical_motion : also estimate the camera's vertical motion within the pair (an eighth
+        parameter; the paper neglects it, which costs ~0.25° of pitch per millimetre on a
+        bouncing 0.7 m cart camera). Frame k's pose then has height ``height + dh``. None
+        (default): on for steep cameras (the whole image below the horizon at the nominal
+        pose), off for forward-looking ones, where it is poorly separable from pitch.
+    pose_prior_deg : standard deviation of a prior on both frames' pitch and roll around the
+        initial (nominal) pose inside every fit, degrees; it resolves the pitch/translation
+        ambiguity of a near-level camera (a steeper pitch with a shorter travel explains
+        the flow of the near road almost as well). 0 turns it off; None (default): 2° for
+        forward-looking cameras, off for steep ones.
+    track_prior_deg : in tracking mode, frame k-1's pitch and roll are also held to the
+        previous pair's estimate of the same frame with this standard deviation, degrees
+        (fused with the nominal prior; 0: off). Only with the pose prior on.
+    stage_median : report the element-wise median of the accepted stages' estimates (the
+        image stage and each refinement) instead of the last one, when two or more
+        refinements are configured; the covariance stays the last stage's. None (default): on
+        for forward-looking cameras, off for steep ones.
+    weight_patches : weight each IPM patch's residual by its modelled noise (patches where
+        the virtual IPM magnifies the image, in the far field, or shrunk ones are noisier;
+        ``ipm.patch_noise_whitening``); the paper weighs all alike.
+    recentre_windows : match IPM patches a second time with the current frame's window
+        re-centred on the first measured shift (the windows' partial overlap pulls POC
+        towards the window offset, carrying ~2 % of the previous stage's error over).
+    inlier_median_factor : a refinement's inlier threshold tightens to this multiple of its
+        inliers' median residual where that is below ``inlier_px_ipm`` (0: fixed threshold);
+        weighted residuals of precise near-field patches are a few hundredths of a pixel,
+        so a patch half on an obstacle is gross there but within the fixed 1.5 px.
+        None (default) for these three: on (6 for the factor) for steep cameras, off for
+        forward-looking ones (measured on KITTI 07: median distance error 2.8 % → 3.6 %,
+        frames ok 96 % → 93 %; the far field of a level camera is not modelled by the
+        noise model's single magnification term).
+    moved_ipm : refinements warp frame k onto frame k-1's IPM plane moved by the current
+        motion estimate, so that the patches match with no offset and no rotation (in a
+        turn the rotation within a patch biases POC); off: each frame on its own plane with
+        the patch windows offset by the predicted displacement (the paper's). None
+        (default): on for steep cameras (cart turning 1.5°/frame: pitch/roll error 0.04° /
+        0.12° → 0.005° / 0.006°), off for forward-looking ones (KITTI 07: frames ok 96 → 99 %
+        with the turn at frames 138-143, but on the frames ok either way mean distance error
+        3.8 → 4.2 % and p95 10 → 13 %, three seeds).
+    seed : seed of the subset sampler (runs are deterministic).
+    keep_images : keep the last refinement's IPM images in the result.
+    """
+
+    grid: tuple[int, int] = (11, 9)
+    roi: RoiSpec = None
+    roi_max_range_h: float | None = None
+    roi_max_lateral_h: float = 2.5
+    horizon_margin_deg: float = 2.0
+    patch_image: int = 128
+    patch_ipm: int = 256
+    min_patch_image: int = 32
+    min_patch_ipm: int = 64
+    n_subsets: int = 50
+    subset_fraction: float = 0.6
+    refine_subsets: int = 0
+    refinements: int | None = None
+    initial_pitch_deg: float = 60.0
+    initial_roll_deg: float = 0.0
+    coarse_scale: int = 4
+    coarse_patch: int = 64
+    coarse_inlier_px: float = 10.0
+    coarse_peak_ratio: float = 0.6
+    min_peak: float = 0.05
+    max_displacement_factor: float = 4.0
+    inlier_px_image: float = 3.0
+    inlier_px_ipm: float = 1.5
+    refine_outlier_px: float = 8.0
+    min_inliers: int = 12
+    min_motion_px: float = 0.5
+    max_deviation_deg: float = 25.0
+    max_roll_deg: float = 10.0
+    nominal_undetermined: str = ""
+    jackknife_covariance: bool = True
+    heave_rate_mps: float = 0.05
+    cold_start_ipm: bool = True
+    cold_pitch_steps_deg: tuple[float, ...] | None = None
+    readout_s: float = 0.0
+    ipm_resolution_scale: float = 1.0
+    ipm_max_side: int = 3000
+    vertical_motion: bool | None = None
+    pose_prior_deg: float | None = None
+    track_prior_deg: float = 0.5
+    stage_median: bool | None = None
+    weight_patches: bool | None = None
+    recentre_windows: bool | None = None
+    inlier_median_factor: float | None = None
+    moved_ipm: bool | None = None
+    seed: int = 0
+    keep_images: bool = False
+
+    def __post_init__(self) -> None:
+        checks = {
+            "grid": len(self.grid) == 2 and min(self.grid) >= 2,
+            "patch_image": self.patch_image >= 16,
+            "patch_ipm": self.patch_ipm >= 16,
+            "min_patch_image": 8 <= self.min_patch_image <= self.patch_image,
+            "min_patch_ipm": 8 <= self.min_patch_ipm <= self.patch_ipm,
+            "n_subsets": self.n_subsets >= 0,
+            "subset_fraction": 0.0 < self.subset_fraction <= 1.0,
+            "refine_subsets": self.refine_subsets >= 0,
+            "refinements": self.refinements is None or self.refinements >= 0,
+            "coarse_scale": self.coarse_scale >= 1,
+            "min_inliers": self.min_inliers >= 4,
+            "inlier_px_image": self.inlier_px_image > 0,
+            "inlier_px_ipm": self.inlier_px_ipm > 0,
+            "refine_outlier_px": self.refine_outlier_px > 0,
+            "ipm_resolution_scale": self.ipm_resolution_scale > 0,
+            "roi_max_range_h": self.roi_max_range_h is None or self.roi_max_range_h > 0,
+            "roi_max_lateral_h": self.roi_max_lateral_h > 0,
+            "max_deviation_deg": self.max_deviation_deg > 0,
+            "max_roll_deg": 0 < self.max_roll_deg <= 90,
+            "cold_pitch_steps_deg": self.cold_pitch_steps_deg is None or all(
+                np.isfinite(step) and abs(step) < self.max_deviation_deg
+                for step in self.cold_pitch_steps_deg),
+            "pose_prior_deg": self.pose_prior_deg is None or self.pose_prior_deg >= 0,
+            "track_prior_deg": self.track_prior_deg >= 0,
+            "inlier_median_factor": (self.inlier_median_factor is None
+                                     or self.inlier_median_factor >= 0),
+        }
+        bad = [name for name, ok in checks.items() if not ok]
+        if bad:
+            raise InputError(
+                "estimator config: invalid " + ", ".join(f"{b}={getattr(self, b)!r}" for b in bad)
+            )
+
+    @property
+    def initial_pose(self) -> tuple[float, float]:
+        """Cold-start (pitch, roll), radians."""
+        return float(np.radians(self.initial_pitch_deg)), float(np.radians(self.initial_roll_deg))
+
+
+
+def with_camera_defaults(config: EstimatorConfig, level: bool) -> EstimatorConfig:
+    """``config`` with the fields left None set to the defaults of a level camera (``level``:
+    forward-looking, horizon in view, nominal pitch below ``LEVEL_MAX_PITCH_DEG``) or a steep
+    one (every other); see :class:`EstimatorConfig`."""
+    by_camera = {
+        "roi_max_range_h": LEVEL_ROI_RANGE_H if level else 15.0,
+        "vertical_motion": not level,
+        "refinements": 2 if level else 1,
+        "stage_median": level,
+        "pose_prior_deg": 2.0 if level else 0.0,
+        "moved_ipm": not level,
+        "cold_pitch_steps_deg": COLD_PITCH_STEPS_DEG["level" if level else "steep"],
+        **REFINEMENT_WEIGHTING["uniform" if level else "noise"],
+    }
+    return dataclasses.replace(config, **{
+        name: value for name, value in by_camera.items() if getattr(config, name) is None
+    })
