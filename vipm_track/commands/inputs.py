@@ -296,7 +296,7 @@ def estimate_stream(
     source = open_source(images=args.images, video=args.video, fps=args.fps)
     config = with_searched_setup(args, source, camera, height, config)
     if sink is not None:
-        from ..sinks.rerun_sink import ImageTap
+        from ..sinks.rerun_sequence import ImageTap
 
         source = ImageTap(source, camera)
         config = replace(config, keep_images=True)
