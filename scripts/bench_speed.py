@@ -42,7 +42,8 @@ from vipm_track.estimator_config import EstimatorConfig  # noqa: E402
 from vipm_track.pipeline import config_with, run_sequence  # noqa: E402
 from vipm_track.render import Effects  # noqa: E402
 from vipm_track.sim import PRESETS, simulate_sequence  # noqa: E402
-from vipm_track.sinks.rerun_sink import ImageTap, RerunSink  # noqa: E402
+from vipm_track.sinks.rerun_sequence import ImageTap  # noqa: E402
+from vipm_track.sinks.rerun_sink import RerunSink  # noqa: E402
 from vipm_track.sources import ArraySource, open_source  # noqa: E402
 from vipm_track.table import read_table  # noqa: E402
 

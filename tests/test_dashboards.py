@@ -23,12 +23,10 @@ from vipm_track.sim import (
     make_trajectory,
     simulate_sequence,
 )
-from vipm_track.sinks.rerun_sink import (
-    RerunSink,
-    default_blueprint,
-    grpc_url,
-    recording_entities,
-)
+from vipm_track.sinks.rerun_blueprint import default_blueprint
+from vipm_track.sinks.rerun_open import grpc_url
+from vipm_track.sinks.rerun_read import recording_entities
+from vipm_track.sinks.rerun_sink import RerunSink
 from vipm_track.sinks.trajectory import planar_path
 from vipm_track.table import read_table, write_table
 

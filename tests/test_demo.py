@@ -22,7 +22,7 @@ import pytest
 from vipm_track.cli import main
 from vipm_track.demo import FLAGS
 from vipm_track.evaluate import error_stats, frame_errors
-from vipm_track.sinks.rerun_sink import recording_entities
+from vipm_track.sinks.rerun_read import recording_entities
 from vipm_track.table import read_table
 
 FRAMES = 180

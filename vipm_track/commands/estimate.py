@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
                          start=args.start, max_frames=args.max_frames)
     parallel = parallel_settings(args)
     config = with_searched_setup(args, source, camera, height, config)
-    from ..sinks.rerun_sink import run_logging
+    from ..sinks.rerun_sequence import run_logging
     from .rerun_options import sink_from_args
 
     logging = run_logging(sink_from_args(args, "vipm-track estimate"), source, camera, config)

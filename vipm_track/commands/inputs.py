@@ -302,7 +302,7 @@ def estimate_stream(
                          max_frames=getattr(args, "max_frames", None))
     config = with_searched_setup(args, source, camera, height, config)
     if sink is not None:
-        from ..sinks.rerun_sink import ImageTap
+        from ..sinks.rerun_sequence import ImageTap
 
         source = ImageTap(source, camera)
         config = replace(config, keep_images=True)

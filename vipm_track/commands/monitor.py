@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     camera = load_camera(args.camera) if args.camera else None
     speed = load_speed(args)
     progress = not args.quiet
-    from ..sinks.rerun_sink import log_monitor_run
+    from ..sinks.rerun_filters import log_monitor_run
     from .rerun_options import sink_from_args
 
     sink = sink_from_args(args, "vipm-track monitor")

@@ -1,12 +1,13 @@
 """The rerun flags of a command (``common.add_rerun_options``) turned into a sink: the
-command-line face of ``sinks.rerun_sink.open_sink``."""
+command-line face of ``sinks.rerun_open.open_sink``."""
 
 from __future__ import annotations
 
 import argparse
 from typing import Any
 
-from ..sinks.rerun_sink import RerunSink, open_sink
+from ..sinks.rerun_open import open_sink
+from ..sinks.rerun_sink import RerunSink
 
 
 def wants_rerun(args: argparse.Namespace) -> bool:

@@ -187,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
     check_writable(summary_path.with_suffix(".md"), "--summary")
     check_rerun_output(args)
     speed = load_speed(args)
-    from ..sinks.rerun_sink import log_filter_run
+    from ..sinks.rerun_filters import log_filter_run
     from .rerun_options import sink_from_args
 
     sink = sink_from_args(args, "vipm-track smooth")

@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     config = EkfConfig(height_m=height, noise=NoiseParams.for_preset(args.vehicle),
                        gate_probability=args.gate, speed_gate_probability=args.gate)
     speed = load_speed(args)
-    from ..sinks.rerun_sink import log_track_steps
+    from ..sinks.rerun_filters import log_track_steps
     from .rerun_options import sink_from_args
 
     sink = sink_from_args(args, "vipm-track track")

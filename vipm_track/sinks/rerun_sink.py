@@ -3,7 +3,10 @@ monitor made of it.
 
 One :class:`RerunSink` wraps a ``rerun.RecordingStream`` (not the global one, so a process can
 write several recordings). Every call places its data on two timelines: ``frame`` (sequence,
-the frame index) and ``time`` (duration, the frame timestamp in seconds). Entity layout:
+the frame index) and ``time`` (duration, the frame timestamp in seconds). Around it:
+``rerun_open`` opens one (file, spawned or remote viewer), ``rerun_sequence`` feeds it a
+sequence run, ``rerun_filters`` the filters' and the monitor's runs, ``rerun_blueprint`` lays
+out the views and ``rerun_read`` reads a recording back. Entity layout:
 
 =====================================  ==========================================================
 ``camera/image``                       the camera frame k (JPEG; every ``image_every``-th pair)
@@ -37,8 +40,7 @@ from __future__ import annotations
 
 import math
 import sys
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -48,12 +50,10 @@ from numpy.typing import NDArray
 
 from ..errors import InputError
 from ..geometry import PlanarMotion, compose_motion
+from ..table import TEXT_COLUMNS
+from .rerun_blueprint import AXES, FRAME_TIMELINE, TIME_TIMELINE, default_blueprint
 from .trajectory import planar_path
 
-FRAME_TIMELINE = "frame"
-TIME_TIMELINE = "time"
-
-AXES: tuple[str, ...] = ("pitch", "roll", "height")
 MOTION: tuple[str, ...] = ("tx", "tz", "yaw")
 #: Table column of each series (CONVENTIONS.md) and its standard-deviation column.
 COLUMNS: dict[str, tuple[str, str]] = {
@@ -103,7 +103,7 @@ class RerunSink:
         side to at most this, pixels.
     arrow_scale : displacement arrows are drawn this many times their length.
     log_ipm : log the virtual IPM images (needs ``EstimatorConfig(keep_images=True)``).
-    blueprint : send the default layout (:func:`default_blueprint`).
+    blueprint : send the default layout (``rerun_blueprint.default_blueprint``).
     """
 
     def __init__(
@@ -416,6 +416,7 @@ class RerunSink:
 
     @property
     def _rr(self) -> Any:
+        # rerun is imported when a recording is made: the CLI starts without it
         import rerun as rr
 
         return rr
@@ -541,166 +542,9 @@ def _to_uint8(image: NDArray) -> NDArray[np.uint8]:
     return np.clip(np.nan_to_num(img, nan=0.0), 0, 255).astype(np.uint8)
 
 
-# --- wiring helpers ------------------------------------------------------------------------
-
-
-class ImageTap:
-    """A frame source that remembers the images it hands out, so that a sink can show the
-    image of the step the sequence runner yields for it (the runner keeps images private).
-
-    Wraps any iterable of ``sources.Frame`` (``len`` and ``description`` pass through); keeps
-    the last ``keep`` images. With ``camera`` the images given back are undistorted like the
-    runner's (the patches live on the undistorted image)."""
-
-    def __init__(self, source: Any, camera: Any = None, keep: int = 3) -> None:
-        self.source = source
-        self.camera = camera
-        self.keep = keep
-        self._images: dict[int, NDArray] = {}
-        self.description = getattr(source, "description", "")
-
-    def __len__(self) -> int:
-        return len(self.source)
-
-    def __iter__(self) -> Any:
-        for frame in self.source:
-            if frame.image is not None:
-                self._images[frame.index] = frame.image
-                while len(self._images) > self.keep:
-                    self._images.pop(next(iter(self._images)))
-            yield frame
-
-    def image(self, index: int) -> NDArray | None:
-        """The image of frame ``index`` (undistorted with ``camera``), if still kept."""
-        image = self._images.get(index)
-        if image is None or self.camera is None or not getattr(self.camera, "has_distortion",
-                                                               False):
-            return image
-        return self.camera.undistort_image(image)
-
-
-@dataclass
-class RunLogging:
-    """What a command needs to log a sequence run: the source to iterate (an
-    :class:`ImageTap` when logging), the estimator config (IPM images kept when logging), the
-    ``on_step`` callback for ``runs.estimate_sequence`` and ``finish``. Without a sink
-    everything passes through unchanged and ``on_step`` is None."""
-
-    sink: RerunSink | None
-    source: Any
-    config: Any
-    on_step: Callable[[Any], None] | None = None
-
-    def finish(self) -> None:
-        if self.sink is not None:
-            self.sink.finish()
-
-
-def run_logging(sink: RerunSink | None, source: Any, camera: Any,
-                config: Any = None) -> RunLogging:
-    """:class:`RunLogging` of a sequence run into ``sink`` (None: nothing logged); ``config``
-    is an ``EstimatorConfig`` or None (defaults)."""
-    if sink is None:
-        return RunLogging(None, source, config)
-    from ..estimator import EstimatorConfig
-
-    tap = ImageTap(source, camera)
-    config = replace(config or EstimatorConfig(), keep_images=True)
-
-    def on_step(step: Any) -> None:
-        sink.log_step(step, tap.image(step.frame))
-
-    return RunLogging(sink, tap, config, on_step)
-
-
-def log_steps(sink: RerunSink | None, steps: Any, tap: ImageTap | None = None) -> Any:
-    """Pass the runner's ``SequenceStep`` s through, logging each (with its image from
-    ``tap``); the sink is finished when the steps end. ``sink`` None: ``steps`` unchanged."""
-    if sink is None:
-        return steps
-
-    def logged() -> Any:
-        try:
-            for step in steps:
-                sink.log_step(step, tap.image(step.frame) if tap is not None else None)
-                yield step
-        finally:
-            sink.finish()
-
-    return logged()
-
-
-def log_track_steps(sink: RerunSink | None, steps: Any) -> Any:
-    """Pass ``filters.track.track`` output ``(state, measurement, speed)`` through, logging
-    the measurement (``per_frame``) and the filter's row (``filtered``, ``mount``, speeds);
-    the sink is finished when the steps end. ``sink`` None: ``steps`` unchanged."""
-    if sink is None:
-        return steps
-    from vipm_track.filters.track import track_row
-
-    def logged() -> Any:
-        try:
-            for state, measurement, speed in steps:
-                if measurement is not None:
-                    sink.log_measurement(measurement)
-                sink.log_track_row(track_row(state, measurement, speed), "filtered")
-                yield state, measurement, speed
-        finally:
-            sink.finish()
-
-    return logged()
-
-
-def log_filter_run(sink: RerunSink | None, measurements: Sequence[Any],
-                   rows: Sequence[Mapping[str, Any]], kind: str = "smoothed") -> None:
-    """Log a finished filter/smoother run, batched: the measurements as ``per_frame`` (failed
-    ones as log lines) and its track-table rows (``filters.track.track_row``) as ``kind``,
-    their mount columns as ``mount``, all with ±2σ bands where the rows have std columns.
-    ``sink`` None: nothing. The sink stays open (see :meth:`RerunSink.finish`)."""
-    if sink is None:
-        return
-    from ..measurement import measurement_row
-
-    ok = [measurement_row(m) for m in measurements if m.ok]
-    if ok:
-        sink.log_table(table_columns(ok), "per_frame")
-    for m in measurements:
-        if not m.ok:
-            sink.log_text(m.frame, m.t, f"frame {m.frame}: {m.status}", "WARN")
-    if rows:
-        sink.log_table(table_columns(rows), kind)
-
-
-def log_monitor_run(sink: RerunSink | None, measurements: Sequence[Any], states: Sequence[Any],
-                    outputs: Sequence[Any], progress: bool = False) -> None:
-    """Log a whole monitor run (``filters.monitor_inputs.monitor_measurements``): the
-    measurements and the EKF's frame pose and mount (:func:`log_filter_run`, ``filtered``),
-    and every monitor output (state, events, statistics, deviation, new extrinsics).
-    ``sink`` None: nothing. The sink is finished afterwards."""
-    if sink is None:
-        return
-    from vipm_track.filters.track import track_row
-
-    try:
-        rows = [track_row(s, m, None) for m, s in zip(measurements, states, strict=True)
-                if s is not None]
-        log_filter_run(sink, measurements, rows, "filtered")
-        it: Any = outputs
-        if progress:
-            from tqdm import tqdm
-
-            it = tqdm(outputs, desc="rerun", unit="frame", file=sys.stderr)
-        for output in it:
-            sink.log_monitor(output)
-    finally:
-        sink.finish()
-
-
 def table_columns(rows: Sequence[Mapping[str, Any]]) -> dict[str, NDArray]:
     """Column dict of table rows (``read_table``'s layout): float arrays with NaN where a row
     lacks a number, text columns (``table.TEXT_COLUMNS``) as object arrays."""
-    from ..table import TEXT_COLUMNS
-
     names = list(dict.fromkeys(k for row in rows for k in row))
     out: dict[str, NDArray] = {}
     for name in names:
@@ -712,130 +556,4 @@ def table_columns(rows: Sequence[Mapping[str, Any]]) -> dict[str, NDArray]:
     return out
 
 
-# --- layout --------------------------------------------------------------------------------
-
-
-def default_blueprint() -> Any:
-    """The default layout: camera and IPM views left, pose series middle, trajectory, motion,
-    monitor and log right."""
-    import rerun.blueprint as rrb
-
-    whole_run = rrb.VisibleTimeRange(
-        FRAME_TIMELINE, start=rrb.TimeRangeBoundary.infinite(),
-        end=rrb.TimeRangeBoundary.cursor_relative(),
-    )
-    series = [rrb.TimeSeriesView(origin=f"series/{axis}", name=f"{axis}"
-                                 + (" [deg]" if axis != "height" else " [m]")) for axis in AXES]
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Vertical(
-                rrb.Spatial2DView(origin="camera", name="camera: patches, displacements"),
-                rrb.Horizontal(
-                    rrb.Spatial2DView(origin="ipm/prev", name="virtual IPM k-1"),
-                    rrb.Spatial2DView(origin="ipm/curr", name="virtual IPM k"),
-                ),
-                row_shares=[3, 2],
-            ),
-            rrb.Vertical(*series),
-            rrb.Vertical(
-                rrb.Spatial2DView(origin="trajectory", name="planar trajectory [m]",
-                                  time_ranges=[whole_run]),
-                rrb.Tabs(
-                    rrb.TimeSeriesView(origin="motion", name="motion"),
-                    rrb.TimeSeriesView(origin="monitor/statistic", name="monitor statistic"),
-                    rrb.TimeSeriesView(origin="monitor/deviation", name="monitor deviation"),
-                    rrb.TimeSeriesView(origin="quality", name="quality"),
-                    rrb.TimeSeriesView(origin="timing", name="timing [ms]"),
-                ),
-                rrb.StateTimelineView(origin="monitor/state", name="monitor state"),
-                rrb.TextLogView(origin="log", name="log"),
-                row_shares=[3, 3, 1, 2],
-            ),
-            column_shares=[4, 3, 3],
-        ),
-        collapse_panels=True,
-    )
-
-
-# --- opening a recording ----------------------------------------------------------------------
-
-
-def open_sink(app_id: str, path: str | Path | None = None, spawn: bool = False,
-              connect: str | None = None, image_every: int = 1,
-              jpeg_quality: int = 75) -> RerunSink | None:
-    """A sink recording to the .rrd file ``path``, to a viewer it spawns (``spawn``) and/or to
-    a viewer at ``connect`` (``host:port`` or a ``rerun+http://`` URL), any combination; None
-    where none is asked for. ``image_every``: log every n-th frame's images; ``jpeg_quality``
-    of the logged images."""
-    if not (path or spawn or connect):
-        return None
-    import rerun as rr
-
-    sinks: list[Any] = []
-    rec = rr.RecordingStream(app_id)
-    if path:
-        path = Path(path)
-        if path.is_dir():
-            raise InputError(f"--rerun {path}: is a folder; give a .rrd file name")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        sinks.append(rr.FileSink(str(path)))
-    if spawn:
-        try:
-            rr.spawn(connect=False, recording=rec)
-        except Exception as exc:  # the viewer binary may be missing or fail to start
-            raise InputError(f"--rerun-spawn: could not start the rerun viewer: {exc}") from exc
-        sinks.append(rr.GrpcSink())
-    if connect:
-        sinks.append(rr.GrpcSink(grpc_url(connect)))
-    rec.set_sinks(*sinks)
-    return RerunSink(rec, image_every=image_every, jpeg_quality=jpeg_quality)
-
-
-def grpc_url(address: str) -> str:
-    """Viewer URL from ``--rerun-connect``: a full ``rerun+http://host:port/proxy`` URL, or
-    ``host:port`` / ``host`` (port 9876)."""
-    address = address.strip()
-    if "://" in address:
-        if not address.startswith(("rerun://", "rerun+http://", "rerun+https://")):
-            raise InputError(f"--rerun-connect {address}: the scheme must be rerun+http(s)://")
-        return address
-    if not address:
-        raise InputError("--rerun-connect needs host:port")
-    host, _, port = address.partition(":")
-    if port and not port.isdigit():
-        raise InputError(f"--rerun-connect {address}: port must be a number")
-    return f"rerun+http://{host or '127.0.0.1'}:{port or 9876}/proxy"
-
-
-def recording_entities(path: str | Path, static: bool = False) -> dict[str, int]:
-    """Rows per entity path of the recording in an .rrd file, read back with rerun's chunk
-    reader: what a test or a user checks a recording holds. Only rows on the timelines,
-    unless ``static`` (then only the static rows: styles, properties)."""
-    from rerun.chunk import RrdReader
-
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: recording not found")
-    counts: dict[str, int] = {}
-    for chunk in RrdReader(path).stream():
-        if chunk.is_static != static:
-            continue
-        counts[chunk.entity_path] = counts.get(chunk.entity_path, 0) + chunk.num_rows
-    return counts
-
-
-__all__: Sequence[str] = [
-    "ImageTap",
-    "RerunSink",
-    "RunLogging",
-    "default_blueprint",
-    "grpc_url",
-    "log_filter_run",
-    "log_monitor_run",
-    "log_steps",
-    "log_track_steps",
-    "open_sink",
-    "recording_entities",
-    "run_logging",
-    "table_columns",
-]
+__all__: Sequence[str] = ["RerunSink", "table_columns"]
