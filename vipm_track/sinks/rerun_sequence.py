@@ -15,7 +15,7 @@ from typing import Any
 
 from numpy.typing import NDArray
 
-from ..estimator import EstimatorConfig
+from ..estimator_config import EstimatorConfig
 from .rerun_sink import RerunSink
 
 

@@ -345,7 +345,7 @@ class RerunSink:
     # --- monitor -----------------------------------------------------------------------------
 
     def log_monitor(self, output: Any) -> None:
-        """Log a ``filters.monitor.MonitorOutput``: state, statistics, deviation, events."""
+        """Log a ``filters.monitor_types.MonitorOutput``: state, statistics, deviation, events."""
         self.set_time(output.frame, output.t)
         rr = self._rr
         if output.state != self._monitor_state:
