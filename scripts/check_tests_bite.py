@@ -82,7 +82,8 @@ MUTANTS: tuple[Mutant, ...] = (
            "return cls(result.pose_curr, result.pose_curr, result.motion)",
            "return cls(result.pose_prev, result.pose_prev, result.motion)", ESTIMATOR_TESTS),
     Mutant("motion-yaw-sign", "estimator", "sign flip: the unpacked yaw",
-           "vipm_track/bundle.py", "PlanarMotion(float(x[4]), float(x[5]), float(x[6])),",
+           "vipm_track/displacement_model.py",
+           "PlanarMotion(float(x[4]), float(x[5]), float(x[6])),",
            "PlanarMotion(float(x[4]), float(x[5]), -float(x[6])),", ESTIMATOR_TESTS),
     Mutant("wrong-minimum-guard-off", "estimator",
            "threshold: a cold start's inlier share needs 0 % (the wrong-minimum guard off)",
@@ -163,11 +164,11 @@ MUTANTS: tuple[Mutant, ...] = (
            "vipm_track/measurement.py",
            "s = np.where(_ANGLE, np.degrees(m.std), m.std)", "s = m.std", TABLE_TESTS),
     Mutant("table-3-decimals", "table writer", "precision: floats written with 3 decimals",
-           "vipm_track/table.py", 'return "" if math.isnan(v) else repr(v)',
-           'return "" if math.isnan(v) else f"{v:.3f}"', TABLE_TESTS),
+           "vipm_track/table.py", 'return repr(float(f"{v:.{digits}g}"))',
+           'return f"{v:.3f}"', TABLE_TESTS),
     Mutant("table-reader-skips-row", "table writer", "off-by-one: the reader drops the first row",
-           "vipm_track/table.py", "records = [r for r in reader if r]",
-           "records = [r for r in reader if r][1:]", TABLE_TESTS),
+           "vipm_track/table.py", "header = [h.strip() for h in next(reader)]",
+           "header = [h.strip() for h in next(reader)]; next(reader, None)", TABLE_TESTS),
 )
 
 

@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from vipm_track import ipm  # noqa: E402
-from vipm_track.bundle import DisplacementModel, pack, unpack  # noqa: E402
+from vipm_track.displacement_model import DisplacementModel, pack, unpack  # noqa: E402
 from vipm_track.estimator import TwoFrameEstimator  # noqa: E402
 from vipm_track.estimator_config import EstimatorConfig  # noqa: E402
 from vipm_track.geometry import (  # noqa: E402

@@ -11,16 +11,17 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vipm_track import bundle, geometry
+from vipm_track import displacement_model as dm
 from vipm_track.sim import PRESETS
 
 
-def _reference(model: bundle.DisplacementModel, xs: np.ndarray, weights: np.ndarray):
+def _reference(model: dm.DisplacementModel, xs: np.ndarray, weights: np.ndarray):
     """Cost, JᵀWJ, JᵀWr from residuals_batch, central differences of predict_batch over all
     points (every rolling-shutter point solved from its own row) and the prior's (numpy)."""
     b, n = xs.shape
     r = model.residuals_batch(xs).reshape(b, -1)
-    d = bundle.central_difference(
-        model._whiten(model.predict_batch(bundle.central_points(xs))), b)  # (B, n, N, 2)
+    d = dm.central_difference(
+        model._whiten(model.predict_batch(dm.central_points(xs))), b)  # (B, n, N, 2)
     jac = np.where(np.isfinite(d), d, 0.0).transpose(0, 2, 3, 1).reshape(b, -1, n)
     w2 = np.repeat(weights, 2, axis=1)
     cost = np.sum(w2 * r**2, axis=1)
@@ -34,14 +35,14 @@ def _reference(model: bundle.DisplacementModel, xs: np.ndarray, weights: np.ndar
     return cost, a, g
 
 
-def _cart_model(rng: np.random.Generator, **changes) -> tuple[bundle.DisplacementModel, np.ndarray]:
+def _cart_model(rng: np.random.Generator, **changes) -> tuple[dm.DisplacementModel, np.ndarray]:
     k = PRESETS["cart"].camera().k
     pp, pc = geometry.GroundPose(0.8, 0.02, 0.7), geometry.GroundPose(0.81, 0.01, 0.7)
     mo = geometry.PlanarMotion(0.01, 0.1, 0.02)
     pix = np.stack(np.meshgrid(np.linspace(50, 750, 6), np.linspace(20, 580, 5)), -1).reshape(-1, 2)
     target = geometry.predict_pixels(k, pp, pc, mo, pix) + rng.normal(0, 0.3, (len(pix), 2))
-    model = bundle.DisplacementModel(k, 0.7, pix, target)
-    return dataclasses.replace(model, **changes), bundle.pack(pp, pc, mo)
+    model = dm.DisplacementModel(k, 0.7, pix, target)
+    return dataclasses.replace(model, **changes), dm.pack(pp, pc, mo)
 
 
 @settings(max_examples=30, deadline=None)
@@ -87,9 +88,9 @@ def test_normal_equations_equal_the_residual_jacobian_sums(seed, whiten, prior, 
 def test_steady_pose_model_normal_equations_use_its_five_parameters():
     rng = np.random.default_rng(3)
     full, x = _cart_model(rng)
-    model = bundle.SteadyPoseModel(**{f.name: getattr(full, f.name)
+    model = dm.SteadyPoseModel(**{f.name: getattr(full, f.name)
                                       for f in dataclasses.fields(full)})
-    xs = bundle.SteadyPoseModel.reduce(x) + rng.normal(0, 0.01, (4, 5))
+    xs = dm.SteadyPoseModel.reduce(x) + rng.normal(0, 0.01, (4, 5))
     weights = np.ones((4, full.n_points))
     cost, a, g = model.normal_equations(xs, weights)
     ref = _reference(model, xs, weights)
@@ -105,8 +106,8 @@ def test_batched_lm_recovers_the_pair_from_exact_displacements(readout):
     mo = geometry.PlanarMotion(0.02, 0.8, 0.01)
     pix = np.stack(np.meshgrid(np.linspace(100, 1180, 8), np.linspace(420, 700, 5)),
                    -1).reshape(-1, 2)
-    x = bundle.pack(pp, pc, mo)
-    model = bundle.DisplacementModel(k, 1.5, pix, pix, readout_frames=readout, image_rows=720)
+    x = dm.pack(pp, pc, mo)
+    model = dm.DisplacementModel(k, 1.5, pix, pix, readout_frames=readout, image_rows=720)
     model = dataclasses.replace(model, targets=model.predict(x))
     rng = np.random.default_rng(0)
     weights = np.ones((6, len(pix)))

@@ -13,6 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vipm_track import bundle, geometry
+from vipm_track import displacement_model as dm
 from vipm_track.errors import InputError
 from vipm_track.estimator import TwoFrameEstimator
 from vipm_track.estimator_config import EstimatorConfig
@@ -80,15 +81,15 @@ def test_batched_homographies_equal_geometry():
     k = PRESETS["cart"].camera().k
     rng = np.random.default_rng(0)
     xs = rng.normal(size=(6, 7)) * [0.3, 0.1, 0.3, 0.1, 0.2, 0.5, 0.1] + [0.8, 0, 0.8, 0, 0, 0, 0]
-    g_from_i, out_from_g = bundle.pair_homographies(k, 0.7, xs)
+    g_from_i, out_from_g = dm.pair_homographies(k, 0.7, xs)
     for b, x in enumerate(xs):
-        pp, pc, mo = bundle.unpack(x, 0.7)
+        pp, pc, mo = dm.unpack(x, 0.7)
         h_ref = geometry.pair_homography(k, pp, pc, mo)
         h = out_from_g[b] @ g_from_i[b]
         np.testing.assert_allclose(h / h[2, 2], h_ref / h_ref[2, 2], atol=1e-9)
 
 
-def _assert_jacobian_matches_differences(model: bundle.DisplacementModel, x: np.ndarray) -> None:
+def _assert_jacobian_matches_differences(model: dm.DisplacementModel, x: np.ndarray) -> None:
     """The model's Jacobian against central differences of its residuals."""
     jac = model.jacobian(x)
     for i in range(len(x)):
@@ -104,8 +105,8 @@ def test_model_residual_is_zero_at_truth_and_jacobian_matches():
     mo = geometry.PlanarMotion(0.01, 0.1, 0.02)
     pix = np.stack(np.meshgrid(np.linspace(50, 750, 5), np.linspace(50, 550, 4)), -1).reshape(-1, 2)
     target = geometry.predict_pixels(k, pp, pc, mo, pix)
-    model = bundle.DisplacementModel(k, 0.7, pix, target)
-    x = bundle.pack(pp, pc, mo)
+    model = dm.DisplacementModel(k, 0.7, pix, target)
+    x = dm.pack(pp, pc, mo)
     assert np.abs(model.residuals(x)).max() < 1e-9
     _assert_jacobian_matches_differences(model, x)
     # the same with per-point whitening (the weighted refinement's residuals)
@@ -134,9 +135,9 @@ def test_rolling_shutter_prediction_moves_each_point_over_its_rows_times(
     psi = np.array([motion.tx, motion.tz, motion.yaw])
     pix = np.stack(np.meshgrid(np.linspace(50, 750, 5), np.linspace(300, 590, 4)), -1)
     pix = pix.reshape(-1, 2)
-    model = bundle.DisplacementModel(cam.k, 0.7, pix, pix, readout_frames=readout,
+    model = dm.DisplacementModel(cam.k, 0.7, pix, pix, readout_frames=readout,
                                      image_rows=cam.height, previous_motion=psi * (1 - accel))
-    x = np.append(bundle.pack(pose_p, pose_c, motion), heave)
+    x = np.append(dm.pack(pose_p, pose_c, motion), heave)
     pred = model.predict(x)
     ok = np.all(np.isfinite(pred), axis=1) & (pred[:, 1] >= 0) & (pred[:, 1] < cam.height)
 
@@ -163,9 +164,9 @@ def test_pose_prior_residuals_jacobian_and_pull():
     pix = np.stack(np.meshgrid(np.linspace(100, 1180, 6), np.linspace(420, 700, 4)),
                    -1).reshape(-1, 2)
     target = geometry.predict_pixels(k, pp, pc, mo, pix)
-    x = bundle.pack(pp, pc, mo)
+    x = dm.pack(pp, pc, mo)
     mean = x[:4] + np.radians([1.0, -0.5, 1.0, -0.5])
-    model = bundle.DisplacementModel(k, 1.5, pix, target, prior_mean=mean, prior_scale=30.0)
+    model = dm.DisplacementModel(k, 1.5, pix, target, prior_mean=mean, prior_scale=30.0)
     r = model.residuals(x)
     assert r.size == 2 * len(pix) + 4 and model.n_prior == 4
     np.testing.assert_allclose(r[-4:], 30.0 * (x[:4] - mean), atol=1e-12)
@@ -484,20 +485,20 @@ def test_car_preset_with_guess_converges():
     assert err["pitch"] < 0.25 and err["roll"] < 0.25, err
     assert err["dist_mm"] / (tm.distance * 1e3) < 0.015, err  # under 1.5 % of ~0.6 m
     # Forward cameras report the median of the stages (image stage + 2 refinements).
-    stack = np.array([bundle.pack(*s) for s in result.stage_estimates])
+    stack = np.array([dm.pack(*s) for s in result.stage_estimates])
     assert len(stack) == 3
-    reported = bundle.pack(result.pose_prev, result.pose_curr, result.motion)
+    reported = dm.pack(result.pose_prev, result.pose_curr, result.motion)
     np.testing.assert_allclose(reported, np.median(stack, axis=0), atol=1e-12)
     last = dataclasses.replace(config, stage_median=False)
     single = TwoFrameEstimator(cam, float(traj.height[0]), last).estimate(imgs[0], imgs[1], guess)
-    np.testing.assert_allclose(bundle.pack(single.pose_prev, single.pose_curr, single.motion),
+    np.testing.assert_allclose(dm.pack(single.pose_prev, single.pose_curr, single.motion),
                                stack[-1], atol=1e-12)
     # With one refinement there is no median of two: the refined estimate is reported.
     one = TwoFrameEstimator(cam, float(traj.height[0]), dataclasses.replace(config, refinements=1))
     r1 = one.estimate(imgs[0], imgs[1], guess)
     assert len(r1.stage_estimates) == 2
-    np.testing.assert_allclose(bundle.pack(r1.pose_prev, r1.pose_curr, r1.motion),
-                               bundle.pack(*r1.stage_estimates[-1]), atol=1e-12)
+    np.testing.assert_allclose(dm.pack(r1.pose_prev, r1.pose_curr, r1.motion),
+                               dm.pack(*r1.stage_estimates[-1]), atol=1e-12)
 
 
 def test_obstacle_patches_are_outliers():
@@ -653,8 +654,8 @@ def test_covariance_is_positive_definite_and_in_the_ballpark():
         assert cov.shape == (7, 7)
         np.testing.assert_allclose(cov, cov.T, atol=1e-15)
         assert np.all(np.linalg.eigvalsh(cov) > 0)
-        truth = bundle.pack(traj.pose(k - 1), traj.pose(k), traj.motion(k))
-        est = bundle.pack(result.pose_prev, result.pose_curr, result.motion)
+        truth = dm.pack(traj.pose(k - 1), traj.pose(k), traj.motion(k))
+        est = dm.pack(result.pose_prev, result.pose_curr, result.motion)
         ratios.append(np.abs(est - truth) / result.std)
     ratios = np.concatenate(ratios)
     # |error|/σ of an honest std has a median of 0.67; measured 1.25 over these 14 entries
@@ -668,7 +669,7 @@ def test_to_measurement_carries_estimate():
     m = result.to_measurement(7, 0.7)
     assert isinstance(m, PairMeasurement)
     assert m.ok and m.frame == 7 and m.t == 0.7 and m.height_assumed == pytest.approx(0.7)
-    np.testing.assert_allclose(m.z, bundle.pack(result.pose_prev, result.pose_curr, result.motion))
+    np.testing.assert_allclose(m.z, dm.pack(result.pose_prev, result.pose_curr, result.motion))
     assert m.inliers == result.n_inliers > 12
 
 
@@ -735,7 +736,7 @@ def test_homography_baseline_decomposition_recovers_pose_and_motion():
     pix = np.stack(np.meshgrid(np.linspace(50, 750, 5), np.linspace(50, 550, 4)), -1).reshape(-1, 2)
     out = decompose(h, k, 0.7, geometry.GroundPose(np.radians(60), 0.0, 0.7), pix)
     assert out is not None
-    np.testing.assert_allclose(bundle.pack(*out), bundle.pack(pp, pc, mo), atol=1e-9)
+    np.testing.assert_allclose(dm.pack(*out), dm.pack(pp, pc, mo), atol=1e-9)
 
 
 def test_kitti_tracking_pairs():

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from vipm_track import bundle, geometry, ipm
+from vipm_track import displacement_model as dm
 from vipm_track.sim import PRESETS
 
 
@@ -47,7 +48,7 @@ def test_weighted_fit_trusts_precise_patches_and_drops_a_gross_one():
     k, pose, grid, pix = _cart_grid()
     pc = geometry.GroundPose(pose.pitch + 0.002, 0.001, 0.7)
     mo = geometry.PlanarMotion(0.002, 0.12, 0.003)
-    x = bundle.pack(pose, pc, mo)
+    x = dm.pack(pose, pc, mo)
     a = geometry.ipm_from_image_homography(k, pc, grid)
     truth = geometry.apply_homography(a, geometry.predict_pixels(k, pose, pc, mo, pix))
     sizes = np.full(len(pix), 256)
@@ -57,8 +58,8 @@ def test_weighted_fit_trusts_precise_patches_and_drops_a_gross_one():
     noise = np.einsum("nij,nj->ni", np.linalg.inv(w), rng.normal(0.0, 0.01, (len(pix), 2)))
     targets = truth + noise
     targets[7] += [0.0, 0.4]  # one patch half on an obstacle: gross for its precision
-    plain = bundle.DisplacementModel(k, 0.7, pix, targets, plane_from_image=a)
-    weighted = bundle.DisplacementModel(k, 0.7, pix, targets, plane_from_image=a,
+    plain = dm.DisplacementModel(k, 0.7, pix, targets, plane_from_image=a)
+    weighted = dm.DisplacementModel(k, 0.7, pix, targets, plane_from_image=a,
                                         point_whitening=w)
     usable = np.ones(len(pix), bool)
     fit_plain = bundle.robust_fit(plain, x, usable, 0, 1.0, 1.5, np.random.default_rng(0))

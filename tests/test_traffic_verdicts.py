@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from tests.conftest import shared_data
 from vipm_track import bundle, geometry
+from vipm_track import displacement_model as dm
 from vipm_track.camera import load_camera
 from vipm_track.cli import main
 from vipm_track.estimator_config import EstimatorConfig
@@ -122,13 +123,13 @@ def _grid() -> np.ndarray:
                     -1).reshape(-1, 2)
 
 
-def _forward_model(errors: np.ndarray) -> tuple[bundle.DisplacementModel, np.ndarray]:
+def _forward_model(errors: np.ndarray) -> tuple[dm.DisplacementModel, np.ndarray]:
     k = PRESETS["car"].camera().k
     pp, pc = geometry.GroundPose(0.05, 0.01, 1.5), geometry.GroundPose(0.052, 0.008, 1.5)
     mo = geometry.PlanarMotion(0.02, 0.3, 0.01)
     pix = _grid()
-    x = bundle.pack(pp, pc, mo)
-    model = bundle.DisplacementModel(k, 1.5, pix, pix)
+    x = dm.pack(pp, pc, mo)
+    model = dm.DisplacementModel(k, 1.5, pix, pix)
     return dataclasses.replace(model, targets=model.predict(x) + errors), x
 
 

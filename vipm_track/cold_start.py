@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import ipm, poc
-from .bundle import SteadyPoseModel
+from .displacement_model import SteadyPoseModel
 from .geometry import GroundPose, PlanarMotion, back_project
 from .pair_result import STATUS_FEW_INLIERS, STATUS_OK, PairResult, mark_failed
 from .stage_context import StageContext

@@ -28,9 +28,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from .bundle import pack, unpack
 from .camera import CameraModel
 from .cold_start import cold_start_ipm, reject_wrong_minimum
+from .displacement_model import pack, unpack
 from .errors import InputError
 from .estimator_config import LEVEL_MAX_PITCH_DEG, EstimatorConfig, with_camera_defaults
 from .geometry import GroundPose, horizon_row

@@ -9,8 +9,8 @@ import time
 import numpy as np
 from numpy.typing import NDArray
 
-from .bundle import DisplacementModel
 from .cold_start import coarse, cold_vector
+from .displacement_model import DisplacementModel
 from .geometry import rotation_parallax
 from .pair_result import STATUS_NO_MOTION, STATUS_NO_TEXTURE, PairResult, PatchField, StageFailure
 from .patch_match import match_grouped

@@ -9,7 +9,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from .bundle import pack
+from .displacement_model import pack
 from .geometry import GroundPose, IpmGrid, PlanarMotion
 from .measurement import PairMeasurement
 

@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import ipm
-from .bundle import DisplacementModel, unpack
+from .displacement_model import DisplacementModel, unpack
 from .geometry import (
     apply_homography,
     back_project,

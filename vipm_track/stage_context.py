@@ -9,17 +9,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from .bundle import (
-    DisplacementModel,
-    FitResult,
-    at_least,
-    covariance_from_jacobian,
-    heave_covariance,
-    pack,
-    robust_fit,
-    unpack,
-)
+from .bundle import FitResult, at_least, covariance_from_jacobian, heave_covariance, robust_fit
 from .camera import CameraModel
+from .displacement_model import DisplacementModel, pack, unpack
 from .estimator_config import EstimatorConfig
 from .geometry import GroundPose
 from .pair_result import (
