@@ -3,6 +3,7 @@ contracts in pyproject.toml), and one top-level name in the wheel."""
 
 from __future__ import annotations
 
+import argparse
 import shutil
 import subprocess
 import sys
@@ -33,3 +34,21 @@ def test_the_wheel_ships_one_top_level_package():
     import vipm_track.filters.ekf
 
     assert Path(vipm_track.filters.ekf.__file__).resolve().parent == ROOT / "filters"
+
+
+def test_subcommand_table_matches_the_commands_and_help_imports_none_of_them():
+    from vipm_track.cli import COMMANDS, build_parser
+
+    full = build_parser()
+    sub = next(a for a in full._actions if isinstance(a, argparse._SubParsersAction))
+    assert {c.dest: c.help for c in sub._choices_actions} == {
+        name: line for name, (_module, line) in COMMANDS.items()}
+    # `vipm-track --help` builds the list from the table alone: no command module, no gtsam
+    code = ("import sys\nfrom vipm_track.cli import main\ntry:\n    main(['--help'])\n"
+            "except SystemExit:\n    pass\n"
+            "print(sorted(m for m in sys.modules if m.startswith(('vipm_track.commands.',"
+            " 'gtsam', 'scipy.stats', 'vipm_track.filters.', 'vipm_track.sim'))))")
+    run = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
+                         text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip().splitlines()[-1] == "['vipm_track.commands.common']"

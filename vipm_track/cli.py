@@ -12,13 +12,29 @@ from collections.abc import Sequence
 from .commands.common import infer_inputs
 from .errors import InputError, NothingUsable, os_error_line, printable
 
-#: Subcommand modules under ``vipm_track.commands``, in the order ``--help`` lists them.
-COMMANDS: tuple[str, ...] = (
-    "simulate", "estimate", "track", "smooth", "monitor", "can_speed", "report", "demo",
-)
+#: Subcommands: name → (module under ``vipm_track.commands``, the line ``--help`` lists), in
+#: the order ``--help`` lists them. The line is the module's own ``help`` (a test holds them
+#: equal): ``vipm-track --help`` and a command's parser then import that command alone.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "simulate": ("simulate", "render a synthetic ground sequence (images, camera.yaml, gt.csv, "
+                 "times.txt)"),
+    "estimate": ("estimate", "pitch, roll and planar motion for every consecutive frame pair"),
+    "track": ("track", "EKF over the two-frame estimates: mount calibration, shaking, motion"),
+    "smooth": ("smooth", "smooth the two-frame estimates with a factor graph (gtsam): best "
+               "calibration"),
+    "monitor": ("monitor", "is the camera still calibrated? per-frame state and recalibration "
+                "events"),
+    "can-speed": ("can_speed", "decode wheel speed from a CAN log or bus to t,speed_mps CSV"),
+    "report": ("report", "plots (PNG) and a Markdown summary of a track / estimate / monitor "
+               "table"),
+    "demo": ("demo", "a drive whose camera is knocked out of calibration: estimate, filter, "
+             "smooth, monitor, scored against the truth"),
+}
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The command line; with ``only``, that subcommand's parser in full and the others as
+    their names and help lines (their modules not imported: start-up stays fast)."""
     parser = argparse.ArgumentParser(
         prog="vipm-track",
         description="Camera pitch, roll, height against the ground and planar motion from a "
@@ -26,9 +42,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version="vipm-track 0.1.0")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in COMMANDS:
-        importlib.import_module(f"vipm_track.commands.{name}").register(sub)
+    for name, (module, line) in COMMANDS.items():
+        if only is None or only == name:
+            importlib.import_module(f"vipm_track.commands.{module}").register(sub)
+        else:
+            sub.add_parser(name, help=line)
     return parser
+
+
+def _command_in(argv: Sequence[str]) -> str:
+    """The subcommand named in ``argv`` ("" where none is: ``--help``, ``--version``)."""
+    return next((a for a in argv if a in COMMANDS), "")
 
 
 #: Exit codes: 0 usable output, 1 ran but nothing usable, 2 bad input, 130 interrupted.
@@ -41,7 +65,8 @@ def _terminate(signum: int, frame: object) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(only=_command_in(argv))
     args = parser.parse_args(argv)
     name = f"vipm-track {args.command}"
     previous = signal.getsignal(signal.SIGTERM)
