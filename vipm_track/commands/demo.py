@@ -59,7 +59,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..demo import default_frames, demo_lines, files_lines, render_drive, run_demo
+    from ..demo import default_frames, render_drive, run_demo
+    from ..demo_text import demo_lines, files_lines
     from ..pipeline import config_with
     from ..sim import PRESETS
     from ..sources import open_source
