@@ -50,14 +50,14 @@ from vipm_track.filters.wheel_speed import read_speed_csv
 from .camera import load_camera
 from .errors import InputError
 from .estimator_config import EstimatorConfig
-from .evaluate import ErrorStats, error_stats
+from .evaluate import ErrorStats, error_stats, frame_errors
 from .filters.monitor_table import MONITOR_COLUMNS, monitor_row
 from .measurement import PairMeasurement, read_measurements
 from .pipeline import SequenceStep
 from .resources import data_path
 from .runs import estimate_sequence
 from .sim import PRESETS, simulate_sequence
-from .sinks.report import frame_errors, write_demo_figure
+from .sinks.report import write_demo_figure
 from .sources import open_source
 from .table import TableWriter, read_table
 
@@ -325,7 +325,8 @@ def run_demo(
 
     tables = {name: read_table(files[name]) for name in ("estimates", "track", "smoothed")}
     accuracy = {
-        stage: {name: error_stats(e) for name, e in frame_errors(tables[key], truth).items()
+        stage: {name: error_stats(e)
+                for name, e in frame_errors(tables[key], truth, scored="finite").items()
                 if name in {a[0] for a in ACCURACY}}
         for stage, key in (("estimator", "estimates"), ("EKF", "track"),
                            ("smoother", "smoothed"))

@@ -8,6 +8,7 @@ the summary reports statistics of their absolute values.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,18 +50,28 @@ def error_stats(errors: NDArray) -> ErrorStats:
                       float(np.percentile(e, 95)), float(e.max()))
 
 
-def frame_errors(est: dict[str, NDArray], truth: dict[str, NDArray]) -> dict[str, NDArray]:
-    """Per-frame signed errors (estimate − truth) for frames ok in ``est`` and in ``truth``.
+def frame_errors(est: Mapping[str, NDArray], truth: Mapping[str, NDArray],
+                 scored: str = "ok") -> dict[str, NDArray]:
+    """Per-frame signed errors (estimate − truth) for the frames of ``est`` that are scored
+    and in ``truth``: ``scored="ok"`` the rows whose status is ``ok`` (an estimator's verdict);
+    ``"finite"`` every row with a finite pitch, whatever its status word (a filter's
+    ``partial`` or ``predicted`` rows have numbers too).
 
     Returns ``frame`` (the scored frames) and, where both tables have the columns, the
     entries of :data:`ERROR_UNITS`: poses (pitch, roll in degrees; height in metres: the
     height assumed by the estimator or estimated by a filter), pose changes within the pair
     (``pitch − prev_pitch``, what a camera-relative ground truth such as KITTI's can check),
     travel distance (metres and % of the true distance) and yaw change."""
-    status = est.get("status", np.array(["ok"] * len(est["frame"]), dtype=object))
+    n = len(est["frame"])
+    if scored == "finite":
+        counts = np.isfinite(np.asarray(est.get("pitch_deg", np.full(n, np.nan)), float))
+    elif scored == "ok":
+        counts = np.asarray(est.get("status", np.array(["ok"] * n, dtype=object))) == "ok"
+    else:
+        raise ValueError(f"scored must be 'ok' or 'finite', got {scored!r}")
     index = {int(f): i for i, f in enumerate(truth["frame"])}
     rows = [(i, index[int(f)]) for i, f in enumerate(est["frame"])
-            if status[i] == "ok" and int(f) in index]
+            if counts[i] and int(f) in index]
     ei = np.array([r[0] for r in rows], dtype=int)
     ti = np.array([r[1] for r in rows], dtype=int)
     out: dict[str, NDArray] = {"frame": np.asarray(est["frame"])[ei]}

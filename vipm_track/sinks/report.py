@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputError
+from ..evaluate import frame_errors
 from ..table import read_table
 from .trajectory import planar_path
 
@@ -121,7 +122,7 @@ def write_report(
         f"{title}: pose against the ground")
     errors: dict[str, NDArray] = {}
     if truth is not None:
-        errors = frame_errors(est, truth)
+        errors = frame_errors(est, truth, scored="finite")
         if len(errors.get("frame", ())):
             plots["errors"] = _errors_figure(plt, est, errors, x_label, out / "errors.png",
                                              f"{title}: error against ground truth")
@@ -165,18 +166,6 @@ def summarize(est: Mapping[str, NDArray]) -> dict[str, dict[str, float]]:
             stats["end_minus_start"] = float(np.median(vals[-tenth:]) - np.median(vals[:tenth]))
         out[col] = stats
     return out
-
-
-def frame_errors(est: Mapping[str, NDArray], truth: Mapping[str, NDArray]) -> dict[str, NDArray]:
-    """Signed per-frame errors (estimate − truth, ``evaluate.frame_errors``: poses, height,
-    pose changes, distance, yaw) of the rows with numbers, matched by frame: a row counts
-    where its pitch is finite, whatever its status word (a filter's ``partial`` rows)."""
-    from ..evaluate import frame_errors as pose_errors
-
-    pitch = np.asarray(est.get("pitch_deg", np.full(len(est["frame"]), np.nan)), float)
-    scored = dict(est)
-    scored["status"] = np.where(np.isfinite(pitch), "ok", "no estimate").astype(object)
-    return pose_errors(scored, truth)
 
 
 def _abs_stats(values: NDArray) -> dict[str, float]:
