@@ -49,6 +49,7 @@ from .body_scale import BodyScale, pair_change, pairs_to_start
 from .ekf_state import EkfConfig, FilterState
 from .model import NoiseParams
 from .mount_change import MountChangeDetector
+from .wheel_speed import interpolate_speed
 
 FloatArray = NDArray[np.float64]
 
@@ -529,21 +530,10 @@ def _pair_residual(z: FloatArray, zp: FloatArray) -> FloatArray:
 
 def speed_at(series: SpeedSource, times: FloatArray, clock_offset_s: float = 0.0) -> FloatArray:
     """Wheel speed (m/s) at camera ``times``: linear interpolation of ``series`` whose clock
-    is the camera's minus ``clock_offset_s``; NaN outside the samples or across gaps > 0.5 s."""
-    ts = np.asarray(series.t, dtype=float)
-    vs = np.asarray(series.speed_mps, dtype=float)
-    tt = np.asarray(times, dtype=float) - clock_offset_s
-    out = np.full(tt.shape, np.nan)
-    if len(ts) < 2:
-        return out
-    j = np.searchsorted(ts, tt)
-    inside = (j > 0) & (j < len(ts))
-    jj = np.clip(j, 1, len(ts) - 1)
-    close = (ts[jj] - ts[jj - 1]) <= 0.5
-    out[inside & close] = np.interp(tt, ts, vs)[inside & close]
-    exact = np.isin(tt, ts)
-    out[exact] = np.interp(tt[exact], ts, vs)
-    return out
+    is the camera's minus ``clock_offset_s``; NaN outside the samples or across gaps > 0.5 s
+    (``wheel_speed.interpolate_speed``)."""
+    return interpolate_speed(series.t, series.speed_mps,
+                             np.asarray(times, dtype=float) - clock_offset_s)
 
 
 def _reopen(kf: _ClonedEKF, values: dict[int, float], variances: dict[int, float]) -> None:

@@ -174,17 +174,27 @@ class SpeedSeries:
                  max_gap: float | None = DEFAULT_MAX_GAP) -> NDArray[np.float64]:
         """Speed [m/s] linearly interpolated at ``times`` [s, this series' clock]; NaN outside
         the samples' span or inside a gap longer than ``max_gap`` (None: no gap check)."""
-        times = np.asarray(times, dtype=np.float64)
-        out = np.full(times.shape, np.nan)
-        if len(self) == 0:
-            return out
-        inside = (times >= self.t[0]) & (times <= self.t[-1])
-        if max_gap is not None and len(self) > 1:
-            hi = np.clip(np.searchsorted(self.t, times, side="left"), 1, len(self) - 1)
-            exact = self.t[hi] == times
-            inside &= exact | (self.t[hi] - self.t[hi - 1] <= max_gap)
-        out[inside] = np.interp(times[inside], self.t, self.speed_mps)
+        return interpolate_speed(self.t, self.speed_mps, times, max_gap)
+
+
+def interpolate_speed(t: ArrayLike, speed_mps: ArrayLike, times: ArrayLike,
+                      max_gap: float | None = DEFAULT_MAX_GAP) -> NDArray[np.float64]:
+    """Speed [m/s] of the samples (``t`` [s], ``speed_mps``) linearly interpolated at ``times``
+    [s, the samples' clock]; NaN outside their span or inside a gap longer than ``max_gap``
+    [s] (None: no gap check). The one interpolation every speed reader uses."""
+    t = np.asarray(t, dtype=np.float64)
+    v = np.asarray(speed_mps, dtype=np.float64)
+    times = np.asarray(times, dtype=np.float64)
+    out = np.full(times.shape, np.nan)
+    if len(t) == 0:
         return out
+    inside = (times >= t[0]) & (times <= t[-1])
+    if max_gap is not None and len(t) > 1:
+        hi = np.clip(np.searchsorted(t, times, side="left"), 1, len(t) - 1)
+        exact = t[hi] == times
+        inside &= exact | (t[hi] - t[hi - 1] <= max_gap)
+    out[inside] = np.interp(times[inside], t, v)
+    return out
 
 
 @dataclass(frozen=True)
