@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .geometry import GroundPose, PlanarMotion
+from .geometry import GroundPose, PlanarMotion, rotation_ground_from_camera
 from .homography_lsq import homography_normal_equations
 from .shutter import moved_pixels
 
@@ -312,8 +312,8 @@ def pair_homographies(
     lift = np.zeros((len(xs), 3, 3))
     lift[:, 0, 0] = lift[:, 2, 1] = 1.0
     lift[:, 1, 2] = height + (xs[:, 7] if xs.shape[1] > N_PARAMS else 0.0)
-    r_p = _rotations(xs[:, 0], xs[:, 1])
-    r_c = _rotations(xs[:, 2], xs[:, 3])
+    r_p = rotation_ground_from_camera(xs[:, 0], xs[:, 1])
+    r_c = rotation_ground_from_camera(xs[:, 2], xs[:, 3])
     g_from_i = lift_inv @ r_p @ kinv
     cy, sy = np.cos(xs[:, 6]), np.sin(xs[:, 6])
     t = np.zeros((len(xs), 3, 3))
@@ -322,17 +322,6 @@ def pair_homographies(
     t[:, 1, 2] = -(sy * xs[:, 4] + cy * xs[:, 5])
     out_from_g = k @ np.swapaxes(r_c, 1, 2) @ lift @ t
     return g_from_i, out_from_g
-
-
-def _rotations(pitch: FloatArray, roll: FloatArray) -> FloatArray:
-    """R_GC (B, 3, 3) = Rx(-pitch) · Rz(roll) for arrays of angles (geometry's convention)."""
-    c, s = np.cos(pitch), np.sin(pitch)
-    cr, sr = np.cos(roll), np.sin(roll)
-    r = np.empty((len(pitch), 3, 3))
-    r[:, 0] = np.stack([cr, -sr, np.zeros_like(cr)], axis=1)
-    r[:, 1] = np.stack([c * sr, c * cr, s], axis=1)
-    r[:, 2] = np.stack([-s * sr, -s * cr, c], axis=1)
-    return r
 
 
 @dataclass(frozen=True)

@@ -121,9 +121,15 @@ def rot_z(angle: float) -> FloatArray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def rotation_ground_from_camera(pitch: float, roll: float) -> FloatArray:
-    """R_GC = Rx(-pitch) · Rz(roll): columns are the camera axes expressed in G."""
-    return rot_x(-pitch) @ rot_z(roll)
+def rotation_ground_from_camera(pitch: ArrayLike, roll: ArrayLike) -> FloatArray:
+    """R_GC = Rx(-pitch) · Rz(roll): columns are the camera axes expressed in G; (3, 3) for
+    scalar angles, (..., 3, 3) for arrays (broadcast), the product written out."""
+    c, s = np.cos(np.asarray(pitch, dtype=float)), np.sin(np.asarray(pitch, dtype=float))
+    cr, sr = np.cos(np.asarray(roll, dtype=float)), np.sin(np.asarray(roll, dtype=float))
+    c, s, cr, sr = np.broadcast_arrays(c, s, cr, sr)
+    return np.stack([np.stack([cr, -sr, np.zeros_like(cr)], axis=-1),
+                     np.stack([c * sr, c * cr, s], axis=-1),
+                     np.stack([-s * sr, -s * cr, c], axis=-1)], axis=-2)
 
 
 def pose_from_rotation(r_gc: ArrayLike) -> tuple[float, float]:
