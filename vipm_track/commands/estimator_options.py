@@ -59,9 +59,8 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
                        default=None,
                        help="estimate the camera's vertical motion within a pair (an 8th "
                        "parameter; default: on for steep cameras, off for level ones, where "
-                       "it trades against pitch: on KITTI 07 median distance error 2.6 -> "
-                       "2.9 %%; on rendered cars whose body bounces 2 cm per frame pitch "
-                       "error 0.18-0.54 -> 0.02 deg RMS)")
+                       "it trades against pitch; turn it on for a body that bounces much "
+                       "per frame; docs/kitti.md)")
     group.add_argument("--readout-time", type=seconds_or_auto, default=0.0,
                        metavar="SECONDS|auto",
                        help="rolling shutter: time from the exposure of the image's first row "

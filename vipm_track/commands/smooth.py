@@ -75,8 +75,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=SmootherConfig.motion_given_pose,
         help="use each pair's motion given its angles (the estimator's tz is correlated ~-0.95 "
         "with its pitch), so the smoothed frame pose corrects the pair's motion, as far as the "
-        "pair's angles are trusted (default: off, each pair's own motion; KITTI 07 "
-        "fixed-lag: median distance error 2.9 -> 2.5 %%; docs/filters.md)",
+        "pair's angles are trusted (default: off, each pair's own motion; measured in "
+        "docs/filters.md)",
     )
     group.add_argument(
         "--body-window",
