@@ -801,3 +801,17 @@ def test_failed_image_stage_falls_back_to_the_guess():
     assert [s.plane for s in result.stages] == ["image"] + ["ipm"] * (est.config.refinements + 1)
     err = _errors(traj, 1, result.pose_prev, result.pose_curr, result.motion)
     assert err["pitch"] < 0.25 and err["roll"] < 0.25, err
+
+
+@pytest.mark.parametrize(("preset", "level"), [("car", True), ("cart", False)])
+def test_resolve_is_the_config_that_runs(preset, level):
+    from vipm_track.estimator_config import camera_kind, resolve
+
+    p = PRESETS[preset]
+    config = EstimatorConfig(initial_pitch_deg=p.pitch_deg)
+    assert camera_kind(p.camera(), config)[1] is level
+    resolved = resolve(config, p.camera())
+    assert TwoFrameEstimator(p.camera(), p.height_m, config).config == resolved
+    assert resolved.refinements == (2 if level else 1)
+    assert resolved.vertical_motion is (not level)
+    assert resolve(resolved, p.camera()) == resolved  # nothing left to fill

@@ -32,8 +32,8 @@ from .camera import CameraModel
 from .cold_start import cold_start_ipm, reject_wrong_minimum
 from .displacement_model import pack, unpack
 from .errors import InputError
-from .estimator_config import LEVEL_MAX_PITCH_DEG, EstimatorConfig, with_camera_defaults
-from .geometry import GroundPose, horizon_row
+from .estimator_config import EstimatorConfig, camera_kind, resolve
+from .geometry import GroundPose
 from .image_stage import image_stage
 from .pair_result import (
     STATUS_DEGENERATE,
@@ -92,16 +92,8 @@ class TwoFrameEstimator:
         self.nominal = GroundPose(pitch0, roll0, self.height)
         margin = np.radians(self.config.horizon_margin_deg)
         self._horizon_margin_px = float(np.tan(margin) * camera.fy)
-        # Steep: the whole image sees the ground at the nominal pose (no horizon in view).
-        self.steep = bool(horizon_row(camera.k, self.nominal, camera.cx) < 0)
-        # Level: a forward-looking camera near the horizontal, whose pitch trades against the
-        # travel (the second minimum of issue 5) and whose far-field IPM patches stretch by
-        # 10-50x; the per-camera defaults (``with_camera_defaults``) were tuned for it on KITTI 07
-        # (pitch ~1°).
-        # A camera pitched further down gets the steep defaults even with the horizon in view
-        # (rendered 10-20° cameras: pitch error 0.14-0.33° -> 0.01°)
-        self.level = not self.steep and self.nominal.pitch < np.radians(LEVEL_MAX_PITCH_DEG)
-        self.config = with_camera_defaults(self.config, self.level)
+        self.steep, self.level = camera_kind(camera, self.config)
+        self.config = resolve(self.config, camera)
         mask = roi_mask(
             camera, self.config.roi, self.nominal,
             self.config.roi_max_range_h * self.height,

@@ -8,7 +8,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .camera import CameraModel
 from .errors import InputError
+from .geometry import GroundPose, horizon_row
 from .roi import RoiSpec
 
 #: nominal pitch below which a camera with the horizon in view gets the forward-looking
@@ -262,3 +264,21 @@ def with_camera_defaults(config: EstimatorConfig, level: bool) -> EstimatorConfi
     return dataclasses.replace(config, **{
         name: value for name, value in by_camera.items() if getattr(config, name) is None
     })
+
+
+def camera_kind(camera: CameraModel, config: EstimatorConfig) -> tuple[bool, bool]:
+    """(steep, level) of ``camera`` at ``config``'s nominal pose. Steep: the whole image sees
+    the ground (no horizon in view). Level: a forward-looking camera near the horizontal
+    (horizon in view, pitch below ``LEVEL_MAX_PITCH_DEG``), whose pitch trades against the
+    travel and whose far-field IPM patches stretch 10-50×. A camera pitched further down
+    gets the steep defaults even with the horizon in view (docs/kitti.md)."""
+    pitch, roll = config.initial_pose
+    steep = bool(horizon_row(camera.k, GroundPose(pitch, roll, 1.0), camera.cx) < 0)
+    return steep, bool(not steep and pitch < np.radians(LEVEL_MAX_PITCH_DEG))
+
+
+def resolve(config: EstimatorConfig, camera: CameraModel) -> EstimatorConfig:
+    """The configuration that runs for ``camera``: ``config`` with every field it leaves None
+    set to the level or steep camera's default (:func:`camera_kind`,
+    :func:`with_camera_defaults`). ``TwoFrameEstimator`` runs exactly this."""
+    return with_camera_defaults(config, camera_kind(camera, config)[1])
