@@ -568,7 +568,7 @@ def run_filter(
     )
     it = zip(measurements, speeds, strict=True)
     if progress:
-        from tqdm import tqdm
+        from vipm_track.progress import progress_bar
 
-        it = tqdm(it, total=len(measurements), desc="ekf", unit="frame")
+        it = progress_bar(it, total=len(measurements), desc="ekf", unit="frame")
     return [ekf.step(m, m.t, float(v), m.frame) for m, v in it]

@@ -281,9 +281,9 @@ def monitor_frames(
     speeds = speed_at(speed, times) if speed is not None else np.full(len(times), np.nan)
     it: Any = zip(measurements, speeds, inputs, strict=True)
     if progress:
-        from tqdm import tqdm
+        from vipm_track.progress import progress_bar
 
-        it = tqdm(it, total=len(measurements), desc="monitor", unit="frame")
+        it = progress_bar(it, total=len(measurements), desc="monitor", unit="frame")
     for m, v, frame_input in it:
         state = ekf.step(m, m.t, float(v), m.frame)
         mount, mount_cov, gated = mount_from_state(state)

@@ -466,9 +466,9 @@ def smooth_batch(
     pairs: dict[int, tuple[gtsam.CustomFactor, gtsam.CustomFactor]] = {}
     frames_it: Iterable[tuple[int, PairMeasurement]] = enumerate(ms)
     if progress:
-        from tqdm import tqdm  # graph build per frame, then the Gauss–Newton steps
+        from vipm_track.progress import progress_bar
 
-        frames_it = tqdm(frames_it, total=len(ms), desc="smoother: graph", unit="frame")
+        frames_it = progress_bar(frames_it, total=len(ms), desc="smoother: graph", unit="frame")
     for k, m in frames_it:
         _insert_guess(values, k, guess, k)
         if k == 0:
@@ -487,7 +487,7 @@ def smooth_batch(
     t0 = time.perf_counter()
     bar = None
     if progress:
-        bar = tqdm(total=cfg.max_iterations, desc="smoother: Gauss-Newton", unit="step")
+        bar = progress_bar(total=cfg.max_iterations, desc="smoother: Gauss-Newton", unit="step")
     try:
         values, iters, e0, e1, lin = _gauss_newton(
             graph, values, None, cfg.max_iterations, cfg.tolerance, cfg.tolerance_chi2,

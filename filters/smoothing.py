@@ -59,9 +59,9 @@ def smoothed_frames(
     sm = FixedLagSmoother(cfg)
     it = zip(measurements, speeds, strict=True)
     if progress:
-        from tqdm import tqdm
+        from vipm_track.progress import progress_bar
 
-        it = tqdm(it, total=len(measurements), desc="fixed-lag smoother", unit="frame")
+        it = progress_bar(it, total=len(measurements), desc="fixed-lag smoother", unit="frame")
     for m, v in it:
         yield from sm.step(m, float(v))
     yield from sm.finish()

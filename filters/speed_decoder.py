@@ -8,7 +8,6 @@ from __future__ import annotations
 import math
 import re
 import statistics
-import sys
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -311,9 +310,9 @@ class SpeedDecoder:
 def _progress(enabled: bool, what: str):
     if not enabled:
         return None
-    from tqdm import tqdm
+    from vipm_track.progress import progress_bar
 
-    return tqdm(desc=f"decoding {Path(what).name}", unit=" frames", file=sys.stderr,
+    return progress_bar(desc=f"decoding {Path(what).name}", unit=" frames",
                 mininterval=0.5, leave=False)
 
 

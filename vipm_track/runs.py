@@ -123,7 +123,7 @@ def estimate_sequence(
     ``on_step`` is called with every step (e.g. a live display); ``estimator`` replaces the
     one built from ``camera``, ``height`` and ``config``; ``workers``, ``chunk_frames``: as
     :func:`sequence_steps`."""
-    from tqdm import tqdm
+    from .progress import progress_bar
 
     out = Path(out)
     parquet_path = out.with_suffix(".parquet") if parquet else None
@@ -135,7 +135,7 @@ def estimate_sequence(
                            chunk_frames)
     with (
         TableWriter(out, ROW_COLUMNS, parquet_path) as writer,
-        tqdm(total=len(source), disable=not progress, file=sys.stderr, unit="frame") as bar,
+        progress_bar(total=len(source), disable=not progress, unit="frame") as bar,
     ):
         for step in steps:
             writer.write(step_row(step, height))

@@ -512,9 +512,9 @@ def simulate_sequence(
         _write_traffic_csv(out / "traffic.csv", vehicles, traj)
     iterator = range(frames)
     if progress:
-        from tqdm import tqdm
+        from .progress import progress_bar
 
-        iterator = tqdm(iterator, desc=f"simulate {p.name}", unit="frame")
+        iterator = progress_bar(iterator, desc=f"simulate {p.name}", unit="frame")
     with TableWriter(out / "gt.csv", GT_EXTRA_COLUMNS) as writer:
         for k, row in zip(iterator, gt_rows(traj), strict=True):
             img = render_trajectory_frame(tex, camera, traj, k, effects, vehicles)

@@ -344,9 +344,9 @@ def measurements_from_args(
         return measurements
     stream = estimate_stream(args, height, config, sink, camera)
     if progress:
-        from tqdm import tqdm
+        from ..progress import progress_bar
 
-        stream = tqdm(stream, desc="estimate", unit="frame", file=sys.stderr)
+        stream = progress_bar(stream, desc="estimate", unit="frame")
     out = collect_until_interrupt(stream)
     if not out.items:
         if out.interrupted:

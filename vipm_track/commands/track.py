@@ -95,9 +95,9 @@ def run(args: argparse.Namespace) -> int:
     stream = _noting_times(stream, frame_times, usable)
     steps = log_track_steps(sink, track(stream, speed, config))
     if not args.quiet:
-        from tqdm import tqdm
+        from ..progress import progress_bar
 
-        steps = tqdm(steps, total=total, desc="track", unit="frame", file=sys.stderr)
+        steps = progress_bar(steps, total=total, desc="track", unit="frame")
     counts = write_track(steps, out, parquet=args.parquet)
     if speed is not None and not args.quiet:
         check_speed_overlap(speed, frame_times, strict=False)

@@ -4,15 +4,13 @@ passed through (:func:`log_track_steps`), a finished filter or smoother run batc
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Mapping, Sequence
 from typing import Any
-
-from tqdm import tqdm
 
 from vipm_track.filters.track import track_row
 
 from ..measurement import measurement_row
+from ..progress import progress_bar
 from .rerun_sink import RerunSink, table_columns
 
 
@@ -70,7 +68,7 @@ def log_monitor_run(sink: RerunSink | None, measurements: Sequence[Any], states:
         log_filter_run(sink, measurements, rows, "filtered")
         it: Any = outputs
         if progress:
-            it = tqdm(outputs, desc="rerun", unit="frame", file=sys.stderr)
+            it = progress_bar(outputs, desc="rerun", unit="frame")
         for output in it:
             sink.log_monitor(output)
     finally:

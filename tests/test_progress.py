@@ -1,0 +1,21 @@
+"""Progress that fits where the output goes (vipm_track.progress)."""
+
+from __future__ import annotations
+
+from vipm_track.cli import main
+from vipm_track.progress import progress_bar
+
+
+def test_a_redirected_stderr_gets_lines_not_carriage_returns(capsys):
+    assert list(progress_bar(range(3), desc="work", unit="item", mininterval=0)) == [0, 1, 2]
+    err = capsys.readouterr().err
+    assert "\r" not in err
+    lines = err.splitlines()
+    assert lines[-1].startswith("work: 100%") and "3/3" in lines[-1]
+    assert all(line.strip() for line in lines)
+
+
+def test_a_command_logs_progress_as_lines(tmp_path, capsys):
+    assert main(["simulate", "--preset", "cart", "--frames", "3", "--out", str(tmp_path)]) == 0
+    err = capsys.readouterr().err
+    assert "\r" not in err and "simulate cart: 100%" in err
