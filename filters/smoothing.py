@@ -14,6 +14,7 @@ from .ekf import SpeedSource, speed_at
 from .fixed_lag import FixedLagSmoother
 from .smoother import smooth_batch
 from .smoother_config import SmoothedFrame, SmootherConfig
+from .track import track_row
 
 FloatArray = NDArray[np.float64]
 
@@ -65,3 +66,22 @@ def smoothed_frames(
     for m, v in it:
         yield from sm.step(m, float(v))
     yield from sm.finish()
+
+
+def smoothed_rows(
+    measurements: Sequence[PairMeasurement],
+    speed_series: SpeedSource | None = None,
+    config: SmootherConfig | None = None,
+    progress: bool = False,
+) -> Iterator[tuple[SmoothedFrame, dict]]:
+    """(smoothed frame, its track-table row) of every frame, each as soon as it is final
+    (:func:`smoothed_frames`); a frame the smoother did not start on has its reason as
+    ``status``. The rows of ``vipm-track smooth`` and of a fleet's ``smoothed.parquet``."""
+    speeds = speeds_at_frames(measurements, speed_series)
+    by_frame = {m.frame: (m, v) for m, v in zip(measurements, speeds, strict=True)}
+    for f in smoothed_frames(measurements, speed_series, config, progress=progress):
+        m, v = by_frame.get(f.frame, (None, float("nan")))
+        row = track_row(f, m, float(v) if np.isfinite(v) else None)
+        if not f.initialised:
+            row["status"] = f.reason or "skipped"
+        yield f, row

@@ -24,6 +24,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
                "calibration"),
     "monitor": ("monitor", "is the camera still calibrated? per-frame state and recalibration "
                 "events"),
+    "fleet": ("fleet", "many logged drives on Dask: estimate, smooth, summarise and monitor "
+              "each; partitioned Parquet and a fleet report"),
     "can-speed": ("can_speed", "decode wheel speed from a CAN log or bus to t,speed_mps CSV"),
     "report": ("report", "plots (PNG) and a Markdown summary of a track / estimate / monitor "
                "table"),

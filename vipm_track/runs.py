@@ -12,8 +12,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from .camera import CameraModel
-from .measurement import measurement_row
+from .measurement import PairMeasurement, measurement_row
 from .parallel import DEFAULT_CHUNK_FRAMES, run_chunked
 from .pipeline import FIRST_FRAME, SequenceStep, run_sequence
 from .sources import FrameSource
@@ -63,6 +65,18 @@ def step_row(step: SequenceStep, height: float) -> dict[str, Any]:
     residual = getattr(result, "residual_px", None)
     row["residual_px"] = float(residual) if residual is not None and step.ok else None
     return row
+
+
+def step_measurement(step: SequenceStep, height: float) -> PairMeasurement:
+    """The pair measurement of a step (the filters' input); a frame without an estimate
+    carries its status (``no estimate`` where the step said ``ok`` without one) and NaNs,
+    at the assumed ``height`` [m]."""
+    m = step.result.to_measurement(step.frame, step.t) if step.ok else None
+    if m is None:
+        status = step.status if step.status != "ok" else "no estimate"
+        m = PairMeasurement(step.frame, step.t, np.full(7, np.nan), np.full((7, 7), np.nan),
+                            height, status)
+    return m
 
 
 # --- whole runs ------------------------------------------------------------------------------

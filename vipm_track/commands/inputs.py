@@ -286,7 +286,7 @@ def estimate_stream(
     (tracking mode) at the assumed ``height`` [m]; frames without an estimate carry their
     status and NaNs. With a rerun ``sink`` each pair's images, patches and IPM views are
     logged as they come. ``config`` defaults to :func:`estimator_config` of ``args``."""
-    from ..runs import sequence_steps
+    from ..runs import sequence_steps, step_measurement
     from ..sources import open_source
     from .estimator_options import parallel_settings
 
@@ -306,15 +306,10 @@ def estimate_stream(
 
         source = ImageTap(source, camera)
         config = replace(config, keep_images=True)
-    nan7, nan77 = np.full(7, np.nan), np.full((7, 7), np.nan)
     for step in sequence_steps(source, camera, height, config, **parallel):
         if sink is not None and step.result is not None:
             sink.log_pair_views(step.frame, step.t, step.result, source.image(step.frame))
-        m = step.result.to_measurement(step.frame, step.t) if step.ok else None
-        if m is None:
-            status = step.status if step.status != "ok" else "no estimate"
-            m = PairMeasurement(step.frame, step.t, nan7, nan77, height, status)
-        yield m
+        yield step_measurement(step, height)
 
 
 def measurements_from_args(

@@ -11,8 +11,6 @@ from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
-import numpy as np
-
 from vipm_track.filters.factors import LOSSES
 from vipm_track.filters.smoother_config import SmootherConfig
 
@@ -176,6 +174,7 @@ def build_config(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     from vipm_track.filters.drive_summary import summarize_mount, summary_markdown
+    from vipm_track.filters.smoothing import smoothed_rows
     from vipm_track.filters.track import TRACK_COLUMNS
 
     from ..table import TableWriter
@@ -203,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
                        f"{args.interrupted_at}")
     with TableWriter(out, TRACK_COLUMNS, parquet_path=pq) as writer:
         try:
-            for f, row in _smoothed_rows(measurements, speed, config, not args.quiet):
+            for f, row in smoothed_rows(measurements, speed, config, not args.quiet):
                 writer.write(row)
                 frames.append(f)
                 rows.append(row)
@@ -237,27 +236,6 @@ def run(args: argparse.Namespace) -> int:
     if interrupted:
         raise KeyboardInterrupt
     return 0
-
-
-def _smoothed_rows(measurements, speed, config, progress: bool):
-    """(smoothed frame, its track-table row) of every frame, each as soon as it is final:
-    the fixed-lag smoother's frames as they leave the window, the batch's when it is done."""
-    from vipm_track.filters.smoothing import smoothed_frames, speeds_at_frames
-
-    speeds = speeds_at_frames(measurements, speed)
-    by_frame = {m.frame: (m, v) for m, v in zip(measurements, speeds, strict=True)}
-    for f in smoothed_frames(measurements, speed, config, progress=progress):
-        m, v = by_frame.get(f.frame, (None, float("nan")))
-        yield f, _row(f, m, v)
-
-
-def _row(f, m, v: float) -> dict:
-    from vipm_track.filters.track import track_row
-
-    row = track_row(f, m, float(v) if np.isfinite(v) else None)
-    if not f.initialised:
-        row["status"] = f.reason or "skipped"
-    return row
 
 
 #: ``status`` of the frames an interrupt left unsmoothed (their measurements are written).

@@ -1,0 +1,175 @@
+"""A fleet of drives on Dask (``dask.distributed``): one task per drive
+(:func:`~vipm_track.fleet.drive_run.run_drive`) on a local cluster of processes or on an
+existing scheduler, the summary table written as the drives finish.
+
+Every worker writes its drive's tables into ``OUT/drive=NAME/`` itself, so on several
+machines OUT (and the drives) must be on a file system they all mount at the same path.
+A worker that dies takes its task with it: the scheduler runs it again elsewhere, up to
+``retries`` times, and then the drive is a row with the error. Drives whose ``done.json``
+holds the same input hash are not run again (their row is reused), so a fleet that was
+stopped resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import csv
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import dask
+import pyarrow as pa
+import pyarrow.dataset as ds
+import pyarrow.parquet as pq
+from distributed import Client, LocalCluster, as_completed
+
+from ..progress import progress_bar
+from ..table import format_value
+from .drive_run import FleetSettings, run_drive
+from .drives import DriveSpec
+
+#: fleet_summary columns, in order (see docs/fleet.md)
+SUMMARY_COLUMNS: tuple[str, ...] = (
+    "drive", "vehicle", "started", "status", "frames", "share_ok", "duration_s", "t_start_s",
+    "mount_pitch_deg", "mount_pitch_std_deg", "mount_pitch_ci95_low_deg",
+    "mount_pitch_ci95_high_deg", "pitch_drift_deg_per_min",
+    "mount_roll_deg", "mount_roll_std_deg", "mount_roll_ci95_low_deg",
+    "mount_roll_ci95_high_deg", "roll_drift_deg_per_min",
+    "mount_height_m", "mount_height_std_m", "mount_height_ci95_low_m",
+    "mount_height_ci95_high_m", "height_drift_m_per_min",
+    "nominal_pitch_deg", "nominal_roll_deg", "nominal_height_m", "wheel_speed",
+    "monitor_verdict", "first_recalibrate_s", "monitor_states", "wall_s", "skipped",
+    "worker", "input_hash",
+)
+SUMMARY_TEXT_COLUMNS = frozenset({"drive", "vehicle", "started", "status", "monitor_verdict",
+                                  "monitor_states", "worker", "input_hash", "wheel_speed",
+                                  "skipped"})
+
+
+def run_fleet(
+    specs: Sequence[DriveSpec],
+    out: str | Path,
+    settings: FleetSettings | None = None,
+    workers: int = 2,
+    scheduler: str | None = None,
+    processes: bool = True,
+    retries: int = 2,
+    progress: bool = True,
+    on_row: Callable[[dict[str, Any]], None] | None = None,
+) -> list[dict[str, Any]]:
+    """Run every drive of ``specs`` as a Dask task and write ``OUT/fleet_summary.csv`` and
+    ``.parquet`` (one row per drive, in ``specs``' order; rewritten as each drive ends, so an
+    interrupt keeps the finished ones). ``scheduler``: the address of a running Dask
+    scheduler; else a ``LocalCluster`` of ``workers`` single-threaded workers (processes,
+    or threads of this process where ``processes`` is false). ``on_row`` is called with each
+    drive's row as it ends. Returns the rows."""
+    settings = settings or FleetSettings()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows: dict[str, dict[str, Any]] = {}
+    start = time.perf_counter()
+    with dask.config.set({"distributed.scheduler.allowed-failures": retries}), \
+            _client(workers, scheduler, processes) as client:
+        futures = {client.submit(run_drive, spec, str(out), settings, key=f"drive-{spec.drive}",
+                                 pure=False, retries=retries): spec for spec in specs}
+        bar = progress_bar(total=len(futures), desc="fleet", unit="drive", disable=not progress)
+        try:
+            for future in as_completed(futures):
+                spec = futures[future]
+                try:
+                    row = future.result()
+                except Exception as exc:  # the worker died `retries` times, or was lost
+                    row = {"drive": spec.drive, "vehicle": spec.vehicle, "started": spec.started,
+                           "status": f"error: {type(exc).__name__}: {exc}", "skipped": False}
+                rows[spec.drive] = row
+                bar.update(1)
+                if progress:
+                    bar.write(drive_line(row), file=sys.stderr)
+                if on_row is not None:
+                    on_row(row)
+                write_summary(out, [rows[s.drive] for s in specs if s.drive in rows])
+        finally:
+            bar.close()
+            for future in futures:
+                future.cancel()
+    ordered = [rows[s.drive] for s in specs if s.drive in rows]
+    if progress:
+        ok = sum(r.get("status") == "ok" for r in ordered)
+        print(f"vipm-track fleet: {ok} of {len(specs)} drives ok in "
+              f"{time.perf_counter() - start:.1f} s → {out / 'fleet_summary.csv'}",
+              file=sys.stderr)
+    return ordered
+
+
+def _client(workers: int, scheduler: str | None, processes: bool) -> Any:
+    """A context giving the client: of ``scheduler``, or of a new local cluster."""
+    if scheduler:
+        return Client(scheduler)
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=processes,
+                           dashboard_address=None)
+    return _ClosingClient(Client(cluster), cluster)
+
+
+class _ClosingClient:
+    """A client whose context also closes the local cluster it runs on."""
+
+    def __init__(self, client: Client, cluster: LocalCluster) -> None:
+        self.client, self.cluster = client, cluster
+
+    def __enter__(self) -> Client:
+        return self.client
+
+    def __exit__(self, *exc: object) -> None:
+        self.client.close()
+        self.cluster.close()
+
+
+def drive_line(row: dict[str, Any]) -> str:
+    """One line on a finished drive: its status, frames, mount and wall time."""
+    name = row.get("drive", "?")
+    if row.get("status") != "ok":
+        return f"drive {name}: {row.get('status')}"
+    how = "unchanged, skipped" if row.get("skipped") else f"{row.get('wall_s', 0):.1f} s"
+    return (f"drive {name}: ok, {row['frames']} frames ({100 * row['share_ok']:.0f} % ok), "
+            f"mount pitch {row['mount_pitch_deg']:.3f}° roll {row['mount_roll_deg']:.3f}° "
+            f"height {row['mount_height_m']:.4f} m, monitor {row['monitor_verdict']} ({how})")
+
+
+def write_summary(out: str | Path, rows: Sequence[dict[str, Any]]) -> None:
+    """``OUT/fleet_summary.csv`` and ``.parquet`` of ``rows``."""
+    out = Path(out)
+    rows = [{c: r.get(c) for c in SUMMARY_COLUMNS} for r in rows]
+    tmp = out / ".fleet_summary.csv.tmp"
+    with tmp.open("w", newline="") as fh:
+        writer = csv.writer(fh, lineterminator="\n")
+        writer.writerow(SUMMARY_COLUMNS)
+        writer.writerows([format_value(r[c]) for c in SUMMARY_COLUMNS] for r in rows)
+    tmp.replace(out / "fleet_summary.csv")
+    arrays = {c: (pa.array([None if r[c] is None else str(r[c]) for r in rows], pa.string())
+                  if c in SUMMARY_TEXT_COLUMNS else
+                  pa.array([_float(r[c]) for r in rows], pa.float64()))
+              for c in SUMMARY_COLUMNS}
+    tmp = out / ".fleet_summary.parquet.tmp"
+    pq.write_table(pa.table(arrays), str(tmp))
+    tmp.replace(out / "fleet_summary.parquet")
+
+
+def _float(value: Any) -> float | None:
+    try:
+        return None if value is None else float(value)
+    except (TypeError, ValueError):
+        return None
+
+
+def fleet_dataset(out: str | Path, table: str = "smoothed") -> ds.Dataset:
+    """One table (``estimates``, ``smoothed`` or ``monitor``) of every drive of a fleet's
+    OUT as a pyarrow dataset with the hive partition column ``drive``."""
+    out = Path(out)
+    files = sorted(str(p) for p in out.glob(f"drive=*/{table}.parquet"))
+    return ds.dataset(files, format="parquet", partitioning="hive",
+                      partition_base_dir=str(out))
+
+
+__all__ = ["SUMMARY_COLUMNS", "fleet_dataset", "run_fleet", "write_summary"]

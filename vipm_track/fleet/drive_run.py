@@ -1,0 +1,247 @@
+"""One drive of a fleet, start to end: estimate every pair, smooth the drive in one batch
+(or with a sliding window), summarise its mount and monitor it against its nominal
+calibration; the tables go to ``OUT/drive=NAME/`` and one summary row comes back.
+
+The steps are the library's own (``runs.sequence_steps``, ``filters.smoothing``,
+``filters.drive_summary``, ``filters.monitor_inputs``), so a drive's rows are those of
+``vipm-track smooth --pitch P --roll R --height H`` with the drive's nominal P, R, H.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+import traceback
+from collections import Counter
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vipm_track.filters.drive_summary import summarize_mount
+from vipm_track.filters.ekf_state import EkfConfig
+from vipm_track.filters.model import NoiseParams
+from vipm_track.filters.monitor_inputs import frame_rate, monitor_frames
+from vipm_track.filters.monitor_table import MONITOR_COLUMNS, monitor_row
+from vipm_track.filters.monitor_types import MonitorConfig
+from vipm_track.filters.nominal import NominalCalibration, load_nominal
+from vipm_track.filters.smoother_config import SmootherConfig
+from vipm_track.filters.smoothing import smoothed_rows
+from vipm_track.filters.speed_decoder import decode_can_log
+from vipm_track.filters.track import TRACK_COLUMNS
+from vipm_track.filters.wheel_speed import SpeedSeries, read_speed_csv
+
+from ..bag_source import BagSource, read_bag_camera, read_bag_speed
+from ..camera import CameraModel, load_camera
+from ..errors import InputError, NothingUsable, printable
+from ..estimator_config import EstimatorConfig
+from ..pipeline import config_with
+from ..runs import ROW_COLUMNS, sequence_steps, step_measurement, step_row
+from ..sources import FrameSource, open_source
+from ..table import write_table
+from .drives import DriveSpec
+
+#: the file in a drive's folder that says its outputs are complete, with their input hash
+DONE_FILE = "done.json"
+
+
+@dataclass(frozen=True)
+class FleetSettings:
+    """How every drive of a fleet is processed (part of each drive's input hash).
+
+    ``vehicle``: noise preset of ``filters.model`` (``car`` or ``cart``); ``lag_s``: the
+    smoother's window, 0 for the whole drive at once; ``chunk_frames``: split a drive's
+    estimation into chunks of that many frames, as ``--chunk-frames`` does (None: one
+    sequence); ``marginals``: compute the smoothed std columns; the topics: a bag's
+    image / camera_info / speed topic (None: found by message type)."""
+
+    vehicle: str = "car"
+    lag_s: float = 0.0
+    chunk_frames: int | None = None
+    marginals: bool = True
+    image_topic: str | None = None
+    camera_info_topic: str | None = None
+    speed_topic: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.vehicle not in ("car", "cart"):
+            raise InputError(f"--vehicle must be car or cart, got {self.vehicle!r}")
+        if not (np.isfinite(self.lag_s) and self.lag_s >= 0):
+            raise InputError(f"--lag must be >= 0 seconds, got {self.lag_s}")
+        if self.chunk_frames is not None and self.chunk_frames < 2:
+            raise InputError(f"--chunk-frames must be >= 2, got {self.chunk_frames}")
+
+    def key(self) -> str:
+        """The settings as one canonical string (for the input hash)."""
+        return json.dumps(asdict(self), sort_keys=True)
+
+
+def drive_folder(out: str | Path, drive: str) -> Path:
+    """``OUT/drive=NAME``: the hive partition of a drive's tables."""
+    return Path(out) / f"drive={drive}"
+
+
+def run_drive(spec: DriveSpec, out: str | Path, settings: FleetSettings) -> dict[str, Any]:
+    """Process one drive into ``OUT/drive=NAME/`` (estimates, smoothed and monitor Parquet,
+    ``summary.json``, ``done.json``) and return its fleet-summary row; where ``done.json``
+    holds the same input hash, the earlier row (``skipped`` true). A drive that fails is a
+    row whose ``status`` is the error; nothing is raised."""
+    start = time.perf_counter()
+    folder = drive_folder(out, spec.drive)
+    base = {"drive": spec.drive, "vehicle": spec.vehicle, "started": spec.started}
+    try:
+        if spec.problem:
+            raise InputError(spec.problem)
+        key = spec.input_hash(settings.key())
+        done = _done_row(folder, key)
+        if done is not None:
+            return {**done, "skipped": True}
+        (folder / DONE_FILE).unlink(missing_ok=True)
+        row = {**base, **_process(spec, folder, settings), "input_hash": key}
+    except Exception as exc:  # a failed drive is a row of the summary; the fleet goes on
+        if isinstance(exc, (InputError, NothingUsable, OSError)):
+            why = printable(exc, 500)
+        else:
+            where = traceback.extract_tb(exc.__traceback__)[-1]
+            why = (f"{type(exc).__name__}: {printable(exc, 400)} "
+                   f"({Path(where.filename).name}:{where.lineno})")
+        return {**base, "status": f"error: {why}", "wall_s": time.perf_counter() - start,
+                "worker": _worker(), "skipped": False}
+    row["wall_s"] = time.perf_counter() - start
+    row["worker"] = _worker()
+    _write_atomic(folder / DONE_FILE, json.dumps(row, indent=2) + "\n")
+    return {**row, "skipped": False}
+
+
+def _worker() -> str:
+    return f"{os.uname().nodename}:{os.getpid()}"
+
+
+def _done_row(folder: Path, key: str) -> dict[str, Any] | None:
+    try:
+        row = json.loads((folder / DONE_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    return row if isinstance(row, dict) and row.get("input_hash") == key else None
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def _table_atomic(path: Path, rows: list[dict], columns: tuple[str, ...]) -> None:
+    # the temporary name starts with '.', which Parquet dataset readers skip
+    tmp = path.with_name(f".{path.name}.tmp.parquet")
+    write_table(tmp, rows, columns)
+    os.replace(tmp, path)
+
+
+def open_recording(spec: DriveSpec, settings: FleetSettings
+                   ) -> tuple[FrameSource, CameraModel]:
+    """The drive's frames and intrinsics (the camera file, else the bag's camera_info)."""
+    if spec.bag is not None:
+        source: FrameSource = BagSource(spec.bag, settings.image_topic)
+        camera = (load_camera(spec.camera) if spec.camera is not None
+                  else read_bag_camera(spec.bag, settings.camera_info_topic))
+        return source, camera
+    source = open_source(images=spec.images, video=spec.video, fps=spec.fps)
+    assert spec.camera is not None
+    return source, load_camera(spec.camera)
+
+
+def drive_speed(spec: DriveSpec, settings: FleetSettings) -> SpeedSeries | None:
+    """The drive's speed [t on its clock s, m/s]: ``speed.csv``, the CAN log decoded with
+    its DBC (the DBC's rear wheel speeds), or the bag's twist / odometry topic; None."""
+    if spec.speed_csv is not None:
+        return read_speed_csv(spec.speed_csv)
+    if spec.can is not None:
+        assert spec.dbc is not None
+        series, _ = decode_can_log(spec.can, spec.dbc)
+        return series
+    if spec.bag is not None:
+        found = read_bag_speed(spec.bag, settings.speed_topic)
+        if found is not None:
+            return SpeedSeries(found.t, found.speed_mps, source=found.source)
+    return None
+
+
+def smoother_config(height_m: float, settings: FleetSettings) -> SmootherConfig:
+    """The smoother of ``vipm-track smooth`` with its defaults, at ``height_m``."""
+    return SmootherConfig(height_m=height_m, noise=NoiseParams.for_preset(settings.vehicle),
+                          lag_s=settings.lag_s, marginals=settings.marginals)
+
+
+def estimator_config_for(nominal: NominalCalibration) -> EstimatorConfig:
+    """The default estimator with its cold start seeded at the nominal pitch and roll."""
+    return config_with(EstimatorConfig(), initial_pitch_deg=nominal.pitch_deg,
+                       initial_roll_deg=nominal.roll_deg)
+
+
+def _process(spec: DriveSpec, folder: Path, settings: FleetSettings) -> dict[str, Any]:
+    assert spec.nominal is not None
+    nominal = load_nominal(spec.nominal)
+    height = nominal.height_m
+    source, camera = open_recording(spec, settings)
+    speed = drive_speed(spec, settings)
+    config = estimator_config_for(nominal)
+    folder.mkdir(parents=True, exist_ok=True)
+    estimate_rows, measurements = [], []
+    for step in sequence_steps(source, camera, height, config,
+                               chunk_frames=settings.chunk_frames):
+        estimate_rows.append(step_row(step, height))
+        measurements.append(step_measurement(step, height))
+    _table_atomic(folder / "estimates.parquet", estimate_rows, ROW_COLUMNS)
+    if not any(m.ok for m in measurements):
+        counts = Counter(m.status for m in measurements)
+        raise NothingUsable(f"{source.description}: no frame has a usable pair estimate ("
+                            + ", ".join(f"{n}× {s}" for s, n in counts.most_common()) + ")")
+    frames, rows = [], []
+    for f, row in smoothed_rows(measurements, speed, smoother_config(height, settings)):
+        frames.append(f)
+        rows.append(row)
+    _table_atomic(folder / "smoothed.parquet", rows, TRACK_COLUMNS)
+    summary = summarize_mount(frames, measurements)
+    ekf_config = EkfConfig(height_m=height)
+    monitor_config = MonitorConfig.from_noise(ekf_config.noise, fps=frame_rate(measurements))
+    monitor_rows, states = [], []
+    for m, s, o in monitor_frames(measurements, nominal, speed, monitor_config, ekf_config):
+        monitor_rows.append(monitor_row(m, s, o))
+        states.append(o)
+    _table_atomic(folder / "monitor.parquet", monitor_rows, MONITOR_COLUMNS)
+    _write_atomic(folder / "summary.json", json.dumps(summary, indent=2) + "\n")
+    return _row(spec, summary, measurements, states, nominal, speed is not None)
+
+
+def _row(spec: DriveSpec, summary: dict, measurements: list, outputs: list,
+         nominal: NominalCalibration, with_speed: bool) -> dict[str, Any]:
+    """The fleet-summary numbers of a processed drive (degrees, metres, minutes)."""
+    ok = sum(m.ok for m in measurements)
+    flagged = next((o for o in outputs if o.state == "RECALIBRATE"), None)
+    row: dict[str, Any] = {
+        "status": "ok",
+        "frames": len(measurements),
+        "share_ok": ok / max(len(measurements), 1),
+        "duration_s": summary.get("duration_s", 0.0),
+        "t_start_s": measurements[0].t if measurements else float("nan"),
+        "wheel_speed": with_speed,
+        "nominal_pitch_deg": nominal.pitch_deg,
+        "nominal_roll_deg": nominal.roll_deg,
+        "nominal_height_m": nominal.height_m,
+        "monitor_verdict": outputs[-1].state if outputs else "",
+        "first_recalibrate_s": None if flagged is None else flagged.t,
+        "monitor_states": ", ".join(f"{s} {n}" for s, n in
+                                    Counter(o.state for o in outputs).most_common()),
+    }
+    for axis, unit in (("pitch", "deg"), ("roll", "deg"), ("height", "m")):
+        d = summary.get(axis) or {}
+        row[f"mount_{axis}_{unit}"] = d.get("mean")
+        row[f"mount_{axis}_std_{unit}"] = d.get("std")
+        low, high = d.get("ci95", (None, None))
+        row[f"mount_{axis}_ci95_low_{unit}"] = low
+        row[f"mount_{axis}_ci95_high_{unit}"] = high
+        row[f"{axis}_drift_{unit}_per_min"] = d.get("drift_per_min")
+    return row

@@ -1,0 +1,111 @@
+"""The fleet report: per vehicle, each drive's smoothed mount (pitch, roll, height) with its
+95 % interval, drives in time order, so a camera that moved between drives stands out
+(PNG + Markdown)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from .report import _pyplot
+
+AXES: tuple[tuple[str, str, str], ...] = (("pitch", "deg", "°"), ("roll", "deg", "°"),
+                                          ("height", "m", " m"))
+
+
+def by_vehicle(rows: Sequence[dict[str, Any]]) -> dict[str, list[dict[str, Any]]]:
+    """The ok drives of ``rows`` grouped by ``vehicle`` (empty: ``(none)``), each group in
+    time order (``started``, then the first frame's time, then the drive's name)."""
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for row in rows:
+        if row.get("status") == "ok":
+            groups.setdefault(str(row.get("vehicle") or "(none)"), []).append(row)
+    for drives in groups.values():
+        drives.sort(key=lambda r: (str(r.get("started") or ""), _num(r.get("t_start_s")),
+                                   str(r["drive"])))
+    return dict(sorted(groups.items()))
+
+
+def moved(previous: dict[str, Any], drive: dict[str, Any]) -> list[str]:
+    """The mount axes whose 95 % intervals of two consecutive drives do not overlap."""
+    out = []
+    for axis, unit, _ in AXES:
+        a = (_num(previous.get(f"mount_{axis}_ci95_low_{unit}")),
+             _num(previous.get(f"mount_{axis}_ci95_high_{unit}")))
+        b = (_num(drive.get(f"mount_{axis}_ci95_low_{unit}")),
+             _num(drive.get(f"mount_{axis}_ci95_high_{unit}")))
+        if a[1] < b[0] or b[1] < a[0]:
+            out.append(axis)
+    return out
+
+
+def _num(value: Any) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def fleet_markdown(rows: Sequence[dict[str, Any]]) -> str:
+    """The report's Markdown: counts, then per vehicle a table of its drives in time order
+    with the mount, its interval and the monitor's verdict; a drive whose interval misses
+    the previous drive's is marked (the camera moved between them); failed drives last."""
+    ok = [r for r in rows if r.get("status") == "ok"]
+    lines = [f"Drives: {len(rows)}, ok {len(ok)}, failed {len(rows) - len(ok)}.", ""]
+    for vehicle, drives in by_vehicle(rows).items():
+        lines += [f"## Vehicle {vehicle}", "",
+                  "| drive | frames | pitch (°) [95 %] | roll (°) [95 %] | height (m) [95 %] "
+                  "| monitor | moved since previous |",
+                  "| --- | --- | --- | --- | --- | --- | --- |"]
+        for i, r in enumerate(drives):
+            cells = []
+            for axis, unit, _ in AXES:
+                fmt = "{:.4f}" if unit == "m" else "{:.3f}"
+                cells.append(f"{fmt.format(_num(r.get(f'mount_{axis}_{unit}')))} "
+                             f"[{fmt.format(_num(r.get(f'mount_{axis}_ci95_low_{unit}')))}, "
+                             f"{fmt.format(_num(r.get(f'mount_{axis}_ci95_high_{unit}')))}]")
+            shift = ", ".join(moved(drives[i - 1], r)) if i else ""
+            flag = f"**{shift}**" if shift else ""
+            lines.append(f"| {r['drive']} | {r.get('frames')} | {' | '.join(cells)} | "
+                         f"{r.get('monitor_verdict', '')} | {flag} |")
+        lines.append("")
+    failed = [r for r in rows if r.get("status") != "ok"]
+    if failed:
+        lines += ["## Failed drives", "", "| drive | error |", "| --- | --- |"]
+        lines += [f"| {r['drive']} | {str(r.get('status')).replace('|', '/')} |" for r in failed]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def write_fleet_report(rows: Sequence[dict[str, Any]], out: str | Path) -> tuple[Path, Path]:
+    """``OUT/fleet_report.md`` and ``fleet_report.png`` (one row of pitch / roll / height
+    panels per vehicle, each drive's mount with its 95 % interval and the nominal)."""
+    out = Path(out)
+    md = out / "fleet_report.md"
+    md.write_text("# Fleet report\n\n" + fleet_markdown(rows) + "\n")
+    groups = by_vehicle(rows)
+    png = out / "fleet_report.png"
+    plt = _pyplot()
+    fig, axes = plt.subplots(max(len(groups), 1), 3, figsize=(12, 2.6 * max(len(groups), 1)),
+                             squeeze=False)
+    for (vehicle, drives), panel in zip(groups.items(), axes, strict=False):
+        x = range(len(drives))
+        for ax, (axis, unit, sign) in zip(panel, AXES, strict=True):
+            mean = [_num(r.get(f"mount_{axis}_{unit}")) for r in drives]
+            low = [m - _num(r.get(f"mount_{axis}_ci95_low_{unit}")) for m, r in zip(mean, drives,
+                                                                                   strict=True)]
+            high = [_num(r.get(f"mount_{axis}_ci95_high_{unit}")) - m
+                    for m, r in zip(mean, drives, strict=True)]
+            ax.errorbar(list(x), mean, yerr=[low, high], fmt="o", capsize=3)
+            ax.plot(list(x), [_num(r.get(f"nominal_{axis}_{unit}")) for r in drives], "k--",
+                    lw=0.8, label="nominal")
+            ax.set_title(f"{vehicle}: mount {axis}")
+            ax.set_ylabel(f"{axis} ({sign.strip()})")
+            ax.set_xticks(list(x), [str(r["drive"]) for r in drives], rotation=30, fontsize=7)
+    if not groups:
+        axes[0][0].set_title("no drive ok")
+    fig.tight_layout()
+    fig.savefig(png, dpi=100)
+    plt.close(fig)
+    return md, png
