@@ -13,6 +13,7 @@ speed share the recording's clock.
 from __future__ import annotations
 
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,7 +25,6 @@ from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.typesys import Stores, get_typestore
 
 from .camera import CameraModel
-from .errors import InputError
 from .sources import Frame, FrameSource, SourceError, _to_grey
 
 IMAGE_TYPES: tuple[str, ...] = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
@@ -69,12 +69,18 @@ def _reader(path: Path) -> AnyReader:
         raise BagError(f"{path}: cannot open the bag: {exc}") from None
 
 
-def _open(reader: AnyReader, path: Path) -> AnyReader:
+@contextmanager
+def _opened(path: Path) -> Iterator[AnyReader]:
+    """The bag at ``path`` open for reading (BagError naming it where it cannot be)."""
+    reader = _reader(path)
     try:
         reader.open()
     except Exception as exc:  # rosbags raises its own error types per storage
         raise BagError(f"{path}: cannot read the bag: {type(exc).__name__}: {exc}") from None
-    return reader
+    try:
+        yield reader
+    finally:
+        reader.close()
 
 
 def _topic(reader: AnyReader, path: Path, topic: str | None, types: tuple[str, ...],
@@ -145,7 +151,7 @@ class BagSource(FrameSource):
         if start < 0 or (max_frames is not None and max_frames < 1):
             raise BagError(f"--start must be >= 0 and --max-frames >= 1, got {start} and "
                            f"{max_frames}")
-        with _open(_reader(self.path), self.path) as reader:
+        with _opened(self.path) as reader:
             self.topic = _topic(reader, self.path, image_topic, IMAGE_TYPES, "image",
                                 "--image-topic")
             total = sum(c.msgcount for c in reader.connections if c.topic == self.topic)
@@ -172,7 +178,7 @@ class BagSource(FrameSource):
     def __iter__(self) -> Iterator[Frame]:
         stop = self.position + self.count
         last_t = -np.inf
-        with _open(_reader(self.path), self.path) as reader:
+        with _opened(self.path) as reader:
             connections = [c for c in reader.connections if c.topic == self.topic]
             for index, (conn, bag_ns, raw) in enumerate(reader.messages(connections)):
                 if index >= stop:
@@ -199,7 +205,7 @@ def read_bag_camera(path: str | Path, topic: str | None = None) -> CameraModel:
     """Intrinsics of the first message of a bag's CameraInfo topic (``topic`` None: the
     first by name). BagError naming the bag and topic where there is none or it is bad."""
     path = Path(path)
-    with _open(_reader(path), path) as reader:
+    with _opened(path) as reader:
         topic = _topic(reader, path, topic, CAMERA_INFO_TYPES, "camera_info",
                        "--camera-info-topic")
         connections = [c for c in reader.connections if c.topic == topic]
@@ -236,7 +242,7 @@ def read_bag_speed(path: str | Path, topic: str | None = None) -> BagSpeed | Non
     the first by name; None where the bag has none). Samples whose time does not increase
     are left out."""
     path = Path(path)
-    with _open(_reader(path), path) as reader:
+    with _opened(path) as reader:
         topic = _topic(reader, path, topic, tuple(SPEED_TYPES), "speed", "--speed-topic",
                        required=False)
         if topic is None:
@@ -256,11 +262,3 @@ def read_bag_speed(path: str | Path, topic: str | None = None) -> BagSpeed | Non
     if not t:
         raise BagError(f"{path}: speed topic {topic} has no usable messages")
     return BagSpeed(np.asarray(t), np.asarray(v), f"{path}:{topic}")
-
-
-def bag_or_error(path: str | Path) -> Path:
-    """``path`` as a bag (InputError naming it otherwise)."""
-    if not is_bag(path):
-        raise InputError(f"{path}: not a bag (a .bag, .mcap or .db3 file, or a rosbag2 "
-                         "folder with metadata.yaml)")
-    return Path(path)

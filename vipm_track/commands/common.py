@@ -13,12 +13,22 @@ import numpy as np
 from ..errors import InputError, os_error_line
 
 
-def add_input_options(parser: argparse.ArgumentParser, required: bool = True) -> None:
-    """``--images DIR | --video FILE`` and ``--fps``."""
+def add_input_options(parser: argparse.ArgumentParser, required: bool = True,
+                      bag: bool = False) -> None:
+    """``--images DIR | --video FILE`` (``| --bag PATH`` with its topics where ``bag``) and
+    ``--fps``."""
     group = parser.add_mutually_exclusive_group(required=required)
     group.add_argument("--images", metavar="DIR", help="folder of images sorted by name "
                        "(timestamps from times.txt in it or its parent, else --fps)")
     group.add_argument("--video", metavar="FILE", help="any video OpenCV reads")
+    if bag:
+        group.add_argument("--bag", metavar="PATH", help="a ROS 1 .bag, a rosbag2 folder or "
+                           "an .mcap file with an image topic (times from the headers)")
+        parser.add_argument("--image-topic", metavar="TOPIC", help="the bag's image topic "
+                            "(default: its first Image / CompressedImage topic)")
+        parser.add_argument("--camera-info-topic", metavar="TOPIC", help="the bag's "
+                            "CameraInfo topic, read where --camera is not given (default: "
+                            "its first)")
     parser.add_argument("--fps", type=float, default=None,
                         help="frame rate for timestamps when the input has none [Hz]")
 

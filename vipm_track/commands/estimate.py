@@ -32,7 +32,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Run the two-frame estimator on every consecutive pair of a video or an "
         "image folder and write one row per frame (CONVENTIONS.md columns + std, inliers).",
     )
-    add_input_options(parser)
+    add_input_options(parser, bag=True)
     add_camera_options(parser, camera_required=False)
     add_output_options(parser, "per-frame estimates CSV")
     add_estimator_options(parser)
@@ -64,14 +64,22 @@ def run(args: argparse.Namespace) -> int:
 
     out = check_output(args.out, args.parquet)
     check_rerun_output(args)
-    if not args.camera:
+    if not args.camera and not args.bag:
         raise InputError("--camera not given and no camera.yaml or calib.txt beside the "
                          "images (or a --video): give --camera CAMERA.yaml")
-    camera = load_camera(args.camera)
     height = check_height(args.height)
+    if args.bag:
+        from ..bag_source import BagSource, read_bag_camera
+
+        camera = (load_camera(args.camera) if args.camera
+                  else read_bag_camera(args.bag, args.camera_info_topic))
+        source = BagSource(args.bag, args.image_topic, start=args.start,
+                           max_frames=args.max_frames)
+    else:
+        camera = load_camera(args.camera)
+        source = open_source(images=args.images, video=args.video, fps=args.fps,
+                             start=args.start, max_frames=args.max_frames)
     config = build_config(args, camera)
-    source = open_source(images=args.images, video=args.video, fps=args.fps,
-                         start=args.start, max_frames=args.max_frames)
     parallel = parallel_settings(args)
     config = with_searched_setup(args, source, camera, height, config)
     from ..sinks.rerun_sequence import run_logging
