@@ -1,0 +1,192 @@
+"""``vipm-track fleet`` on a Dask LocalCluster of 2 workers: rendered drives (one whose camera
+sits 1° steeper than its nominal, one from an MCAP, broken ones), per-drive results equal to
+``smooth`` run alone, resume, partitioned Parquet read by pandas, pyarrow and dask."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from conftest import render_small_drive, write_bag
+from distributed import LocalCluster
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from vipm_track.cli import main
+from vipm_track.errors import InputError
+from vipm_track.fleet.cluster import fleet_dataset, run_fleet
+from vipm_track.fleet.drive_run import FleetSettings
+from vipm_track.fleet.drives import find_drives, read_manifest
+
+SETTINGS = FleetSettings(vehicle="cart")
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                      dashboard_address=None) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def drives(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("fleet") / "drives"
+    a = render_small_drive(root / "a", seed=1)
+    (a / "drive.yaml").write_text("vehicle: van1\nstarted: '2024-05-01T09:00'\n")
+    b = render_small_drive(root / "b", seed=2, pitch_deg=46.0)  # the camera was knocked
+    (b / "drive.yaml").write_text("vehicle: van1\nstarted: '2024-05-02T09:00'\n")
+    bag = root / "c_bag"
+    bag.mkdir()
+    write_bag(render_small_drive(root.parent / "c_src", seed=3), bag / "rec", "mcap")
+    shutil.copy(root.parent / "c_src" / "nominal.yaml", bag / "nominal.yaml")
+    broken = render_small_drive(root / "broken", frames=3, seed=4)
+    for png in (broken / "images").glob("*.png"):
+        png.write_bytes(b"not a png")
+    (root / "no_nominal").mkdir()
+    shutil.copytree(a / "images", root / "no_nominal" / "images")
+    shutil.copy(a / "camera.yaml", root / "no_nominal")
+    return root
+
+
+@pytest.fixture(scope="module")
+def fleet(drives, cluster, tmp_path_factory):
+    out = tmp_path_factory.mktemp("out")
+    rows = run_fleet(find_drives(drives), out, SETTINGS, scheduler=cluster.scheduler_address,
+                     progress=False)
+    return out, {r["drive"]: r for r in rows}
+
+
+def test_drives_ok_and_broken_ones_are_rows(fleet):
+    out, rows = fleet
+    assert list(rows) == ["a", "b", "broken", "c_bag", "no_nominal"]
+    for name in ("a", "b", "c_bag"):
+        assert rows[name]["status"] == "ok", rows[name]["status"]
+        assert rows[name]["frames"] == 12 and rows[name]["share_ok"] > 0.9
+        assert abs(rows[name]["mount_height_m"] - 0.7) < 0.005  # the wheel speed scales it
+    assert "no frame has a usable pair estimate" in rows["broken"]["status"]
+    assert "no nominal.yaml" in rows["no_nominal"]["status"]
+    assert abs(rows["a"]["mount_pitch_deg"] - 45.0) < 0.05
+    assert abs(rows["b"]["mount_pitch_deg"] - 46.0) < 0.05
+    lo, hi = rows["a"]["mount_pitch_ci95_low_deg"], rows["a"]["mount_pitch_ci95_high_deg"]
+    assert lo < 45.0 < hi
+    assert rows["b"]["monitor_verdict"] in ("RECALIBRATE", "INVALID", "SUSPECT")
+    summary = pd.read_csv(out / "fleet_summary.csv")
+    assert list(summary["drive"]) == list(rows)
+    assert pd.read_parquet(out / "fleet_summary.parquet").shape == summary.shape
+
+
+def test_tables_read_as_a_partitioned_dataset(fleet):
+    import dask.dataframe as dd
+
+    out, _ = fleet
+    files = sorted(str(p) for p in out.glob("drive=*/smoothed.parquet"))
+    by_pandas = pd.read_parquet(files)
+    by_arrow = fleet_dataset(out, "smoothed").to_table().to_pandas()
+    by_dask = dd.read_parquet(str(out / "drive=*" / "smoothed.parquet")).compute()
+    for table in (by_pandas, by_arrow, by_dask):
+        assert sorted(set(table["drive"].astype(str))) == ["a", "b", "c_bag"]
+        assert len(table) == 36
+    one = by_pandas[by_pandas["drive"] == "b"]
+    assert abs(one["mount_pitch_deg"].mean() - 46.0) < 0.05
+
+
+def test_drive_equals_smooth_alone(fleet, drives, tmp_path):
+    out, _ = fleet
+    a = drives / "a"
+    assert main(["smooth", "--images", str(a / "images"), "--pitch", "45", "--roll", "0",
+                 "--height", "0.7", "--vehicle", "cart", "--speed-csv", str(a / "speed.csv"),
+                 "--out", str(tmp_path / "s.csv"), "--parquet", "--quiet"]) == 0
+    alone = pd.read_parquet(tmp_path / "s.parquet")
+    pd.testing.assert_frame_equal(pd.read_parquet(out / "drive=a" / "smoothed.parquet"), alone)
+    summary = json.loads((tmp_path / "s.summary.json").read_text())
+    mine = json.loads((out / "drive=a" / "summary.json").read_text())
+    assert mine["pitch"] == summary["pitch"] and mine["height"] == summary["height"]
+
+
+def test_report_shows_the_moved_camera(fleet):
+    out, rows = fleet
+    from vipm_track.sinks.fleet_report import write_fleet_report
+
+    md, png = write_fleet_report(list(rows.values()), out)
+    text = md.read_text()
+    line_b = next(line for line in text.splitlines() if line.startswith("| b |"))
+    assert "**pitch**" in line_b
+    line_a = next(line for line in text.splitlines() if line.startswith("| a |"))
+    assert "**" not in line_a
+    assert "## Vehicle van1" in text and "## Failed drives" in text
+    assert png.stat().st_size > 10_000
+
+
+def test_resume_skips_what_is_done(fleet, drives, cluster, tmp_path):
+    out, _ = fleet
+    again = tmp_path / "out"
+    shutil.copytree(out, again)
+    before = (again / "drive=a" / "smoothed.parquet").stat().st_mtime_ns
+    speed = drives / "b" / "speed.csv"
+    original = speed.read_text()
+    try:
+        speed.write_text(original)  # rewritten unchanged: same hash, nothing runs
+        rows = {r["drive"]: r for r in run_fleet(find_drives(drives), again, SETTINGS,
+                                                 scheduler=cluster.scheduler_address,
+                                                 progress=False)}
+        assert rows["a"]["skipped"] and rows["b"]["skipped"] and rows["c_bag"]["skipped"]
+        assert not rows["broken"]["skipped"]  # a failed drive is tried again
+        assert (again / "drive=a" / "smoothed.parquet").stat().st_mtime_ns == before
+        lines = original.splitlines()
+        speed.write_text("\n".join(lines[:-1]) + "\n")  # b's inputs change: b runs again
+        rows = {r["drive"]: r for r in run_fleet(find_drives(drives), again, SETTINGS,
+                                                 scheduler=cluster.scheduler_address,
+                                                 progress=False)}
+        assert rows["a"]["skipped"] and not rows["b"]["skipped"]
+        assert rows["b"]["status"] == "ok"
+    finally:
+        speed.write_text(original)
+
+
+def test_cli(drives, cluster, tmp_path, capsys):
+    assert main(["fleet", str(tmp_path / "nowhere"), "--out", str(tmp_path / "o")]) == 2
+    assert "not found" in capsys.readouterr().err
+    only_broken = tmp_path / "only_broken"
+    only_broken.mkdir()
+    shutil.copytree(drives / "broken", only_broken / "broken")
+    out = tmp_path / "o"
+    assert main(["fleet", str(only_broken), "--out", str(out), "--scheduler",
+                 cluster.scheduler_address, "--quiet"]) == 1
+    assert "no drive ok" in capsys.readouterr().err
+    assert (out / "fleet_summary.csv").is_file() and (out / "fleet_report.md").is_file()
+
+
+def test_manifest(drives, tmp_path):
+    manifest = tmp_path / "m.csv"
+    manifest.write_text(f"drive,images,camera,nominal,speed_csv,vehicle\n"
+                        f"x,{drives}/a/images,{drives}/a/camera.yaml,{drives}/a/nominal.yaml,"
+                        f"{drives}/a/speed.csv,van1\n"
+                        f"y,{drives}/a/missing,{drives}/a/camera.yaml,{drives}/a/nominal.yaml,,\n")
+    x, y = find_drives(manifest)
+    assert x.problem == "" and x.vehicle == "van1" and x.speed_csv == drives / "a" / "speed.csv"
+    assert "line 3: not found: images" in y.problem
+    manifest.write_text("drive,colour\nx,red\n")
+    with pytest.raises(InputError, match=r"m.csv: line 1: unknown column\(s\) \['colour'\]"):
+        find_drives(manifest)
+    manifest.write_text("drive,fps\nx,fast\n")
+    with pytest.raises(InputError, match="line 2: column fps"):
+        find_drives(manifest)
+
+
+@settings(max_examples=60, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.text(max_size=200) | st.binary(max_size=200))
+def test_bad_manifests_are_input_errors(tmp_path, content):
+    path = tmp_path / "m.csv"
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        path.write_text(content, encoding="utf-8", errors="surrogatepass")
+    try:
+        specs = read_manifest(path)
+    except InputError:
+        return
+    assert all(s.problem for s in specs)  # nothing in tmp_path is a drive
