@@ -5,11 +5,11 @@ Renders ``--drives`` ``cart`` drives (``vipm_track.sim``, 800×600, ``shaking`` 
 ``--frames`` each, with wheel speed and a nominal calibration), then processes them all
 (estimate → batch smooth → drive summary → monitor, ``fleet.drive_run.run_drive``) once in
 a plain loop in this process and once with ``fleet.cluster.run_fleet`` on a
-``LocalCluster`` of ``--workers`` single-threaded processes started once (as ``--scheduler``
-uses a running cluster; its start-up is reported apart: a fixed cost per fleet, not per
-drive), alternately ``--repeats`` times into fresh outputs. Reports the median wall time,
-drives per hour, the wall seconds and core-seconds per hour of video, the machine's load
-during the runs, and whether both give the same mount for every drive.
+``LocalCluster`` of ``--workers`` single-threaded processes (``WORKER_ENVIRON``) started
+once (as ``--scheduler`` uses a running cluster; its start-up is reported apart: a fixed cost
+per fleet, not per drive), alternately ``--repeats`` times into fresh outputs. Reports the
+median wall time, drives per hour, the wall seconds and core-seconds per hour of video, the
+machine's load during the runs, and whether both give the same mount for every drive.
 
     python scripts/bench_fleet.py [--drives 6] [--frames 40] [--workers 2] [--repeats 3]
                                   [--out scripts/results/bench_fleet.md]
@@ -32,10 +32,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+import dask  # noqa: E402
 from distributed import LocalCluster  # noqa: E402
 
 from vipm_track.filters.nominal import load_nominal, write_nominal  # noqa: E402
-from vipm_track.fleet.cluster import run_fleet  # noqa: E402
+from vipm_track.fleet.cluster import WORKER_ENVIRON, run_fleet  # noqa: E402
 from vipm_track.fleet.drive_run import FleetSettings, run_drive  # noqa: E402
 from vipm_track.fleet.drives import find_drives  # noqa: E402
 from vipm_track.resources import data_path  # noqa: E402
@@ -66,8 +67,9 @@ def main(argv: list[str] | None = None) -> int:
                                          "workers": []}
         mounts: dict[str, dict[str, float]] = {}
         start = time.perf_counter()
-        cluster = LocalCluster(n_workers=args.workers, threads_per_worker=1,
-                               dashboard_address=None)
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": WORKER_ENVIRON}):
+            cluster = LocalCluster(n_workers=args.workers, threads_per_worker=1,
+                                   dashboard_address=None)
         startup = time.perf_counter() - start
         load: list[float] = []
         with cluster:

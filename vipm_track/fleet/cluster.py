@@ -30,6 +30,13 @@ from ..table import format_value
 from .drive_run import FleetSettings, run_drive
 from .drives import DriveSpec
 
+#: environment of the local cluster's worker processes: Dask's default without its
+#: ``MALLOC_TRIM_THRESHOLD_=65536``, which hands every freed block back to the system and made
+#: the estimator, which allocates many short-lived arrays per pair, half as fast in a worker;
+#: one BLAS / OpenMP thread each, as a worker runs one drive per core
+WORKER_ENVIRON: dict[str, int] = {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1,
+                                  "OPENBLAS_NUM_THREADS": 1}
+
 #: fleet_summary columns, in order (see docs/fleet.md)
 SUMMARY_COLUMNS: tuple[str, ...] = (
     "drive", "vehicle", "started", "status", "frames", "share_ok", "duration_s", "t_start_s",
@@ -70,7 +77,8 @@ def run_fleet(
     out.mkdir(parents=True, exist_ok=True)
     rows: dict[str, dict[str, Any]] = {}
     start = time.perf_counter()
-    with dask.config.set({"distributed.scheduler.allowed-failures": retries}), \
+    with dask.config.set({"distributed.scheduler.allowed-failures": retries,
+                          "distributed.nanny.pre-spawn-environ": WORKER_ENVIRON}), \
             _client(workers, scheduler, processes) as client:
         futures = {client.submit(run_drive, spec, str(out), settings, key=f"drive-{spec.drive}",
                                  pure=False, retries=retries): spec for spec in specs}
