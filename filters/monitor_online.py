@@ -104,7 +104,7 @@ class OnlineMonitor:
     ekf_config: EkfConfig | None = None
     monitor_options: dict[str, Any] = field(default_factory=dict)
     fps: float | None = None
-    warmup_pairs: int = 8
+    warmup_pairs: int = 5
     speed: SpeedBuffer | None = None
 
     def __post_init__(self) -> None:

@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from vipm_track.filters.ekf_state import EkfConfig, FilterState
 from vipm_track.filters.monitor_online import OnlineMonitor, SpeedBuffer
 from vipm_track.filters.monitor_table import MONITOR_COLUMNS, monitor_row
-from vipm_track.filters.monitor_types import HOLD, STATES, MonitorOutput
+from vipm_track.filters.monitor_types import MonitorOutput
 from vipm_track.filters.nominal import NominalCalibration
 
 from .camera import CameraModel
@@ -93,6 +93,8 @@ class LiveStats:
     states: Counter = field(default_factory=Counter)
     wall_s: float = 0.0
     cpu_s: float = 0.0
+    #: seconds from the last frame's arrival to the end of the run (the last rows written)
+    tail_s: float = float("nan")
     first_recalibrate: dict[str, Any] | None = None
 
     @property
@@ -115,7 +117,8 @@ class LiveStats:
         text = (f"{self.seen} frames seen, {self.processed} pairs processed ({rate:.2f}/s), "
                 f"{self.dropped} frames dropped; latency p50 {self.latency(0.5) * 1e3:.0f} ms, "
                 f"p95 {self.latency(0.95) * 1e3:.0f} ms; CPU {100 * self.cpu_share:.0f} % of "
-                f"one core over {self.wall_s:.1f} s")
+                f"one core over {self.wall_s:.1f} s; ended {self.tail_s:.2f} s after the last "
+                "frame")
         if self.rejected:
             text += f"; {self.rejected} frames rejected"
         return text
@@ -190,6 +193,7 @@ class LiveMonitor:
         self._waiting: dict[int, tuple[_Arrived, _Arrived, Any, int]] = {}
         self._holds: dict[str, str] = {}
         self._reported: str | None = None
+        self._watchdog_held = False  # the last event announced is the watchdog's HOLD
         self._state = LiveState("UNCALIBRATED", "waiting for frames")
         self._last_frame_at: float | None = None
         self._last_speed_at: float | None = None
@@ -218,7 +222,16 @@ class LiveMonitor:
             self._fresh = True
             self._last_frame_at = now
             self.stats.seen += 1
-            self._cond.notify()
+            self._cond.notify_all()
+
+    def wait_taken(self, timeout: float | None = None) -> bool:
+        """Block until the newest frame pushed has been taken (or found unpairable) by the
+        monitor's thread, or it stopped: a recording read as fast as it is processed drops
+        nothing. False on ``timeout``."""
+        with self._cond:
+            return self._cond.wait_for(lambda: not self._fresh or self._stop.is_set()
+                                       or self._thread is None or not self._thread.is_alive(),
+                                       timeout)
 
     def push_speed(self, t: float, speed_mps: float) -> None:
         """A wheel-speed sample: ``t`` [s, the frames' clock], speed [m/s, a magnitude or
@@ -265,7 +278,10 @@ class LiveMonitor:
             self._cond.notify()
         if self._thread is not None:
             self._thread.join(timeout)
-        self.stats.wall_s = time.monotonic() - self._clock[0]
+        end = time.monotonic()
+        self.stats.wall_s = end - self._clock[0]
+        if self._last_frame_at is not None:
+            self.stats.tail_s = end - self._last_frame_at
         self.stats.cpu_s = time.process_time() - self._clock[1]
         if self.failure is not None:
             raise self.failure
@@ -301,6 +317,7 @@ class LiveMonitor:
             if not self._fresh:
                 return None
             self._fresh = False
+            self._cond.notify_all()
             a, b = self._before, self._newest
             if (a is None or b is None or b.index != a.index + 1
                     or not 0 < b.t - a.t <= self.max_pair_gap_s):
@@ -356,12 +373,14 @@ class LiveMonitor:
             self.stats.first_recalibrate = {"t": m.t, "frame": m.frame, "reason": out.reason}
         if self.on_row is not None:
             self.on_row(LiveRow(m, state, out, result, b.image, row, latency))
-        if out.event is not None and out.state != self._reported:
-            self._announce(out.event)
-        elif out.event is None and self._reported == STATES[HOLD] and out.state != "HOLD":
+        if self._watchdog_held and out.state != "HOLD":
             # the data returned after a watchdog HOLD: say what the monitor says now
-            self._announce({"t": m.t, "frame": m.frame, "state": out.state,
-                            "reason": f"data back; {out.reason}"})
+            event = dict(out.event) if out.event is not None else {
+                "t": m.t, "frame": m.frame, "state": out.state}
+            event["reason"] = f"data back; {out.reason}"
+            self._announce(event)
+        elif out.event is not None and out.state != self._reported:
+            self._announce(out.event)
 
     # --- watchdog -------------------------------------------------------------------------
 
@@ -384,6 +403,7 @@ class LiveMonitor:
                 if self._reported != "HOLD":
                     self._announce({"t": self._now_t(now), "frame": self._state.frame,
                                     "state": "HOLD", "reason": reason})
+                    self._watchdog_held = True
             elif not reason:
                 self._holds.pop(key, None)
 
@@ -395,6 +415,7 @@ class LiveMonitor:
 
     def _announce(self, event: dict[str, Any]) -> None:
         self._reported = event["state"]
+        self._watchdog_held = self._watchdog_held and event["state"] == "HOLD"
         if self.on_event is not None:
             self.on_event(event)
 

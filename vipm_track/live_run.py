@@ -59,6 +59,7 @@ def run_live(
     camera_timeout_s: float = 1.0,
     speed_timeout_s: float = 1.0,
     duration_s: float | None = None,
+    max_frames: int | None = None,
     monitor_options: dict[str, Any] | None = None,
     sink: Any = None,
     stdout: IO[str] | None = None,
@@ -70,7 +71,8 @@ def run_live(
     at its frame rate; ``fps`` times its frames). Wheel speed: ``speed`` (a recording on the
     video's clock, replayed beside it) or ``bus`` (``"INTERFACE:CHANNEL"`` or a python-can
     bus) decoded with ``dbc``/``signals``/``combine``/``can_channel``/``speed_scale``. A
-    camera or stream runs until ``duration_s`` or an interrupt; a file until its end.
+    camera or stream runs until ``duration_s`` or an interrupt; a file until its end or
+    ``max_frames``.
     ``sink``: a ``sinks.rerun_sink.RerunSink`` (camera with its patches, mount series with
     bands, monitor state). The summary goes to stderr unless ``quiet``; a KeyboardInterrupt
     is raised again after it.
@@ -131,7 +133,8 @@ def run_live(
     if speed is not None:
         replay = SpeedReplay(speed.t, speed.speed_mps, monitor.push_speed, playback)
     reader = FrameReader(spec, monitor.push_frame, playback, stop, fps=fps,
-                         on_tick=None if replay is None else replay.until)
+                         on_tick=None if replay is None else replay.until,
+                         wait_taken=monitor.wait_taken, max_frames=max_frames)
     bus_reader = None
     if bus is not None:
         can_bus = open_bus(bus) if isinstance(bus, str) else bus

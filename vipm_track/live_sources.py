@@ -125,12 +125,18 @@ class FrameReader(threading.Thread):
     A file ends the thread at its end (``finished`` set); a camera or stream that stops
     delivering is reopened every :data:`REOPEN_INTERVAL_S` until ``stop`` is set (the
     receiver's watchdog says the camera is silent meanwhile). A frame that cannot be decoded
-    is counted and skipped. ``fps``: times a file's frames by ``index / fps``."""
+    is counted and skipped. ``fps``: times a file's frames by ``index / fps``. A file read
+    without ``realtime`` calls ``wait_taken()`` after each frame, so that it goes as fast as
+    the receiver processes and drops nothing. ``max_frames``: read at most that many of a
+    file."""
 
     def __init__(self, spec: VideoSpec, on_frame: Callable[[NDArray[np.uint8], float, int], Any],
                  playback: Playback, stop: threading.Event, fps: float | None = None,
-                 on_tick: Callable[[float], Any] | None = None) -> None:
+                 on_tick: Callable[[float], Any] | None = None,
+                 wait_taken: Callable[[], Any] | None = None,
+                 max_frames: int | None = None) -> None:
         super().__init__(name="vipm-live-frames", daemon=True)
+        self.wait_taken = wait_taken
         self.spec, self.on_frame, self.playback, self.stop = spec, on_frame, playback, stop
         self.fps = fps
         self.on_tick = on_tick  # told each file frame's time before the frame (speed replay)
@@ -139,7 +145,7 @@ class FrameReader(threading.Thread):
         self.failure: BaseException | None = None
         if spec.file is not None:
             # checks the file now (InputError naming it) rather than in the thread
-            self._video = VideoSource(spec.file, fps=fps)
+            self._video = VideoSource(spec.file, fps=fps, max_frames=max_frames)
 
     def run(self) -> None:
         try:
@@ -163,6 +169,8 @@ class FrameReader(threading.Thread):
                 continue
             self.stats.delivered += 1
             self.on_frame(frame.image, frame.t, frame.index)
+            if not self.playback.realtime and self.wait_taken is not None:
+                self.wait_taken()
 
     def _read_live(self) -> None:
         index = 0
