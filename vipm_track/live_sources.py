@@ -58,7 +58,7 @@ def parse_video(text: str) -> VideoSpec:
     """``--video SOURCE``: a camera index (``0``), a URL (``rtsp://…``, ``http://…``: anything
     with ``://``) or a video file, which must exist (InputError naming it otherwise)."""
     text = text.strip()
-    if text.isdigit():
+    if text.isascii() and text.isdigit():  # '²' is a digit to str.isdigit, not to int()
         return VideoSpec(device=int(text))
     if "://" in text:
         return VideoSpec(url=text)
