@@ -57,7 +57,7 @@ from .pipeline import SequenceStep
 from .resources import data_path
 from .runs import estimate_sequence
 from .sim import PRESETS, simulate_sequence
-from .sinks.report import write_demo_figure
+from .sinks.demo_figure import write_demo_figure
 from .sources import open_source
 from .table import TableWriter, read_table
 
