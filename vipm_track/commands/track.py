@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     from ..sinks.rerun_filters import log_track_steps
     from .rerun_options import sink_from_args
 
-    sink = sink_from_args(args, "vipm-track track")
+    sink = sink_from_args(args, "vipm-track track", layout="drift")
     if args.clock_offset == "auto" and speed is not None:
         # the offset is found against every pair, so the estimates come first here
         measurements = measurements_from_args(args, height, sink=sink, progress=not args.quiet)
