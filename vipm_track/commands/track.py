@@ -22,6 +22,7 @@ from .estimator_options import add_estimator_options, add_parallel_options
 from .inputs import (
     check_speed_overlap,
     estimate_stream,
+    frame_total,
     load_speed,
     measurements_from_args,
     read_estimates,
@@ -86,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
         stream = iter(measurements)
         total = len(measurements)
     elif args.images or args.video:
-        stream, total = estimate_stream(args, height, sink=sink), None
+        stream, total = estimate_stream(args, height, sink=sink), frame_total(args)
     else:
         raise InputError("give --images DIR, --video FILE or --estimates EST.csv")
 
