@@ -4,7 +4,8 @@ page. ``report.write_report`` puts them together; the numbers come from
 ``drift_summary.summarize_drift``.
 
 Numbers are written in fixed decimals by unit (:func:`fmt`): degrees 3, metres 4, seconds 1,
-rates 4 — never in scientific notation.
+rates 4, errors against ground truth one more (degrees 4, metres 5) — never in scientific
+notation.
 """
 
 from __future__ import annotations
@@ -23,7 +24,8 @@ from numpy.typing import NDArray
 from .drift_summary import MOUNT_AXES, Z95, DriftSummary, state_runs
 
 #: decimals a number is written with, by unit
-DECIMALS: dict[str, int] = {"deg": 3, "m": 4, "s": 1, "%": 1, "rate": 4, "": 3}
+DECIMALS: dict[str, int] = {"deg": 3, "m": 4, "s": 1, "%": 2, "rate": 4, "": 3,
+                             "deg error": 4, "m error": 5}
 STATE_COLORS: dict[str, str] = {
     "UNCALIBRATED": "#bdbdbd", "CALIBRATED": "#4caf50", "DRIFTING": "#ffb300",
     "RECALIBRATE": "#e53935", "INVALID": "#8e24aa", "HOLD": "#90a4ae",

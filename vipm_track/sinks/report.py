@@ -496,7 +496,7 @@ def _markdown(title: str, track: Path, gt: str | Path | None, est: Mapping,
         for name, s in errors.items():
             if not s.get("n"):
                 continue
-            u = _unit(name)
+            u = _unit(name) + " error" if _unit(name) in ("deg", "m") else _unit(name)
             lines.append(f"| {name} | {int(s['n'])} | {fmt(s['bias'], u, True)} | "
                          f"{fmt(s['std'], u)} | {fmt(s['rms'], u)} | {fmt(s['median_abs'], u)} "
                          f"| {fmt(s['p95_abs'], u)} | {fmt(s['max_abs'], u)} |")
