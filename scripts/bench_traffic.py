@@ -8,7 +8,8 @@ the results). Per run:
 
 - ok share of the moving pairs, and the ``ok`` pairs whose pitch or roll is more than 1.5°
   from the truth (renders: the pose itself; KITTI, whose poses give no pose against the road:
-  the pose *change* within the pair, ``pitch − prev_pitch``);
+  the pose *change* within the pair, ``pitch − prev_pitch``), and of those the confidently
+  wrong: also more than three of their own stated standard deviations off;
 - the ground-normal error (renders: the angle between the estimated and true road normal in
   the camera frame, mean over ok pairs) and the RMS error of the pose change;
 - z RMS: error over the stated standard deviation (renders: pitch and roll; both: their
@@ -98,18 +99,25 @@ def score(est: dict, truth: dict, absolute: bool) -> dict[str, float]:
         out[f"{angle}_change_rms_deg"] = float(np.sqrt(np.mean(e**2)))
         out[f"{angle}_change_z_rms"] = float(np.sqrt(np.mean(change_z[-1] ** 2)))
     if absolute:
-        errs = []
+        errs, zs = [], []
         for angle in ("pitch", "roll"):
             e = est[f"{angle}_deg"][r] - truth[f"{angle}_deg"][t]
             errs.append(np.abs(e))
-            out[f"{angle}_z_rms"] = float(np.sqrt(np.mean((e / est[f"{angle}_std_deg"][r]) ** 2)))
+            zs.append(np.abs(e) / est[f"{angle}_std_deg"][r])
+            out[f"{angle}_z_rms"] = float(np.sqrt(np.mean(zs[-1] ** 2)))
         wrong = (errs[0] > WRONG_DEG) | (errs[1] > WRONG_DEG)
+        # confidently wrong: beyond 1.5° and beyond three of its own stated σ
+        out["confident_wrong_ok"] = float(np.count_nonzero(
+            ((errs[0] > WRONG_DEG) & (zs[0] > 3)) | ((errs[1] > WRONG_DEG) & (zs[1] > 3))))
         n_est = _normal(est["pitch_deg"][r], est["roll_deg"][r])
         n_true = _normal(truth["pitch_deg"][t], truth["roll_deg"][t])
         cos = np.clip(np.sum(n_est * n_true, axis=1), -1, 1)
         out["normal_err_mean_deg"] = float(np.degrees(np.mean(np.arccos(cos))))
     else:
         wrong = (np.abs(change_err[0]) > WRONG_DEG) | (np.abs(change_err[1]) > WRONG_DEG)
+        out["confident_wrong_ok"] = float(np.count_nonzero(
+            ((np.abs(change_err[0]) > WRONG_DEG) & (np.abs(change_z[0]) > 3))
+            | ((np.abs(change_err[1]) > WRONG_DEG) & (np.abs(change_z[1]) > 3))))
         # the pose itself: the truth's changes summed give it against the first frame; a
         # slow (4 s) median of what is left takes out the road's grade and camber
         from scipy.ndimage import median_filter
@@ -166,6 +174,7 @@ def mount_error(out_dir: Path, sequence: Path, est_csv: Path, height: float,
 
 COLUMNS = [
     ("ok_pct", "ok %", "{:.1f}"), ("wrong_ok", "ok > 1.5° off", "{:.0f}"),
+    ("confident_wrong_ok", "… and > 3σ", "{:.0f}"),
     ("normal_err_mean_deg", "normal err °", "{:.3f}"),
     ("pitch_z_rms", "z pitch", "{:.2f}"), ("roll_z_rms", "z roll", "{:.2f}"),
     ("pitch_change_rms_deg", "Δpitch RMS °", "{:.3f}"),

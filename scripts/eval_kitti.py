@@ -24,7 +24,6 @@ a change that only moves rounding can move the numbers above.
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import shlex
 import sys
@@ -38,12 +37,11 @@ sys.path.insert(0, str(ROOT))
 
 from vipm_track.cli import main as cli_main  # noqa: E402
 from vipm_track.evaluate import error_stats, error_table, frame_errors  # noqa: E402
-from vipm_track.kitti import planar_motion, read_poses  # noqa: E402
+from vipm_track.kitti import KITTI_PITCH_DEG, kitti_truth_table  # noqa: E402
 from vipm_track.table import read_table  # noqa: E402
 
 #: KITTI set-up: camera 1.65 m above the road, nearly level (pitch ~1°, looking down).
 KITTI_HEIGHT = 1.65
-KITTI_PITCH_DEG = 1.0
 
 TARGETS = {"ok_share_pct": 95.0, "distance_pct_median": 3.0, "yaw_deg_median": 0.1}
 
@@ -100,15 +98,8 @@ def draws_table(by_seed: dict[int, dict], jittered: list[float]) -> list[str]:
 
 
 def truth_table(data: Path, pitch_deg: float = KITTI_PITCH_DEG) -> dict[str, np.ndarray]:
-    """Ground truth of frames 1..N-1 as estimate-table columns (see ``vipm_track.kitti``)."""
-    gt = planar_motion(read_poses(data / "poses.txt"), math.radians(pitch_deg))
-    n = gt.tx.size
-    return {
-        "frame": np.arange(1, n + 1),
-        "tx_m": gt.tx, "tz_m": gt.tz, "yaw_deg": np.degrees(gt.yaw),
-        "pitch_deg": np.degrees(gt.pitch), "roll_deg": np.degrees(gt.roll),
-        "prev_pitch_deg": np.full(n, pitch_deg), "prev_roll_deg": np.zeros(n),
-    }
+    """Ground truth of frames 1..N-1 as estimate-table columns (``kitti.kitti_truth_table``)."""
+    return kitti_truth_table(data / "poses.txt", pitch_deg)
 
 
 def evaluate(est_csv: Path, data: Path) -> tuple[dict, dict]:

@@ -328,6 +328,7 @@ def test_report_drift_and_without_truth(tmp_path: Path) -> None:
         _non_trivial_png(path)
     pitch = report.summary["pitch_deg"]
     assert pitch["slope_per_min"] == pytest.approx(0.5, rel=1e-6)
+    assert pitch["slope_std_per_min"] == pytest.approx(0.0, abs=1e-9)
     assert pitch["end_minus_start"] == pytest.approx(0.5 * (t[-12] - t[11]) / 60, rel=0.05)
     assert report.summary["roll_deg"]["std"] == pytest.approx(0.0, abs=1e-12)
 
@@ -465,12 +466,11 @@ def test_report_of_monitor_table(tmp_path: Path, monitor_drive) -> None:
     report = write_report(out, tmp_path / "rep")
     _non_trivial_png(report.plots["monitor"])
     text = report.markdown.read_text()
-    line = next(x for x in text.splitlines() if x.startswith("- pitch: "))
+    row = next(x for x in text.splitlines() if x.startswith("| pitch [deg] | "))
     value, lo, hi = (float(v) for v in
-                     line.removeprefix("- pitch: ").replace("[", "").replace("]", "")
-                     .replace(",", "").split()[:3])
+                     row.split("|")[2].replace("[", "").replace("]", "").replace(",", "").split())
     assert lo <= value <= hi and value == pytest.approx(4.0, abs=0.15)
-    assert "RECALIBRATE" in text.split("New extrinsics at frame")[1].splitlines()[0]
+    assert "Monitor: now **RECALIBRATE**" in text
 
 
 def test_frame_errors_include_height(tmp_path: Path) -> None:

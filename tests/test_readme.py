@@ -242,13 +242,22 @@ def test_other_status_rows_quote_the_results_files():
     wrong = sum(int(r[5]) for r in rows)
     rms = [float(r[6]) for r in rows]
     assert f"| {wrong} of {drives}; {_range(rms, '.1f')} ms |" in _status("clock offset")
-    speed = [r for r in _rows(RESULTS / "bench_speed.md") if len(r) == 7 and r[0] != "preset"]
-    assert f"| {_range([float(r[5]) for r in speed], '.1f')} % |" in _status("dashboards")
+    rerun = [r for r in _rows(RESULTS / "bench_rerun.md") if len(r) == 7 and r[0] != "preset"]
+    hour = [float(r[3]) for r in _rows(RESULTS / "bench_rerun.md")
+            if len(r) == 4 and r[1].startswith("default")]
+    assert (f"| {_range([float(r[5]) for r in rerun], '.1f')} %; {_range(hour, '.2f')} GB |"
+            in _status("dashboards"))
     bite = (RESULTS / "check_tests_bite.md").read_text()
     caught, total = re.search(r"(\d+) of (\d+) mutants caught", bite).groups()
     assert f"| {caught} of {total} |" in _status("tests")
-    traffic = [r for r in _rows(RESULTS / "bench_traffic.md") if len(r) == 16]
-    wrong = [int(r[2]) for r in traffic if "seed" in r[0] and "no --pitch" in r[0]]
+    traffic = [r for r in _rows(RESULTS / "bench_traffic.md") if len(r) == 17]
+    renders = [r for r in traffic if "seed" in r[0] and "no --pitch" in r[0]]
+    wrong = [int(r[2]) for r in renders]
+    confident = [int(r[3]) for r in renders]
     kitti = next(r for r in traffic if r[0] == "KITTI 07 (no --pitch)")
-    assert (f"| {_range(wrong, 'd')}; {kitti[4]} / {kitti[5]} |"
-            in _status("forward cameras in traffic"))
+    assert (f"| {_range(wrong, 'd')} ({_range(confident, 'd')} beyond 3σ); {kitti[5]} / "
+            f"{kitti[6]} |" in _status("traffic, forward camera"))
+    live = [r for r in _rows(RESULTS / "bench_live.md") if len(r) == 12 and r[0] == "10"]
+    assert (f"| {_range([float(r[9]) for r in live], '.2f')} s; "
+            f"{max(int(r[10]) for r in live)}; {_range([float(r[11]) for r in live], '.2f')} s |"
+            in _status("live monitoring"))

@@ -156,22 +156,27 @@ def block_jackknife_covariance(
 ) -> FloatArray:
     """Delete-a-block jackknife covariance of the fit at ``x`` on the points ``idx``: the
     points split into ``columns`` × ``rows`` blocks by their image position (quantiles), each
-    block left out in turn and the fit redone from ``x``;
-    ``(G − 1)/G · Σ (x_g − x̄)(x_g − x̄)ᵀ``. Unlike ``covariance_from_jacobian`` it does not
-    take the points' errors as independent: what the model misses on real frames (a road
-    that is not one plane, patches on a kerb or a vehicle's lower edge) is shared by
-    neighbouring patches, and leaving their block out moves the fit by what they held."""
+    block left out in turn; ``(G − 1)/G · Σ (x_g − x̄)(x_g − x̄)ᵀ``. Each ``x_g`` is one
+    Gauss–Newton step from ``x`` on the remaining points (the linearised jackknife: ``x`` is
+    the optimum of all points, so the step is small and one Jacobian serves every block).
+    Unlike ``covariance_from_jacobian`` it does not take the points' errors as independent:
+    what the model misses on real frames (a road that is not one plane, patches on a kerb or
+    a vehicle's lower edge) is shared by neighbouring patches, and leaving their block out
+    moves the fit by what they held."""
     n = len(x)
     px = model.pixels_prev[idx]
     col = np.searchsorted(np.quantile(px[:, 0], np.linspace(0, 1, columns + 1)[1:-1]), px[:, 0])
     row = np.searchsorted(np.quantile(px[:, 1], np.linspace(0, 1, rows + 1)[1:-1]), px[:, 1])
     block = col * rows + row
+    jac, res = model.jacobian(x, idx), model.residuals(x, idx)
+    # two residual rows per point, then the prior's (never left out)
+    row_block = np.concatenate([np.repeat(block, 2), np.full(model.n_prior, -1)])
     fits = []
     for g in np.unique(block):
-        keep = idx[block != g]
-        if keep.size < max(8, n):
+        if np.count_nonzero(block != g) < max(8, n):
             continue
-        fits.append(fit_lm(model, x, keep, max_nfev=30)[0])
+        keep = row_block != g
+        fits.append(x - np.linalg.lstsq(jac[keep], res[keep], rcond=None)[0])
     if len(fits) < 3:
         return np.full((n, n), np.nan)
     d = np.array(fits) - np.mean(fits, axis=0)

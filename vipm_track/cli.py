@@ -24,6 +24,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
                "calibration"),
     "monitor": ("monitor", "is the camera still calibrated? per-frame state and recalibration "
                 "events"),
+    "live": ("live", "monitor a camera and a CAN bus in real time: rows, state changes, "
+             "summary"),
     "fleet": ("fleet", "many logged drives on Dask: estimate, smooth, summarise and monitor "
               "each; partitioned Parquet and a fleet report"),
     "can-speed": ("can_speed", "decode wheel speed from a CAN log or bus to t,speed_mps CSV"),

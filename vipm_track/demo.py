@@ -57,7 +57,7 @@ from .pipeline import SequenceStep
 from .resources import data_path
 from .runs import estimate_sequence
 from .sim import PRESETS, simulate_sequence
-from .sinks.report import write_demo_figure
+from .sinks.demo_figure import write_demo_figure
 from .sources import open_source
 from .table import TableWriter, read_table
 
@@ -376,7 +376,8 @@ def log_demo(sink: Any, result: DemoResult, tables: Mapping[str, Mapping[str, ND
     """Log the stages' tables, the truth, the monitor and the knock to a rerun ``sink``
     (``RerunSink``): the pairs as ``per_frame``, the EKF's frame pose as ``filtered``, the
     smoother's as ``smoothed`` and its mount (the one the summary reports) as ``mount``, the
-    true mount as ``series/{pitch,roll,height}/mount_truth``."""
+    true mount as ``series/{pitch,roll,height}/mount_truth``, the nominal with its
+    tolerances."""
 
     def without_mount(table: Mapping[str, NDArray]) -> dict[str, NDArray]:
         return {k: v for k, v in table.items() if not k.startswith("mount_")}
@@ -390,6 +391,7 @@ def log_demo(sink: Any, result: DemoResult, tables: Mapping[str, Mapping[str, ND
             sink.log_scalars(int(frame), float(truth["t"][k]), {
                 f"series/{axis}/mount_truth": float(truth[f"mount_{axis}_{unit}"][k])
                 for axis, unit in (("pitch", "deg"), ("roll", "deg"), ("height", "m"))})
+    sink.log_nominal(truth["frame"], truth["t"], result.nominal)
     for output in result.monitor:
         sink.log_monitor(output)
     if result.knock_s is not None:

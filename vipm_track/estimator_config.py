@@ -19,9 +19,7 @@ LEVEL_MAX_PITCH_DEG = 10.0
 
 #: forward reach of a level camera's automatic region of interest, camera heights: beyond
 #: it the road's image is over 10x more compressed along than across the road, and leaving
-#: it out made the estimates better (rendered level cars at 3°: pitch error 0.086 → 0.037°
-#: RMS, distance 0.33 → 0.10 % median; KITTI 07: median distance error 3.28 → 2.62 %,
-#: three seeds; 8 h was better on renders, worse in KITTI's tail; docs/kitti.md)
+#: it out made the estimates better on renders and real frames alike (docs/kitti.md)
 LEVEL_ROI_RANGE_H = 10.0
 #: pitch steps from the nominal pose [deg] of the cold starts tried, in turn, where the
 #: nominal one fails (too few inliers, no convergence): the further the vehicle moves per
@@ -143,17 +141,15 @@ class EstimatorConfig:
         weighted residuals of precise near-field patches are a few hundredths of a pixel,
         so a patch half on an obstacle is gross there but within the fixed 1.5 px.
         None (default) for these three: on (6 for the factor) for steep cameras, off for
-        forward-looking ones (measured on KITTI 07: median distance error 2.8 % → 3.6 %,
-        frames ok 96 % → 93 %; the far field of a level camera is not modelled by the
-        noise model's single magnification term).
+        forward-looking ones (the far field of a level camera is not modelled by the
+        noise model's single magnification term; docs/kitti.md).
     moved_ipm : refinements warp frame k onto frame k-1's IPM plane moved by the current
         motion estimate, so that the patches match with no offset and no rotation (in a
         turn the rotation within a patch biases POC); off: each frame on its own plane with
         the patch windows offset by the predicted displacement (the paper's). None
-        (default): on for steep cameras (cart turning 1.5°/frame: pitch/roll error 0.04° /
-        0.12° → 0.005° / 0.006°), off for forward-looking ones (KITTI 07: frames ok 96 → 99 %
-        with the turn at frames 138-143, but on the frames ok either way mean distance error
-        3.8 → 4.2 % and p95 10 → 13 %, three seeds).
+        (default): on for steep cameras (a turning cart's pose error falls tenfold), off for
+        forward-looking ones (more pairs ok in sharp turns, but less accurate travel on
+        the pairs ok either way; docs/kitti.md).
     seed : seed of the subset sampler (runs are deterministic).
     keep_images : keep the last refinement's IPM images in the result.
     """

@@ -84,3 +84,44 @@ def planar_motion(poses: NDArray, pitch: float = 0.0, roll: float = 0.0) -> Kitt
     yaw = np.arctan2(r_g_ck[:, 0, 2], r_g_ck[:, 2, 2])
     pr = np.array([pose_from_rotation(rot_y(a).T @ r) for a, r in zip(yaw, r_g_ck, strict=True)])
     return KittiMotion(t_g[:, 0], t_g[:, 2], yaw, pr[:, 0], pr[:, 1], pitch, roll)
+
+
+#: pitch of the KITTI camera against the road assumed for the truth's motion [deg]: the
+#: camera is near level, and the motion hardly depends on it (module doc)
+KITTI_PITCH_DEG = 1.0
+
+
+def is_kitti_poses(path: str | Path) -> bool:
+    """Whether ``path`` looks like a KITTI ``poses.txt``: its first line is 12 numbers."""
+    path = Path(path)
+    if not path.is_file() or path.suffix.lower() in (".csv", ".parquet"):
+        return False
+    with path.open("rb") as f:
+        first = f.readline(4096).decode("utf-8", errors="replace").split()
+    try:
+        return len(first) == 12 and all(np.isfinite(float(v)) for v in first)
+    except ValueError:
+        return False
+
+
+def kitti_truth_table(path: str | Path, pitch_deg: float = KITTI_PITCH_DEG,
+                      ) -> dict[str, NDArray]:
+    """Ground truth of frames 1..N-1 of a KITTI ``poses.txt`` as per-frame table columns
+    (``table.read_table`` layout): ``frame``, ``t`` (from ``times.txt`` beside it, where
+    there), ``tx_m``, ``tz_m``, ``yaw_deg`` and the pitch/roll of frames k and k-1 around the
+    nominal ``pitch_deg`` (only their *changes* are truth: module doc)."""
+    path = Path(path)
+    gt = planar_motion(read_poses(path), np.radians(pitch_deg))
+    n = gt.tx.size
+    table: dict[str, NDArray] = {
+        "frame": np.arange(1, n + 1),
+        "tx_m": gt.tx, "tz_m": gt.tz, "yaw_deg": np.degrees(gt.yaw),
+        "pitch_deg": np.degrees(gt.pitch), "roll_deg": np.degrees(gt.roll),
+        "prev_pitch_deg": np.full(n, pitch_deg), "prev_roll_deg": np.zeros(n),
+    }
+    times = path.with_name("times.txt")
+    if times.is_file():
+        t = np.array([float(v) for v in times.read_text().split()], dtype=float)
+        if t.size >= n + 1:
+            table["t"] = t[1 : n + 1]
+    return table

@@ -9,8 +9,8 @@ patches: a drive may start standing) from the configured pitch; only if that fai
 motion" included, since the 60° start's patches on a level camera sit partly on the sky,
 which stands still — does it try the pair from each of ``CANDIDATE_PITCHES_DEG`` and keep the
 converged estimate with the smallest residual (a wrong start that converges — a steep pitch
-with a short travel on a level camera, the second minimum of issue 5 — fits the patches
-worse). A default start that converges far (more than ``SETTLE_PITCH_DEG``) from the
+with a short travel on a level camera, the pitch/travel trade-off's second minimum — fits
+the patches worse). A default start that converges far (more than ``SETTLE_PITCH_DEG``) from the
 configured pitch is kept too: a camera 35° down converges from 60° but sits on the edge of
 the plausible window, and half its frames would be rejected as implausible. The pose is
 settled on the next few pairs (the median pose of pairs started from it, repeated until it
@@ -276,8 +276,8 @@ def _best_start(
     The settings that shape the residual itself are the same for every start (seven
     parameters, patches weighted alike, the fixed inlier threshold): with the per-camera
     defaults a steep start had an eighth parameter and a self-tightening threshold, and on
-    KITTI 07 the 12° start beat the level ones by that alone (settling at 13°: distance error
-    47 %). The region of interest, the number of refinements and the pose prior still follow
+    a real level camera a steep start beat the level ones by that alone, settling far from
+    the truth. The region of interest, the number of refinements and the pose prior still follow
     each start's camera type."""
     from .estimator import TwoFrameEstimator
     from .estimator_config import REFINEMENT_WEIGHTING

@@ -315,10 +315,13 @@ def crop_patches(image: ArrayLike, centres: ArrayLike, size: int | tuple[int, in
     height, width = img.shape
     inside = (known & (corner[:, 0] >= 0) & (corner[:, 1] >= 0)
               & (corner[:, 0] + pw <= width) & (corner[:, 1] + ph <= height))
-    patches = np.full((len(corner), ph, pw), np.nan, np.float32)
-    if inside.any():
-        view = np.lib.stride_tricks.sliding_window_view(img, (ph, pw))
-        patches[inside] = view[corner[inside, 1], corner[inside, 0]]
+    # slice copies into an uninitialised batch: half the memory traffic of a NaN-filled
+    # batch overwritten by a fancy-indexed gather
+    patches = np.empty((len(corner), ph, pw), np.float32)
+    for i in np.flatnonzero(inside):
+        x, y = corner[i]
+        patches[i] = img[y: y + ph, x: x + pw]
+    patches[~inside] = np.nan
     return (patches, inside) if return_mask else patches
 
 

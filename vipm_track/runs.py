@@ -4,7 +4,6 @@ streamed into an estimates table with a summary of what came out."""
 
 from __future__ import annotations
 
-import sys
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -133,7 +132,8 @@ def estimate_sequence(
     """Run ``source`` and stream one row per frame into the CSV ``out`` (and Parquet beside it
     with ``parquet``). Rows are flushed as they come, so an interrupted run keeps them.
 
-    ``progress``: show a tqdm bar on stderr (``None``: only when stderr is a terminal).
+    ``progress``: show progress on stderr (``progress.progress_bar``: a bar on a terminal, a
+    line every few seconds where stderr is a file or a pipe; ``None``: as True).
     ``on_step`` is called with every step (e.g. a live display); ``estimator`` replaces the
     one built from ``camera``, ``height`` and ``config``; ``workers``, ``chunk_frames``: as
     :func:`sequence_steps`."""
@@ -142,7 +142,7 @@ def estimate_sequence(
     out = Path(out)
     parquet_path = out.with_suffix(".parquet") if parquet else None
     if progress is None:
-        progress = sys.stderr.isatty()
+        progress = True
     summary = RunSummary()
     start = time.perf_counter()
     steps = sequence_steps(source, camera, height, config, tracking, estimator, workers,

@@ -248,7 +248,12 @@ def add_rerun_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--rerun", metavar="OUT.rrd", help="write a rerun recording")
     group.add_argument("--rerun-spawn", action="store_true", help="spawn a rerun viewer")
     group.add_argument("--rerun-connect", metavar="ADDR", help="stream to a running viewer")
-    group.add_argument("--rerun-image-every", type=int, default=1, metavar="N",
-                       help="log the camera/IPM images of every N-th pair (0: none; default 1)")
+    images = group.add_mutually_exclusive_group()
+    images.add_argument("--rerun-image-every", type=int, default=None, metavar="N",
+                        help="log the camera/IPM images of every N-th pair (0: none). Default: "
+                        "one pair's images every 2 s of the recording (every 20th pair without "
+                        "timestamps), so an hour of a 30 fps camera costs under 1 GB")
+    images.add_argument("--rerun-all-images", action="store_true",
+                        help="log every pair's images (several GB per hour of video)")
     group.add_argument("--rerun-jpeg-quality", type=int, default=75, metavar="Q",
                        help="JPEG quality of logged images, 1-100 (default 75)")

@@ -89,7 +89,9 @@ def run(args: argparse.Namespace) -> int:
     rendered = time.perf_counter() - start
     config = with_searched_readout(args, open_source(images=drive.images), preset.camera(),
                                    preset.height_m, config)
-    sink = sink_from_args(args, "vipm-track demo")
+    # a demo is short: every pair's images unless the options say otherwise
+    images = {} if args.rerun_image_every is not None else {"image_every": 1}
+    sink = sink_from_args(args, "vipm-track demo", layout="drift", **images)
     try:
         result = run_demo(drive, out, config, tracking=not args.no_tracking,
                           workers=args.workers, sink=sink, progress=progress,

@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         summary = estimate_sequence(
             logging.source, camera, height, out, logging.config, tracking=not args.no_tracking,
-            parquet=args.parquet, progress=None if not args.quiet else False,
+            parquet=args.parquet, progress=not args.quiet,
             on_step=logging.on_step, **parallel,
         )
     finally:

@@ -312,6 +312,16 @@ def estimate_stream(
         yield step_measurement(step, height)
 
 
+def frame_total(args: argparse.Namespace) -> int:
+    """Frames ``--images`` / ``--video`` hold within ``--start`` / ``--max-frames`` (a
+    folder's images, a video's frame count): the total a progress bar counts to."""
+    from ..sources import open_source
+
+    return len(open_source(images=args.images, video=args.video, fps=args.fps,
+                           start=getattr(args, "start", 0),
+                           max_frames=getattr(args, "max_frames", None)))
+
+
 def measurements_from_args(
     args: argparse.Namespace,
     height: float,
@@ -341,7 +351,7 @@ def measurements_from_args(
     if progress:
         from ..progress import progress_bar
 
-        stream = progress_bar(stream, desc="estimate", unit="frame")
+        stream = progress_bar(stream, desc="estimate", unit="frame", total=frame_total(args))
     out = collect_until_interrupt(stream)
     if not out.items:
         if out.interrupted:

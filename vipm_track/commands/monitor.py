@@ -100,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
     from ..sinks.rerun_filters import log_monitor_run
     from .rerun_options import sink_from_args
 
-    sink = sink_from_args(args, "vipm-track monitor")
+    sink = sink_from_args(args, "vipm-track monitor", layout="drift")
     # the cold start of the estimator is seeded with the nominal calibration
     config = None if args.estimates or camera is None else estimator_config(
         args, camera, pitch_deg=nominal.pitch_deg, roll_deg=nominal.roll_deg)
@@ -132,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if events is not None:
             events.close()
-    log_monitor_run(sink, measurements, states, outputs, progress)
+    log_monitor_run(sink, measurements, states, outputs, progress, nominal)
     if progress:
         counts = Counter(o.state for o in outputs)
         summary = ", ".join(f"{k} {v}" for k, v in counts.most_common())

@@ -20,8 +20,11 @@ def sink_from_args(args: argparse.Namespace, app_id: str, **options: Any) -> Rer
     """The sink the ``--rerun OUT.rrd`` / ``--rerun-spawn`` / ``--rerun-connect ADDR`` flags ask
     for (any combination), or None. ``--rerun-image-every`` and ``--rerun-jpeg-quality`` are
     read where the parser has them; ``options`` override them."""
+    every = getattr(args, "rerun_image_every", None)
+    if getattr(args, "rerun_all_images", False):
+        every = 1
     settings = {
-        "image_every": getattr(args, "rerun_image_every", 1),
+        "image_every": every,
         "jpeg_quality": getattr(args, "rerun_jpeg_quality", 75),
         **options,
     }

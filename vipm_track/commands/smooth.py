@@ -189,7 +189,7 @@ def run(args: argparse.Namespace) -> int:
     from ..sinks.rerun_filters import log_filter_run
     from .rerun_options import sink_from_args
 
-    sink = sink_from_args(args, "vipm-track smooth")
+    sink = sink_from_args(args, "vipm-track smooth", layout="drift")
     measurements = measurements_from_args(args, config.height_m, sink=sink,
                                           progress=not args.quiet)
     speed, clock_fit = speed_on_camera_clock(args, speed, measurements)

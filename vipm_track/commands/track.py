@@ -22,6 +22,7 @@ from .estimator_options import add_estimator_options, add_parallel_options
 from .inputs import (
     check_speed_overlap,
     estimate_stream,
+    frame_total,
     load_speed,
     measurements_from_args,
     read_estimates,
@@ -69,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     from ..sinks.rerun_filters import log_track_steps
     from .rerun_options import sink_from_args
 
-    sink = sink_from_args(args, "vipm-track track")
+    sink = sink_from_args(args, "vipm-track track", layout="drift")
     if args.clock_offset == "auto" and speed is not None:
         # the offset is found against every pair, so the estimates come first here
         measurements = measurements_from_args(args, height, sink=sink, progress=not args.quiet)
@@ -86,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
         stream = iter(measurements)
         total = len(measurements)
     elif args.images or args.video:
-        stream, total = estimate_stream(args, height, sink=sink), None
+        stream, total = estimate_stream(args, height, sink=sink), frame_total(args)
     else:
         raise InputError("give --images DIR, --video FILE or --estimates EST.csv")
 

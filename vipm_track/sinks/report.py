@@ -18,9 +18,6 @@ Parquet, CONVENTIONS.md columns) and, optionally, a ground-truth table (``gt.csv
   against ground truth; statuses; monitor states, transitions and the last new extrinsics)
   and the plots.
 
-:func:`write_demo_figure` draws one PNG of a monitored drive against its truth (``vipm-track
-demo``): pose, mount with its 95 % band, monitor state, the knock marked.
-
 A row is plotted and scored where its numbers are finite (CONVENTIONS.md: rows without an
 estimate have empty numbers), whatever its status word (a filter's ``partial`` rows count).
 """
@@ -39,10 +36,15 @@ from numpy.typing import NDArray
 
 from ..errors import InputError
 from ..evaluate import frame_errors
+from ..kitti import is_kitti_poses, kitti_truth_table
 from ..table import read_table
+from .drift_report import STATE_COLORS, drift_figure, fmt, summary_lines, write_html
+from .drift_summary import MIN_RATE_SPAN_S, DriftSummary, state_runs, summarize_drift
 from .trajectory import planar_path
 
 BAND_SIGMA = 2.0
+#: columns of a KITTI truth that hold the assumed nominal pose, not a measured one
+RELATIVE_ONLY = frozenset({"pitch_deg", "roll_deg", "prev_pitch_deg", "prev_roll_deg"})
 #: (column, std column, label, unit) of the pose panels.
 POSE_PANELS: tuple[tuple[str, str, str, str], ...] = (
     ("pitch_deg", "pitch_std_deg", "pitch", "deg"),
@@ -62,10 +64,6 @@ ERROR_PANELS: dict[str, tuple[str, str]] = {
     "distance_m": ("travel per frame", "m"),
     "yaw_deg": ("yaw per frame", "deg"),
 }
-STATE_COLORS: dict[str, str] = {
-    "UNCALIBRATED": "#bdbdbd", "CALIBRATED": "#4caf50", "DRIFTING": "#ffb300",
-    "RECALIBRATE": "#e53935", "INVALID": "#8e24aa", "HOLD": "#90a4ae",
-}
 EST_COLOR, TRUTH_COLOR = "tab:blue", "0.25"
 #: Deviation columns of a monitor table (``vipm-track monitor``): 1 s mean pose − nominal.
 MONITOR_DEVIATIONS: tuple[str, ...] = ("dev_pitch_deg", "dev_roll_deg", "dev_height_m")
@@ -79,14 +77,17 @@ MONITOR_AXES: tuple[tuple[str, str, str, str, str, str], ...] = (
 
 @dataclass(frozen=True)
 class Report:
-    """What :func:`write_report` wrote: the plots (name → path), the Markdown file and the
-    summary numbers it holds (axis → statistic → value, in the table's units)."""
+    """What :func:`write_report` wrote: the plots (name → path), the Markdown file (and the
+    HTML page, or None), the summary numbers (axis → statistic → value, in the table's units),
+    the errors against ground truth and the calibration summary (None without mount columns)."""
 
     out: Path
     plots: dict[str, Path]
     markdown: Path
     summary: dict[str, dict[str, float]] = field(default_factory=dict)
     errors: dict[str, dict[str, float]] = field(default_factory=dict)
+    drift: DriftSummary | None = None
+    html: Path | None = None
 
 
 def write_report(
@@ -94,20 +95,30 @@ def write_report(
     out: str | Path,
     gt: str | Path | None = None,
     title: str | None = None,
+    *,
+    nominal: object | None = None,
+    html: bool = False,
+    start: int = 0,
+    max_frames: int | None = None,
 ) -> Report:
-    """Write the plots and ``report.md`` of the table ``track`` (optional ground truth ``gt``)
-    into the folder ``out`` (see module doc). Raises :class:`InputError` naming the file for
-    a missing/unreadable table or one without any pose column."""
+    """Write the plots and ``report.md`` of the table ``track`` (optional ground truth ``gt``:
+    a table of our format or a KITTI ``poses.txt``) into the folder ``out`` (see module doc).
+    ``nominal``: a ``filters.nominal.NominalCalibration`` the mount is held against; ``html``:
+    also ``report.html``, one self-contained page; ``start``/``max_frames``: the rows of frames
+    ``start`` on, at most ``max_frames`` of them. Raises :class:`InputError` naming the file
+    for a missing/unreadable table or one without any pose column."""
     track, out = Path(track), Path(out)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a folder")
-    est = read_table(track)
+    est = window_rows(read_table(track), start, max_frames)
     if not any(c in est for c, *_ in POSE_PANELS + MOTION_PANELS):
         raise InputError(f"{track}: no pose or motion column (pitch_deg, roll_deg, height_m, "
                          "tx_m, tz_m, yaw_deg); is this a per-frame table?")
     if len(est["frame"]) == 0:
-        raise InputError(f"{track}: the table has no rows")
-    truth = read_table(gt) if gt is not None else None
+        raise InputError(f"{track}: the table has no rows"
+                         + (f" from frame {start}" if start else ""))
+    truth = read_truth(gt) if gt is not None else None
+    relative = gt is not None and is_kitti_poses(gt)  # only pitch/roll changes are truth
     title = title or track.name
     out.mkdir(parents=True, exist_ok=True)
     x, x_label = _time_axis(est)
@@ -117,12 +128,19 @@ def write_report(
 
     plt = _pyplot()
     plots: dict[str, Path] = {}
+    drift = summarize_drift(est, nominal, truth) if _has_time(est) else None
+    if drift is not None:
+        plots["drift"] = drift_figure(plt, est, drift, nominal, truth, out / "drift.png",
+                                      f"{title}: calibration")
     plots["pitch_roll_height"] = _series_figure(
         plt, est, truth, x, x_truth, x_label, POSE_PANELS, out / "pitch_roll_height.png",
         f"{title}: pose against the ground")
     errors: dict[str, NDArray] = {}
     if truth is not None:
         errors = frame_errors(est, truth, scored="finite")
+        if relative:
+            errors = {k: v for k, v in errors.items() if k not in RELATIVE_ONLY}
+            truth = {k: v for k, v in truth.items() if k not in RELATIVE_ONLY}
         if len(errors.get("frame", ())):
             plots["errors"] = _errors_figure(plt, est, errors, x_label, out / "errors.png",
                                              f"{title}: error against ground truth")
@@ -136,8 +154,32 @@ def write_report(
     error_summary = {name: _abs_stats(values) for name, values in errors.items()
                      if name != "frame"}
     markdown = out / "report.md"
-    markdown.write_text(_markdown(title, track, gt, est, summary, error_summary, plots, out))
-    return Report(out, plots, markdown, summary, error_summary)
+    text = _markdown(title, track, gt, est, summary, error_summary, plots, out, drift)
+    markdown.write_text(text)
+    page = write_html(text, out, out / "report.html") if html else None
+    return Report(out, plots, markdown, summary, error_summary, drift, page)
+
+
+def window_rows(table: dict[str, NDArray], start: int = 0,
+                max_frames: int | None = None) -> dict[str, NDArray]:
+    """The rows of ``table`` whose frame is at least ``start``, at most ``max_frames`` of them
+    (``--start`` / ``--max-frames``; InputError for negative values)."""
+    if start < 0 or (max_frames is not None and max_frames < 1):
+        raise InputError(f"--start must be >= 0 and --max-frames >= 1, got {start} and "
+                         f"{max_frames}")
+    rows = np.flatnonzero(np.asarray(table["frame"]) >= start)
+    if max_frames is not None:
+        rows = rows[:max_frames]
+    return {name: np.asarray(values)[rows] for name, values in table.items()}
+
+
+def read_truth(path: str | Path) -> dict[str, NDArray]:
+    """Ground truth: a per-frame table (``gt.csv`` of ``vipm-track simulate``: CSV or
+    Parquet), or KITTI's ``poses.txt`` (``kitti.kitti_truth_table``: motion and pitch/roll
+    changes; its absolute pitch/roll are not known, so not scored)."""
+    if is_kitti_poses(path):
+        return kitti_truth_table(path)
+    return read_table(path)
 
 
 # --- numbers ---------------------------------------------------------------------------------
@@ -145,9 +187,12 @@ def write_report(
 
 def summarize(est: Mapping[str, NDArray]) -> dict[str, dict[str, float]]:
     """Per column of pose and motion: n, mean, std, min, max over the finite rows, and the
-    drift: ``slope_per_min`` (least-squares slope against ``t``, per minute) and
-    ``end_minus_start`` (median of the last tenth of the rows minus that of the first)."""
+    drift: ``end_minus_start`` (median of the last tenth of the rows minus that of the first)
+    and, where the rows span at least ``MIN_RATE_SPAN_S`` seconds, ``slope_per_min`` (the
+    least-squares slope against ``t``, per minute) with its standard error
+    ``slope_std_per_min`` (from 30 block means: the shaking is correlated frame to frame)."""
     x, _ = _time_axis(est)
+    timed = _has_time(est)
     out: dict[str, dict[str, float]] = {}
     for col, *_ in POSE_PANELS + MOTION_PANELS:
         if col not in est:
@@ -160,10 +205,17 @@ def summarize(est: Mapping[str, NDArray]) -> dict[str, dict[str, float]]:
         stats = {"n": float(vals.size), "mean": float(vals.mean()), "std": float(vals.std()),
                  "min": float(vals.min()), "max": float(vals.max())}
         if vals.size >= 3 and np.ptp(xs) > 0:
-            slope = np.polyfit(xs, vals, 1)[0]
-            stats["slope_per_min"] = float(slope * (60.0 if _has_time(est) else 1.0))
             tenth = max(1, vals.size // 10)
             stats["end_minus_start"] = float(np.median(vals[-tenth:]) - np.median(vals[:tenth]))
+        if timed and vals.size >= 10 and np.ptp(xs) >= MIN_RATE_SPAN_S:
+            blocks = min(30, vals.size // 2)
+            xb = np.array([b.mean() for b in np.array_split(xs / 60.0, blocks)])
+            vb = np.array([b.mean() for b in np.array_split(vals, blocks)])
+            (slope, icept), cov = np.polyfit(xb, vb, 1, cov="unscaled")
+            resid = vb - (slope * xb + icept)
+            stats["slope_per_min"] = float(slope)
+            stats["slope_std_per_min"] = float(np.sqrt(cov[0, 0] * (resid @ resid)
+                                                       / max(blocks - 2, 1)))
         out[col] = stats
     return out
 
@@ -257,7 +309,8 @@ def _errors_figure(plt: Any, est: Mapping, errors: Mapping[str, NDArray], x_labe
         ax.plot(x, e, ".-", color="tab:red", ms=3, lw=0.8)
         stats = _abs_stats(e)
         if stats["n"]:
-            ax.set_title(f"{label}: bias {stats['bias']:+.4g}, RMS {stats['rms']:.4g} {unit}",
+            ax.set_title(f"{label}: bias {fmt(stats['bias'], unit, True)}, RMS "
+                         f"{fmt(stats['rms'], unit)} {unit}",
                          fontsize=9, loc="left")
         ax.set_ylabel(f"Δ {label} [{unit}]")
         ax.grid(alpha=0.3)
@@ -318,7 +371,7 @@ def _monitor_figure(plt: Any, est: Mapping, x: NDArray, x_label: str, path: Path
     names = [s for s in STATE_COLORS if s in set(states)]
     names += sorted({s for s in states if s and s not in STATE_COLORS})
     level = {s: i for i, s in enumerate(names)}
-    for start, stop, state in _runs(states):
+    for start, stop, state in state_runs(states):
         if not state:
             continue
         x0 = x[start]
@@ -386,25 +439,20 @@ def _finite(table: Mapping, column: str) -> bool:
         return False
 
 
-def _runs(values: NDArray) -> list[tuple[int, int, Any]]:
-    """(start, stop, value) of the runs of equal consecutive values."""
-    if len(values) == 0:
-        return []
-    change = np.flatnonzero(values[1:] != values[:-1]) + 1
-    starts = np.concatenate([[0], change])
-    stops = np.concatenate([change, [len(values)]])
-    return [(int(a), int(b), values[a]) for a, b in zip(starts, stops, strict=True)]
-
-
 # --- markdown --------------------------------------------------------------------------------
 
 
-def _fmt(v: float, digits: int = 4) -> str:
-    return "–" if v is None or not np.isfinite(v) else f"{v:.{digits}g}"
+def _unit(column: str) -> str:
+    """The unit a column's numbers are written in (its name's suffix; ``fmt``)."""
+    for suffix, unit in (("_deg", "deg"), ("_m", "m"), ("_pct", "%")):
+        if column.endswith(suffix):
+            return unit
+    return ""
 
 
 def _markdown(title: str, track: Path, gt: str | Path | None, est: Mapping,
-              summary: dict, errors: dict, plots: dict[str, Path], out: Path) -> str:
+              summary: dict, errors: dict, plots: dict[str, Path], out: Path,
+              drift: DriftSummary | None = None) -> str:
     n = len(est["frame"])
     status = np.asarray(est.get("status", np.array(["ok"] * n, dtype=object)), dtype=object)
     counts = Counter(str(s) for s in status)
@@ -414,22 +462,31 @@ def _markdown(title: str, track: Path, gt: str | Path | None, est: Mapping,
              f"{int(est['frame'][-1])})"]
     if _has_time(est):
         t = np.asarray(est["t"], float)
-        lines.append(f"- time span: {t[0]:.3f}–{t[-1]:.3f} s ({t[-1] - t[0]:.2f} s)")
+        lines.append(f"- time span: {fmt(t[0], 's')}–{fmt(t[-1], 's')} s "
+                     f"({fmt(t[-1] - t[0], 's')} s)")
     if gt is not None:
         lines.append(f"- ground truth: `{gt}`")
     lines.append(f"- rows with a pose: {int(has_pose.sum())} / {n} "
                  f"({100.0 * has_pose.sum() / max(n, 1):.1f} %)")
     lines.append("- statuses: " + ", ".join(f"{s or '(empty)'} × {c}"
                                             for s, c in counts.most_common()))
+    if drift is not None:
+        lines += ["", "## Calibration", "", *summary_lines(drift)]
+        if "drift" in plots:
+            lines += ["", "![drift](drift.png)"]
     lines += ["", "## Per-frame values", "",
-              "Drift: least-squares slope (per minute of `t`, or per frame without time) and "
-              "median of the last tenth of the rows minus that of the first tenth.", "",
-              "| column | n | mean | std | min | max | slope / min | end − start |",
+              "End − start: median of the last tenth of the rows minus that of the first "
+              f"tenth. Drift: least-squares slope per minute ± its standard error, only over "
+              f"≥ {MIN_RATE_SPAN_S:.0f} s.", "",
+              "| column | n | mean | std | min | max | end − start | drift / min ± 1σ |",
               "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     for col, s in summary.items():
-        lines.append(f"| {col} | {int(s['n'])} | {_fmt(s['mean'])} | {_fmt(s['std'])} | "
-                     f"{_fmt(s['min'])} | {_fmt(s['max'])} | {_fmt(s.get('slope_per_min'))} | "
-                     f"{_fmt(s.get('end_minus_start'))} |")
+        u = _unit(col)
+        slope = (f"{fmt(s['slope_per_min'], 'rate', True)} ± "
+                 f"{fmt(s['slope_std_per_min'], 'rate')}" if "slope_per_min" in s else "–")
+        lines.append(f"| {col} | {int(s['n'])} | {fmt(s['mean'], u)} | {fmt(s['std'], u)} | "
+                     f"{fmt(s['min'], u)} | {fmt(s['max'], u)} | "
+                     f"{fmt(s.get('end_minus_start'), u, True)} | {slope} |")
     if errors:
         lines += ["", "## Error against ground truth", "",
                   "Estimate − truth over the frames both tables have (bias = mean signed "
@@ -439,13 +496,16 @@ def _markdown(title: str, track: Path, gt: str | Path | None, est: Mapping,
         for name, s in errors.items():
             if not s.get("n"):
                 continue
-            lines.append(f"| {name} | {int(s['n'])} | {_fmt(s['bias'])} | {_fmt(s['std'])} | "
-                         f"{_fmt(s['rms'])} | {_fmt(s['median_abs'])} | {_fmt(s['p95_abs'])} | "
-                         f"{_fmt(s['max_abs'])} |")
-    if "monitor_state" in est:
+            u = _unit(name) + " error" if _unit(name) in ("deg", "m") else _unit(name)
+            lines.append(f"| {name} | {int(s['n'])} | {fmt(s['bias'], u, True)} | "
+                         f"{fmt(s['std'], u)} | {fmt(s['rms'], u)} | {fmt(s['median_abs'], u)} "
+                         f"| {fmt(s['p95_abs'], u)} | {fmt(s['max_abs'], u)} |")
+    if "monitor_state" in est and (drift is None or drift.monitor is None):
         lines += ["", "## Monitor", "", *_monitor_lines(est)]
     lines += ["", "## Plots", ""]
     for name, path in plots.items():
+        if name == "drift":
+            continue
         rel = path.relative_to(out) if path.is_relative_to(out) else path
         lines.append(f"![{name}]({rel})")
     return "\n".join(lines) + "\n"
@@ -459,12 +519,12 @@ def _monitor_lines(est: Mapping) -> list[str]:
     lines = [f"| state | rows | {unit} |", "| --- | --- | --- |"]
     for state in dict.fromkeys(states):
         rows = states == state
-        lines.append(f"| {state or '(empty)'} | {int(rows.sum())} | {step[rows].sum():.2f} |")
-    runs = _runs(states)
+        lines.append(f"| {state or '(empty)'} | {int(rows.sum())} | {step[rows].sum():.1f} |")
+    runs = state_runs(states)
     lines += ["", f"Transitions ({max(len(runs) - 1, 0)}):", ""]
     for (_, _, before), (start, _, after) in list(itertools.pairwise(runs))[:30]:
         lines.append(f"- frame {int(est['frame'][start])} ({x_label.split()[0]} "
-                     f"{x[start]:.3f}): {before or '(empty)'} → {after or '(empty)'}")
+                     f"{x[start]:.2f}): {before or '(empty)'} → {after or '(empty)'}")
     if len(runs) > 31:
         lines.append(f"- … {len(runs) - 31} more")
     new = [p for p in MONITOR_AXES if _finite(est, p[2])]
@@ -474,112 +534,7 @@ def _monitor_lines(est: Mapping) -> list[str]:
                   f"({states[last] or '(empty)'}; 95 % interval):", ""]
         for label, _, col, lo, hi, unit in new:
             value = float(np.asarray(est[col], float)[last])
-            bounds = (f" [{_fmt(float(est[lo][last]))}, {_fmt(float(est[hi][last]))}]"
+            bounds = (f" [{fmt(float(est[lo][last]), unit)}, {fmt(float(est[hi][last]), unit)}]"
                       if lo in est and hi in est else "")
-            lines.append(f"- {label}: {_fmt(value)}{bounds} {unit}")
+            lines.append(f"- {label}: {fmt(value, unit)}{bounds} {unit}")
     return lines
-
-
-# --- the demo's figure -----------------------------------------------------------------------
-
-#: (label, frame-pose column, mount column, its std column, unit) of the demo figure's panels
-DEMO_PANELS: tuple[tuple[str, str, str, str, str], ...] = (
-    ("pitch", "pitch_deg", "mount_pitch_deg", "mount_pitch_std_deg", "deg"),
-    ("roll", "roll_deg", "mount_roll_deg", "mount_roll_std_deg", "deg"),
-    ("height", "height_m", "mount_height_m", "mount_height_std_m", "m"),
-)
-KNOCK_COLOR, MOUNT_COLOR = "tab:red", "tab:blue"
-
-
-def write_demo_figure(
-    path: str | Path,
-    *,
-    estimates: Mapping[str, NDArray],
-    smoothed: Mapping[str, NDArray],
-    truth: Mapping[str, NDArray],
-    monitor: Mapping[str, NDArray],
-    wheel_height: Mapping[str, NDArray] | None = None,
-    knock_s: float | None = None,
-    steps_s: tuple[float, ...] = (),
-    title: str = "",
-) -> Path:
-    """PNG of a monitored drive against its truth (``vipm-track demo``), over time [s]: per
-    axis (pitch, roll in degrees, height in metres) the true frame pose, the two-frame
-    estimates (``estimates``: an estimates table; for height the per-frame heights through
-    the wheel speed, ``wheel_height`` columns ``t``, ``height_m``), the smoothed mount
-    (``smoothed``: a track table with ``mount_*`` and ``mount_*_std`` columns) with its 95 %
-    band and the true mount (``truth``'s ``mount_*`` columns where it has them); then the
-    monitor's state over time (``monitor``: ``t``, ``monitor_state``). The knock
-    (``knock_s``) is a red line in every panel, the mount steps the smoother found
-    (``steps_s``) dotted lines. Tables are column dicts (``table.read_table``)."""
-    path = Path(path)
-    plt = _pyplot()
-    fig, axes = plt.subplots(4, 1, figsize=(11, 11), sharex=True,
-                             gridspec_kw={"height_ratios": [2.2, 2.2, 2.2, 1.0]})
-    t_truth = np.asarray(truth["t"], float)
-    t_est = np.asarray(estimates["t"], float)
-    t_sm = np.asarray(smoothed["t"], float)
-    for ax, (label, col, mount, std, unit) in zip(axes[:3], DEMO_PANELS, strict=True):
-        ax.plot(t_truth, np.asarray(truth[col], float), "-", color="0.65", lw=0.8,
-                label="true frame pose")
-        if col == "height_m":
-            if wheel_height is not None:
-                ax.plot(np.asarray(wheel_height["t"], float),
-                        np.asarray(wheel_height["height_m"], float), ".", color="tab:orange",
-                        ms=2.5, label="per pair, through the wheel speed")
-        elif col in estimates:
-            ax.plot(t_est, np.asarray(estimates[col], float), ".", color="tab:orange", ms=2.5,
-                    label="two-frame estimate")
-        if mount in smoothed:
-            m = np.asarray(smoothed[mount], float)
-            if std in smoothed:
-                s = 1.96 * np.asarray(smoothed[std], float)
-                ax.fill_between(t_sm, m - s, m + s, color=MOUNT_COLOR, alpha=0.25, lw=0,
-                                label="95 % interval")
-            ax.plot(t_sm, m, "-", color=MOUNT_COLOR, lw=1.4, label="smoothed mount")
-        if mount in truth and _finite(truth, mount):
-            ax.plot(t_truth, np.asarray(truth[mount], float), "--", color="k", lw=1.2,
-                    label="true mount")
-        _zoom_to_mount(ax, smoothed, truth, mount, std)
-        ax.set_ylabel(f"{label} [{unit}]")
-        ax.grid(alpha=0.3)
-    ax = axes[3]
-    states = np.asarray(monitor["monitor_state"], dtype=object)
-    t_mon = np.asarray(monitor["t"], float)
-    for start, stop, state in _runs(states):
-        x1 = t_mon[stop] if stop < len(t_mon) else t_mon[-1]
-        ax.axvspan(t_mon[start], x1, color=STATE_COLORS.get(state, "#607d8b"), lw=0)
-        if x1 - t_mon[start] > 0.06 * max(np.ptp(t_mon), 1e-9):
-            ax.text(0.5 * (t_mon[start] + x1), 0.5, state, ha="center", va="center",
-                    fontsize=8)
-    ax.set_yticks([])
-    ax.set_ylabel("monitor")
-    ax.set_xlabel("time [s]")
-    for a in axes:
-        for s in steps_s:
-            a.axvline(s, color=MOUNT_COLOR, ls=":", lw=1.0)
-        if knock_s is not None:
-            a.axvline(knock_s, color=KNOCK_COLOR, lw=1.4)
-    if knock_s is not None:
-        axes[0].annotate("knock", (knock_s, 0.0), xycoords=("data", "axes fraction"),
-                         xytext=(4, 4), textcoords="offset points", color=KNOCK_COLOR)
-    axes[0].legend(loc="upper left", fontsize=8, ncol=3)
-    axes[2].legend(loc="upper left", fontsize=8, ncol=3)
-    fig.suptitle(title, fontsize=10)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    return _save(plt, fig, path)
-
-
-def _zoom_to_mount(ax: Any, smoothed: Mapping, truth: Mapping, mount: str, std: str) -> None:
-    """Limit the y axis to the mount's range with room for the shaking around it: the
-    per-frame estimates' outliers would otherwise flatten what the panel is about."""
-    values = [np.asarray(t[mount], float) for t in (smoothed, truth) if mount in t]
-    values = [v[np.isfinite(v)] for v in values]
-    values = [v for v in values if v.size]
-    if not values:
-        return
-    v = np.concatenate(values)
-    lo, hi = float(v.min()), float(v.max())
-    room = max(hi - lo, 1e-3 * max(abs(hi), 1.0))
-    room = max(room, 1.0) if mount.endswith("_deg") else max(room, 0.02 * abs(hi))
-    ax.set_ylim(lo - room, hi + room)

@@ -2,7 +2,8 @@
 
 Every entity of a recording (``rerun_sink.RerunSink``) sits on the ``frame`` timeline
 (sequence: the frame index) and, where the frame has a timestamp, on ``time`` (duration,
-seconds). :func:`default_blueprint` arranges the entities into views.
+seconds). :func:`default_blueprint` arranges the entities into views: the estimator's layout
+(``estimate``) or the calibration's (``drift``: ``track``, ``smooth``, ``monitor``).
 """
 
 from __future__ import annotations
@@ -17,11 +18,17 @@ TIME_TIMELINE = "time"
 AXES: tuple[str, ...] = ("pitch", "roll", "height")
 
 
-def default_blueprint() -> Any:
-    """The default layout: camera and IPM views left, pose series middle, trajectory, motion,
-    monitor and log right."""
+def default_blueprint(layout: str = "estimate") -> Any:
+    """The default layout. ``estimate``: camera and IPM views left, pose series middle,
+    trajectory, motion, monitor and log right. ``drift`` (:func:`drift_blueprint`): the
+    calibration first."""
     # rerun is imported when a recording is made: the CLI starts without it
     import rerun.blueprint as rrb
+
+    if layout == "drift":
+        return drift_blueprint()
+    if layout != "estimate":
+        raise ValueError(f"unknown rerun layout {layout!r}; expected 'estimate' or 'drift'")
 
     whole_run = rrb.VisibleTimeRange(
         FRAME_TIMELINE, start=rrb.TimeRangeBoundary.infinite(),
@@ -60,4 +67,40 @@ def default_blueprint() -> Any:
     )
 
 
-__all__: Sequence[str] = ["AXES", "FRAME_TIMELINE", "TIME_TIMELINE", "default_blueprint"]
+def drift_blueprint() -> Any:
+    """The calibration's layout: per axis the mount with its 95 % band, the nominal with its
+    tolerance band, the monitor's new extrinsics and its events as markers, the frame pose
+    behind (``series/{axis}``, whole run); under them the monitor's state; right, the camera
+    with its patches, the monitor's statistic and the log."""
+    import rerun.blueprint as rrb
+
+    whole_run = rrb.VisibleTimeRange(
+        FRAME_TIMELINE, start=rrb.TimeRangeBoundary.infinite(),
+        end=rrb.TimeRangeBoundary.cursor_relative(),
+    )
+    mounts = [rrb.TimeSeriesView(origin=f"series/{axis}", time_ranges=[whole_run],
+                                 name=f"mount {axis}" + (" [m]" if axis == "height" else " [deg]"))
+              for axis in AXES]
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(*mounts,
+                         rrb.StateTimelineView(origin="monitor/state", name="monitor state"),
+                         row_shares=[3, 3, 3, 1]),
+            rrb.Vertical(
+                rrb.Spatial2DView(origin="camera", name="camera: patches, displacements"),
+                rrb.Tabs(
+                    rrb.TimeSeriesView(origin="monitor/statistic", name="monitor statistic"),
+                    rrb.TimeSeriesView(origin="monitor/deviation", name="monitor deviation"),
+                    rrb.TimeSeriesView(origin="motion", name="motion"),
+                ),
+                rrb.TextLogView(origin="log", name="events and log"),
+                row_shares=[3, 2, 2],
+            ),
+            column_shares=[3, 2],
+        ),
+        collapse_panels=True,
+    )
+
+
+__all__: Sequence[str] = ["AXES", "FRAME_TIMELINE", "TIME_TIMELINE", "default_blueprint",
+                          "drift_blueprint"]

@@ -54,11 +54,13 @@ def log_filter_run(sink: RerunSink | None, measurements: Sequence[Any],
 
 
 def log_monitor_run(sink: RerunSink | None, measurements: Sequence[Any], states: Sequence[Any],
-                    outputs: Sequence[Any], progress: bool = False) -> None:
+                    outputs: Sequence[Any], progress: bool = False,
+                    nominal: Any = None) -> None:
     """Log a whole monitor run (``filters.monitor_inputs.monitor_measurements``): the
     measurements and the EKF's frame pose and mount (:func:`log_filter_run`, ``filtered``),
-    and every monitor output (state, events, statistics, deviation, new extrinsics).
-    ``sink`` None: nothing. The sink is finished afterwards."""
+    the ``nominal`` calibration with its tolerances (where given), and every monitor output
+    (state, events as markers, statistics, deviation, new extrinsics). ``sink`` None:
+    nothing. The sink is finished afterwards."""
     if sink is None:
         return
 
@@ -66,6 +68,9 @@ def log_monitor_run(sink: RerunSink | None, measurements: Sequence[Any], states:
         rows = [track_row(s, m, None) for m, s in zip(measurements, states, strict=True)
                 if s is not None]
         log_filter_run(sink, measurements, rows, "filtered")
+        if nominal is not None and measurements:
+            sink.log_nominal([m.frame for m in measurements], [m.t for m in measurements],
+                             nominal)
         it: Any = outputs
         if progress:
             it = progress_bar(outputs, desc="rerun", unit="frame")

@@ -9,16 +9,18 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
-from .rerun_sink import RerunSink
+from .rerun_sink import IMAGE_PERIOD_S, RerunSink
 
 
 def open_sink(app_id: str, path: str | Path | None = None, spawn: bool = False,
-              connect: str | None = None, image_every: int = 1,
-              jpeg_quality: int = 75) -> RerunSink | None:
+              connect: str | None = None, image_every: int | None = None,
+              jpeg_quality: int = 75, image_period_s: float = IMAGE_PERIOD_S,
+              layout: str = "estimate") -> RerunSink | None:
     """A sink recording to the .rrd file ``path``, to a viewer it spawns (``spawn``) and/or to
     a viewer at ``connect`` (``host:port`` or a ``rerun+http://`` URL), any combination; None
-    where none is asked for. ``image_every``: log every n-th frame's images; ``jpeg_quality``
-    of the logged images."""
+    where none is asked for. ``image_every``: log every n-th frame's images (None: one every
+    ``image_period_s`` seconds); ``jpeg_quality`` of the logged images; ``layout``: the
+    viewer's (``rerun_blueprint.default_blueprint``)."""
     if not (path or spawn or connect):
         return None
     # rerun is imported when a recording is made: the CLI starts without it
@@ -41,7 +43,8 @@ def open_sink(app_id: str, path: str | Path | None = None, spawn: bool = False,
     if connect:
         sinks.append(rr.GrpcSink(grpc_url(connect)))
     rec.set_sinks(*sinks)
-    return RerunSink(rec, image_every=image_every, jpeg_quality=jpeg_quality)
+    return RerunSink(rec, image_every=image_every, jpeg_quality=jpeg_quality,
+                     image_period_s=image_period_s, layout=layout)
 
 
 def grpc_url(address: str) -> str:

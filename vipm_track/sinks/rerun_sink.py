@@ -65,7 +65,7 @@ COLUMNS: dict[str, tuple[str, str]] = {
     "yaw": ("yaw_deg", "yaw_std_deg"),
 }
 KINDS: tuple[str, ...] = ("per_frame", "filtered", "smoothed", "mount", "truth", "monitor",
-                          "wheel")
+                          "wheel", "nominal", "events")
 KIND_COLORS: dict[str, tuple[int, int, int]] = {
     "per_frame": (70, 130, 220),
     "filtered": (240, 130, 20),
@@ -74,7 +74,14 @@ KIND_COLORS: dict[str, tuple[int, int, int]] = {
     "truth": (200, 200, 200),
     "monitor": (210, 60, 210),
     "wheel": (120, 120, 255),
+    "nominal": (60, 190, 90),
+    "events": (255, 200, 0),
 }
+#: seconds between logged images by default (``image_period_s``): an hour of a 30 fps
+#: camera stays within about a gigabyte (``scripts/bench_rerun.py``)
+IMAGE_PERIOD_S = 2.0
+#: pairs between logged images by default where frames have no time
+IMAGE_EVERY_UNTIMED = 20
 #: Mount (calibration) columns of a track table (``filters/track.py``) and their std columns.
 MOUNT_COLUMNS: dict[str, tuple[str, str]] = {
     "pitch": ("mount_pitch_deg", "mount_pitch_std_deg"),
@@ -97,7 +104,10 @@ class RerunSink:
     Parameters
     ----------
     recording : the stream to log to (its sinks: file, viewer, ... are set by the caller).
-    image_every : log the camera image and its patches every n-th pair (0: never).
+    image_every : log the camera image and its patches every n-th pair (0: never; None: by
+        time, every ``image_period_s`` seconds, or every ``IMAGE_EVERY_UNTIMED``-th pair of
+        frames without a time).
+    image_period_s : seconds between logged images where ``image_every`` is None.
     jpeg_quality : JPEG quality of logged images, 1-100.
     max_image_side : images are shrunk by the smallest integer factor that brings their longer
         side to at most this, pixels.
@@ -109,21 +119,27 @@ class RerunSink:
     def __init__(
         self,
         recording: Any,
-        image_every: int = 1,
+        image_every: int | None = 1,
         jpeg_quality: int = 75,
         max_image_side: int = 800,
         arrow_scale: float = 1.0,
         log_ipm: bool = True,
         blueprint: bool = True,
+        image_period_s: float = IMAGE_PERIOD_S,
+        layout: str = "estimate",
     ) -> None:
-        if image_every < 0:
+        if image_every is not None and image_every < 0:
             raise InputError(f"--rerun-image-every must be >= 0, got {image_every}")
         if not 1 <= jpeg_quality <= 100:
             raise InputError(f"--rerun-jpeg-quality must be in 1..100, got {jpeg_quality}")
         if max_image_side < 16:
             raise InputError(f"rerun max image side must be >= 16 px, got {max_image_side}")
         self.rec = recording
-        self.image_every = int(image_every)
+        if not (math.isfinite(image_period_s) and image_period_s >= 0):
+            raise InputError(f"rerun image period must be >= 0 s, got {image_period_s}")
+        self.image_every = None if image_every is None else int(image_every)
+        self.image_period_s = float(image_period_s)
+        self._last_image_t = -math.inf
         self.jpeg_quality = int(jpeg_quality)
         self.max_image_side = int(max_image_side)
         self.arrow_scale = float(arrow_scale)
@@ -136,7 +152,7 @@ class RerunSink:
         recording.set_log_time_enabled(False)
         recording.set_log_tick_enabled(False)
         if blueprint:
-            recording.send_blueprint(default_blueprint())
+            recording.send_blueprint(default_blueprint(layout))
 
     # --- construction ------------------------------------------------------------------------
 
@@ -201,7 +217,7 @@ class RerunSink:
         for name, seconds in (getattr(result, "timings", None) or {}).items():
             self._scalar(f"timing/{name}", 1000.0 * seconds)
         stages = getattr(result, "stages", None) or []
-        show = self.image_every > 0 and self._pairs % self.image_every == 0
+        show = self._shows_image(t)
         self._pairs += 1
         if not show:
             return
@@ -220,6 +236,17 @@ class RerunSink:
             found = (ipm_stage.centres + ipm_stage.displacements)[ok] * scale
             self.rec.log("ipm/curr/matches", self._rr.Points2D(
                 found, colors=_flag_colors(ipm_stage.inliers[ok], ok[ok]), radii=2.0))
+
+    def _shows_image(self, t: float) -> bool:
+        """Whether this pair's images are logged (``image_every``, else by time)."""
+        if self.image_every is not None:
+            return self.image_every > 0 and self._pairs % self.image_every == 0
+        if t is None or not math.isfinite(t):
+            return self._pairs % IMAGE_EVERY_UNTIMED == 0
+        if t - self._last_image_t < self.image_period_s and t >= self._last_image_t:
+            return False
+        self._last_image_t = t
+        return True
 
     def log_measurement(self, m: Any) -> None:
         """Log a ``measurement.PairMeasurement`` as the ``per_frame`` series."""
@@ -371,11 +398,48 @@ class RerunSink:
                     self._value(f"series/{axis}", "monitor", value, float("nan"))
         event = getattr(output, "event", None)
         if event is not None:
+            self._event_markers(output)
             level = MONITOR_LEVELS.get(output.state, "INFO")
             text = f"monitor → {output.state}"
             if output.reason:
                 text += f": {output.reason}"
             self.rec.log("log", rr.TextLog(text, level=level))
+
+    def log_nominal(self, frames: NDArray, t: NDArray, nominal: Any) -> None:
+        """The nominal calibration (``filters.nominal.NominalCalibration``) as a line with its
+        tolerance band in each ``series/{axis}`` over the ``frames`` (at times ``t`` [s])."""
+        rr = self._rr
+        frames = np.asarray(frames, dtype=np.int64)
+        t = np.asarray(t, dtype=float)
+        for axis, value, tol in zip(AXES, (nominal.pitch_deg, nominal.roll_deg,
+                                           nominal.height_m),
+                                    (nominal.pitch_tol_deg, nominal.roll_tol_deg,
+                                     nominal.height_tol_m), strict=True):
+            path = f"series/{axis}/nominal"
+            self._style_series(path, "nominal", axis)
+            self.rec.send_columns(path, indexes=self._indexes(frames, t),
+                                  columns=rr.Scalars.columns(scalars=np.full(len(frames), value)))
+            self._style_band(f"{path}_band", "nominal", "tolerance")
+            band = np.tile([value - tol, value + tol], (len(frames), 1))
+            self.rec.send_columns(f"{path}_band", indexes=self._indexes(frames, t),
+                                  columns=rr.Scalars.columns(scalars=band).partition(
+                                      np.full(len(frames), 2)))
+
+    def _event_markers(self, output: Any) -> None:
+        """A marker in each ``series/{axis}`` at a monitor event: at its new extrinsics, or
+        at the filter's mount where it has none."""
+        event = getattr(output, "event", None) or {}
+        mount = event.get("estimate") or event.get("filter_mount") or {}
+        for axis in AXES:
+            value = _float(mount.get(COLUMNS[axis][0]))
+            if math.isfinite(value):
+                path = f"series/{axis}/events"
+                if path not in self._styled:
+                    self._styled.add(path)
+                    self.rec.log(path, self._rr.SeriesPoints(
+                        colors=[KIND_COLORS["events"]], names=[f"{axis} monitor event"],
+                        marker_sizes=[8.0], markers=["diamond"]), static=True)
+                self._scalar(path, value)
 
     # --- generic -----------------------------------------------------------------------------
 
@@ -454,14 +518,15 @@ class RerunSink:
             style = rr.SeriesLines(colors=[color], names=[label], widths=[2.0])
         self.rec.log(path, style, static=True)
 
-    def _style_band(self, path: str, kind: str) -> None:
+    def _style_band(self, path: str, kind: str, what: str = "") -> None:
         if path in self._styled:
             return
         self._styled.add(path)
         color = (*KIND_COLORS[kind], 110)
-        self.rec.log(path, self._rr.SeriesLines(
-            colors=[color, color], widths=[0.5, 0.5],
-            names=[f"{kind} −{BAND_SIGMA:g}σ", f"{kind} +{BAND_SIGMA:g}σ"]), static=True)
+        names = ([f"{kind} −{what}", f"{kind} +{what}"] if what else
+                 [f"{kind} −{BAND_SIGMA:g}σ", f"{kind} +{BAND_SIGMA:g}σ"])
+        self.rec.log(path, self._rr.SeriesLines(colors=[color, color], widths=[0.5, 0.5],
+                                                names=names), static=True)
 
     def _step_path(self, kind: str, motion: PlanarMotion) -> None:
         """Extend the ``kind`` trajectory by one motion (world frame: G of its first frame)."""

@@ -1,0 +1,181 @@
+"""The drift report read back: what ``report.md``, ``drift.png`` and ``report.html`` say about
+the calibration, held against the truth of a rendered drive with a mount step.
+
+Fixtures ``tests/data/knock_cart_*``: ``vipm-track demo --frames 180`` (the cart camera
+rendered over 17.9 s, its mount knocked +1° in pitch at 7.2 s; ``gt.csv`` has the true mount):
+the estimates, the batch smoother's and the monitor's tables, the truth and the wheel speed.
+"""
+
+from __future__ import annotations
+
+import base64
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from vipm_track.cli import main
+from vipm_track.errors import InputError
+from vipm_track.filters.nominal import load_nominal
+from vipm_track.kitti import is_kitti_poses, kitti_truth_table
+from vipm_track.sinks.drift_summary import MIN_RATE_SPAN_S, summarize_drift
+from vipm_track.sinks.report import write_report
+from vipm_track.table import read_table, write_table
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT / "tests" / "data"
+NOMINAL = ROOT / "data" / "nominal_cart.yaml"
+GT = DATA / "knock_cart_gt.csv"
+KITTI = ROOT.parent / "shared" / "data" / "kitti07"
+
+
+def true_knock_s() -> float:
+    truth = read_table(GT)
+    pitch = np.asarray(truth["mount_pitch_deg"], float)
+    return float(truth["t"][np.flatnonzero(pitch != pitch[0])[0]])
+
+
+def calibration_row(text: str, axis: str) -> list[str]:
+    """Cells of the calibration table's row of ``axis`` in report.md."""
+    row = next(x for x in text.splitlines() if x.startswith(f"| {axis} ["))
+    return [c.strip() for c in row.strip("|").split("|")]
+
+
+def _non_blank_png(path: Path) -> None:
+    import matplotlib.image as mpimg
+
+    pixels = mpimg.imread(path)
+    assert pixels.shape[0] > 400 and pixels[..., :3].std() > 0.05
+
+
+def test_smoothed_knock_report_says_the_truth(tmp_path: Path) -> None:
+    """The smoother's table: pitch now ≈ 46° (truth inside the interval), changed by +1° at
+    the knock, beyond tolerance for sure; roll and height unchanged; no drift rate over a
+    17.9 s table; the figure and the HTML page hold what report.md says."""
+    report = write_report(DATA / "knock_cart_smoothed.csv", tmp_path, gt=GT,
+                          nominal=load_nominal(NOMINAL), html=True)
+    pitch, roll = report.drift.axes["pitch"], report.drift.axes["roll"]
+    assert pitch.true_current == 46.0 and pitch.covers_truth
+    assert pitch.change == pytest.approx(1.0, abs=0.05)
+    assert abs(pitch.changed_at_s - true_knock_s()) <= 0.3
+    assert pitch.p_beyond > 0.999 and roll.p_beyond < 0.05
+    assert np.isnan(roll.changed_at_s) and roll.covers_truth
+    assert report.drift.axes["height"].covers_truth
+    text = report.markdown.read_text()
+    cells = calibration_row(text, "pitch")
+    current, lo, hi = (float(v) for v in re.findall(r"-?\d+\.\d+", cells[1]))
+    assert lo <= 46.0 <= hi and current == pytest.approx(pitch.current, abs=1e-3)
+    change = float(cells[3].split("±")[0])
+    assert change == pytest.approx(1.0, abs=0.05) and cells[5] == "> 99.9 %"
+    assert float(cells[6].removesuffix(" s")) == pytest.approx(true_knock_s(), abs=0.3)
+    assert cells[7].startswith("not given") and "< 60 s" in cells[7]
+    assert calibration_row(text, "roll")[6] == "no change"
+    assert not re.search(r"\de[-+]\d", text), "scientific notation in the report"
+    _non_blank_png(report.plots["drift"])
+    page = report.html.read_text()
+    assert "<table>" in page and "46.0" in page and 'src="drift.png"' not in page
+    embedded = re.findall(r'src="data:image/png;base64,([^"]+)"', page)
+    assert base64.b64decode(embedded[0]) == (tmp_path / "drift.png").read_bytes()
+    assert len(embedded) == len(report.plots)
+
+
+def test_monitor_knock_report_timeline(tmp_path: Path) -> None:
+    """The monitor's table: RECALIBRATE now, first alarm within 1 s after the knock and none
+    before, the new extrinsics' interval holds the true 46°."""
+    report = write_report(DATA / "knock_cart_monitor.csv", tmp_path, gt=GT,
+                          nominal=load_nominal(NOMINAL))
+    monitor = report.drift.monitor
+    assert monitor.final_state == "RECALIBRATE"
+    assert 0.0 <= monitor.first_alarm[1] - true_knock_s() <= 1.0
+    pitch = report.drift.axes["pitch"]
+    assert pitch.interval_from == "monitor" and pitch.covers_truth
+    text = report.markdown.read_text()
+    assert "Monitor: now **RECALIBRATE**; first alarm at frame" in text
+    assert "CALIBRATED → DRIFTING" in text and "## Monitor" not in text
+
+
+def test_report_window_and_cli(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """``--start``/``--max-frames`` window the rows; a window before the knock shows no
+    change; without ``--nominal`` the change is since the first mount."""
+    assert main(["report", str(DATA / "knock_cart_smoothed.csv"), "--out", str(tmp_path),
+                 "--start", "10", "--max-frames", "50", "--html"]) == 0
+    assert "report.html" in capsys.readouterr().err
+    text = (tmp_path / "report.md").read_text()
+    assert "(50 rows, frames 10–59)" in text
+    cells = calibration_row(text, "pitch")
+    assert "(start)" in cells[2] and cells[6] == "no change"
+    assert main(["report", str(DATA / "knock_cart_smoothed.csv"), "--out", str(tmp_path),
+                 "--max-frames", "0"]) == 2
+    assert "--max-frames" in capsys.readouterr().err
+    assert main(["report", str(DATA / "knock_cart_smoothed.csv"), "--out", str(tmp_path),
+                 "--nominal", str(tmp_path / "none.yaml")]) == 2
+
+
+def ramp_table(minutes: float, rate_deg_per_min: float, seed: int = 0) -> dict:
+    """A smoothed-like table at 10 Hz: a mount pitch ramp with 0.01° of wander on it and a
+    per-frame σ of 0.02°."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 60.0 * minutes, 0.1)
+    mount = 3.0 + rate_deg_per_min * t / 60.0 + np.cumsum(rng.normal(0, 0.0005, t.size))
+    return {"frame": np.arange(t.size), "t": t, "pitch_deg": mount + rng.normal(0, 0.3, t.size),
+            "mount_pitch_deg": mount, "mount_pitch_std_deg": np.full(t.size, 0.02)}
+
+
+def test_drift_rate_only_over_long_spans() -> None:
+    """A 0.05°/min creep over 10 min is found within 3σ; over 30 s no rate is given."""
+    s = summarize_drift(ramp_table(10.0, 0.05))
+    pitch = s.axes["pitch"]
+    assert np.isfinite(pitch.rate_std_per_min) and pitch.rate_std_per_min < 0.02
+    assert abs(pitch.rate_per_min - 0.05) <= 3 * pitch.rate_std_per_min
+    short = summarize_drift(ramp_table(0.5, 0.05)).axes["pitch"]
+    assert np.isnan(short.rate_per_min) and f"< {MIN_RATE_SPAN_S:.0f} s" in short.rate_note
+
+
+def test_estimates_table_has_no_calibration_section(tmp_path: Path) -> None:
+    report = write_report(DATA / "knock_cart_est.csv", tmp_path)
+    assert report.drift is None and "## Calibration" not in report.markdown.read_text()
+
+
+@pytest.mark.skipif(not (KITTI / "poses.txt").is_file(),
+                    reason="../shared/data/kitti07 absent (KITTI 07 poses)")
+def test_report_against_kitti_poses(tmp_path: Path) -> None:
+    """``--gt poses.txt``: travel and yaw scored against KITTI, pitch/roll only as changes."""
+    assert main(["report", str(DATA / "kitti07_estimates.csv"), "--gt",
+                 str(KITTI / "poses.txt"), "--out", str(tmp_path)]) == 0
+    report = write_report(DATA / "kitti07_estimates.csv", tmp_path,
+                          gt=KITTI / "poses.txt")
+    assert "pitch_deg" not in report.errors and "pitch_change_deg" in report.errors
+    assert report.errors["distance_pct"]["median_abs"] < 5.0
+    assert report.errors["yaw_deg"]["median_abs"] < 0.1
+
+
+def test_kitti_poses_bad_line_named(tmp_path: Path) -> None:
+    path = tmp_path / "poses.txt"
+    path.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0 0 1 0 0 0 0 1\n")
+    assert is_kitti_poses(path)
+    with pytest.raises(InputError, match=r"poses.txt: line 2: 11 numbers"):
+        kitti_truth_table(path)
+    write_table(tmp_path / "gt.csv", [{"frame": 0, "t": 0.0, "pitch_deg": 1.0}])
+    assert not is_kitti_poses(tmp_path / "gt.csv")
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.text(max_size=300))
+def test_kitti_poses_bad_input_fuzz(text: str) -> None:
+    """Any text: a truth table or an InputError naming the file, never another exception."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "poses.txt"
+        path.write_text(text, encoding="utf-8", errors="replace")
+        if not is_kitti_poses(path):
+            return
+        try:
+            table = kitti_truth_table(path)
+        except InputError as exc:
+            assert "poses.txt" in str(exc)
+        else:
+            assert len(table["frame"]) >= 1

@@ -1,0 +1,281 @@
+"""The calibration in brief, from a finished per-frame table: what a calibration engineer acts
+on (:func:`summarize_drift`).
+
+Per axis (pitch, roll in degrees, height in metres) of the mount (``mount_*`` columns of a
+``track`` / ``smooth`` / ``monitor`` table, ``docs/formats.md``): the current extrinsics with a
+95 % interval (the filter's ``mount_*_std``, or the monitor's ``new_*_lo`` / ``new_*_hi``
+while it reports new extrinsics), the change since the nominal (or, without one, since the
+start of the table) with its uncertainty, when it changed, how sure it is beyond the tolerance,
+and a drift rate only over a span of at least :data:`MIN_RATE_SPAN_S` seconds since the last
+change, with its standard error. Against a ground-truth table with ``mount_*`` columns
+(``vipm-track simulate --profile knock``/``drift``) the true mount and the error. The
+monitor's timeline (states, transitions, first alarm) where the table has ``monitor_state``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+Z95 = 1.959963984540054
+#: shortest span [s] a drift rate is given over: a calibration creeps over minutes, and over
+#: seconds the mount's shaking residue and its interval dominate any slope
+MIN_RATE_SPAN_S = 60.0
+#: (axis, unit, mount column, its std column, monitor's new column, its 95 % lo / hi columns,
+#: nominal attribute, tolerance attribute)
+MOUNT_AXES: tuple[tuple[str, str, str, str, str, str, str, str, str], ...] = (
+    ("pitch", "deg", "mount_pitch_deg", "mount_pitch_std_deg", "new_pitch_deg",
+     "new_pitch_lo_deg", "new_pitch_hi_deg", "pitch_deg", "pitch_tol_deg"),
+    ("roll", "deg", "mount_roll_deg", "mount_roll_std_deg", "new_roll_deg",
+     "new_roll_lo_deg", "new_roll_hi_deg", "roll_deg", "roll_tol_deg"),
+    ("height", "m", "mount_height_m", "mount_height_std_m", "new_height_m",
+     "new_height_lo_m", "new_height_hi_m", "height_m", "height_tol_m"),
+)
+ALARM_STATES: frozenset[str] = frozenset({"DRIFTING", "RECALIBRATE", "INVALID"})
+NAN = float("nan")
+
+
+@dataclass(frozen=True)
+class AxisDrift:
+    """One axis of the mount, in its unit (``deg`` or ``m``; times in s, rates per minute).
+
+    ``current``: the mount at the table's last frame with a value, ``lo``/``hi`` its 95 %
+    interval (NaN where the table gives none; ``interval_from`` says whose); ``reference``:
+    the nominal, or the first mount value (``reference_from``); ``change`` = current −
+    reference with its 1-σ ``change_std``; ``tolerance`` (NaN without a nominal);
+    ``p_beyond``: the probability that the true change exceeds the tolerance (normal
+    interval); ``changed_at_s``: when the mount crossed halfway from its first level to its
+    current one, NaN where the change is within its uncertainty; ``rate``/``rate_std`` over
+    ``rate_span_s`` since that change (NaN with ``rate_note`` saying why where the span is
+    shorter than :data:`MIN_RATE_SPAN_S`); ``true_*`` from ground truth (NaN without)."""
+
+    axis: str
+    unit: str
+    current: float
+    lo: float
+    hi: float
+    interval_from: str
+    reference: float
+    reference_from: str
+    change: float
+    change_std: float
+    tolerance: float
+    p_beyond: float
+    changed_at_s: float
+    rate_per_min: float
+    rate_std_per_min: float
+    rate_span_s: float
+    rate_note: str
+    true_current: float = NAN
+    true_changed_at_s: float = NAN
+
+    @property
+    def error(self) -> float:
+        """current − true current (NaN without ground truth)."""
+        return self.current - self.true_current
+
+    @property
+    def covers_truth(self) -> bool | None:
+        """Whether the 95 % interval holds the true mount (None where either is missing)."""
+        if not (math.isfinite(self.true_current) and math.isfinite(self.lo)):
+            return None
+        return self.lo <= self.true_current <= self.hi
+
+
+@dataclass(frozen=True)
+class MonitorTimeline:
+    """The monitor's run (a ``monitor`` table): final state, the first alarm (first row in
+    DRIFTING / RECALIBRATE / INVALID: frame, t [s]; None without one), every transition
+    ``(frame, t, before, after)`` and the time spent per state [s]."""
+
+    final_state: str
+    first_alarm: tuple[int, float] | None
+    transitions: tuple[tuple[int, float, str, str], ...]
+    seconds: dict[str, float]
+
+
+@dataclass(frozen=True)
+class DriftSummary:
+    """What :func:`summarize_drift` found: per axis :class:`AxisDrift` (``axes``), the table's
+    time span [s], the last frame, and the monitor's timeline where the table has one."""
+
+    axes: dict[str, AxisDrift]
+    t0: float
+    t1: float
+    last_frame: int
+    monitor: MonitorTimeline | None
+
+
+def has_mount(table: Mapping[str, NDArray]) -> bool:
+    """Whether ``table`` has a mount (calibration) column with a number."""
+    return any(_finite(table, axis[2]) for axis in MOUNT_AXES)
+
+
+def summarize_drift(table: Mapping[str, NDArray], nominal: object | None = None,
+                    truth: Mapping[str, NDArray] | None = None) -> DriftSummary | None:
+    """The calibration in brief (module doc) of a per-frame table (``table.read_table``
+    columns, ``t`` in s) with mount columns; None where it has none. ``nominal``: a
+    ``filters.nominal.NominalCalibration`` (or None); ``truth``: a ground-truth table whose
+    ``mount_*`` columns are the true mount (rows matched by frame)."""
+    if not has_mount(table):
+        return None
+    t = np.asarray(table["t"], float)
+    frames = np.asarray(table["frame"])
+    axes: dict[str, AxisDrift] = {}
+    for axis in MOUNT_AXES:
+        if _finite(table, axis[2]):
+            axes[axis[0]] = _axis(table, t, frames, axis, nominal, truth)
+    finite_t = t[np.isfinite(t)]
+    t0, t1 = (float(finite_t[0]), float(finite_t[-1])) if finite_t.size else (NAN, NAN)
+    return DriftSummary(axes, t0, t1, int(frames[-1]), monitor_timeline(table))
+
+
+def _axis(table: Mapping[str, NDArray], t: NDArray, frames: NDArray, spec: tuple,
+          nominal: object | None, truth: Mapping[str, NDArray] | None) -> AxisDrift:
+    name, unit, col, std_col, new, new_lo, new_hi, nom_attr, tol_attr = spec
+    mount = np.asarray(table[col], float)
+    std = np.asarray(table[std_col], float) if std_col in table else np.full(len(t), NAN)
+    rows = np.flatnonzero(np.isfinite(mount) & np.isfinite(t))
+    last = rows[-1]
+    current, sigma, source = float(mount[last]), float(std[last]), "filter"
+    lo, hi = current - Z95 * sigma, current + Z95 * sigma
+    if _finite(table, new) and np.isfinite(np.asarray(table[new], float)[last]):
+        # the monitor's new extrinsics: its own estimate of where the camera now sits
+        current = float(np.asarray(table[new], float)[last])
+        lo, hi = (float(np.asarray(table[c], float)[last]) if c in table else NAN
+                  for c in (new_lo, new_hi))
+        sigma, source = (hi - lo) / (2 * Z95), "monitor"
+    if not math.isfinite(sigma):
+        lo = hi = NAN
+        source = "none"
+    head = rows[: max(3, len(rows) // 20)]
+    start, start_sigma = float(np.median(mount[head])), float(np.nanmedian(std[head])
+                                                              if np.isfinite(std[head]).any()
+                                                              else NAN)
+    if nominal is not None:
+        reference, reference_from = float(getattr(nominal, nom_attr)), "nominal"
+        tolerance = float(getattr(nominal, tol_attr))
+        change_std = sigma
+    else:
+        reference, reference_from, tolerance = start, "start", NAN
+        change_std = math.hypot(sigma, start_sigma)
+    change = current - reference
+    p_beyond = _p_beyond(change, change_std, tolerance if math.isfinite(tolerance) else 0.0)
+    step = current - start
+    step_sigma = math.hypot(sigma, start_sigma)
+    significant = (abs(step) > Z95 * step_sigma if math.isfinite(step_sigma)
+                   else math.isfinite(tolerance) and abs(step) > tolerance)
+    if math.isfinite(tolerance):
+        significant = significant and abs(step) > tolerance
+    changed_at = _halfway_time(t[rows], mount[rows], start, current) if significant else NAN
+    rate, rate_std, span, note = _rate(t[rows], mount[rows], std[rows], changed_at)
+    true_current = true_changed = NAN
+    if truth is not None and _finite(truth, col):
+        index = {int(f): i for i, f in enumerate(truth["frame"])}
+        true = np.asarray(truth[col], float)
+        if int(frames[last]) in index:
+            true_current = float(true[index[int(frames[last])]])
+        tt = np.asarray(truth["t"], float)
+        moved = np.flatnonzero(np.abs(true - true[0]) > 1e-9)
+        true_changed = float(tt[moved[0]]) if moved.size else NAN
+    return AxisDrift(name, unit, current, lo, hi, source, reference, reference_from, change,
+                     change_std, tolerance, p_beyond, changed_at, rate, rate_std, span, note,
+                     true_current, true_changed)
+
+
+def _p_beyond(change: float, sigma: float, tolerance: float) -> float:
+    """P(|X| > tolerance) for X ~ N(change, sigma²); NaN without a finite sigma."""
+    if not (math.isfinite(sigma) and sigma > 0):
+        return NAN
+    a = (tolerance - change) / (sigma * math.sqrt(2.0))
+    b = (-tolerance - change) / (sigma * math.sqrt(2.0))
+    return 0.5 * math.erfc(a) + 0.5 * math.erfc(-b)
+
+
+def _halfway_time(t: NDArray, v: NDArray, start: float, current: float) -> float:
+    """When ``v`` last left the start's side of the level halfway to ``current`` [s]."""
+    half = 0.5 * (start + current)
+    start_side = np.sign(v - half) == np.sign(start - half)
+    on_start = np.flatnonzero(start_side)
+    if on_start.size == 0:
+        return float(t[0])
+    i = int(on_start[-1]) + 1
+    return float(t[min(i, len(t) - 1)])
+
+
+def _rate(t: NDArray, v: NDArray, std: NDArray, changed_at: float,
+          ) -> tuple[float, float, float, str]:
+    """Drift rate per minute of ``v`` since ``changed_at`` (from the start where NaN), its
+    1-σ, the span [s] and a note: NaN with the reason where the span is too short. The slope
+    is fitted to block means (30 blocks: shaking left in the mount averages out within a
+    block); its σ is the larger of the fit's standard error and the mount's own σ at both
+    ends over the span."""
+    keep = t >= changed_at if math.isfinite(changed_at) else np.ones(len(t), bool)
+    t, v, std = t[keep], v[keep], std[keep]
+    span = float(t[-1] - t[0]) if t.size else 0.0
+    since = "since the change" if math.isfinite(changed_at) else "over the table"
+    if span < MIN_RATE_SPAN_S:
+        return NAN, NAN, span, f"not given: {span:.1f} s {since} < {MIN_RATE_SPAN_S:.0f} s"
+    blocks = min(30, t.size // 2)
+    tb = np.array([b.mean() for b in np.array_split(t, blocks)]) / 60.0
+    vb = np.array([b.mean() for b in np.array_split(v, blocks)])
+    (slope, intercept), cov = np.polyfit(tb, vb, 1, cov="unscaled")
+    residual = vb - (slope * tb + intercept)
+    fit_std = math.sqrt(cov[0, 0] * float(residual @ residual) / max(blocks - 2, 1))
+    ends = [s for s in (std[0], std[-1]) if math.isfinite(s)]
+    model_std = math.hypot(*ends) / (span / 60.0) if len(ends) == 2 else 0.0
+    return float(slope), max(fit_std, model_std), span, since
+
+
+def monitor_timeline(table: Mapping[str, NDArray]) -> MonitorTimeline | None:
+    """The monitor's timeline of a table with ``monitor_state`` (None without)."""
+    if "monitor_state" not in table:
+        return None
+    states = np.asarray(table["monitor_state"], dtype=object)
+    t = np.asarray(table["t"], float)
+    frames = np.asarray(table["frame"])
+    runs = state_runs(states)
+    transitions = tuple((int(frames[b[0]]), float(t[b[0]]), str(a[2]), str(b[2]))
+                        for a, b in itertools.pairwise(runs))
+    dt = np.diff(t, append=t[-1] + (np.median(np.diff(t)) if len(t) > 1 else 0.0))
+    seconds = {str(s): float(np.nansum(dt[states == s])) for s in dict.fromkeys(states)}
+    alarm = next((i for i, s in enumerate(states) if s in ALARM_STATES), None)
+    first = (int(frames[alarm]), float(t[alarm])) if alarm is not None else None
+    return MonitorTimeline(str(states[-1]), first, transitions, seconds)
+
+
+def state_runs(values: NDArray) -> list[tuple[int, int, object]]:
+    """(start, stop, value) of the runs of equal consecutive values."""
+    if len(values) == 0:
+        return []
+    change = np.flatnonzero(values[1:] != values[:-1]) + 1
+    starts = np.concatenate([[0], change])
+    stops = np.concatenate([change, [len(values)]])
+    return [(int(a), int(b), values[a]) for a, b in zip(starts, stops, strict=True)]
+
+
+def _finite(table: Mapping[str, NDArray], column: str) -> bool:
+    """Whether ``column`` exists, is numeric and has a finite number somewhere."""
+    if column not in table:
+        return False
+    try:
+        return bool(np.isfinite(np.asarray(table[column], float)).any())
+    except (TypeError, ValueError):  # a text column
+        return False
+
+
+__all__: Sequence[str] = [
+    "MIN_RATE_SPAN_S",
+    "AxisDrift",
+    "DriftSummary",
+    "MonitorTimeline",
+    "has_mount",
+    "monitor_timeline",
+    "state_runs",
+    "summarize_drift",
+]
