@@ -73,13 +73,15 @@ def run(args: argparse.Namespace) -> int:
 
         camera = (load_camera(args.camera) if args.camera
                   else read_bag_camera(args.bag, args.camera_info_topic))
+    else:
+        camera = load_camera(args.camera)
+    config = build_config(args, camera)  # bad options are named before the input is read
+    if args.bag:
         source = BagSource(args.bag, args.image_topic, start=args.start,
                            max_frames=args.max_frames)
     else:
-        camera = load_camera(args.camera)
         source = open_source(images=args.images, video=args.video, fps=args.fps,
                              start=args.start, max_frames=args.max_frames)
-    config = build_config(args, camera)
     parallel = parallel_settings(args)
     config = with_searched_setup(args, source, camera, height, config)
     from ..sinks.rerun_sequence import run_logging
