@@ -71,14 +71,12 @@ class SmootherConfig:
     #: < 3 µm; with 0.1 it stops after 11)
     tolerance_chi2: float = 0.1
     marginals: bool = True
-    #: fixed lag: Gauss–Newton over the window stops when a step's predicted decrease of the
-    #: cost is below this (χ² units: half the step's squared Mahalanobis length), or after
-    #: ``lag_max_iterations`` steps; the window is solved again, warm-started, at each later
-    #: frame. 0.1: ~2 steps per frame (0.01: 2.6) with the same answers to the printed digits
-    #: of the simulated and rendered benchmarks; 1 or 10 (one step for most frames) left
-    #: the rendered cart's height 0.05 mm worse (0.24 → 0.28 mm RMS)
+    #: fixed lag: iSAM2 updates of the window per frame (each relinearises what moved and
+    #: solves again); more than one only while the last update still predicts a decrease of
+    #: the cost above ``lag_tolerance_chi2`` (χ² units). One: the same answers as three to
+    #: 0.1 % of the mount RMS on a simulated car drive (``docs/filters.md``)
     lag_tolerance_chi2: float = 0.1
-    lag_max_iterations: int = 3
+    lag_max_iterations: int = 1
     #: fixed-lag: good pairs whose medians start the window (as the EKF's bootstrap)
     init_pairs: int = 5
     #: a pair moves the height only with a wheel speed within this many seconds of it (the
