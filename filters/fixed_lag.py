@@ -19,6 +19,7 @@ more than its lag, 0.5, older than the newest).
 from __future__ import annotations
 
 import math
+import time
 
 import gtsam
 import numpy as np
@@ -130,6 +131,9 @@ class FixedLagSmoother:
         self._direction = 1.0  # of travel, model.travel_direction
         self._still: dict[int, bool] = {}  # frame → standstill, until the frame is emitted
         self._next_key = 0  # key index of the next frame (unique over restarts)
+        #: seconds spent so far: "update" (iSAM2 updates, the factors' callbacks included),
+        #: "marginals" (joint marginal covariances), "output" (the rest of reporting frames)
+        self.timings: dict[str, float] = {"update": 0.0, "marginals": 0.0, "output": 0.0}
         self._clear()
 
     # --- public ------------------------------------------------------------------------------
@@ -338,6 +342,7 @@ class FixedLagSmoother:
         stamps.update({key: _DROP for k in drop for key in _keys(k)})
         removed, self._removed = self._removed, []
         sm = self._smoother
+        t0 = time.perf_counter()
         try:
             with held_linearization_point(sm):
                 sm.update(graph, values, stamps, removed)
@@ -354,6 +359,8 @@ class FixedLagSmoother:
         except RuntimeError as exc:  # gtsam's IndeterminantLinearSystemException and kin
             raise SolveError(str(exc).splitlines()[0] if str(exc) else type(exc).__name__
                              ) from None
+        finally:
+            self.timings["update"] += time.perf_counter() - t0
         for (k, _), index in zip(tagged, indices, strict=True):
             self._added[k][1].append(int(index))
         for k in drop:
@@ -365,12 +372,15 @@ class FixedLagSmoother:
     def _joint_marginal(self, ks: list[int]) -> FloatArray:
         """Joint marginal covariance of the frames ``ks`` (key indices; blocks in the order of
         ``smoother_marginals``, Pose2 tangents)."""
+        t0 = time.perf_counter()
         try:
             keys = [key for k in ks for key in _keys(k)]
             return np.asarray(self._smoother.getISAM2().jointMarginalCovariance(keys)
                               .fullMatrix())
         except RuntimeError as exc:
             raise SolveError(f"no marginal: {str(exc).splitlines()[0]}") from None
+        finally:
+            self.timings["marginals"] += time.perf_counter() - t0
 
     # --- output --------------------------------------------------------------------------------
 
@@ -378,6 +388,8 @@ class FixedLagSmoother:
         """Frames with ≥ ``lag_s`` of later data (all if ``final``), oldest first; the frames
         before the newest reported one leave the window at the next update (it stays as the
         anchor)."""
+        t0 = time.perf_counter()
+        marginals_before = self.timings["marginals"]
         out: list[SmoothedFrame] = []
         t_new = self._ms[-1].t if self._ms else -math.inf
         while self._emitted < len(self._ms):
@@ -406,6 +418,8 @@ class FixedLagSmoother:
             self._drop += self._k[:anchor]
             del self._ms[:anchor], self._k[:anchor]
             self._emitted -= anchor
+        self.timings["output"] += (time.perf_counter() - t0
+                                   - (self.timings["marginals"] - marginals_before))
         return out
 
     def _covariance(
