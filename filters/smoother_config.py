@@ -71,12 +71,14 @@ class SmootherConfig:
     #: < 3 µm; with 0.1 it stops after 11)
     tolerance_chi2: float = 0.1
     marginals: bool = True
-    #: fixed lag: iSAM2 updates of the window per frame (each relinearises what moved and
-    #: solves again); more than one only while the last update still predicts a decrease of
-    #: the cost above ``lag_tolerance_chi2`` (χ² units). One: the same answers as three to
-    #: 0.1 % of the mount RMS on a simulated car drive (``docs/filters.md``)
+    #: fixed lag: iSAM2 updates of the window per frame (each relinearises every variable
+    #: and solves again), more than one only while the last update still predicts a decrease
+    #: of the cost above ``lag_tolerance_chi2`` (χ² units: half the step's squared
+    #: Mahalanobis length). Three: the robust loss's reweighting keeps up with outlier pairs
+    #: (one update per frame left the height of car drives with 10 % outliers at 0.78 mm RMS
+    #: against 0.48 mm; clean drives alike)
     lag_tolerance_chi2: float = 0.1
-    lag_max_iterations: int = 1
+    lag_max_iterations: int = 3
     #: fixed-lag: good pairs whose medians start the window (as the EKF's bootstrap)
     init_pairs: int = 5
     #: a pair moves the height only with a wheel speed within this many seconds of it (the
