@@ -308,7 +308,8 @@ class FixedLagSmoother:
     def _restart(
         self, m: PairMeasurement, speed: float, body_std: FloatArray, exc: Exception
     ) -> list[SmoothedFrame]:
-        """Emit the window from the last good solution, then start a new window at ``m``
+        """Emit the window from the last good solution (without covariances: gtsam's state
+        after a failed update is not trusted), then start a new window at ``m``
         (bootstrapped again, continuing the trajectory), as the EKF resets."""
         why = f"smoother restarted: {exc}"
         self._ms.pop()  # m: its update failed
