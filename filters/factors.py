@@ -25,15 +25,13 @@ Factors, each the model's equation with its noise:
   yaw rate, and without wheel speed speed, = 0 where ``model.standstill_states`` says the
   vehicle stands) are gtsam's built-in factors.
 
-Python ``CustomFactor`` callbacks are limited to the three nonlinear or robust pair/process
-terms; the process and the motion evaluate in one compiled call each (``filters.residuals``,
-shared with the window rows). They must be linearised with Python-owned ``gtsam.Values``
-(see ``smoother``): gtsam's own nonlinear optimisers hand callbacks a copy of every value,
-which is quadratic in the drive length.
-
-``filters.window_rows`` evaluates the same factors for many consecutive pairs at once
-(whitened, robustly weighted residuals and Jacobians in model coordinates): the sliding-window
-smoother (``filters.fixed_lag``) runs on it; a test holds it equal to these gtsam factors.
+Python ``CustomFactor`` callbacks are limited to the terms no built-in factor expresses:
+the planar process (pose, speed and yaw rate), the pair's height-scaled motion, and the pair's
+four angles (linear, but under a robust loss, which gtsam applies only to a
+``NoiseModelFactor``); the process and the motion evaluate in one compiled call each
+(``filters.residuals``), the angles' Jacobian is constant. They must be linearised at a
+``gtsam.Values`` that has a Python object (``smoother.held_linearization_point``): for any
+other pybind11 hands every callback a copy of every value, quadratic in the drive length.
 """
 
 from __future__ import annotations
@@ -90,7 +88,7 @@ LOSSES: tuple[str, ...] = ("huber", "cauchy", "geman-mcclure", "tukey", "none")
 LOSS_K_SCALE: dict[str, float] = {"geman-mcclure": math.sqrt(2.0)}
 
 
-#: the losses as the compiled code's codes (``residuals.robust_weight``, ``window_rows``)
+#: the losses as the compiled code's codes (``residuals.robust_weight``)
 LOSS_CODE: dict[str, int] = {"none": 0, "huber": 1, "cauchy": 2, "geman-mcclure": 3, "tukey": 4}
 
 

@@ -3,10 +3,9 @@
 One implementation of each residual and its Jacobian in model coordinates (x right, y
 forward, ψ > 0 right; ``filters.model``), called by the gtsam factors (``filters.factors``,
 through ``process_factor_eval`` / ``motion_factor_eval``, which also apply the Pose2
-tangent and, for the motion given the angles, the pose block's weight and the whitening)
-and by the sliding window's rows (``filters.window_rows``). The Python factor callbacks run
-for every frame and Gauss–Newton step, so each is one compiled call. The robust weight and
-the 3×3 whitener both use are here too.
+tangent and, for the motion given the angles, the pose block's weight and the whitening).
+The Python factor callbacks run for every frame and relinearisation, so each is one
+compiled call. The robust weight and the 3×3 whitener they use are here too.
 """
 
 from __future__ import annotations

@@ -7,13 +7,13 @@ constant-velocity process factors, Gauss–Markov body factors, mount random wal
 priors, and priors on frame 0 (the EKF's). Pair factors use a redescending robust loss
 (Geman–McClure by default), so an outlier pair is down-weighted instead of pulling the estimate.
 
-- ``smooth_batch``: the whole drive at once (Gauss–Newton with step halving over gtsam's
-  linearisation and sequential elimination in COLAMD order); marginal covariances of the
-  last linearisation by a block-tridiagonal sweep (``block_marginals``: equal to
+- ``smooth_batch``: the whole drive at once (gtsam's iSAM2 relinearising every variable at
+  every update: Gauss–Newton, ``optimize``); marginal covariances of the graph linearised at
+  the estimate by a block-tridiagonal sweep (``block_marginals``: equal to
   ``gtsam.Marginals``, in O(n)).
-- ``FixedLagSmoother`` (``filters.fixed_lag``): Gauss–Newton over a sliding window of
-  ``lag_s`` seconds of the same factors, the past folded into a Gaussian prior; each frame
-  is reported once ``lag_s`` of later data is in, with its marginal covariance.
+- ``FixedLagSmoother`` (``filters.fixed_lag``): the same factors on gtsam's
+  ``IncrementalFixedLagSmoother`` over a window of ``lag_s`` seconds; each frame is reported
+  once ``lag_s`` of later data is in, with its joint marginal covariance (iSAM2's).
 - ``smoothing.smooth``: either, by ``SmootherConfig.lag_s`` (0 = batch).
 
 Every frame gets a :class:`SmoothedFrame` with the fields of ``filters.ekf.FilterState``
@@ -26,7 +26,8 @@ mount with 95 % intervals and its drift.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import gtsam
@@ -489,15 +490,17 @@ def smooth_batch(
     if progress:
         bar = progress_bar(total=cfg.max_iterations, desc="smoother: Gauss-Newton", unit="step")
     try:
-        values, iters, e0, e1, lin = _gauss_newton(
-            graph, values, None, cfg.max_iterations, cfg.tolerance, cfg.tolerance_chi2,
-            on_step=None if bar is None else lambda: bar.update(1),
+        values, iters, e0, e1 = optimize(
+            graph, values, cfg, on_step=None if bar is None else lambda: bar.update(1)
         )
     finally:
         if bar is not None:  # converged: the bar ends full
             bar.total = bar.n
             bar.refresh()
             bar.close()
+    # the marginals are those of the graph linearised at the estimate (gtsam.Marginals'
+    # definition; ``block_marginals`` reads them in O(n))
+    lin = graph.linearize(values) if cfg.marginals else None
     timings["optimize"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -531,59 +534,63 @@ def smooth_batch(
     return out, BatchInfo(iters, e0, e1, timings)
 
 
-def _gauss_newton(
+def optimize(
     graph: gtsam.NonlinearFactorGraph,
     values: gtsam.Values,
-    ordering: gtsam.Ordering | None,
-    max_iterations: int,
-    tolerance: float,
-    tolerance_chi2: float = 0.0,
+    cfg: SmootherConfig,
     on_step: Callable[[], None] | None = None,
-) -> tuple[gtsam.Values, int, float, float, gtsam.GaussianFactorGraph]:
-    """Gauss–Newton until a step's predicted decrease of the error is below ``tolerance``
-    relative to the error or below ``tolerance_chi2`` (χ² units): (values, iterations, initial
-    and final error, the last linearisation — of the estimate before the last, converged step;
-    the marginals are read from it).
+) -> tuple[gtsam.Values, int, float, float]:
+    """``graph`` minimised from ``values`` by gtsam's iSAM2 (relinearising every variable at
+    every update: Gauss–Newton steps, the robust losses by the noise models' reweighting):
+    (values, iterations, initial and final error). It stops when a step's predicted decrease
+    of the error is below ``cfg.tolerance`` relative or ``cfg.tolerance_chi2`` in χ² units,
+    or after ``cfg.max_iterations``; ``on_step`` is called after every step (progress).
 
-    The linearisation runs with a Python-owned ``Values``, so CustomFactor callbacks see it by
-    reference (gtsam's optimisers would copy all values for every callback). Full steps are
-    taken without evaluating the error (the model is nearly linear from the dead-reckoned
-    start); should the final error exceed the initial one the solve is redone with step
-    halving. Elimination is sequential in COLAMD order, computed once. ``on_step`` is called
-    after every step (progress)."""
-    err0 = graph.error(values)
-    start = values
-    lin = None
-    for safe in (False, True):
-        values, err, it = start, err0, 0
-        for it in range(1, max_iterations + 1):  # noqa: B007
-            lin = graph.linearize(values)
-            if ordering is None:
-                # a plain time ordering eliminates the ever-more-certain early poses first and
-                # loses positive definiteness numerically; COLAMD does not
-                ordering = gtsam.Ordering.ColamdGaussianFactorGraph(lin)
-            delta = lin.eliminateSequential(ordering).optimize()
-            step = 1.0
-            trial = values.retract(delta)
-            if safe:
-                trial_err = graph.error(trial)
-                while trial_err > err and step > 1e-3:
-                    step *= 0.5
-                    trial = values.retract(delta.scale(step))
-                    trial_err = graph.error(trial)
-                if trial_err > err:
-                    break
-                err = trial_err
-            values = trial
+    Why iSAM2 and not gtsam's ``LevenbergMarquardtOptimizer``: those hand each Python
+    ``CustomFactor`` callback a copy of every value of the graph (pybind11 copies a C++
+    ``Values`` it has no Python object for), quadratic in the drive length
+    (``scripts/results/bench_smoother.md``); iSAM2 linearises at one ``Values`` it keeps,
+    and ``held_linearization_point`` gives that a Python object, so callbacks see it by
+    reference."""
+    isam = gtsam.ISAM2(_batch_params())
+    err0 = float(graph.error(values))
+    err = err0  # as the steps' linear models predict it (the graph's error costs a callback each)
+    with held_linearization_point(isam):
+        isam.update(graph, values)
+        it = 1
+        while True:
             if on_step is not None:
                 on_step()
-            # the linear model's predicted decrease, relative: cheap (no Python callbacks)
-            before = lin.error(gtsam.VectorValues.Zero(delta))
-            if before - lin.error(delta) <= max(tolerance * max(before, 1e-12), tolerance_chi2):
+            decrease = float(isam.error(gtsam.VectorValues.Zero(isam.getDelta())))
+            if (it >= cfg.max_iterations
+                    or decrease <= max(cfg.tolerance * err, cfg.tolerance_chi2)):
                 break
-        err = graph.error(values)
-        if err <= err0 * (1 + 1e-9):
-            break
-    if lin is None:
-        lin = graph.linearize(values)
-    return values, it, float(err0), float(err), lin
+            isam.update()
+            err -= decrease
+            it += 1
+    out = isam.calculateEstimate()
+    return out, it, err0, float(graph.error(out))
+
+
+def _batch_params() -> gtsam.ISAM2Params:
+    """iSAM2 as a batch Gauss–Newton solver: every update relinearises every variable; QR
+    elimination (Cholesky of the normal equations found a 2400-frame drive with
+    ``motion_given_pose`` indeterminate: its pivots lose definiteness numerically)."""
+    params = gtsam.ISAM2Params()
+    params.setFactorization("QR")
+    params.setRelinearizeThreshold(0.0)
+    params.relinearizeSkip = 1
+    return params
+
+
+@contextmanager
+def held_linearization_point(solver: gtsam.ISAM2 | gtsam.IncrementalFixedLagSmoother
+                             ) -> Iterator[None]:
+    """Hold a Python reference to ``solver``'s linearisation point while the block runs:
+    pybind11 then passes that object to the ``CustomFactor`` callbacks instead of copying
+    every value for each call (the point is one ``Values`` iSAM2 updates in place)."""
+    ref = solver.getLinearizationPoint()
+    try:
+        yield
+    finally:
+        del ref

@@ -1,6 +1,6 @@
 """Marginal covariances of the smoother's states from its linearised graph: the
 block-tridiagonal sweep ``block_marginals`` (equal to ``gtsam.Marginals``, in O(n)) and the
-state layout it reads (``_LETTERS``: pose X, speed V, yaw rate W, mount M, height H, yaw
+state layout it reads (``BLOCK_LETTERS``: pose X, speed V, yaw rate W, mount M, height H, yaw
 offset Y, body B)."""
 
 from __future__ import annotations
@@ -14,7 +14,8 @@ from . import model as M
 
 FloatArray = NDArray[np.float64]
 
-_LETTERS = "XVWMHYB"
+#: the variables of a frame in the order of its marginal blocks
+BLOCK_LETTERS = "XVWMHYB"
 
 
 def states_of(values: gtsam.Values, n: int) -> FloatArray:
@@ -37,7 +38,10 @@ def states_of(values: gtsam.Values, n: int) -> FloatArray:
 
 # layout of a frame's block in the block-tridiagonal information matrix: letter → offset, dim
 _DIMS = {"X": 3, "V": 1, "W": 1, "M": 2, "H": 1, "Y": 1, "B": 2}
-_BLOCK = {c: (sum(_DIMS[d] for d in _LETTERS[: _LETTERS.index(c)]), _DIMS[c]) for c in _LETTERS}
+_BLOCK = {
+    c: (sum(_DIMS[d] for d in BLOCK_LETTERS[: BLOCK_LETTERS.index(c)]), _DIMS[c])
+    for c in BLOCK_LETTERS
+}
 _BLOCK_DIM = sum(_DIMS.values())
 # state indices (model layout) of each block entry, for frame k and (prev slots) frame k-1
 _STATE_OF_BLOCK = np.array(
@@ -78,7 +82,7 @@ def block_marginals(lin: gtsam.GaussianFactorGraph, n: int) -> tuple[FloatArray,
     # natural ordering = keys sorted: letters alphabetically, then frame index
     perm = np.empty(n_cols, dtype=np.int64)
     col = 0
-    for c in sorted(_LETTERS):
+    for c in sorted(BLOCK_LETTERS):
         off, dim = _BLOCK[c]
         frames = np.repeat(np.arange(n), dim)
         comp = np.tile(np.arange(dim), n)
