@@ -1,11 +1,11 @@
 """The smoothers' settings and output: ``SmootherConfig`` (the batch's and the fixed-lag's
-common settings) and ``SmoothedFrame`` (one frame's smoothed state, with the fields of the
-EKF's ``FilterState``)."""
+common settings) and ``SmoothedFrame`` (one frame's smoothed state: the EKF's
+``FrameEstimate`` and why a frame has no pair)."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
@@ -13,19 +13,15 @@ from numpy.typing import NDArray
 from scipy.stats import chi2
 
 from . import factors as F
-from .ekf_state import FrameStds
-from .model import NoiseParams
-from .mount_change import MountChangeConfig
+from .filter_common import FilterConfig, FrameEstimate
 
 FloatArray = NDArray[np.float64]
 
 @dataclass(frozen=True)
-class SmootherConfig:
+class SmootherConfig(FilterConfig):
     """Smoother settings (units in the names). Noise and priors are the EKF's
     (``filters.model.NoiseParams``); ``height_m`` is the nominal height (prior mean)."""
 
-    height_m: float = 1.5
-    noise: NoiseParams = field(default_factory=NoiseParams)
     #: sliding-window length; 0 smooths the whole drive in one batch
     lag_s: float = 0.0
     #: robust loss of the pair factors (``factors.LOSSES``); its threshold on the whitened
@@ -43,14 +39,6 @@ class SmootherConfig:
     #: instead of four (batch 623 → 469 frames/s on a 120 s drive, below #7's 500) and the
     #: rendered car's trajectory was 12 % worse (docs/filters.md)
     motion_given_pose: bool = False
-    #: adaptive body shaking, as the EKF's (``body_scale``): each frame's body std is the
-    #: larger of the model's ``body_std_deg`` and the robust spread of the pairs' pitch/roll
-    #: over this many seconds up to it, less their measurement noise; 0 keeps the model's
-    body_window_s: float = 6.0
-    body_window_min_pairs: int = 10
-    #: mount steps (a knocked camera) found by the EKF's test (``filters.mount_change``) let
-    #: the batch's mount jump there
-    mount_change: MountChangeConfig = field(default_factory=MountChangeConfig)
     #: ... unless undone within this many seconds (``persistent_changes``)
     mount_change_persist_s: float = 5.0
     #: robust loss of the wheel-speed factors
@@ -79,11 +67,6 @@ class SmootherConfig:
     #: against 0.48 mm; clean drives alike)
     lag_tolerance_chi2: float = 0.1
     lag_max_iterations: int = 3
-    #: fixed-lag: good pairs whose medians start the window (as the EKF's bootstrap)
-    init_pairs: int = 5
-    #: a pair moves the height only with a wheel speed within this many seconds of it (the
-    #: EKF's rule: without a metric speed, scale is unobservable)
-    speed_timeout_s: float = 1.0
 
     def __post_init__(self) -> None:
         if self.height_m <= 0:
@@ -109,9 +92,8 @@ def chi_norm(probability: float, dof: int) -> float:
 
 
 @dataclass(frozen=True)
-class SmoothedFrame(FrameStds):
-    """Smoothed estimate of one frame (radians, metres, seconds; frames of filters.model),
-    field for field like ``filters.ekf.FilterState``.
+class SmoothedFrame(FrameEstimate):
+    """Smoothed estimate of one frame (``filters.filter_common.FrameEstimate``).
 
     ``status``: ``ok`` (pair used), ``partial`` / ``gated`` (one / both pair blocks
     rejected as outliers by the robust loss), ``predicted`` (no usable pair: ``reason`` gives
@@ -119,26 +101,7 @@ class SmoothedFrame(FrameStds):
     window was restarted at this frame, ``reason`` says why), ``skipped`` (not smoothed,
     e.g. a time not after the previous frame; numbers NaN)."""
 
-    frame: int
-    t: float
-    status: str
-    mount: FloatArray  # (pitch_m, roll_m, h_m)
-    mount_cov: FloatArray
-    mount_yaw: float
-    pose: FloatArray  # frame pose (pitch, roll, h) = mount + body
-    pose_cov: FloatArray
-    motion: FloatArray  # (tx, tz, yaw) frame k-1 → k, metric, G_{k-1}; NaN at the first frame
-    motion_cov: FloatArray
-    speed: float
-    yaw_rate: float
-    position: FloatArray  # (x, y) world, metres
-    heading: float
-    state: FloatArray  # 16-vector, filters.model layout
-    covariance: FloatArray  # 16×16
-    nis: float = float("nan")
-    gated: str = ""
     reason: str = ""
-    standstill: bool = False  # the standstill factor (model.standstill_states) holds here
 
     @property
     def initialised(self) -> bool:
