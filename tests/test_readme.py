@@ -257,6 +257,8 @@ def test_other_status_rows_quote_the_results_files():
     kitti = next(r for r in traffic if r[0] == "KITTI 07 (no --pitch)")
     assert (f"| {_range(wrong, 'd')} ({_range(confident, 'd')} beyond 3σ); {kitti[5]} / "
             f"{kitti[6]} |" in _status("traffic, forward camera"))
+    ours = next(r for r in _rows(RESULTS / "bench_realtime.md") if r[0] == "vipm-track (ours)")
+    assert f"| {ours[1]}; {ours[3]} |" in _status("speed, real frames")
     fleet = {r[0]: r for r in _rows(RESULTS / "bench_fleet.md") if len(r) == 6}
     loop, dask = fleet["sequential loop"], fleet["fleet, 2 workers"]
     assert f"| {dask[2]} vs {loop[2]} ({dask[3]}) |" in _status("fleet")
