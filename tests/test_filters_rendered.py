@@ -121,7 +121,7 @@ def test_smooth_and_monitor_on_the_estimates_with_wheel_speed(seq, gt, estimates
     mon = tmp_path / "monitor.csv"
     rc = main(["monitor", "--estimates", str(estimates), "--camera", str(seq / "camera.yaml"),
                "--nominal", str(nominal), "--speed-csv", str(seq / "speed.csv"),
-               "--out", str(mon), "--quiet"])
+               "--out", str(mon), "--quiet", "--columns", "all"])
     assert rc == 0
     table = read_table(mon)
     assert len(table["frame"]) == N_FRAMES
