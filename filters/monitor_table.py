@@ -8,6 +8,7 @@ import math
 from typing import Any
 
 from vipm_track.measurement import PairMeasurement
+from vipm_track.table import TableColumns
 
 MONITOR_COLUMNS: tuple[str, ...] = (
     "monitor_state", "reason", "stat_pitch", "stat_roll", "stat_height",
@@ -17,6 +18,10 @@ MONITOR_COLUMNS: tuple[str, ...] = (
     "new_pitch_lo_deg", "new_pitch_hi_deg", "new_roll_lo_deg", "new_roll_hi_deg",
     "new_height_lo_m", "new_height_hi_m",
 )
+#: The concise monitor table: state and reason, the filter's mount, the new extrinsics with
+#: their 95 % interval; ``--columns all`` adds the CUSUM statistics and the deviations.
+MONITOR_TABLE = TableColumns("monitor", MONITOR_COLUMNS, tuple(
+    c for c in MONITOR_COLUMNS if not c.startswith(("stat_", "dev_"))))
 
 
 def monitor_row(m: PairMeasurement, state: Any, out: Any) -> dict[str, Any]:

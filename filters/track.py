@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from vipm_track.measurement import PairMeasurement
-from vipm_track.table import TableWriter
+from vipm_track.table import CONCISE, ColumnChoice, TableColumns, TableWriter, choose_columns
 
 from .ekf import ExtrinsicsEKF, SpeedSource, speed_at
 from .ekf_state import EkfConfig, FilterState
@@ -44,6 +44,16 @@ TRACK_COLUMNS: tuple[str, ...] = (
     "meas_status", "meas_pitch_deg", "meas_roll_deg", "meas_tx_m", "meas_tz_m", "meas_yaw_deg",
     "wheel_speed_mps", "nis", "gated", "standstill", "reset_reason",
 )
+
+#: The concise track table: pose and motion with their 1-σ, the mount (the calibration),
+#: speed, yaw rate, the filter's status, the wheel speed applied and standstill; ``--columns
+#: all`` adds the planar trajectory, the raw measurement and the gate's details.
+TRACK_TABLE = TableColumns("track", TRACK_COLUMNS, (
+    "pitch_std_deg", "roll_std_deg", "height_std_m", "tx_std_m", "tz_std_m", "yaw_std_deg",
+    "mount_pitch_deg", "mount_pitch_std_deg", "mount_roll_deg", "mount_roll_std_deg",
+    "mount_height_m", "mount_height_std_m", "mount_yaw_deg",
+    "speed_mps", "yaw_rate_dps", "filter_status", "wheel_speed_mps", "standstill",
+))
 
 WAITING = "waiting for first pairs"
 
@@ -109,12 +119,15 @@ def write_track(
     steps: Iterable[tuple[FilterState, PairMeasurement, float | None]],
     out: str | Path,
     parquet: bool = False,
+    columns: ColumnChoice = CONCISE,
 ) -> dict[str, int]:
-    """Stream ``track`` output into a track table; returns counts of filter statuses."""
+    """Stream ``track`` output into a track table (``columns``: see
+    ``vipm_track.table.choose_columns``); returns counts of filter statuses."""
     out = Path(out)
     counts: dict[str, int] = {}
     pq = out.with_suffix(".parquet") if parquet else None
-    with TableWriter(out, TRACK_COLUMNS, parquet_path=pq) as writer:
+    written = choose_columns(TRACK_TABLE, columns)
+    with TableWriter(out, TRACK_COLUMNS, parquet_path=pq, columns=written) as writer:
         for state, m, v in steps:
             writer.write(track_row(state, m, v))
             counts[state.status] = counts.get(state.status, 0) + 1

@@ -414,7 +414,7 @@ def test_monitor_cli_writes_recording(tmp_path: Path, monitor_drive) -> None:
     out, rrd = tmp_path / "mon.csv", tmp_path / "mon.rrd"
     assert main(["monitor", "--estimates", str(est), "--speed-csv", str(speed), "--camera",
                  str(cam), "--nominal", str(nominal), "--out", str(out), "--quiet",
-                 "--rerun", str(rrd)]) == 0
+                 "--rerun", str(rrd), "--columns", "all"]) == 0
     tab = read_table(out)
     rows = recording_entities(rrd)
     n = len(tab["frame"])

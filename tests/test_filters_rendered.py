@@ -77,7 +77,7 @@ def test_track_images_with_wheel_speed_finds_the_mount_and_height(seq, gt, tmp_p
     out = tmp_path / "track.csv"
     rc = main(["track", "--images", str(seq / "images"), *_inputs(seq), "--pitch", "45",
                "--vehicle", "cart", "--speed-csv", str(seq / "speed.csv"),
-               "--out", str(out), "--quiet"])
+               "--out", str(out), "--quiet", "--columns", "all"])
     assert rc == 0
     table = read_table(out)
     assert len(table["frame"]) == N_FRAMES
@@ -121,7 +121,7 @@ def test_smooth_and_monitor_on_the_estimates_with_wheel_speed(seq, gt, estimates
     mon = tmp_path / "monitor.csv"
     rc = main(["monitor", "--estimates", str(estimates), "--camera", str(seq / "camera.yaml"),
                "--nominal", str(nominal), "--speed-csv", str(seq / "speed.csv"),
-               "--out", str(mon), "--quiet"])
+               "--out", str(mon), "--quiet", "--columns", "all"])
     assert rc == 0
     table = read_table(mon)
     assert len(table["frame"]) == N_FRAMES

@@ -153,7 +153,7 @@ def test_sigterm_during_batch_smoothing_writes_the_measurements_with_a_status(
     monkeypatch.setattr(vipm_track.filters.smoothing, "smooth_batch", stopped)  # the solve
     out = tmp_path / "s.csv"
     rc, _err = _run(capsys, "smooth", "--estimates", est, "--height", "1.65", "--out", out,
-                   "--quiet")
+                   "--quiet", "--columns", "all")
     assert rc == 130
     table = read_table(out)
     assert len(table["frame"]) == 120 and set(table["status"]) == {"interrupted: not smoothed"}
@@ -381,7 +381,8 @@ def test_backward_times_and_missing_numbers_are_reported_with_rows(tmp_path, cap
     path = tmp_path / "bad.csv"
     path.write_text("\n".join([lines[0], *(",".join(c) for c in cells)]) + "\n")
     out = tmp_path / "t.csv"
-    rc, err = _run(capsys, "track", "--estimates", path, "--height", "1.65", "--out", out)
+    rc, err = _run(capsys, "track", "--estimates", path, "--height", "1.65", "--out", out,
+                   "--columns", "all")
     assert rc == 0
     assert "row 22 t " in err and "row 32 frame 30" in err
     table = read_table(out)

@@ -175,7 +175,7 @@ def test_estimate_cli_on_rendered_cart_matches_ground_truth(cart_sequence: Path,
     out = tmp_path / "est.csv"
     rc = main(["estimate", "--images", str(cart_sequence / "images"), "--camera",
                str(cart_sequence / "camera.yaml"), "--height", "0.7", "--out", str(out),
-               "--parquet", "--quiet"])
+               "--parquet", "--quiet", "--columns", "all"])
     assert rc == 0
     est, truth = read_table(out), read_table(cart_sequence / "gt.csv")
     assert list(est["status"]) == [FIRST_FRAME] + ["ok"] * 4

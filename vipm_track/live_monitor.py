@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 
 from vipm_track.filters.ekf_state import EkfConfig, FilterState
 from vipm_track.filters.monitor_online import OnlineMonitor, SpeedBuffer
-from vipm_track.filters.monitor_table import MONITOR_COLUMNS, monitor_row
+from vipm_track.filters.monitor_table import MONITOR_COLUMNS, MONITOR_TABLE, monitor_row
 from vipm_track.filters.monitor_types import MonitorOutput
 from vipm_track.filters.nominal import NominalCalibration
 
@@ -44,10 +44,15 @@ from .estimator_config import EstimatorConfig
 from .measurement import PairMeasurement
 from .pipeline import WRONG_SIZE, estimate_pair, predict_guess, prepare_image
 from .sources import Frame
+from .table import TableColumns
 
 #: columns a live row adds after the monitor's: the pair's first frame, frames dropped
 #: since the previous row, and the time from the frame's arrival to its row [s]
 LIVE_COLUMNS: tuple[str, ...] = (*MONITOR_COLUMNS, "prev_frame", "dropped", "latency_s")
+#: The concise live table: the monitor's concise columns and which frames were paired,
+#: dropped and how late the row came.
+LIVE_TABLE = TableColumns("live", LIVE_COLUMNS,
+                          (*MONITOR_TABLE.concise, "prev_frame", "dropped", "latency_s"))
 
 #: a previous result seeds the next pair (tracking) if it is at most this old [s]
 _TRACK_WITHIN_S = 1.0

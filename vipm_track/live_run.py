@@ -25,7 +25,7 @@ from vipm_track.filters.wheel_speed import SpeedSeries
 from .camera import CameraModel
 from .errors import InputError
 from .estimator_config import EstimatorConfig
-from .live_monitor import LIVE_COLUMNS, LiveMonitor, LiveRow, LiveStats
+from .live_monitor import LIVE_COLUMNS, LIVE_TABLE, LiveMonitor, LiveRow, LiveStats
 from .live_sources import (
     BusReader,
     FrameReader,
@@ -35,7 +35,7 @@ from .live_sources import (
     open_bus,
     parse_video,
 )
-from .table import TableWriter
+from .table import CONCISE, ColumnChoice, TableWriter, choose_columns
 
 
 def run_live(
@@ -56,6 +56,7 @@ def run_live(
     speed_scale: float = 1.0,
     events: str | Path | None = None,
     parquet: bool = False,
+    columns: ColumnChoice = CONCISE,
     camera_timeout_s: float = 1.0,
     speed_timeout_s: float = 1.0,
     duration_s: float | None = None,
@@ -72,12 +73,13 @@ def run_live(
     video's clock, replayed beside it) or ``bus`` (``"INTERFACE:CHANNEL"`` or a python-can
     bus) decoded with ``dbc``/``signals``/``combine``/``can_channel``/``speed_scale``. A
     camera or stream runs until ``duration_s`` or an interrupt; a file until its end or
-    ``max_frames``.
+    ``max_frames``. ``columns``: the table's columns (``vipm_track.table.choose_columns``).
     ``sink``: a ``sinks.rerun_sink.RerunSink`` (camera with its patches, mount series with
     bands, monitor state). The summary goes to stderr unless ``quiet``; a KeyboardInterrupt
     is raised again after it.
     """
     spec = parse_video(video)
+    written = choose_columns(LIVE_TABLE, columns)
     if speed is not None and bus is not None:
         raise InputError("give either a recorded wheel speed (--speed-csv/--can) or --bus, "
                          "not both")
@@ -103,7 +105,7 @@ def run_live(
                          keep_images=True)
     events_file = open(events, "w", newline="\n") if events else None
     writer = TableWriter(Path(out), LIVE_COLUMNS,
-                         Path(out).with_suffix(".parquet") if parquet else None)
+                         Path(out).with_suffix(".parquet") if parquet else None, written)
 
     def on_row(live: LiveRow) -> None:
         writer.write(live.row)

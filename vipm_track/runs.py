@@ -18,7 +18,14 @@ from .measurement import PairMeasurement, measurement_row
 from .parallel import DEFAULT_CHUNK_FRAMES, run_chunked
 from .pipeline import FIRST_FRAME, SequenceStep, run_sequence
 from .sources import FrameSource
-from .table import ESTIMATE_COLUMNS, TableWriter
+from .table import (
+    CONCISE,
+    ESTIMATE_COLUMNS,
+    ESTIMATE_TABLE,
+    ColumnChoice,
+    TableWriter,
+    choose_columns,
+)
 
 if TYPE_CHECKING:
     from .estimator import TwoFrameEstimator
@@ -128,6 +135,7 @@ def estimate_sequence(
     estimator: TwoFrameEstimator | None = None,
     workers: int = 1,
     chunk_frames: int | None = None,
+    columns: ColumnChoice = CONCISE,
 ) -> RunSummary:
     """Run ``source`` and stream one row per frame into the CSV ``out`` (and Parquet beside it
     with ``parquet``). Rows are flushed as they come, so an interrupted run keeps them.
@@ -136,9 +144,10 @@ def estimate_sequence(
     line every few seconds where stderr is a file or a pipe; ``None``: as True).
     ``on_step`` is called with every step (e.g. a live display); ``estimator`` replaces the
     one built from ``camera``, ``height`` and ``config``; ``workers``, ``chunk_frames``: as
-    :func:`sequence_steps`."""
+    :func:`sequence_steps`; ``columns``: the table's columns (:func:`table.choose_columns`)."""
     from .progress import progress_bar
 
+    written = choose_columns(ESTIMATE_TABLE, columns)
     out = Path(out)
     parquet_path = out.with_suffix(".parquet") if parquet else None
     if progress is None:
@@ -148,7 +157,7 @@ def estimate_sequence(
     steps = sequence_steps(source, camera, height, config, tracking, estimator, workers,
                            chunk_frames)
     with (
-        TableWriter(out, ROW_COLUMNS, parquet_path) as writer,
+        TableWriter(out, ROW_COLUMNS, parquet_path, written) as writer,
         progress_bar(total=len(source), disable=not progress, unit="frame") as bar,
     ):
         for step in steps:

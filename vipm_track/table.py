@@ -13,6 +13,7 @@ import io
 import math
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -62,6 +63,13 @@ ESTIMATE_COLUMNS: tuple[str, ...] = (
     *CORRELATION_COLUMNS,
 )
 
+#: The estimates table's concise columns: every one but the estimator's diagnostics
+#: (``patches``, ``residual_px``). The correlations stay: the filters and the monitor read
+#: the pair's full covariance from them, and ``inliers`` gates the monitor.
+ESTIMATE_CONCISE: tuple[str, ...] = tuple(
+    c for c in ESTIMATE_COLUMNS if c not in ("patches", "residual_px")
+)
+
 TEXT_COLUMNS = frozenset(
     {"status", "monitor_state", "reason", "filter_status", "meas_status", "gated", "reset_reason"}
 )
@@ -69,6 +77,68 @@ TEXT_COLUMNS = frozenset(
 
 class TableError(InputError):
     """A per-frame table is unreadable or lacks a column; the message names file and row."""
+
+
+#: ``columns`` choices beside an explicit list of names: every column, or the concise set.
+ALL = "all"
+CONCISE = "concise"
+#: Which columns a table writes: :data:`ALL`, :data:`CONCISE`, or the names of columns.
+ColumnChoice = str | Sequence[str]
+
+
+@dataclass(frozen=True)
+class TableColumns:
+    """The columns a kind of per-frame table may carry after ``BASE_COLUMNS`` (``every``, in
+    the order written) and the concise default among them (``concise``: what a reader looks
+    at first, and every column another command reads back from the table)."""
+
+    name: str
+    every: tuple[str, ...]
+    concise: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        stray = [c for c in self.concise if c not in self.every]
+        if stray:
+            raise ValueError(f"{self.name}: concise column(s) {stray} are not in the table")
+
+
+ESTIMATE_TABLE = TableColumns("estimates", ESTIMATE_COLUMNS, ESTIMATE_CONCISE)
+
+
+def choose_columns(table: TableColumns, choice: ColumnChoice = CONCISE,
+                   option: str = "--columns") -> tuple[str, ...]:
+    """The columns after ``BASE_COLUMNS`` that ``table`` writes for ``choice``, in the table's
+    order: ``"all"``, ``"concise"``, or names (a sequence, or one comma-separated string; base
+    columns may be named and are always written). An :class:`InputError` naming ``option``
+    lists unknown names and the valid ones."""
+    return choose_columns_each((table,), choice, option)[0]
+
+
+def choose_columns_each(tables: Sequence[TableColumns], choice: ColumnChoice = CONCISE,
+                        option: str = "--columns") -> list[tuple[str, ...]]:
+    """:func:`choose_columns` for tables written together (a fleet's estimates, smoothed
+    and monitor tables): a named column goes to each table that has it, a name none has is
+    an :class:`InputError`."""
+    if isinstance(choice, str):
+        key = choice.strip().lower()
+        if key in (ALL, CONCISE):
+            return [t.every if key == ALL else t.concise for t in tables]
+        choice = choice.split(",")
+    names = [c for c in (str(c).strip() for c in choice) if c]
+    if not names:
+        raise InputError(f"{option}: no column named; give '{ALL}', '{CONCISE}' or a "
+                         "comma-separated list of columns")
+    valid = list(BASE_COLUMNS)
+    for t in tables:
+        valid += [c for c in t.every if c not in valid]
+    unknown = [c for c in names if c not in valid]
+    if unknown:
+        what = ", ".join(t.name for t in tables) + (" table" if len(tables) == 1 else " tables")
+        raise InputError(
+            f"{option}: unknown column(s) {printable(', '.join(unknown), 200)} for the "
+            f"{what}; valid: '{ALL}', '{CONCISE}' or any of {', '.join(valid)}")
+    wanted = set(names)
+    return [tuple(c for c in t.every if c in wanted) for t in tables]
 
 
 #: Significant digits a written number keeps: float64 carries 15.9, and arithmetic noise
@@ -106,7 +176,9 @@ class TableWriter:
     """Stream rows (mappings of column → value) into a CSV, flushing each row.
 
     With ``parquet_path`` the same rows are also written as Parquet when closed (needs
-    pyarrow). Use as a context manager.
+    pyarrow). ``columns``: the ones among ``extra_columns`` to write (default all; see
+    :func:`choose_columns`); a row's values of the others are left out. Use as a context
+    manager.
     """
 
     def __init__(
@@ -114,9 +186,11 @@ class TableWriter:
         path: str | Path,
         extra_columns: Sequence[str] = (),
         parquet_path: str | Path | None = None,
+        columns: Sequence[str] | None = None,
     ) -> None:
         self.path = Path(path)
-        self.columns = list(BASE_COLUMNS) + [c for c in extra_columns if c not in BASE_COLUMNS]
+        self.columns = _written_columns(extra_columns, columns)
+        self._known = set(BASE_COLUMNS) | set(extra_columns)
         self.parquet_path = Path(parquet_path) if parquet_path else None
         if self.parquet_path is not None:
             _require_pyarrow()
@@ -131,7 +205,7 @@ class TableWriter:
         self._line_writer = csv.writer(self._line, lineterminator=LINE_END)
 
     def write(self, row: Mapping[str, Any]) -> None:
-        unknown = set(row) - set(self.columns)
+        unknown = set(row) - self._known
         if unknown:
             raise KeyError(f"{self.path}: row has columns not in the table: {sorted(unknown)}")
         # one write of the whole line, then flush: the file never ends in half a row
@@ -142,7 +216,7 @@ class TableWriter:
             self._file.write(self._line.getvalue())
             self._file.flush()
         if self.parquet_path is not None:
-            self._rows.append(dict(row))
+            self._rows.append({c: row.get(c) for c in self.columns})
 
     @contextmanager
     def _named_os_errors(self) -> Iterator[None]:
@@ -170,18 +244,31 @@ class TableWriter:
 
 
 def write_table(
-    path: str | Path, rows: Iterable[Mapping[str, Any]], extra_columns: Sequence[str] = ()
+    path: str | Path, rows: Iterable[Mapping[str, Any]], extra_columns: Sequence[str] = (),
+    columns: Sequence[str] | None = None,
 ) -> None:
-    """Write all ``rows`` to ``path`` (CSV, or Parquet if the suffix is ``.parquet``)."""
+    """Write all ``rows`` to ``path`` (CSV, or Parquet if the suffix is ``.parquet``);
+    ``columns`` as :class:`TableWriter`'s."""
     rows = list(rows)
     path = Path(path)
     if path.suffix == ".parquet":
-        columns = list(BASE_COLUMNS) + [c for c in extra_columns if c not in BASE_COLUMNS]
-        write_parquet(rows, columns, path)
+        write_parquet(rows, _written_columns(extra_columns, columns), path)
         return
-    with TableWriter(path, extra_columns) as writer:
+    with TableWriter(path, extra_columns, columns=columns) as writer:
         for row in rows:
             writer.write(row)
+
+
+def _written_columns(extra_columns: Sequence[str], columns: Sequence[str] | None) -> list[str]:
+    """Base columns, then those of ``extra_columns`` in ``columns`` (all where None)."""
+    extra = [c for c in extra_columns if c not in BASE_COLUMNS]
+    if columns is None:
+        return list(BASE_COLUMNS) + extra
+    stray = sorted(set(columns) - set(extra) - set(BASE_COLUMNS))
+    if stray:
+        raise ValueError(f"columns {stray} are not among the table's {extra}")
+    keep = set(columns)
+    return list(BASE_COLUMNS) + [c for c in extra if c in keep]
 
 
 def write_parquet(

@@ -189,10 +189,21 @@ def check_rerun_output(args: argparse.Namespace) -> None:
 
 
 def add_output_options(parser: argparse.ArgumentParser, what: str = "per-frame CSV") -> None:
-    """``--out`` and ``--parquet``."""
+    """``--out``, ``--parquet`` and ``--columns``."""
     parser.add_argument("--out", required=True, metavar="OUT.csv", help=f"{what} to write")
     parser.add_argument("--parquet", action="store_true",
                         help="also write the table as Parquet beside the CSV")
+    add_columns_option(parser)
+
+
+def add_columns_option(parser: argparse._ActionsContainer) -> None:
+    """``--columns all|concise|A,B,...``: which columns the per-frame tables carry
+    (``vipm_track.table.choose_columns`` checks the names)."""
+    parser.add_argument("--columns", default="concise", metavar="all|concise|A,B,...",
+                        help="the table's columns: 'concise' (default: pose, motion, "
+                        "calibration with their std, status, and every column another "
+                        "vipm-track command reads back), 'all', or a comma-separated list "
+                        "(the conventions' first columns are always written)")
 
 
 def add_speed_options(parser: argparse.ArgumentParser) -> None:

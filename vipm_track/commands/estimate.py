@@ -8,6 +8,7 @@ from collections import Counter
 
 from ..camera import load_camera
 from ..errors import InputError, NothingUsable
+from ..table import ESTIMATE_TABLE, choose_columns
 from .common import (
     add_camera_options,
     add_input_options,
@@ -63,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
     from .inputs import with_searched_setup
 
     out = check_output(args.out, args.parquet)
+    columns = choose_columns(ESTIMATE_TABLE, args.columns)
     check_rerun_output(args)
     if not args.camera and not args.bag:
         raise InputError("--camera not given and no camera.yaml or calib.txt beside the "
@@ -91,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         summary = estimate_sequence(
             logging.source, camera, height, out, logging.config, tracking=not args.no_tracking,
-            parquet=args.parquet, progress=not args.quiet,
+            parquet=args.parquet, progress=not args.quiet, columns=columns,
             on_step=logging.on_step, **parallel,
         )
     finally:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 
 from ..errors import InputError, NothingUsable
-from .common import check_output_dir
+from .common import add_columns_option, check_output_dir
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -48,6 +48,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        "topic (default: its first), where the drive has no camera.yaml")
     group.add_argument("--speed-topic", metavar="TOPIC", help="a bag's twist / odometry "
                        "topic (default: its first, if any), where the drive has no speed.csv")
+    add_columns_option(group)
     parser.add_argument("--quiet", action="store_true", help="no progress")
     parser.set_defaults(handler=run)
 
@@ -67,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
                              chunk_frames=args.chunk_frames, marginals=not args.no_std,
                              image_topic=args.image_topic,
                              camera_info_topic=args.camera_info_topic,
-                             speed_topic=args.speed_topic)
+                             speed_topic=args.speed_topic, columns=args.columns)
     rows: list[dict] = []
     try:
         rows = run_fleet(specs, out, settings, workers=args.workers, scheduler=args.scheduler,

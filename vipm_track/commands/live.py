@@ -10,6 +10,8 @@ import math
 
 from ..camera import load_camera
 from ..errors import InputError
+from ..live_monitor import LIVE_TABLE
+from ..table import choose_columns
 from .common import (
     add_can_decoding_options,
     add_output_options,
@@ -87,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
     from .rerun_options import sink_from_args
 
     out = check_output(args.out, args.parquet)
+    columns = choose_columns(LIVE_TABLE, args.columns)
     if args.events:
         check_writable(args.events, "--events")
     check_rerun_output(args)
@@ -119,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
         args.video, camera, nominal, out, config=config, realtime=args.realtime, fps=args.fps,
         speed=speed, bus=args.bus, dbc=args.dbc, signals=args.signals, combine=args.combine,
         can_channel=args.can_channel, speed_scale=args.speed_scale, events=args.events,
-        parquet=args.parquet, camera_timeout_s=args.camera_timeout,
+        parquet=args.parquet, columns=columns, camera_timeout_s=args.camera_timeout,
         speed_timeout_s=args.speed_timeout, duration_s=args.duration,
         monitor_options={"false_alarms_per_hour": args.false_alarms_per_hour,
                          "road_std_deg": args.road_std, "road_tau_s": args.road_tau},

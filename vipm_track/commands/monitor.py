@@ -18,11 +18,11 @@ import sys
 from collections import Counter
 from typing import Any
 
-from vipm_track.filters.monitor_table import MONITOR_COLUMNS, monitor_row
+from vipm_track.filters.monitor_table import MONITOR_COLUMNS, MONITOR_TABLE, monitor_row
 
 from ..camera import load_camera
 from ..errors import InputError
-from ..table import TableWriter
+from ..table import TableWriter, choose_columns
 from .common import (
     add_filter_inputs,
     add_output_options,
@@ -78,6 +78,7 @@ def run(args: argparse.Namespace) -> int:
     from vipm_track.filters.nominal import load_nominal
 
     out = check_output(args.out, args.parquet)
+    columns = choose_columns(MONITOR_TABLE, args.columns)
     if args.events:
         check_writable(args.events, "--events")
     check_rerun_output(args)
@@ -119,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
     parquet = out.with_suffix(".parquet") if args.parquet else None
     events = open(args.events, "w", newline="\n") if args.events else None
     try:
-        with TableWriter(out, MONITOR_COLUMNS, parquet) as writer:
+        with TableWriter(out, MONITOR_COLUMNS, parquet, columns) as writer:
             for m, s, o in monitor_frames(measurements, nominal, speed, config, ekf_config,
                                           progress):
                 writer.write(monitor_row(m, s, o))

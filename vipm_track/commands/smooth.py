@@ -175,12 +175,13 @@ def build_config(args: argparse.Namespace):
 def run(args: argparse.Namespace) -> int:
     from vipm_track.filters.drive_summary import summarize_mount, summary_markdown
     from vipm_track.filters.smoothing import smoothed_rows
-    from vipm_track.filters.track import TRACK_COLUMNS
+    from vipm_track.filters.track import TRACK_COLUMNS, TRACK_TABLE
 
-    from ..table import TableWriter
+    from ..table import TableWriter, choose_columns
 
     config = build_config(args)
     out = check_output(args.out, args.parquet)
+    columns = choose_columns(TRACK_TABLE, args.columns)
     summary_path = Path(args.summary) if args.summary else out.with_suffix(".summary.json")
     check_writable(summary_path, "--summary")
     check_writable(summary_path.with_suffix(".md"), "--summary")
@@ -200,7 +201,7 @@ def run(args: argparse.Namespace) -> int:
     if getattr(args, "interrupted_at", None) is not None:
         interrupted = (f"interrupted while estimating: smoothed over the frames up to "
                        f"{args.interrupted_at}")
-    with TableWriter(out, TRACK_COLUMNS, parquet_path=pq) as writer:
+    with TableWriter(out, TRACK_COLUMNS, parquet_path=pq, columns=columns) as writer:
         try:
             for f, row in smoothed_rows(measurements, speed, config, not args.quiet):
                 writer.write(row)

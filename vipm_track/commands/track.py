@@ -9,6 +9,7 @@ from collections.abc import Iterator
 
 from ..errors import InputError, NothingUsable
 from ..measurement import PairMeasurement
+from ..table import choose_columns
 from .common import (
     add_filter_inputs,
     add_output_options,
@@ -57,9 +58,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from vipm_track.filters.ekf_state import EkfConfig
     from vipm_track.filters.model import NoiseParams
-    from vipm_track.filters.track import track, write_track
+    from vipm_track.filters.track import TRACK_TABLE, track, write_track
 
     out = check_output(args.out, args.parquet)
+    columns = choose_columns(TRACK_TABLE, args.columns)
     check_rerun_output(args)
     height = check_height(args.height)
     if not 0.5 < args.gate < 1.0:
@@ -99,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         from ..progress import progress_bar
 
         steps = progress_bar(steps, total=total, desc="track", unit="frame")
-    counts = write_track(steps, out, parquet=args.parquet)
+    counts = write_track(steps, out, parquet=args.parquet, columns=columns)
     if speed is not None and not args.quiet:
         check_speed_overlap(speed, frame_times, strict=False)
     if not args.quiet:

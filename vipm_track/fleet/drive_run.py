@@ -24,13 +24,13 @@ from vipm_track.filters.drive_summary import summarize_mount
 from vipm_track.filters.ekf_state import EkfConfig
 from vipm_track.filters.model import NoiseParams
 from vipm_track.filters.monitor_inputs import frame_rate, monitor_frames
-from vipm_track.filters.monitor_table import MONITOR_COLUMNS, monitor_row
+from vipm_track.filters.monitor_table import MONITOR_TABLE, monitor_row
 from vipm_track.filters.monitor_types import MonitorConfig
 from vipm_track.filters.nominal import NominalCalibration, load_nominal
 from vipm_track.filters.smoother_config import SmootherConfig
 from vipm_track.filters.smoothing import smoothed_rows
 from vipm_track.filters.speed_decoder import decode_can_log
-from vipm_track.filters.track import TRACK_COLUMNS
+from vipm_track.filters.track import TRACK_TABLE
 from vipm_track.filters.wheel_speed import SpeedSeries, read_speed_csv
 
 from ..bag_source import BagSource, read_bag_camera, read_bag_speed
@@ -38,9 +38,9 @@ from ..camera import CameraModel, load_camera
 from ..errors import InputError, NothingUsable, printable
 from ..estimator_config import EstimatorConfig
 from ..pipeline import config_with
-from ..runs import ROW_COLUMNS, sequence_steps, step_measurement, step_row
+from ..runs import sequence_steps, step_measurement, step_row
 from ..sources import FrameSource, open_source
-from ..table import write_table
+from ..table import CONCISE, ESTIMATE_TABLE, choose_columns_each, write_table
 from .drives import DriveSpec
 
 #: the file in a drive's folder that says its outputs are complete, with their input hash
@@ -55,7 +55,8 @@ class FleetSettings:
     smoother's window, 0 for the whole drive at once; ``chunk_frames``: split a drive's
     estimation into chunks of that many frames, as ``--chunk-frames`` does (None: one
     sequence); ``marginals``: compute the smoothed std columns; the topics: a bag's
-    image / camera_info / speed topic (None: found by message type)."""
+    image / camera_info / speed topic (None: found by message type); ``columns``: the
+    tables' columns (``all``, ``concise`` or names, ``table.choose_columns_each``)."""
 
     vehicle: str = "car"
     lag_s: float = 0.0
@@ -64,14 +65,22 @@ class FleetSettings:
     image_topic: str | None = None
     camera_info_topic: str | None = None
     speed_topic: str | None = None
+    columns: str = CONCISE
 
     def __post_init__(self) -> None:
+        self.tables()  # unknown column names are named before any drive runs
         if self.vehicle not in ("car", "cart"):
             raise InputError(f"--vehicle must be car or cart, got {self.vehicle!r}")
         if not (np.isfinite(self.lag_s) and self.lag_s >= 0):
             raise InputError(f"--lag must be >= 0 seconds, got {self.lag_s}")
         if self.chunk_frames is not None and self.chunk_frames < 2:
             raise InputError(f"--chunk-frames must be >= 2, got {self.chunk_frames}")
+
+    def tables(self) -> dict[str, tuple[tuple[str, ...], tuple[str, ...]]]:
+        """Each table's file stem → (its columns after the base ones, those written)."""
+        kinds = {"estimates": ESTIMATE_TABLE, "smoothed": TRACK_TABLE, "monitor": MONITOR_TABLE}
+        chosen = choose_columns_each(tuple(kinds.values()), self.columns)
+        return {name: (t.every, c) for (name, t), c in zip(kinds.items(), chosen, strict=True)}
 
     def key(self) -> str:
         """The settings as one canonical string (for the input hash)."""
@@ -133,10 +142,11 @@ def _write_atomic(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
-def _table_atomic(path: Path, rows: list[dict], columns: tuple[str, ...]) -> None:
+def _table_atomic(path: Path, rows: list[dict], settings: FleetSettings) -> None:
     # the temporary name starts with '.', which Parquet dataset readers skip
     tmp = path.with_name(f".{path.name}.tmp.parquet")
-    write_table(tmp, rows, columns)
+    every, written = settings.tables()[path.stem]
+    write_table(tmp, rows, every, written)
     os.replace(tmp, path)
 
 
@@ -194,7 +204,7 @@ def _process(spec: DriveSpec, folder: Path, settings: FleetSettings) -> dict[str
                                chunk_frames=settings.chunk_frames):
         estimate_rows.append(step_row(step, height))
         measurements.append(step_measurement(step, height))
-    _table_atomic(folder / "estimates.parquet", estimate_rows, ROW_COLUMNS)
+    _table_atomic(folder / "estimates.parquet", estimate_rows, settings)
     if not any(m.ok for m in measurements):
         counts = Counter(m.status for m in measurements)
         raise NothingUsable(f"{source.description}: no frame has a usable pair estimate ("
@@ -203,7 +213,7 @@ def _process(spec: DriveSpec, folder: Path, settings: FleetSettings) -> dict[str
     for f, row in smoothed_rows(measurements, speed, smoother_config(height, settings)):
         frames.append(f)
         rows.append(row)
-    _table_atomic(folder / "smoothed.parquet", rows, TRACK_COLUMNS)
+    _table_atomic(folder / "smoothed.parquet", rows, settings)
     summary = summarize_mount(frames, measurements)
     ekf_config = EkfConfig(height_m=height)
     monitor_config = MonitorConfig.from_noise(ekf_config.noise, fps=frame_rate(measurements))
@@ -211,7 +221,7 @@ def _process(spec: DriveSpec, folder: Path, settings: FleetSettings) -> dict[str
     for m, s, o in monitor_frames(measurements, nominal, speed, monitor_config, ekf_config):
         monitor_rows.append(monitor_row(m, s, o))
         states.append(o)
-    _table_atomic(folder / "monitor.parquet", monitor_rows, MONITOR_COLUMNS)
+    _table_atomic(folder / "monitor.parquet", monitor_rows, settings)
     _write_atomic(folder / "summary.json", json.dumps(summary, indent=2) + "\n")
     return _row(spec, summary, measurements, states, nominal, speed is not None)
 
