@@ -53,6 +53,9 @@ TRACK_TABLE = TableColumns("track", TRACK_COLUMNS, (
     "mount_pitch_deg", "mount_pitch_std_deg", "mount_roll_deg", "mount_roll_std_deg",
     "mount_height_m", "mount_height_std_m", "mount_yaw_deg",
     "speed_mps", "yaw_rate_dps", "filter_status", "wheel_speed_mps", "standstill",
+    # the pair's own measurement: an interrupted smooth keeps the frames it had not smoothed
+    # here, and nothing computed may be lost by default
+    "meas_status", "meas_pitch_deg", "meas_roll_deg", "meas_tx_m", "meas_tz_m", "meas_yaw_deg",
 ))
 
 WAITING = "waiting for first pairs"
