@@ -22,6 +22,7 @@ from .common import (
 )
 from .estimator_options import add_estimator_options
 from .inputs import estimator_config, load_speed
+from .monitor import add_monitor_test_options
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -68,13 +69,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        help="wheel speed silent this long -> HOLD (default 1)")
     parser.add_argument("--duration", type=float, default=None, metavar="S",
                         help="stop a camera or stream after S seconds (default: at Ctrl-C)")
-    parser.add_argument("--false-alarms-per-hour", type=float, default=0.1, metavar="RATE",
-                        help="false-alarm rate the test is set for (default 0.1)")
-    parser.add_argument("--road-std", type=float, default=0.0, metavar="DEG",
-                        help="slow road-relative tilt that is not a calibration change: its "
-                        "std (default 0: flat ground; ~0.5 on public roads)")
-    parser.add_argument("--road-tau", type=float, default=2.0, metavar="S",
-                        help="time constant of that tilt (default 2)")
+    add_monitor_test_options(parser)
     parser.add_argument("--quiet", action="store_true", help="no summary on stderr")
     add_estimator_options(parser)
     add_rerun_options(parser)

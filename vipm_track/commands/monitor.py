@@ -56,6 +56,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_output_options(parser, "per-frame monitor CSV")
     parser.add_argument("--events", metavar="EVENTS.jsonl",
                         help="write one JSON line per state change")
+    add_monitor_test_options(parser)
+    parser.add_argument("--quiet", action="store_true", help="no progress bars or summary")
+    add_estimator_options(parser)
+    add_parallel_options(parser)
+    add_rerun_options(parser)
+    parser.set_defaults(handler=run)
+
+
+def add_monitor_test_options(parser: argparse.ArgumentParser) -> None:
+    """The drift test's settings (``monitor`` and ``live``): its false-alarm rate and the
+    road's slow tilt that is not a calibration change."""
     parser.add_argument("--false-alarms-per-hour", type=float, default=0.1, metavar="RATE",
                         help="false-alarm rate the test is set for (default 0.1)")
     parser.add_argument("--road-std", type=float, default=0.0, metavar="DEG",
@@ -64,11 +75,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "ground; ~0.5 on public roads, see README)")
     parser.add_argument("--road-tau", type=float, default=2.0, metavar="S",
                         help="time constant of that tilt (default 2)")
-    parser.add_argument("--quiet", action="store_true", help="no progress bars or summary")
-    add_estimator_options(parser)
-    add_parallel_options(parser)
-    add_rerun_options(parser)
-    parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -11,8 +11,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .drift_report import STATE_COLORS
-from .drift_summary import state_runs
-from .report import _finite, _pyplot, _save
+from .drift_summary import has_finite, state_runs
+from .report import _pyplot, _save
 
 #: (label, frame-pose column, mount column, its std column, unit) of the demo figure's panels
 DEMO_PANELS: tuple[tuple[str, str, str, str, str], ...] = (
@@ -69,7 +69,7 @@ def write_demo_figure(
                 ax.fill_between(t_sm, m - s, m + s, color=MOUNT_COLOR, alpha=0.25, lw=0,
                                 label="95 % interval")
             ax.plot(t_sm, m, "-", color=MOUNT_COLOR, lw=1.4, label="smoothed mount")
-        if mount in truth and _finite(truth, mount):
+        if mount in truth and has_finite(truth, mount):
             ax.plot(t_truth, np.asarray(truth[mount], float), "--", color="k", lw=1.2,
                     label="true mount")
         _zoom_to_mount(ax, smoothed, truth, mount, std)

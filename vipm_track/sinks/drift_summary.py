@@ -113,7 +113,7 @@ class DriftSummary:
 
 def has_mount(table: Mapping[str, NDArray]) -> bool:
     """Whether ``table`` has a mount (calibration) column with a number."""
-    return any(_finite(table, axis[2]) for axis in MOUNT_AXES)
+    return any(has_finite(table, axis[2]) for axis in MOUNT_AXES)
 
 
 def summarize_drift(table: Mapping[str, NDArray], nominal: object | None = None,
@@ -128,7 +128,7 @@ def summarize_drift(table: Mapping[str, NDArray], nominal: object | None = None,
     frames = np.asarray(table["frame"])
     axes: dict[str, AxisDrift] = {}
     for axis in MOUNT_AXES:
-        if _finite(table, axis[2]):
+        if has_finite(table, axis[2]):
             axes[axis[0]] = _axis(table, t, frames, axis, nominal, truth)
     finite_t = t[np.isfinite(t)]
     t0, t1 = (float(finite_t[0]), float(finite_t[-1])) if finite_t.size else (NAN, NAN)
@@ -144,7 +144,7 @@ def _axis(table: Mapping[str, NDArray], t: NDArray, frames: NDArray, spec: tuple
     last = rows[-1]
     current, sigma, source = float(mount[last]), float(std[last]), "filter"
     lo, hi = current - Z95 * sigma, current + Z95 * sigma
-    if _finite(table, new) and np.isfinite(np.asarray(table[new], float)[last]):
+    if has_finite(table, new) and np.isfinite(np.asarray(table[new], float)[last]):
         # the monitor's new extrinsics: its own estimate of where the camera now sits
         current = float(np.asarray(table[new], float)[last])
         lo, hi = (float(np.asarray(table[c], float)[last]) if c in table else NAN
@@ -175,7 +175,7 @@ def _axis(table: Mapping[str, NDArray], t: NDArray, frames: NDArray, spec: tuple
     changed_at = _halfway_time(t[rows], mount[rows], start, current) if significant else NAN
     rate, rate_std, span, note = _rate(t[rows], mount[rows], std[rows], changed_at)
     true_current = true_changed = NAN
-    if truth is not None and _finite(truth, col):
+    if truth is not None and has_finite(truth, col):
         index = {int(f): i for i, f in enumerate(truth["frame"])}
         true = np.asarray(truth[col], float)
         if int(frames[last]) in index:
@@ -259,7 +259,7 @@ def state_runs(values: NDArray) -> list[tuple[int, int, object]]:
     return [(int(a), int(b), values[a]) for a, b in zip(starts, stops, strict=True)]
 
 
-def _finite(table: Mapping[str, NDArray], column: str) -> bool:
+def has_finite(table: Mapping[str, NDArray], column: str) -> bool:
     """Whether ``column`` exists, is numeric and has a finite number somewhere."""
     if column not in table:
         return False
@@ -274,6 +274,7 @@ __all__: Sequence[str] = [
     "AxisDrift",
     "DriftSummary",
     "MonitorTimeline",
+    "has_finite",
     "has_mount",
     "monitor_timeline",
     "state_runs",

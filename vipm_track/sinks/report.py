@@ -39,7 +39,13 @@ from ..evaluate import frame_errors
 from ..kitti import is_kitti_poses, kitti_truth_table
 from ..table import read_table
 from .drift_report import STATE_COLORS, drift_figure, fmt, summary_lines, write_html
-from .drift_summary import MIN_RATE_SPAN_S, DriftSummary, state_runs, summarize_drift
+from .drift_summary import (
+    MIN_RATE_SPAN_S,
+    DriftSummary,
+    has_finite,
+    state_runs,
+    summarize_drift,
+)
 from .trajectory import planar_path
 
 BAND_SIGMA = 2.0
@@ -360,9 +366,9 @@ def _monitor_figure(plt: Any, est: Mapping, x: NDArray, x_label: str, path: Path
     interval (``filters/monitor.py`` via ``vipm-track monitor``)."""
     states = np.asarray(est["monitor_state"], dtype=object)
     stats = [c for c in est if (c.startswith("stat_") or (
-        c.startswith("monitor_") and c != "monitor_state")) and _finite(est, c)]
-    devs = [c for c in MONITOR_DEVIATIONS if _finite(est, c)]
-    axes_new = [p for p in MONITOR_AXES if _finite(est, p[1]) or _finite(est, p[2])]
+        c.startswith("monitor_") and c != "monitor_state")) and has_finite(est, c)]
+    devs = [c for c in MONITOR_DEVIATIONS if has_finite(est, c)]
+    axes_new = [p for p in MONITOR_AXES if has_finite(est, p[1]) or has_finite(est, p[2])]
     ratios = [1.0] + [1.6] * bool(stats) + [1.6] * bool(devs) + [1.6] * len(axes_new)
     fig, axes = plt.subplots(len(ratios), 1, figsize=(11, 1.0 + 1.7 * sum(ratios)),
                              sharex=True, squeeze=False, gridspec_kw={"height_ratios": ratios})
@@ -412,11 +418,11 @@ def _monitor_figure(plt: Any, est: Mapping, x: NDArray, x_label: str, path: Path
             twin.legend(loc="upper right", fontsize=8)
     for label, mount, new, lo, hi, unit in axes_new:
         ax = next(panels)
-        if _finite(est, mount):
+        if has_finite(est, mount):
             ax.plot(x, np.asarray(est[mount], float), color=EST_COLOR, lw=1,
                     label="filter mount")
-        if _finite(est, new):
-            if _finite(est, lo) and _finite(est, hi):
+        if has_finite(est, new):
+            if has_finite(est, lo) and has_finite(est, hi):
                 ax.fill_between(x, np.asarray(est[lo], float), np.asarray(est[hi], float),
                                 color="tab:purple", alpha=0.25, lw=0, label="95 % interval")
             ax.plot(x, np.asarray(est[new], float), ".", color="tab:purple", ms=3,
@@ -427,16 +433,6 @@ def _monitor_figure(plt: Any, est: Mapping, x: NDArray, x_label: str, path: Path
     axes[-1, 0].set_xlabel(x_label)
     fig.suptitle(title)
     return _save(plt, fig, path)
-
-
-def _finite(table: Mapping, column: str) -> bool:
-    """Whether ``column`` exists and has a finite number somewhere."""
-    if column not in table:
-        return False
-    try:
-        return bool(np.isfinite(np.asarray(table[column], float)).any())
-    except (TypeError, ValueError):  # a text column
-        return False
 
 
 # --- markdown --------------------------------------------------------------------------------
@@ -527,7 +523,7 @@ def _monitor_lines(est: Mapping) -> list[str]:
                      f"{x[start]:.2f}): {before or '(empty)'} → {after or '(empty)'}")
     if len(runs) > 31:
         lines.append(f"- … {len(runs) - 31} more")
-    new = [p for p in MONITOR_AXES if _finite(est, p[2])]
+    new = [p for p in MONITOR_AXES if has_finite(est, p[2])]
     if new:
         last = int(np.flatnonzero(np.isfinite(np.asarray(est[new[0][2]], float)))[-1])
         lines += ["", f"New extrinsics at frame {int(est['frame'][last])} "
