@@ -77,7 +77,17 @@ def _params() -> gtsam.ISAM2Params:
     params = gtsam.ISAM2Params()
     params.setRelinearizeThreshold(0.0)
     params.relinearizeSkip = 1
+    # QR, not the default Cholesky: marginalising ten frames of a wheel-speed drive (tight
+    # height random walk next to metric speed factors) squares a condition number Cholesky
+    # could not take ("indeterminate system" near a height, then a restart); QR costs ~10 %
+    params.setFactorization("QR")
     return params
+
+
+def _first_line(exc: Exception) -> str:
+    """The first non-blank line of ``exc``'s message (gtsam's start with a newline), or its
+    type's name."""
+    return next((ln.strip() for ln in str(exc).splitlines() if ln.strip()), type(exc).__name__)
 
 
 def _frame_vector(values: gtsam.Values, k: int) -> FloatArray:
@@ -318,7 +328,12 @@ class FixedLagSmoother:
         good = [f for f in out if np.all(np.isfinite(f.position))]
         if good:
             last = good[-1]
-            self._start_pose = (float(last.position[0]), float(last.position[1]), last.heading)
+            pose = (float(last.position[0]), float(last.position[1]), float(last.heading))
+            # the new window starts at m: its pose is the last one moved by m's pair (by the
+            # last speed and yaw rate without a usable pair), not the last one itself
+            self._start_pose = (
+                dead_reckoned(pose, float(last.mount[2]), last.mount_yaw, m) if m.ok
+                else M.propagate_pose(*pose, last.speed, last.yaw_rate, m.t - last.t))
         self._reset = (m.frame, why)
         self._started = False
         self._boot = [(m, speed, body_std)]
@@ -358,8 +373,7 @@ class FixedLagSmoother:
                     sm.update()
                 self._est = sm.calculateEstimate()
         except RuntimeError as exc:  # gtsam's IndeterminantLinearSystemException and kin
-            raise SolveError(str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-                             ) from None
+            raise SolveError(_first_line(exc)) from None
         finally:
             self.timings["update"] += time.perf_counter() - t0
         for (k, _), index in zip(tagged, indices, strict=True):
@@ -379,7 +393,7 @@ class FixedLagSmoother:
             return np.asarray(self._smoother.getISAM2().jointMarginalCovariance(keys)
                               .fullMatrix())
         except RuntimeError as exc:
-            raise SolveError(f"no marginal: {str(exc).splitlines()[0]}") from None
+            raise SolveError(f"no marginal: {_first_line(exc)}") from None
         finally:
             self.timings["marginals"] += time.perf_counter() - t0
 
