@@ -245,6 +245,7 @@ def test_tracking_seeds_each_pair_from_the_previous_result(cart_sequence: Path) 
         (["--start", "50"], "--start 50 but the folder has 5 images"),
         (["--workers", "0"], "--workers must be >= 1"),
         (["--chunk-frames", "1"], "--chunk-frames must be >= 2"),
+        (["--threads", "0"], "--threads must be >= 1"),
         (["--workers", "2", "--rerun", "x.rrd"], "--rerun .* use it with --workers 1"),
     ],
 )
@@ -261,6 +262,26 @@ def test_estimate_cli_bad_options_exit_2_with_a_message(
     err = capsys.readouterr().err
     assert "vipm-track estimate: error:" in err
     assert __import__("re").search(message, err), err
+
+
+def test_estimates_do_not_depend_on_the_thread_count(cart_sequence: Path,
+                                                     tmp_path: Path) -> None:
+    """One pair's patches correlated on 1 or 3 threads (the large batches split across
+    them): the same file, byte for byte."""
+    from vipm_track.cli import main
+    from vipm_track.patch_match import set_threads, threads
+
+    base = ["estimate", "--images", str(cart_sequence / "images"), "--camera",
+            str(cart_sequence / "camera.yaml"), "--height", "0.7", "--quiet"]
+    before = threads()
+    try:
+        for n in (1, 3):
+            assert main([*base, "--threads", str(n), "--out", str(tmp_path / f"{n}.csv")]) == 0
+            assert threads() == n
+    finally:
+        set_threads(before)
+    assert (tmp_path / "1.csv").read_bytes() == (tmp_path / "3.csv").read_bytes()
+    assert list(read_table(tmp_path / "3.csv")["status"]) == [FIRST_FRAME] + ["ok"] * 4
 
 
 def test_chunked_runs_are_the_same_in_one_process_or_two(cart_sequence: Path,

@@ -18,6 +18,7 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from typing import TYPE_CHECKING
 
 from .errors import InputError
+from .patch_match import set_threads
 from .pipeline import SequenceStep, run_sequence
 
 if TYPE_CHECKING:
@@ -59,7 +60,9 @@ def run_chunked(
             yield from run_chunk(source, camera, height, config, tracking, p, n)
         return
     context = multiprocessing.get_context("spawn")  # no forked OpenCV / numba thread pools
-    with ProcessPoolExecutor(min(workers, len(bounds)), mp_context=context) as pool:
+    # one correlation thread per process: the processes already share the cores
+    with ProcessPoolExecutor(min(workers, len(bounds)), mp_context=context,
+                             initializer=set_threads, initargs=(1,)) as pool:
         futures: list[Future[list[SequenceStep]]] = [
             pool.submit(run_chunk, source, camera, height, config, tracking, p, n)
             for p, n in bounds]

@@ -1,6 +1,9 @@
-"""POC of many patches of several sizes between two planes, batched by size."""
+"""POC of many patches of several sizes between two planes, batched by size, on threads."""
 
 from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from numpy.typing import NDArray
@@ -9,22 +12,71 @@ from . import poc
 
 FloatArray = NDArray[np.float64]
 
+#: A size's batch is split across threads only from this many patches on: below it the
+#: per-call overhead (Python, small FFTs) outweighs the second core.
+MIN_SPLIT_PATCHES = 16
+
+_threads = min(2, os.cpu_count() or 1)
+_pool: ThreadPoolExecutor | None = None
+
+
+def set_threads(threads: int) -> None:
+    """Threads that correlate one pair's patches (the FFTs and numpy work release the GIL).
+    Each patch's result does not depend on how the batch is split, so the estimates are the
+    same for any count; 1 where processes already share the cores (parallel chunks)."""
+    global _threads, _pool
+    if threads < 1:
+        raise ValueError(f"threads must be >= 1, got {threads}")
+    if threads != _threads and _pool is not None:
+        _pool.shutdown(wait=True)
+        _pool = None
+    _threads = int(threads)
+
+
+def threads() -> int:
+    """The thread count :func:`match_grouped` uses."""
+    return _threads
+
+
+def _batches(sizes: NDArray[np.int64]) -> list[tuple[int, NDArray[np.intp]]]:
+    """(size, patch indices) of each batch: one per size, the large ones split in
+    ``_threads`` parts; largest work first, so the threads finish together."""
+    out = []
+    for s in np.unique(sizes):
+        if s <= 0:
+            continue
+        sel = np.flatnonzero(sizes == s)
+        parts = _threads if len(sel) >= MIN_SPLIT_PATCHES else 1
+        out += [(int(s), part) for part in np.array_split(sel, parts)]
+    return sorted(out, key=lambda b: -b[0] ** 2 * len(b[1]))
+
 
 def match_grouped(
     ref: NDArray, moving: NDArray, centres: FloatArray, sizes: NDArray[np.int64],
     offsets: FloatArray, recentre: bool = False,
 ) -> tuple[FloatArray, FloatArray]:
     """POC displacements (N, 2) and peaks (N,) of patches batched by size (one call per
-    size); NaN displacement and zero peak where ``sizes`` is 0."""
+    size, or per part of a size on :func:`threads` threads); NaN displacement and zero
+    peak where ``sizes`` is 0."""
+    global _pool
     disp = np.full((len(centres), 2), np.nan)
     peaks = np.zeros(len(centres))
-    for s in np.unique(sizes):
-        if s <= 0:
-            continue
-        sel = np.flatnonzero(sizes == s)
-        d, p = poc.match_patches(ref, moving, centres[sel], int(s), offsets=np.round(offsets[sel]),
+
+    def run(batch: tuple[int, NDArray[np.intp]]) -> tuple[NDArray[np.intp], FloatArray,
+                                                          FloatArray]:
+        s, sel = batch
+        d, p = poc.match_patches(ref, moving, centres[sel], s, offsets=np.round(offsets[sel]),
                                  recentre=recentre)
+        return sel, d, p
+
+    batches = _batches(sizes)
+    if _threads > 1 and len(batches) > 1:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(_threads, thread_name_prefix="vipm-poc")
+        results = list(_pool.map(run, batches))
+    else:
+        results = [run(b) for b in batches]
+    for sel, d, p in results:
         disp[sel] = d
         peaks[sel] = p
     return disp, peaks
-

@@ -96,18 +96,29 @@ def add_parallel_options(parser: argparse.ArgumentParser) -> None:
                        help="frames per chunk (default with --workers > 1: 500; given with "
                        "--workers 1, the same chunks run one after another); each chunk's "
                        "first pair starts cold, as after a failed pair")
+    group.add_argument("--threads", type=int, default=None, metavar="T",
+                       help="threads that correlate one pair's patches (default: 2, or the "
+                       "machine's cores if fewer; 1 in each process with --workers > 1); the "
+                       "estimates do not depend on it")
 
 
 def parallel_settings(args: argparse.Namespace) -> dict[str, Any]:
     """``workers`` and ``chunk_frames`` of ``args`` for ``estimate_sequence`` /
-    ``sequence_steps``; InputError for unusable values (and for ``--rerun`` with workers)."""
+    ``sequence_steps``, and this process's patch-correlation threads set from ``--threads``;
+    InputError for unusable values (and for ``--rerun`` with workers)."""
     from ..parallel import MIN_CHUNK_FRAMES
+    from ..patch_match import set_threads
     from .rerun_options import wants_rerun
 
     workers = getattr(args, "workers", 1)
     chunk = getattr(args, "chunk_frames", None)
+    threads = getattr(args, "threads", None)
     if workers < 1:
         raise InputError(f"--workers must be >= 1, got {workers}")
+    if threads is not None:
+        if threads < 1:
+            raise InputError(f"--threads must be >= 1, got {threads}")
+        set_threads(threads)
     if chunk is not None and chunk < MIN_CHUNK_FRAMES:
         raise InputError(f"--chunk-frames must be >= {MIN_CHUNK_FRAMES}, got {chunk}")
     if workers > 1 and wants_rerun(args):
