@@ -284,6 +284,22 @@ def test_estimates_do_not_depend_on_the_thread_count(cart_sequence: Path,
     assert list(read_table(tmp_path / "3.csv")["status"]) == [FIRST_FRAME] + ["ok"] * 4
 
 
+@pytest.mark.parametrize(("value", "expected"), [("3", 3), ("1", 1), ("0", None), ("two", None)])
+def test_thread_count_default_comes_from_the_environment(value: str, expected: int | None
+                                                         ) -> None:
+    """VIPM_TRACK_THREADS (a Dask worker's setting) sets the default; unusable values are
+    ignored (2, or the cores if fewer)."""
+    import os
+    import subprocess
+    import sys
+
+    code = "from vipm_track.patch_match import threads; print(threads())"
+    env = {**os.environ, "VIPM_TRACK_THREADS": value}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, check=True).stdout
+    assert int(out) == (expected or min(2, os.cpu_count() or 1))
+
+
 def test_chunked_runs_are_the_same_in_one_process_or_two(cart_sequence: Path,
                                                          tmp_path: Path) -> None:
     """Chunks of 2 frames (each estimating the pair across its start, cold): every pair of

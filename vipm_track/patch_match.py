@@ -16,7 +16,17 @@ FloatArray = NDArray[np.float64]
 #: per-call overhead (Python, small FFTs) outweighs the second core.
 MIN_SPLIT_PATCHES = 16
 
-_threads = min(2, os.cpu_count() or 1)
+#: environment variable that sets the default thread count (a Dask worker's, which runs one
+#: drive per core); else 2, or the machine's cores if fewer
+THREADS_ENV = "VIPM_TRACK_THREADS"
+
+
+def _default_threads() -> int:
+    value = os.environ.get(THREADS_ENV, "")
+    return int(value) if value.isdigit() and int(value) >= 1 else min(2, os.cpu_count() or 1)
+
+
+_threads = _default_threads()
 _pool: ThreadPoolExecutor | None = None
 
 

@@ -25,6 +25,7 @@ import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 from distributed import Client, LocalCluster, as_completed
 
+from ..patch_match import THREADS_ENV
 from ..progress import progress_bar
 from ..table import format_value
 from .drive_run import FleetSettings, run_drive
@@ -33,9 +34,9 @@ from .drives import DriveSpec
 #: environment of the local cluster's worker processes: Dask's default without its
 #: ``MALLOC_TRIM_THRESHOLD_=65536``, which hands every freed block back to the system and made
 #: the estimator, which allocates many short-lived arrays per pair, half as fast in a worker;
-#: one BLAS / OpenMP thread each, as a worker runs one drive per core
+#: one BLAS / OpenMP / patch-correlation thread each, as a worker runs one drive per core
 WORKER_ENVIRON: dict[str, int] = {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1,
-                                  "OPENBLAS_NUM_THREADS": 1}
+                                  "OPENBLAS_NUM_THREADS": 1, THREADS_ENV: 1}
 
 #: fleet_summary columns, in order (see docs/fleet.md)
 SUMMARY_COLUMNS: tuple[str, ...] = (
