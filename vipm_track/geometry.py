@@ -126,10 +126,13 @@ def rotation_ground_from_camera(pitch: ArrayLike, roll: ArrayLike) -> FloatArray
     scalar angles, (..., 3, 3) for arrays (broadcast), the product written out."""
     c, s = np.cos(np.asarray(pitch, dtype=float)), np.sin(np.asarray(pitch, dtype=float))
     cr, sr = np.cos(np.asarray(roll, dtype=float)), np.sin(np.asarray(roll, dtype=float))
-    c, s, cr, sr = np.broadcast_arrays(c, s, cr, sr)
-    return np.stack([np.stack([cr, -sr, np.zeros_like(cr)], axis=-1),
-                     np.stack([c * sr, c * cr, s], axis=-1),
-                     np.stack([-s * sr, -s * cr, c], axis=-1)], axis=-2)
+    # filled element by element: np.stack's Python overhead dominated the small batches of
+    # the bundle adjustment
+    out = np.empty((*np.broadcast_shapes(c.shape, cr.shape), 3, 3))
+    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = cr, -sr, 0.0
+    out[..., 1, 0], out[..., 1, 1], out[..., 1, 2] = c * sr, c * cr, s
+    out[..., 2, 0], out[..., 2, 1], out[..., 2, 2] = -s * sr, -s * cr, c
+    return out
 
 
 def pose_from_rotation(r_gc: ArrayLike) -> tuple[float, float]:
