@@ -53,16 +53,17 @@ STAGES = ("poc", "warp", "lm")
 DEFAULT_THREADS = threads()
 
 
-def ours(data: Path, pairs: int, threads: int | None = None) -> tuple[list[dict], dict]:
-    """Per-pair rows (time, stage times, status) of the estimator in tracking mode, and the
-    estimate-table columns its errors are scored from; ``threads``: patch-correlation threads
-    (``--threads``; None: the default)."""
+def ours(data: Path, pairs: int, threads: int | None = None, tracking: bool = True,
+         ) -> tuple[list[dict], dict]:
+    """Per-pair rows (time, stage times, status) of the estimator (in tracking mode, or cold
+    at every pair), and the estimate-table columns its errors are scored from; ``threads``:
+    patch-correlation threads (``--threads``; None: the default)."""
     set_threads(threads or DEFAULT_THREADS)
     camera = load_camera(data / "calib.txt")
     source = open_source(images=data / "image_0", max_frames=pairs + 1)
     config = EstimatorConfig(initial_pitch_deg=PITCH_DEG)
     rows, est = [], {k: [] for k in ("frame", "status", "tx_m", "tz_m", "yaw_deg")}
-    for step in run_sequence(source, camera, HEIGHT_M, config):
+    for step in run_sequence(source, camera, HEIGHT_M, config, tracking):
         if step.result is None:
             continue
         r = step.result
@@ -176,13 +177,14 @@ def main(argv: list[str] | None = None) -> int:
     if not (data / "image_0").is_dir():
         print(f"KITTI frames not found at {data}", file=sys.stderr)
         return 2
-    single = "vipm-track, 1 thread"
-    runs: dict[str, list[list[dict]]] = {"vipm-track (ours)": [], single: [],
-                                         "ORB homography": [], "SIFT homography": []}
+    variants = (("vipm-track (ours)", None, True), ("vipm-track, 1 thread", 1, True),
+                ("vipm-track, cold start every pair", None, False))
+    runs: dict[str, list[list[dict]]] = {
+        **{name: [] for name, _, _ in variants}, "ORB homography": [], "SIFT homography": []}
     accuracy: dict[str, dict] = {}
     for _ in range(args.repeats):  # interleaved, so that load spikes hit all alike
-        for name, n in (("vipm-track (ours)", None), (single, 1)):
-            rows, est = ours(data, args.pairs, n)
+        for name, n, tracking in variants:
+            rows, est = ours(data, args.pairs, n, tracking)
             runs[name].append(rows)
             accuracy[name] = scored(est, data)
         for kind, name in (("orb", "ORB homography"), ("sift", "SIFT homography")):
@@ -212,7 +214,8 @@ def main(argv: list[str] | None = None) -> int:
         "",
         f"Medians over {args.pairs} pairs × {args.repeats} runs, interleaved; ours in tracking "
         f"mode with default settings ({DEFAULT_THREADS} correlation threads; the 1-thread row: "
-        f"`--threads 1`) and `--pitch {PITCH_DEG}` (ms/pair: the estimator's time, "
+        f"`--threads 1`; the cold row: no tracking, `--no-tracking`) and `--pitch {PITCH_DEG}` "
+        "(ms/pair: the estimator's time, "
         "retries included, image loading excluded; stage columns from `PairResult.timings`). "
         "Peers: 2000 features below the horizon in both frames of each pair, cross-checked "
         "brute-force matches, RANSAC homography (2 px), `cv2.decomposeHomographyMat` scaled by "
