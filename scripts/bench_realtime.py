@@ -44,6 +44,7 @@ from vipm_track.camera import load_camera  # noqa: E402
 from vipm_track.estimator_config import EstimatorConfig  # noqa: E402
 from vipm_track.evaluate import frame_errors  # noqa: E402
 from vipm_track.pipeline import run_sequence  # noqa: E402
+from vipm_track.rig import Rig  # noqa: E402
 from vipm_track.sources import open_source  # noqa: E402
 
 HEIGHT_M = 1.65
@@ -56,9 +57,8 @@ def ours(data: Path, pairs: int) -> tuple[list[dict], dict]:
     estimate-table columns its errors are scored from."""
     camera = load_camera(data / "calib.txt")
     source = open_source(images=data / "image_0", max_frames=pairs + 1)
-    config = EstimatorConfig(initial_pitch_deg=PITCH_DEG)
     rows, est = [], {k: [] for k in ("frame", "status", "tx_m", "tz_m", "yaw_deg")}
-    for step in run_sequence(source, camera, HEIGHT_M, config):
+    for step in run_sequence(source, Rig(camera, HEIGHT_M, PITCH_DEG), EstimatorConfig()):
         if step.result is None:
             continue
         r = step.result
