@@ -90,7 +90,7 @@ class EstimatorConfig:
         they are tried again from the nominal pose with its pitch moved by each of these in
         turn [deg]; the first that succeeds is the result. Default per camera
         (``COLD_PITCH_STEPS_DEG``: ±2° level, ±5° others); ``()`` disables it.
-    max_deviation_deg : estimates whose pitch or roll differ from the initial (nominal) pose
+    max_deviation_deg : estimates whose pitch or roll differ from the nominal pose (``Rig``)
         by more than this are rejected ("did not converge").
     max_roll_deg : plausible roll of a vehicle camera: estimates whose roll differs from the
         nominal roll (``Rig.roll_deg``: level unless the user says otherwise) by more
@@ -116,7 +116,7 @@ class EstimatorConfig:
         (default): on for steep cameras (the whole image below the horizon at the nominal
         pose), off for forward-looking ones, where it is poorly separable from pitch.
     pose_prior_deg : standard deviation of a prior on both frames' pitch and roll around the
-        initial (nominal) pose inside every fit, degrees; it resolves the pitch/translation
+        rig's nominal pose inside every fit, degrees; it resolves the pitch/translation
         ambiguity of a near-level camera (a steeper pitch with a shorter travel explains
         the flow of the near road almost as well). 0 turns it off; None (default): 2° for
         forward-looking cameras, off for steep ones.
