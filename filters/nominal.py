@@ -12,7 +12,9 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
+from vipm_track.camera import CameraModel
 from vipm_track.errors import InputError
+from vipm_track.rig import Rig
 
 FloatArray = NDArray[np.float64]
 
@@ -46,6 +48,11 @@ class NominalCalibration:
             raise InputError("nominal calibration: tolerances must be >= 0")
         if self.max_angle_dev_deg <= 0 or self.max_height_dev_frac <= 0:
             raise InputError("nominal calibration: limits must be > 0")
+
+    def rig(self, camera: CameraModel, readout_s: float = 0.0) -> Rig:
+        """``camera`` mounted at this nominal pitch, roll [deg] and height [m], with a
+        rolling-shutter readout of ``readout_s`` [s]: the rig the estimator starts from."""
+        return Rig(camera, self.height_m, self.pitch_deg, self.roll_deg, readout_s)
 
     @property
     def values(self) -> FloatArray:

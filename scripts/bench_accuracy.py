@@ -32,6 +32,7 @@ from vipm_track.baseline import homography_baseline  # noqa: E402
 from vipm_track.estimator import TwoFrameEstimator  # noqa: E402
 from vipm_track.estimator_config import REFINEMENT_WEIGHTING, EstimatorConfig  # noqa: E402
 from vipm_track.render import Effects  # noqa: E402
+from vipm_track.rig import DEFAULT_PITCH_DEG, Rig  # noqa: E402
 from vipm_track.sim import (  # noqa: E402
     PRESETS,
     make_trajectory,
@@ -85,7 +86,7 @@ def run_row(profile: str, texture: str | None, effects: Effects | None, pairs: i
         curr = render_trajectory_frame(tex, cam, traj, k, effects)
         h = float(traj.height[k - 1])
         truth_pose, truth_motion = traj.pose(k), traj.motion(k)
-        est = TwoFrameEstimator(cam, h, cfg)
+        est = TwoFrameEstimator(Rig(cam, h, DEFAULT_PITCH_DEG), cfg)
         res = est.estimate(prev, curr)
         times.append(res.timings["total"])
         for col, i in zip(COLUMNS[:3], range(3), strict=True):
@@ -95,7 +96,7 @@ def run_row(profile: str, texture: str | None, effects: Effects | None, pairs: i
             else:
                 errs.failed[col] += 1
         if paper_model:
-            res7 = TwoFrameEstimator(cam, h, cfg_paper).estimate(prev, curr)
+            res7 = TwoFrameEstimator(Rig(cam, h, DEFAULT_PITCH_DEG), cfg_paper).estimate(prev, curr)
             if res7.ok:
                 errs.add(COLUMNS[3], res7.pose_curr, res7.motion, truth_pose, truth_motion)
             else:

@@ -55,6 +55,7 @@ from vipm_track.filters.metrics import (  # noqa: E402
 )
 from vipm_track.filters.smoother_config import SmootherConfig  # noqa: E402
 from vipm_track.filters.smoothing import smooth  # noqa: E402
+from vipm_track.rig import Rig  # noqa: E402
 
 Method = Callable[[DriveRun, bool], Estimates]
 
@@ -624,7 +625,6 @@ def rendered_drive(case: RenderedCase, cache: Path) -> RenderedDrive:
     from vipm_track.filters.model import NoiseParams
     from vipm_track.filters.wheel_speed import read_speed_csv
     from vipm_track.measurement import read_measurements
-    from vipm_track.pipeline import config_with
     from vipm_track.runs import estimate_sequence
     from vipm_track.sim import PRESETS, simulate_sequence
     from vipm_track.sources import open_source
@@ -639,10 +639,9 @@ def rendered_drive(case: RenderedCase, cache: Path) -> RenderedDrive:
     est = folder / "est.csv"
     timing = folder / "est_seconds_per_pair.txt"
     if not (est.is_file() and timing.is_file()):
-        config = config_with(EstimatorConfig(), initial_pitch_deg=preset.pitch_deg)
-        summary = estimate_sequence(open_source(images=folder / "images"),
-                                    load_camera(folder / "camera.yaml"), h0, est, config,
-                                    progress=True)
+        rig = Rig(load_camera(folder / "camera.yaml"), h0, preset.pitch_deg)
+        summary = estimate_sequence(open_source(images=folder / "images"), rig, est,
+                                    EstimatorConfig(), progress=True)
         timing.write_text(f"{summary.wall_seconds / max(summary.frames - 1, 1):.4f}\n")
     config = SimpleNamespace(h0=h0, noise=NoiseParams.for_preset(case.preset))
     return RenderedDrive(case, read_table(folder / "gt.csv"), read_measurements(est),

@@ -57,8 +57,9 @@ def render(folder: Path, fps: float, seconds: float, seed: int) -> Path:
 def run_once(folder: Path, video: Path, fps: float, seconds: float) -> dict:
     out = folder / "live.csv"
     start = time.monotonic()
-    stats = run_live(str(video), load_camera(folder / "camera.yaml"),
-                     load_nominal(data_path("nominal_cart.yaml")), out, realtime=True,
+    nominal = load_nominal(data_path("nominal_cart.yaml"))
+    stats = run_live(str(video), nominal.rig(load_camera(folder / "camera.yaml")),
+                     nominal, out, realtime=True,
                      speed=read_speed_csv(folder / "speed.csv"), quiet=True,
                      stdout=io.StringIO())
     wall = time.monotonic() - start

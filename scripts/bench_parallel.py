@@ -33,7 +33,7 @@ sys.path.insert(0, str(ROOT))
 from vipm_track.camera import load_camera  # noqa: E402
 from vipm_track.estimator_config import EstimatorConfig  # noqa: E402
 from vipm_track.evaluate import frame_errors  # noqa: E402
-from vipm_track.pipeline import config_with  # noqa: E402
+from vipm_track.rig import Rig  # noqa: E402
 from vipm_track.runs import estimate_sequence  # noqa: E402
 from vipm_track.sim import PRESETS, simulate_sequence  # noqa: E402
 from vipm_track.sources import open_source  # noqa: E402
@@ -44,10 +44,10 @@ def run(folder: Path, preset: str, out: Path, workers: int, chunk_frames: int | 
     """One estimate run; its wall time, speed and errors against the truth."""
     p = PRESETS[preset]
     camera = load_camera(folder / "camera.yaml")
-    config = config_with(EstimatorConfig(), initial_pitch_deg=p.pitch_deg)
+    rig = Rig(camera, p.height_m, p.pitch_deg)
     start = time.perf_counter()
-    summary = estimate_sequence(open_source(images=folder / "images"), camera, p.height_m, out,
-                                config, progress=False, workers=workers,
+    summary = estimate_sequence(open_source(images=folder / "images"), rig, out,
+                                EstimatorConfig(), progress=False, workers=workers,
                                 chunk_frames=chunk_frames)
     wall = time.perf_counter() - start
     errors = frame_errors(read_table(out), read_table(folder / "gt.csv"))

@@ -45,6 +45,7 @@ from vipm_track.estimator_config import EstimatorConfig  # noqa: E402
 from vipm_track.evaluate import frame_errors  # noqa: E402
 from vipm_track.patch_match import set_threads, threads  # noqa: E402
 from vipm_track.pipeline import run_sequence  # noqa: E402
+from vipm_track.rig import Rig  # noqa: E402
 from vipm_track.sources import open_source  # noqa: E402
 
 HEIGHT_M = 1.65
@@ -61,9 +62,9 @@ def ours(data: Path, pairs: int, threads: int | None = None, tracking: bool = Tr
     set_threads(threads or DEFAULT_THREADS)
     camera = load_camera(data / "calib.txt")
     source = open_source(images=data / "image_0", max_frames=pairs + 1)
-    config = EstimatorConfig(initial_pitch_deg=PITCH_DEG)
     rows, est = [], {k: [] for k in ("frame", "status", "tx_m", "tz_m", "yaw_deg")}
-    for step in run_sequence(source, camera, HEIGHT_M, config, tracking):
+    for step in run_sequence(source, Rig(camera, HEIGHT_M, PITCH_DEG), EstimatorConfig(),
+                             tracking):
         if step.result is None:
             continue
         r = step.result

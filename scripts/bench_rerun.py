@@ -30,6 +30,7 @@ sys.path.insert(0, str(ROOT))
 from vipm_track.estimator import TwoFrameEstimator  # noqa: E402
 from vipm_track.estimator_config import EstimatorConfig  # noqa: E402
 from vipm_track.pair_result import PairGuess  # noqa: E402
+from vipm_track.rig import Rig  # noqa: E402
 from vipm_track.sim import (  # noqa: E402
     PRESETS,
     make_trajectory,
@@ -68,8 +69,8 @@ def estimate_pairs(preset_name: str, pairs: int, seed: int) -> tuple[list, list,
     traj = make_trajectory("shaking", pairs + 1, preset=preset, seed=seed)
     texture = preset_texture(preset, seed=seed)
     images = [render_trajectory_frame(texture, camera, traj, k) for k in range(pairs + 1)]
-    config = EstimatorConfig(keep_images=True, initial_pitch_deg=preset.pitch_deg)
-    est = TwoFrameEstimator(camera, preset.height_m, config)
+    config = EstimatorConfig(keep_images=True)
+    est = TwoFrameEstimator(Rig(camera, preset.height_m, preset.pitch_deg), config)
     results, seconds, previous = [], [], None
     for k in range(1, pairs + 1):
         guess = PairGuess.from_previous(previous) if previous is not None else None

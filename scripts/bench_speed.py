@@ -29,7 +29,6 @@ import platform
 import sys
 import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -39,8 +38,9 @@ sys.path.insert(0, str(ROOT))
 
 from vipm_track.estimator import TwoFrameEstimator  # noqa: E402
 from vipm_track.estimator_config import EstimatorConfig  # noqa: E402
-from vipm_track.pipeline import config_with, run_sequence  # noqa: E402
+from vipm_track.pipeline import run_sequence  # noqa: E402
 from vipm_track.render import Effects  # noqa: E402
+from vipm_track.rig import Rig  # noqa: E402
 from vipm_track.sim import PRESETS, simulate_sequence  # noqa: E402
 from vipm_track.sinks.rerun_sequence import ImageTap  # noqa: E402
 from vipm_track.sinks.rerun_sink import RerunSink  # noqa: E402
@@ -67,13 +67,13 @@ def bench_case(preset: str, source: ArraySource, truth: dict, refinements: int,
     """Median timings and accuracy of one (preset, refinements, mode, readout) case."""
     p = PRESETS[preset]
     camera = p.camera()
-    config = config_with(EstimatorConfig(), refinements=refinements,
-                         initial_pitch_deg=p.pitch_deg, readout_s=readout_s or None)
-    estimator = TwoFrameEstimator(camera, p.height_m, config)
+    config = EstimatorConfig(refinements=refinements)
+    rig = Rig(camera, p.height_m, p.pitch_deg, readout_s=readout_s)
+    estimator = TwoFrameEstimator(rig, config)
     wall, stages, ok, dist_err = [], {s: [] for s in STAGES}, 0, []
     pairs = 0
     for _ in range(repeats):
-        for step in run_sequence(source, camera, p.height_m, config, tracking, estimator):
+        for step in run_sequence(source, rig, config, tracking, estimator):
             if step.result is None:
                 continue
             pairs += 1
@@ -102,16 +102,15 @@ def bench_logging(preset: str, source: ArraySource, image_every: int, repeats: i
     images kept), logging every ``image_every``-th pair's images; sums over all pairs."""
     p = PRESETS[preset]
     camera = p.camera()
-    config = replace(config_with(EstimatorConfig(), initial_pitch_deg=p.pitch_deg),
-                     keep_images=True)
-    estimator = TwoFrameEstimator(camera, p.height_m, config)
+    config, rig = EstimatorConfig(keep_images=True), Rig(camera, p.height_m, p.pitch_deg)
+    estimator = TwoFrameEstimator(rig, config)
     est_s = log_s = 0.0
     pairs = size = 0
     for r in range(repeats):
         path = folder / f"{preset}_{image_every}_{r}.rrd"
         sink = RerunSink.to_file(path, image_every=image_every)
         tap = ImageTap(source, camera)
-        for step in run_sequence(tap, camera, p.height_m, config, True, estimator):
+        for step in run_sequence(tap, rig, config, True, estimator):
             start = time.perf_counter()
             sink.log_step(step, tap.image(step.frame))
             log_s += time.perf_counter() - start

@@ -62,8 +62,8 @@ from vipm_track.filters.smoother_config import SmootherConfig  # noqa: E402
 from vipm_track.filters.smoothing import smooth  # noqa: E402
 from vipm_track.filters.wheel_speed import read_speed_csv  # noqa: E402
 from vipm_track.measurement import read_measurements  # noqa: E402
-from vipm_track.pipeline import config_with  # noqa: E402
 from vipm_track.render import Effects  # noqa: E402
+from vipm_track.rig import Rig  # noqa: E402
 from vipm_track.runs import estimate_sequence  # noqa: E402
 from vipm_track.sim import PRESETS, knock_time, simulate_sequence  # noqa: E402
 from vipm_track.sources import open_source  # noqa: E402
@@ -128,12 +128,11 @@ def render_and_estimate(case: Case, seed: int, cache: Path) -> float:
                           effects=effects, speed=case.speed)
     est = folder / "est.csv"
     if not est.is_file():
-        config = config_with(EstimatorConfig(), initial_pitch_deg=preset.pitch_deg,
-                             readout_s=case.readout_frac / preset.fps or None)
+        rig = Rig(load_camera(folder / "camera.yaml"), preset.height_m, preset.pitch_deg,
+                  readout_s=case.readout_frac / preset.fps)
         partial = folder / "est.partial.csv"
-        estimate_sequence(open_source(images=folder / "images"),
-                          load_camera(folder / "camera.yaml"), preset.height_m, partial,
-                          config, progress=False)
+        estimate_sequence(open_source(images=folder / "images"), rig, partial,
+                          EstimatorConfig(), progress=False)
         partial.rename(est)
     return time.perf_counter() - t0
 
@@ -331,10 +330,10 @@ def kitti_rows(cache: Path) -> list[str]:
 
     est = cache / "kitti07_est.csv"
     if not est.is_file():
-        config = config_with(EstimatorConfig(), initial_pitch_deg=1.0)
         partial = cache / "kitti07_est.partial.csv"
-        estimate_sequence(src(images=data / "image_0"), load_camera(data / "calib.txt"), 1.65,
-                          partial, config, progress=False)
+        estimate_sequence(src(images=data / "image_0"),
+                          Rig(load_camera(data / "calib.txt"), 1.65, 1.0), partial,
+                          EstimatorConfig(), progress=False)
         partial.rename(est)
     ms = read_measurements(est)
     batch = smooth(ms, None, SmootherConfig(height_m=1.65))

@@ -32,6 +32,7 @@ from vipm_track.geometry import (  # noqa: E402
 )
 from vipm_track.pair_result import STATUS_OK, PairResult  # noqa: E402
 from vipm_track.refinement import refine  # noqa: E402
+from vipm_track.rig import DEFAULT_PITCH_DEG, Rig  # noqa: E402
 from vipm_track.sim import (  # noqa: E402
     PRESETS,
     make_trajectory,
@@ -54,7 +55,7 @@ def true_residuals(pairs: int, profile: str, seed: int) -> list[tuple]:
     out = []
     for k in range(1, pairs + 1):
         h = float(traj.height[k - 1])
-        est = TwoFrameEstimator(cam, h, EstimatorConfig())
+        est = TwoFrameEstimator(Rig(cam, h, DEFAULT_PITCH_DEG), EstimatorConfig())
         x = np.append(pack(traj.pose(k - 1), traj.pose(k), traj.motion(k)), 0.0)
         result = PairResult(status=STATUS_OK, timings={"poc": 0.0, "warp": 0.0, "lm": 0.0},
                             height=h)

@@ -16,6 +16,7 @@ from vipm_track.commands.rerun_options import sink_from_args
 from vipm_track.errors import InputError
 from vipm_track.filters import drive_sim
 from vipm_track.measurement import PairMeasurement
+from vipm_track.rig import DEFAULT_PITCH_DEG, Rig
 from vipm_track.sim import (
     GT_EXTRA_COLUMNS,
     PRESETS,
@@ -211,7 +212,7 @@ def test_recording_from_real_estimator(tmp_path: Path) -> None:
     camera = preset.camera()
     texture = preset_texture(preset, seed=7)
     images = [render_trajectory_frame(texture, camera, traj, k) for k in range(3)]
-    est = estimator.TwoFrameEstimator(camera, preset.height_m,
+    est = estimator.TwoFrameEstimator(Rig(camera, preset.height_m, DEFAULT_PITCH_DEG),
                                       estimator.EstimatorConfig(keep_images=True))
     rrd = tmp_path / "pairs.rrd"
     results = {}

@@ -26,6 +26,7 @@ from vipm_track.pair_result import (
     PairResult,
 )
 from vipm_track.render import OBSTACLE_POLYGON, Effects
+from vipm_track.rig import DEFAULT_PITCH_DEG, Rig
 from vipm_track.sim import (
     PRESETS,
     Trajectory,
@@ -70,7 +71,7 @@ def _errors(traj: Trajectory, k: int, pose_prev, pose_curr, motion) -> dict[str,
 def _estimate(preset="cart", profile="static", k=1, frames=2, pitch_deg=None, config=None,
               guess=None, obstacle=False) -> tuple[PairResult, Trajectory, object]:
     traj, imgs, cam = _sequence(preset, profile, frames, pitch_deg, obstacle)
-    est = TwoFrameEstimator(cam, float(traj.height[k]), config)
+    est = TwoFrameEstimator(Rig(cam, float(traj.height[k]), DEFAULT_PITCH_DEG), config)
     return est.estimate(imgs[k - 1], imgs[k], guess), traj, cam
 
 
@@ -188,7 +189,7 @@ def test_camera_pitched_down_with_the_horizon_in_view_gets_the_steep_defaults():
     # (tuned on KITTI at ~1°) left 0.15° of pitch error on a shaking render, the steep ones
     # 0.01°
     traj, imgs, cam = _sequence("car", "shaking", 4, pitch_deg=15.0, seed=6)
-    est = TwoFrameEstimator(cam, PRESETS["car"].height_m, EstimatorConfig(initial_pitch_deg=15.0))
+    est = TwoFrameEstimator(Rig(cam, PRESETS["car"].height_m, 15.0))
     assert not est.steep and not est.level
     assert est.config.vertical_motion and est.config.weight_patches
     assert est.config.pose_prior_deg == 0.0 and est.config.refinements == 1
@@ -204,11 +205,11 @@ def test_camera_pitched_down_with_the_horizon_in_view_gets_the_steep_defaults():
 
 
 def test_forward_and_steep_defaults():
-    car = TwoFrameEstimator(PRESETS["car"].camera(), 1.5, EstimatorConfig(initial_pitch_deg=3.0))
+    car = TwoFrameEstimator(Rig(PRESETS["car"].camera(), 1.5, 3.0))
     assert not car.steep and car.level
     assert car.config.refinements == 2 and car.config.pose_prior_deg == 2.0
     assert pose_prior(car.config, car.nominal, None)[1] == pytest.approx(np.radians(2.0))
-    cart = TwoFrameEstimator(PRESETS["cart"].camera(), 0.7)
+    cart = TwoFrameEstimator(Rig(PRESETS["cart"].camera(), 0.7, DEFAULT_PITCH_DEG))
     assert cart.steep and cart.config.refinements == 1 and cart.config.pose_prior_deg == 0.0
     assert pose_prior(cart.config, cart.nominal, None)[0] is None
     assert car.config.stage_median and not cart.config.stage_median
@@ -264,7 +265,7 @@ def test_weighted_refinement_beats_the_papers_uniform_one():
     errors: dict[bool, list[float]] = {True: [], False: []}
     for k in range(1, 6):
         for ours, config in ((True, None), (False, paper)):
-            est = TwoFrameEstimator(cam, float(traj.height[k - 1]), config)
+            est = TwoFrameEstimator(Rig(cam, float(traj.height[k - 1]), DEFAULT_PITCH_DEG), config)
             result = est.estimate(imgs[k - 1], imgs[k])
             assert result.ok, result.reason
             err = _errors(traj, k, result.pose_prev, result.pose_curr, result.motion)
@@ -280,7 +281,8 @@ def test_turning_pair_is_as_accurate_as_a_straight_one():
     assert abs(np.degrees(traj.motion(11).yaw)) > 1.0
     errors = {}
     for moved in (True, False):
-        est = TwoFrameEstimator(cam, float(traj.height[0]), EstimatorConfig(moved_ipm=moved))
+        rig = Rig(cam, float(traj.height[0]), DEFAULT_PITCH_DEG)
+        est = TwoFrameEstimator(rig, EstimatorConfig(moved_ipm=moved))
         result = est.estimate(imgs[10], imgs[11])
         assert result.ok, result.reason
         errors[moved] = _errors(traj, 11, result.pose_prev, result.pose_curr, result.motion)
@@ -297,8 +299,8 @@ def test_car_camera_10deg_down_starts_cold(ipm_start):
     # image-plane cold start of steep cameras (the fallback where the IPM start fails, or
     # chosen with cold_start_ipm=False) converges too.
     traj, imgs, cam = _sequence("car", "static", 2, pitch_deg=10.0)
-    config = EstimatorConfig(initial_pitch_deg=10.0, cold_start_ipm=ipm_start)
-    est = TwoFrameEstimator(cam, float(traj.height[0]), config)
+    config = EstimatorConfig(cold_start_ipm=ipm_start)
+    est = TwoFrameEstimator(Rig(cam, float(traj.height[0]), 10.0), config)
     assert not est.steep
     result = est.estimate(imgs[0], imgs[1])
     assert result.ok, result.reason
@@ -316,8 +318,8 @@ def test_fast_cart_starts_cold_from_the_nominal_pose_ipm(ipm_start):
     p = PRESETS["cart"]
     traj, imgs, cam = _sequence("cart", "gradual", 2, fps=10.0, speed=4.0)
     assert traj.motion(1).distance > 0.35
-    config = EstimatorConfig(initial_pitch_deg=p.pitch_deg, cold_start_ipm=ipm_start)
-    est = TwoFrameEstimator(cam, p.height_m, config)
+    config = EstimatorConfig(cold_start_ipm=ipm_start)
+    est = TwoFrameEstimator(Rig(cam, p.height_m, p.pitch_deg), config)
     assert est.steep
     result = est.estimate(imgs[0], imgs[1])
     if not ipm_start:
@@ -338,8 +340,8 @@ def test_cold_start_off_the_nominal_pitch_tries_pitch_steps():
     assert traj.motion(1).distance > 2.4
     results = {}
     for steps in ((), None):
-        config = EstimatorConfig(initial_pitch_deg=3.0, cold_pitch_steps_deg=steps)
-        results[steps] = TwoFrameEstimator(cam, 1.5, config).estimate(imgs[0], imgs[1])
+        config = EstimatorConfig(cold_pitch_steps_deg=steps)
+        results[steps] = TwoFrameEstimator(Rig(cam, 1.5, 3.0), config).estimate(imgs[0], imgs[1])
     assert results[()].status == STATUS_FEW_INLIERS
     result = results[None]
     assert result.ok and "from -2° off it" in result.reason, result.reason
@@ -357,9 +359,8 @@ def test_level_camera_on_a_bouncing_body_with_vertical_motion():
     heave = float(traj.height[1] - traj.height[0])
     errors = {}
     for vertical in (None, True):
-        config = EstimatorConfig(initial_pitch_deg=PRESETS["car"].pitch_deg,
-                                 vertical_motion=vertical)
-        result = TwoFrameEstimator(cam, float(traj.height[0]), config).estimate(*imgs)
+        rig = Rig(cam, float(traj.height[0]), PRESETS["car"].pitch_deg)
+        result = TwoFrameEstimator(rig, EstimatorConfig(vertical_motion=vertical)).estimate(*imgs)
         assert result.ok, result.reason
         errors[vertical] = _errors(traj, 1, result.pose_prev, result.pose_curr, result.motion)
         if vertical:
@@ -373,7 +374,7 @@ def test_rolling_shutter_is_modelled_given_the_readout_time(preset):
     # A CMOS camera reading its rows out over half the frame interval: the bottom rows see the
     # ground later than the top ones, so the near field's patches seem to move further. Left
     # out of the model this is 0.5° (car) to 3.6° (cart) of pitch and 7-12 % of travel; with
-    # the readout time (``readout_s``) the fit gives each patch the motion over its rows' times
+    # the readout time (``Rig.readout_s``) the fit gives each patch the motion over its rows' times
     # (0.03-0.10°, 0.6 % and less).
     p = PRESETS[preset]
     traj = make_trajectory("static", 2, preset=p, seed=1)
@@ -383,8 +384,9 @@ def test_rolling_shutter_is_modelled_given_the_readout_time(preset):
     interval = float(traj.t[1] - traj.t[0])
     errors = {}
     for readout in (0.0, 0.5 * interval):
-        config = EstimatorConfig(initial_pitch_deg=p.pitch_deg, readout_s=readout)
-        result = TwoFrameEstimator(cam, p.height_m, config).estimate(*imgs, None, interval)
+        config = EstimatorConfig()
+        rig = Rig(cam, p.height_m, p.pitch_deg, readout_s=readout)
+        result = TwoFrameEstimator(rig, config).estimate(*imgs, None, interval)
         assert result.ok, result.reason
         errors[readout] = _errors(traj, 1, result.pose_prev, result.pose_curr, result.motion)
     distance = traj.motion(1).distance * 1e3
@@ -392,7 +394,8 @@ def test_rolling_shutter_is_modelled_given_the_readout_time(preset):
     assert errors[0.5 * interval]["pitch"] < 0.15, errors  # a global shutter's spread
     assert errors[0.5 * interval]["dist_mm"] < 0.01 * distance, errors
     with pytest.raises(ValueError, match="frame interval"):
-        TwoFrameEstimator(cam, p.height_m, config).estimate(*imgs)
+        rig = Rig(cam, p.height_m, p.pitch_deg, readout_s=readout)
+        TwoFrameEstimator(rig, config).estimate(*imgs)
 
 
 def test_rolling_shutter_of_an_accelerating_vehicle_takes_the_previous_motion():
@@ -410,8 +413,8 @@ def test_rolling_shutter_of_an_accelerating_vehicle_takes_the_previous_motion():
     tex, cam = preset_texture(p), p.camera()
     imgs = [render_trajectory_frame(tex, cam, traj, k, Effects(rolling_shutter=0.5))
             for k in range(n)]
-    config = EstimatorConfig(initial_pitch_deg=p.pitch_deg, readout_s=0.5 * dt)
-    est = TwoFrameEstimator(cam, p.height_m, config)
+    config = EstimatorConfig()
+    est = TwoFrameEstimator(Rig(cam, p.height_m, p.pitch_deg, readout_s=0.5 * dt), config)
     result = est.estimate(imgs[0], imgs[1], None, dt)
     for k in range(2, n):
         result = est.estimate(imgs[k - 1], imgs[k], PairGuess.from_previous(result), dt)
@@ -434,7 +437,7 @@ def test_fast_cart_cold_start_reports_no_wrong_minimum():
     traj = make_trajectory("gradual", 6, fps=10.0, preset=p, seed=5, speed=6.0)
     tex, cam = preset_texture(p, seed=5), p.camera()  # as `vipm-track simulate --seed 5`
     imgs = [render_trajectory_frame(tex, cam, traj, k) for k in range(6)]
-    est = TwoFrameEstimator(cam, p.height_m)
+    est = TwoFrameEstimator(Rig(cam, p.height_m, DEFAULT_PITCH_DEG))
     reasons = []
     for k in (4, 5):
         cold = est.estimate(imgs[k - 1], imgs[k])
@@ -459,8 +462,9 @@ def test_fast_car_starts_cold_from_the_whole_plane_shift():
     # motion); one POC over the whole nominal-pose plane finds the shift first.
     traj, imgs, cam = _sequence("car", "static", 2, fps=10.0, speed=20.0)
     assert traj.motion(1).distance > 1.8
-    config = EstimatorConfig(initial_pitch_deg=PRESETS["car"].pitch_deg)
-    result = TwoFrameEstimator(cam, float(traj.height[0]), config).estimate(imgs[0], imgs[1])
+    config = EstimatorConfig()
+    rig = Rig(cam, float(traj.height[0]), PRESETS["car"].pitch_deg)
+    result = TwoFrameEstimator(rig, config).estimate(imgs[0], imgs[1])
     assert result.ok, result.reason
     err = _errors(traj, 1, result.pose_prev, result.pose_curr, result.motion)
     assert err["pitch"] < 0.2 and err["roll"] < 0.2, err
@@ -476,8 +480,8 @@ def test_car_preset_with_guess_converges():
         geometry.GroundPose(tc.pitch + off, tc.roll - off, tc.height),
         geometry.PlanarMotion(tm.tx, tm.tz * 1.1, tm.yaw),
     )
-    config = EstimatorConfig(initial_pitch_deg=PRESETS["car"].pitch_deg)
-    est = TwoFrameEstimator(cam, float(traj.height[0]), config)
+    config = EstimatorConfig()
+    est = TwoFrameEstimator(Rig(cam, float(traj.height[0]), PRESETS["car"].pitch_deg), config)
     result = est.estimate(imgs[0], imgs[1], guess)
     assert result.ok, result.reason
     err = _errors(traj, 1, result.pose_prev, result.pose_curr, result.motion)
@@ -490,11 +494,13 @@ def test_car_preset_with_guess_converges():
     reported = dm.pack(result.pose_prev, result.pose_curr, result.motion)
     np.testing.assert_allclose(reported, np.median(stack, axis=0), atol=1e-12)
     last = dataclasses.replace(config, stage_median=False)
-    single = TwoFrameEstimator(cam, float(traj.height[0]), last).estimate(imgs[0], imgs[1], guess)
+    rig = Rig(cam, float(traj.height[0]), PRESETS["car"].pitch_deg)
+    single = TwoFrameEstimator(rig, last).estimate(imgs[0], imgs[1], guess)
     np.testing.assert_allclose(dm.pack(single.pose_prev, single.pose_curr, single.motion),
                                stack[-1], atol=1e-12)
     # With one refinement there is no median of two: the refined estimate is reported.
-    one = TwoFrameEstimator(cam, float(traj.height[0]), dataclasses.replace(config, refinements=1))
+    rig = Rig(cam, float(traj.height[0]), PRESETS["car"].pitch_deg)
+    one = TwoFrameEstimator(rig, dataclasses.replace(config, refinements=1))
     r1 = one.estimate(imgs[0], imgs[1], guess)
     assert len(r1.stage_estimates) == 2
     np.testing.assert_allclose(dm.pack(r1.pose_prev, r1.pose_curr, r1.motion),
@@ -563,8 +569,8 @@ def test_a_hood_over_the_near_road_is_not_taken_for_the_ground(noise):
     # every pair "ok" with zero travel (99.9 % distance error); with sensor noise too
     traj, imgs, cam = _sequence("car", "static", 3)
     frames = _with_hood(imgs, 0.3, noise)
-    config = EstimatorConfig(initial_pitch_deg=PRESETS["car"].pitch_deg)
-    est = TwoFrameEstimator(cam, float(traj.height[0]), config)
+    config = EstimatorConfig()
+    est = TwoFrameEstimator(Rig(cam, float(traj.height[0]), PRESETS["car"].pitch_deg), config)
     guess = None
     for k in (1, 2):
         result = est.estimate(frames[k - 1], frames[k], guess)
@@ -593,7 +599,7 @@ def test_weak_moving_texture_under_noise_is_not_static():
     cam = p.camera()
     frames = [render_trajectory_frame(tex, cam, traj, k, Effects(noise_sigma=2.0, seed=2))
               for k in range(2)]
-    est = TwoFrameEstimator(cam, p.height_m, EstimatorConfig(initial_pitch_deg=p.pitch_deg))
+    est = TwoFrameEstimator(Rig(cam, p.height_m, p.pitch_deg))
     static = static_pixels(frames[0].astype(np.float32), frames[1].astype(np.float32))
     assert static[est.roi].mean() < 0.1
     assert not on_static(static_share(static, est.config.patch_image // 2), est.centres).any()
@@ -602,7 +608,7 @@ def test_weak_moving_texture_under_noise_is_not_static():
 def test_uniform_images_report_no_texture():
     cam = PRESETS["cart"].camera()
     flat = np.full((cam.height, cam.width), 128, np.uint8)
-    result = TwoFrameEstimator(cam, 0.7).estimate(flat, flat.copy())
+    result = TwoFrameEstimator(Rig(cam, 0.7, DEFAULT_PITCH_DEG)).estimate(flat, flat.copy())
     assert result.status == STATUS_NO_TEXTURE
     assert result.pose_curr is None
     m = result.to_measurement(3, 0.3)
@@ -611,7 +617,7 @@ def test_uniform_images_report_no_texture():
 
 def test_identical_frames_report_no_motion():
     _, imgs, cam = _sequence()
-    result = TwoFrameEstimator(cam, 0.7).estimate(imgs[0], imgs[0].copy())
+    result = TwoFrameEstimator(Rig(cam, 0.7, DEFAULT_PITCH_DEG)).estimate(imgs[0], imgs[0].copy())
     assert result.status == STATUS_NO_MOTION, result.reason
     assert "motion" in result.reason
 
@@ -627,7 +633,7 @@ def test_camera_rotating_on_a_standing_vehicle_reports_no_motion():
     tex, cam = preset_texture(p), p.camera()
     imgs = [render_trajectory_frame(tex, cam, traj, k) for k in range(2)]
     assert np.median(np.abs(imgs[1].astype(float) - imgs[0])) > 5  # the image did move
-    result = TwoFrameEstimator(cam, p.height_m).estimate(*imgs)
+    result = TwoFrameEstimator(Rig(cam, p.height_m, DEFAULT_PITCH_DEG)).estimate(*imgs)
     assert result.status == STATUS_NO_MOTION, result.reason
     assert "rotation of 0.5" in result.reason
 
@@ -635,11 +641,12 @@ def test_camera_rotating_on_a_standing_vehicle_reports_no_motion():
 def test_bad_input_is_a_clear_error():
     cam = PRESETS["cart"].camera()
     with pytest.raises(InputError, match="800×600"):
-        TwoFrameEstimator(cam, 0.7).estimate(np.zeros((10, 10), np.uint8), np.zeros((10, 10)))
+        rig = Rig(cam, 0.7, DEFAULT_PITCH_DEG)
+        TwoFrameEstimator(rig).estimate(np.zeros((10, 10), np.uint8), np.zeros((10, 10)))
     with pytest.raises(InputError, match="n_subsets"):
         EstimatorConfig(n_subsets=-1)
     with pytest.raises(InputError, match="height"):
-        TwoFrameEstimator(cam, 0.0)
+        TwoFrameEstimator(Rig(cam, 0.0, DEFAULT_PITCH_DEG))
 
 
 # --- covariance and measurement -----------------------------------------------------------
@@ -701,7 +708,7 @@ def _shrink(poly: np.ndarray, px: float) -> np.ndarray:
 
 def test_auto_roi_of_a_forward_camera_keeps_the_near_road():
     cam = PRESETS["car"].camera()
-    est = TwoFrameEstimator(cam, 1.5, EstimatorConfig(initial_pitch_deg=3.0))
+    est = TwoFrameEstimator(Rig(cam, 1.5, 3.0))
     nominal = geometry.GroundPose(np.radians(3.0), 0.0, 1.5)
     ground = geometry.back_project(cam.k, nominal, est.centres)
     assert np.all(np.isfinite(ground))
@@ -710,7 +717,8 @@ def test_auto_roi_of_a_forward_camera_keeps_the_near_road():
     horizon = geometry.horizon_row(cam.k, nominal, cam.cx)
     assert np.all(est.centres[:, 1] - est.sizes / 2 > horizon)
     assert est.config.vertical_motion is False
-    assert TwoFrameEstimator(PRESETS["cart"].camera(), 0.7).config.vertical_motion is True
+    rig = Rig(PRESETS["cart"].camera(), 0.7, DEFAULT_PITCH_DEG)
+    assert TwoFrameEstimator(rig).config.vertical_motion is True
 
 
 @pytest.mark.parametrize(
@@ -718,12 +726,13 @@ def test_auto_roi_of_a_forward_camera_keeps_the_near_road():
 )
 def test_user_roi_bounds_the_interest_points(roi):
     cam = PRESETS["cart"].camera()
-    est = TwoFrameEstimator(cam, 0.7, EstimatorConfig(roi=roi))
+    est = TwoFrameEstimator(Rig(cam, 0.7, DEFAULT_PITCH_DEG), EstimatorConfig(roi=roi))
     assert len(est.centres) >= 12
     assert np.all(est.roi[est.centres[:, 1].astype(int), est.centres[:, 0].astype(int)])
     assert est.centres[:, 1].min() >= 300
     with pytest.raises(InputError, match="ROI"):
-        TwoFrameEstimator(cam, 0.7, EstimatorConfig(roi=np.zeros((3, 3, 3))))
+        rig = Rig(cam, 0.7, DEFAULT_PITCH_DEG)
+        TwoFrameEstimator(rig, EstimatorConfig(roi=np.zeros((3, 3, 3))))
 
 
 def test_homography_baseline_decomposition_recovers_pose_and_motion():
@@ -748,7 +757,7 @@ def test_kitti_tracking_pairs():
     root = shared_data("kitti07")
     cam = load_camera(root / "calib.txt")
     poses = np.loadtxt(root / "poses.txt").reshape(-1, 3, 4)
-    est = TwoFrameEstimator(cam, 1.65, EstimatorConfig(initial_pitch_deg=0.0))
+    est = TwoFrameEstimator(Rig(cam, 1.65, 0.0))
     frames = range(100, 105)
     imgs = {i: cv2.imread(str(root / "image_0" / f"{i:06d}.png"), cv2.IMREAD_GRAYSCALE)
             for i in frames}
@@ -772,8 +781,8 @@ def test_failed_image_stage_falls_back_to_the_guess():
     # refinement from the guess, with its wide gate, still lands near the truth.
     traj, imgs, cam = _sequence("car", "static", 2)
     tp, tc, tm = traj.pose(0), traj.pose(1), traj.motion(1)
-    config = EstimatorConfig(initial_pitch_deg=3.0, inlier_px_image=1e-4)
-    est = TwoFrameEstimator(cam, float(traj.height[0]), config)
+    config = EstimatorConfig(inlier_px_image=1e-4)
+    est = TwoFrameEstimator(Rig(cam, float(traj.height[0]), 3.0), config)
     # Cold start of a forward camera: the nominal-pose IPM translation is the start.
     cold = est.estimate(imgs[0], imgs[1])
     assert cold.ok and "nominal-pose IPM" in cold.reason, cold.reason
@@ -781,14 +790,16 @@ def test_failed_image_stage_falls_back_to_the_guess():
     assert err["pitch"] < 0.25 and err["roll"] < 0.25, err
     # A steep camera falls back to the nominal-pose IPM start (60° against the cart's 45°)
     cart, cart_imgs, cart_cam = _sequence()
-    steep = TwoFrameEstimator(cart_cam, 0.7, EstimatorConfig(inlier_px_image=1e-4))
+    rig = Rig(cart_cam, 0.7, DEFAULT_PITCH_DEG)
+    steep = TwoFrameEstimator(rig, EstimatorConfig(inlier_px_image=1e-4))
     fallback = steep.estimate(*cart_imgs)
     assert fallback.ok and "cold start from the nominal-pose IPM" in fallback.reason
     err = _errors(cart, 1, fallback.pose_prev, fallback.pose_curr, fallback.motion)
     assert err["pitch"] < 0.05 and err["roll"] < 0.05 and err["dist_mm"] < 0.1, err
     # ... and without it has no start to fall to
     alone = dataclasses.replace(steep.config, cold_start_ipm=False)
-    assert TwoFrameEstimator(cart_cam, 0.7, alone).estimate(*cart_imgs).status == (
+    rig = Rig(cart_cam, 0.7, DEFAULT_PITCH_DEG)
+    assert TwoFrameEstimator(rig, alone).estimate(*cart_imgs).status == (
         "too few inliers")
     off = np.radians(0.3)
     guess = PairGuess(geometry.GroundPose(tp.pitch + off, tp.roll, tp.height),
@@ -808,10 +819,10 @@ def test_resolve_is_the_config_that_runs(preset, level):
     from vipm_track.estimator_config import camera_kind, resolve
 
     p = PRESETS[preset]
-    config = EstimatorConfig(initial_pitch_deg=p.pitch_deg)
-    assert camera_kind(p.camera(), config)[1] is level
-    resolved = resolve(config, p.camera())
-    assert TwoFrameEstimator(p.camera(), p.height_m, config).config == resolved
+    config, rig = EstimatorConfig(), Rig(p.camera(), p.height_m, p.pitch_deg)
+    assert camera_kind(rig)[1] is level
+    resolved = resolve(config, rig)
+    assert TwoFrameEstimator(rig, config).config == resolved
     assert resolved.refinements == (2 if level else 1)
     assert resolved.vertical_motion is (not level)
-    assert resolve(resolved, p.camera()) == resolved  # nothing left to fill
+    assert resolve(resolved, rig) == resolved  # nothing left to fill

@@ -98,8 +98,9 @@ def test_pushed_frames_camera_stops_and_resumes(knock):
     from vipm_track.live_monitor import LiveMonitor
 
     rows, events = [], []
-    monitor = LiveMonitor(load_camera(knock["folder"] / "camera.yaml"),
-                          load_nominal(knock["nominal"]), camera_timeout_s=0.5,
+    nominal = load_nominal(knock["nominal"])
+    monitor = LiveMonitor(nominal.rig(load_camera(knock["folder"] / "camera.yaml")),
+                          nominal, camera_timeout_s=0.5,
                           on_row=lambda r: rows.append(r.row), on_event=events.append)
     images = [cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) for f in knock["files"][:50]]
     states = []
@@ -146,7 +147,8 @@ def test_virtual_bus_replays_the_rav4_log_at_its_pace():
     channel = f"vipm-live-{time.monotonic_ns()}"
     events = []
     sim = PRESETS["cart"]
-    monitor = LiveMonitor(sim.camera(), _cart_nominal(), can_decoder=SpeedDecoder(dbc),
+    monitor = LiveMonitor(_cart_nominal().rig(sim.camera()), _cart_nominal(),
+                          can_decoder=SpeedDecoder(dbc),
                           camera_timeout_s=60.0, speed_timeout_s=0.5, on_event=events.append)
     stop = threading.Event()
     with can.Bus(interface="virtual", channel=channel) as rx, \
@@ -271,8 +273,9 @@ def test_run_live_is_callable_with_plain_arguments_fast(knock, tmp_path):
 
     out = tmp_path / "fast.csv"
     stdout = io.StringIO()
-    stats = run_live(str(knock["video"]), load_camera(knock["folder"] / "camera.yaml"),
-                     load_nominal(knock["nominal"]), out, stdout=stdout, quiet=True,
+    nominal = load_nominal(knock["nominal"])
+    stats = run_live(str(knock["video"]), nominal.rig(load_camera(knock["folder"] / "camera.yaml")),
+                     nominal, out, stdout=stdout, quiet=True,
                      speed=read_speed_csv(knock["folder"] / "speed.csv"), max_frames=20)
     rows = read_table(out)
     assert list(rows["frame"]) == list(range(1, 20))

@@ -13,9 +13,14 @@ from tests.conftest import shared_data
 from vipm_track.camera import load_camera
 from vipm_track.estimator_config import EstimatorConfig
 from vipm_track.nominal_search import search_nominal_pose
+from vipm_track.rig import DEFAULT_PITCH_DEG, Rig
 from vipm_track.sim import PRESETS, simulate_sequence
 from vipm_track.sources import open_source
 
+
+def _rig(camera, preset) -> Rig:
+    """``camera`` at the preset's height, nominally at the default (paper's) 60° pitch."""
+    return Rig(camera, preset.height_m, DEFAULT_PITCH_DEG)
 
 def _render(folder: Path, preset_name: str, frames: int, pitch_deg: float | None = None,
             profile: str = "shaking"):
@@ -30,8 +35,8 @@ def _render(folder: Path, preset_name: str, frames: int, pitch_deg: float | None
 def test_forward_and_mid_cameras_get_their_pitch(tmp_path, pitch_deg):
     # the default cold start (60°) fails on these; the search converges near the truth
     preset, camera, traj = _render(tmp_path, "car", 3, pitch_deg)
-    found = search_nominal_pose(open_source(images=tmp_path / "images"), camera,
-                                preset.height_m, EstimatorConfig())
+    found = search_nominal_pose(open_source(images=tmp_path / "images"),
+                                _rig(camera, preset), EstimatorConfig())
     assert found is not None and found.default_pitch_deg == 60.0
     assert found.frames == (0, 1)
     assert abs(found.pitch_deg - math.degrees(traj.pitch[1])) < 0.5
@@ -42,8 +47,8 @@ def test_forward_and_mid_cameras_get_their_pitch(tmp_path, pitch_deg):
 
 def test_camera_near_the_default_pitch_keeps_it(tmp_path):
     preset, camera, _ = _render(tmp_path, "cart", 3, 58.0)
-    assert search_nominal_pose(open_source(images=tmp_path / "images"), camera,
-                               preset.height_m, EstimatorConfig()) is None
+    assert search_nominal_pose(open_source(images=tmp_path / "images"),
+                               _rig(camera, preset), EstimatorConfig()) is None
 
 
 def test_camera_far_from_the_default_that_converges_gets_its_own_nominal(tmp_path, capsys):
@@ -55,8 +60,8 @@ def test_camera_far_from_the_default_that_converges_gets_its_own_nominal(tmp_pat
     from vipm_track.table import read_table
 
     preset, camera, traj = _render(tmp_path, "cart", 12, 36.0)
-    found = search_nominal_pose(open_source(images=tmp_path / "images"), camera,
-                                preset.height_m, EstimatorConfig())
+    found = search_nominal_pose(open_source(images=tmp_path / "images"),
+                                _rig(camera, preset), EstimatorConfig())
     assert found is not None and not found.default_failed
     assert found.start_pitch_deg == found.default_pitch_deg == 60.0
     assert abs(found.pitch_deg - 36.0) < 1.0
@@ -99,7 +104,8 @@ def test_kitti_without_pitch_finds_a_level_camera():
     # short (the second minimum of a level camera: steeper pitch, shorter travel).
     data = shared_data("kitti07")
     source = open_source(images=data / "image_0", max_frames=12)
-    found = search_nominal_pose(source, load_camera(data / "calib.txt"), 1.65, EstimatorConfig())
+    rig = Rig(load_camera(data / "calib.txt"), 1.65, DEFAULT_PITCH_DEG)
+    found = search_nominal_pose(source, rig, EstimatorConfig())
     assert found is not None and found.default_failed
     assert 0.0 < found.pitch_deg < 3.0
     assert found.roll_deg == 0.0
@@ -122,11 +128,11 @@ def test_default_start_calling_a_moving_view_still_is_a_failed_start(tmp_path):
     camera = preset.camera()
     frames = list(open_source(images=tmp_path / "images"))
     before, image = (prepare_image(f, camera) for f in frames[:2])
-    default = estimate_pair(TwoFrameEstimator(camera, preset.height_m, EstimatorConfig()),
+    default = estimate_pair(TwoFrameEstimator(Rig(camera, preset.height_m, DEFAULT_PITCH_DEG)),
                             before, image, None)
     assert default.status == STATUS_NO_MOTION  # what made the search skip every pair
-    found = search_nominal_pose(open_source(images=tmp_path / "images"), camera,
-                                preset.height_m, EstimatorConfig())
+    found = search_nominal_pose(open_source(images=tmp_path / "images"),
+                                _rig(camera, preset), EstimatorConfig())
     assert found is not None and found.default_failed and found.frames == (0, 1)
     assert abs(found.pitch_deg - math.degrees(traj.pitch[1])) < 0.5
 
@@ -148,7 +154,7 @@ def test_search_starts_where_a_drive_that_starts_standing_moves(tmp_path):
         cv2.imwrite(str(folder / f"{k:06d}.png"), noisy)
     for k, path in enumerate(rendered[1:], start=20):
         (folder / f"{k:06d}.png").write_bytes(path.read_bytes())
-    found = search_nominal_pose(open_source(images=folder, fps=preset.fps), camera,
-                                preset.height_m, EstimatorConfig())
+    found = search_nominal_pose(open_source(images=folder, fps=preset.fps),
+                                _rig(camera, preset), EstimatorConfig())
     assert found is not None and found.frames == (19, 20)
     assert abs(found.pitch_deg - math.degrees(traj.pitch[1])) < 0.5

@@ -449,17 +449,19 @@ def test_wrong_image_size_names_both_sizes(tmp_path):
     from vipm_track.camera import CameraModel
     from vipm_track.errors import InputError
     from vipm_track.pipeline import run_sequence
+    from vipm_track.rig import DEFAULT_PITCH_DEG, Rig
     from vipm_track.sources import open_source
 
     images = tmp_path / "images"
     images.mkdir()
     camera = CameraModel(np.array([[50.0, 0, 20], [0, 50, 15], [0, 0, 1]]), 40, 30)
+    rig = Rig(camera, 1.0, DEFAULT_PITCH_DEG)
     cv2.imwrite(str(images / "000000.png"), np.zeros((30, 41), np.uint8))
     with pytest.raises(InputError, match=r"41×30 px but the camera model is 40×30 px"):
-        list(run_sequence(open_source(images=images, fps=10), camera, 1.0, estimator=object()))
+        list(run_sequence(open_source(images=images, fps=10), rig, estimator=object()))
     cv2.imwrite(str(images / "000000.png"), np.zeros((30, 40), np.uint8))
     cv2.imwrite(str(images / "000001.png"), np.zeros((24, 32), np.uint8))
-    steps = list(run_sequence(open_source(images=images, fps=10), camera, 1.0,
+    steps = list(run_sequence(open_source(images=images, fps=10), rig,
                               estimator=object()))
     assert steps[1].status == "wrong image size 32×24 (camera 40×30)"
 

@@ -15,11 +15,13 @@ from vipm_track.errors import InputError
 from vipm_track.geometry import GroundPose, PlanarMotion
 from vipm_track.measurement import PairMeasurement, read_measurements
 from vipm_track.pipeline import FIRST_FRAME, NO_PREVIOUS, UNREADABLE, WRONG_SIZE, run_sequence
+from vipm_track.rig import DEFAULT_PITCH_DEG, Rig
 from vipm_track.runs import RunSummary, estimate_sequence, step_row
 from vipm_track.sources import ArraySource, open_source
 from vipm_track.table import read_table
 
 CAMERA = CameraModel(k=np.array([[50.0, 0, 20], [0, 50.0, 15], [0, 0, 1]]), width=40, height=30)
+RIG = Rig(CAMERA, 1.0, DEFAULT_PITCH_DEG)
 
 
 @dataclass
@@ -66,7 +68,7 @@ def _folder(tmp_path: Path, values: list[int | None], size=(40, 30)) -> Path:
 
 def test_statuses_of_first_unreadable_and_failed_frames(tmp_path: Path) -> None:
     folder = _folder(tmp_path, [10, 20, None, 30, 40, 40, 50])
-    steps = list(run_sequence(open_source(images=folder), CAMERA, 1.0,
+    steps = list(run_sequence(open_source(images=folder), RIG,
                               tracking=False, estimator=_FakeEstimator()))
     assert [s.frame for s in steps] == list(range(7))
     assert [s.status for s in steps] == [
@@ -80,7 +82,7 @@ def test_statuses_of_first_unreadable_and_failed_frames(tmp_path: Path) -> None:
 def test_rows_are_written_and_read_back_as_measurements(tmp_path: Path) -> None:
     folder = _folder(tmp_path / "img", [10, 20, 20, 35])
     out = tmp_path / "est.csv"
-    summary = estimate_sequence(open_source(images=folder), CAMERA, 1.0, out, tracking=False,
+    summary = estimate_sequence(open_source(images=folder), RIG, out, tracking=False,
                                 parquet=True, progress=False, estimator=_FakeEstimator())
     assert (summary.frames, summary.ok, summary.pairs) == (4, 2, 3)
     assert "2/4 frames ok" in summary.line() and "1× too few inliers" in summary.line()
@@ -98,19 +100,19 @@ def test_rows_are_written_and_read_back_as_measurements(tmp_path: Path) -> None:
 def test_wrong_size_first_frame_fails_fast_later_frames_get_a_row(tmp_path: Path) -> None:
     folder = _folder(tmp_path / "a", [10, 20], size=(41, 30))
     with pytest.raises(InputError, match=r"41×30 px but the camera model is 40×30"):
-        list(run_sequence(open_source(images=folder), CAMERA, 1.0, estimator=_FakeEstimator()))
+        list(run_sequence(open_source(images=folder), RIG, estimator=_FakeEstimator()))
     folder = _folder(tmp_path / "b", [10, 20, 30])
     cv2.imwrite(str(folder / "000001.png"), np.zeros((30, 41), np.uint8))
-    steps = list(run_sequence(open_source(images=folder), CAMERA, 1.0, tracking=False,
+    steps = list(run_sequence(open_source(images=folder), RIG, tracking=False,
                               estimator=_FakeEstimator()))
     assert [s.status for s in steps] == [
         FIRST_FRAME, f"{WRONG_SIZE} 41×30 (camera 40×30)", NO_PREVIOUS]
 
 
-def test_bad_height_is_an_input_error(tmp_path: Path) -> None:
-    folder = _folder(tmp_path, [10, 20])
-    with pytest.raises(InputError, match="--height must be a positive"):
-        list(run_sequence(open_source(images=folder), CAMERA, -1.0, estimator=_FakeEstimator()))
+def test_bad_rig_is_an_input_error() -> None:
+    for height in (-1.0, 0.0, float("nan"), float("inf")):
+        with pytest.raises(InputError, match="rig: height_m must be a positive number"):
+            Rig(CAMERA, height, DEFAULT_PITCH_DEG)
 
 
 def test_row_of_a_step_without_result_has_empty_numbers() -> None:
@@ -226,7 +228,7 @@ def test_tracking_seeds_each_pair_from_the_previous_result(cart_sequence: Path) 
 
     camera = load_camera(cart_sequence / "camera.yaml")
     steps = list(run_sequence(open_source(images=cart_sequence / "images", max_frames=4),
-                              camera, 0.7))
+                              Rig(camera, 0.7, DEFAULT_PITCH_DEG)))
     assert [s.tracked for s in steps] == [False, False, True, True]
     assert all(s.ok for s in steps[1:])
     # The seed of pair 3 was pair 2's motion: the estimate moved only a little from it.
@@ -328,8 +330,8 @@ def test_chunked_runs_are_the_same_in_one_process_or_two(cart_sequence: Path,
     from vipm_track.camera import load_camera
     from vipm_track.parallel import run_chunked
 
-    steps = run_chunked(ArraySource(images, truth["t"]), load_camera(cart_sequence / "camera.yaml"),
-                        0.7, None, True, 1, 2)
+    rig = Rig(load_camera(cart_sequence / "camera.yaml"), 0.7, DEFAULT_PITCH_DEG)
+    steps = run_chunked(ArraySource(images, truth["t"]), rig, None, True, 1, 2)
     statuses = [s.status for s in steps]
     assert statuses[1].startswith(UNREADABLE)
     assert statuses[:1] + statuses[2:] == [FIRST_FRAME, NO_PREVIOUS, "ok", "ok"]
@@ -355,7 +357,7 @@ def test_interrupted_run_keeps_the_rows_written(tmp_path: Path) -> None:
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        estimate_sequence(open_source(images=folder), CAMERA, 1.0, out, tracking=False,
+        estimate_sequence(open_source(images=folder), RIG, out, tracking=False,
                           progress=False, on_step=interrupt_at_frame_2,
                           estimator=_FakeEstimator())
     table = read_table(out)
@@ -373,7 +375,11 @@ def test_refinement_weights_option_sets_the_estimator(choice: str, steep: bool,
                                                       expected: tuple) -> None:
     import argparse
 
-    from vipm_track.commands.estimator_options import add_estimator_options, build_config
+    from vipm_track.commands.estimator_options import (
+        add_estimator_options,
+        build_config,
+        build_rig,
+    )
     from vipm_track.estimator import TwoFrameEstimator
     from vipm_track.sim import PRESETS
 
@@ -382,7 +388,7 @@ def test_refinement_weights_option_sets_the_estimator(choice: str, steep: bool,
     preset = PRESETS["cart" if steep else "car"]
     args = parser.parse_args(["--refinement-weights", choice, "--pitch", str(preset.pitch_deg)])
     camera = preset.camera()
-    est = TwoFrameEstimator(camera, preset.height_m, build_config(args, camera))
+    est = TwoFrameEstimator(build_rig(args, camera, preset.height_m), build_config(args, camera))
     got = (est.config.weight_patches, est.config.recentre_windows,
            est.config.inlier_median_factor)
     assert got == expected
@@ -396,7 +402,11 @@ def test_vertical_motion_option_sets_the_estimator(flag: list[str], steep: bool,
                                                    expected: bool) -> None:
     import argparse
 
-    from vipm_track.commands.estimator_options import add_estimator_options, build_config
+    from vipm_track.commands.estimator_options import (
+        add_estimator_options,
+        build_config,
+        build_rig,
+    )
     from vipm_track.estimator import TwoFrameEstimator
     from vipm_track.sim import PRESETS
 
@@ -405,7 +415,7 @@ def test_vertical_motion_option_sets_the_estimator(flag: list[str], steep: bool,
     preset = PRESETS["cart" if steep else "car"]
     args = parser.parse_args([*flag, "--pitch", str(preset.pitch_deg)])
     camera = preset.camera()
-    est = TwoFrameEstimator(camera, preset.height_m, build_config(args, camera))
+    est = TwoFrameEstimator(build_rig(args, camera, preset.height_m), build_config(args, camera))
     assert est.config.vertical_motion is expected
 
 

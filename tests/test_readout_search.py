@@ -16,6 +16,7 @@ from vipm_track.commands.common import seconds_or_auto
 from vipm_track.estimator_config import EstimatorConfig
 from vipm_track.readout_search import _pooled_vertex, search_readout
 from vipm_track.render import Effects
+from vipm_track.rig import Rig
 from vipm_track.sim import PRESETS, simulate_sequence
 from vipm_track.sources import open_source
 
@@ -35,9 +36,9 @@ def rolling_cart(tmp_path_factory) -> tuple[Path, object]:
 
 
 def _search(folder: Path, pitch_deg: float, **kwargs):
-    return search_readout(open_source(images=folder / "images"), load_camera(folder /
-                          "camera.yaml"), CART.height_m, EstimatorConfig(
-                          initial_pitch_deg=pitch_deg), **kwargs)
+    rig = Rig(load_camera(folder / "camera.yaml"), CART.height_m, pitch_deg)
+    return search_readout(open_source(images=folder / "images"), rig, EstimatorConfig(),
+                          **kwargs)
 
 
 def test_rolling_shutter_readout_is_found(rolling_cart):
@@ -106,8 +107,8 @@ def test_kitti_global_shutter_gets_no_readout():
     # jitter, moved the travel by -8 %): the search must not invent one
     data = shared_data("kitti07")
     camera = load_camera(data / "calib.txt")
-    found = search_readout(open_source(images=data / "image_0"), camera, 1.65,
-                           EstimatorConfig(initial_pitch_deg=1.0))
+    found = search_readout(open_source(images=data / "image_0"), Rig(camera, 1.65, 1.0),
+                           EstimatorConfig())
     assert found is not None
     assert not found.determined or found.global_shutter, found.line()
     if not found.determined:

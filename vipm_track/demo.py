@@ -55,6 +55,7 @@ from .filters.monitor_table import MONITOR_COLUMNS, monitor_row
 from .measurement import PairMeasurement, read_measurements
 from .pipeline import SequenceStep
 from .resources import data_path
+from .rig import Rig
 from .runs import estimate_sequence
 from .sim import PRESETS, simulate_sequence
 from .sinks.demo_figure import write_demo_figure
@@ -252,6 +253,7 @@ def run_demo(
     out: str | Path,
     config: EstimatorConfig | None = None,
     *,
+    rig: Rig | None = None,
     tracking: bool = True,
     workers: int = 2,
     chunk_frames: int | None = None,
@@ -266,7 +268,9 @@ def run_demo(
     :class:`DemoResult`) and ``demo.png`` (per-frame pose, mount with its bands, monitor state
     over time, the knock marked).
 
-    ``config``: the estimator's (default: its defaults, cold start at the nominal pitch);
+    ``config``: the estimator's (default: its defaults); ``rig``: the camera and the pose,
+    height and readout it starts from (default: the drive's camera at the nominal pitch and
+    roll, the preset's height);
     ``workers`` processes estimate ``chunk_frames``-frame chunks (default: the drive in
     :data:`CHUNKS` chunks, so the numbers do not depend on ``workers``). ``sink``: a
     ``vipm_track.sinks.rerun_sink.RerunSink`` (or None) that gets the camera images with the
@@ -281,13 +285,11 @@ def run_demo(
     files: dict[str, Path] = {}
 
     clock = time.perf_counter()
-    camera = load_camera(drive.camera_file)
-    if config is None:
-        config = EstimatorConfig(initial_pitch_deg=nominal.pitch_deg,
-                                 initial_roll_deg=nominal.roll_deg)
+    if rig is None:
+        rig = nominal.rig(load_camera(drive.camera_file)).with_height(preset.height_m)
     chunk_frames = chunk_frames or max(2, math.ceil(drive.frames / CHUNKS))
     files["estimates"] = out / "estimates.csv"
-    estimate_sequence(open_source(images=drive.images), camera, preset.height_m,
+    estimate_sequence(open_source(images=drive.images), rig,
                       files["estimates"], config, tracking=tracking, progress=progress,
                       on_step=_pair_logger(sink, drive.images), workers=workers,
                       chunk_frames=chunk_frames)

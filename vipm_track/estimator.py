@@ -28,12 +28,10 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from .camera import CameraModel
 from .cold_start import cold_start_ipm, reject_wrong_minimum
 from .displacement_model import pack, unpack
 from .errors import InputError
 from .estimator_config import EstimatorConfig, camera_kind, resolve
-from .geometry import GroundPose
 from .image_stage import image_stage
 from .pair_result import (
     STATUS_DEGENERATE,
@@ -50,6 +48,7 @@ from .pair_result import (
     mark_failed,
 )
 from .refinement import refine_all
+from .rig import Rig
 from .roi import interest_points, roi_mask
 from .stage_context import StageContext, pose_prior
 from .static_content import noise_sigma, static_pixels, static_share
@@ -76,24 +75,23 @@ class TwoFrameEstimator:
 
     Parameters
     ----------
-    camera : intrinsics; distorted frames are undistorted to ``camera.k`` first.
-    height : assumed camera height [m] (scale of the translation, CONVENTIONS.md).
-    config : settings; :class:`EstimatorConfig` defaults when None.
+    rig : the camera (distorted frames are undistorted to ``camera.k`` first), its assumed
+        height [m] (the scale of the translation, CONVENTIONS.md), its nominal pose (where
+        a cold start begins) and its rolling-shutter readout [s].
+    config : settings; :class:`EstimatorConfig` defaults when None, run as
+        ``resolve(config, rig)``.
     """
 
-    def __init__(self, camera: CameraModel, height: float, config: EstimatorConfig | None = None):
-        if not height > 0:
-            raise InputError(f"camera height must be > 0 m, got {height}")
-        self.camera = camera
-        self.height = float(height)
-        self.config = config or EstimatorConfig()
+    def __init__(self, rig: Rig, config: EstimatorConfig | None = None):
+        self.rig = rig
+        camera = self.camera = rig.camera
+        self.height = float(rig.height_m)
         self.k = camera.k
-        pitch0, roll0 = self.config.initial_pose
-        self.nominal = GroundPose(pitch0, roll0, self.height)
+        self.nominal = rig.nominal_pose
+        self.config = resolve(config or EstimatorConfig(), rig)
         margin = np.radians(self.config.horizon_margin_deg)
         self._horizon_margin_px = float(np.tan(margin) * camera.fy)
-        self.steep, self.level = camera_kind(camera, self.config)
-        self.config = resolve(self.config, camera)
+        self.steep, self.level = camera_kind(rig)
         mask = roi_mask(
             camera, self.config.roi, self.nominal,
             self.config.roi_max_range_h * self.height,
@@ -124,7 +122,7 @@ class TwoFrameEstimator:
         Images are grey or BGR arrays of the camera's size. ``guess`` (tracking mode) seeds
         the optimisation and offsets the patch windows by the displacements it predicts.
         ``frame_interval_s`` [s], the time between the frames, is needed with a rolling
-        shutter (``EstimatorConfig.readout_s``) and unused otherwise; there the ``guess``'s
+        shutter (``Rig.readout_s``) and unused otherwise; there the ``guess``'s
         motion (the previous pair's, scaled to this interval) also gives the vehicle's
         acceleration.
         Cold, both starts are tried (with ``cold_start_ipm``), the second where the first
@@ -283,7 +281,7 @@ class TwoFrameEstimator:
     def _shutter_readout_frames(self, frame_interval_s: float | None) -> float:
         """The rolling shutter's readout in frame intervals of a pair ``frame_interval_s``
         seconds apart (``bundle.DisplacementModel``); 0 for a global shutter."""
-        readout = self.config.readout_s
+        readout = self.rig.readout_s
         if not readout:
             return 0.0
         if frame_interval_s is None or not (np.isfinite(frame_interval_s)

@@ -1,5 +1,6 @@
 """Settings of the two-frame estimator: :class:`EstimatorConfig`, its per-camera defaults
-(:func:`with_camera_defaults`, level vs steep cameras) and the constants they rest on."""
+(:func:`with_camera_defaults`, level vs steep cameras), the configuration that runs for a
+rig (:func:`resolve`) and the constants they rest on."""
 
 from __future__ import annotations
 
@@ -8,9 +9,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .camera import CameraModel
 from .errors import InputError
-from .geometry import GroundPose, horizon_row
+from .geometry import horizon_row
+from .rig import Rig
 from .roi import RoiSpec
 
 #: nominal pitch below which a camera with the horizon in view gets the forward-looking
@@ -45,9 +46,11 @@ REFINEMENT_WEIGHTING: dict[str, dict[str, bool | float]] = {
 class EstimatorConfig:
     """Settings of :class:`TwoFrameEstimator` (defaults follow the paper where it says).
 
-    Fields left None take per-camera defaults: "forward-looking" below means a *level*
-    camera (horizon in view and nominal pitch below ``LEVEL_MAX_PITCH_DEG``, 10°), "steep"
-    every other one (the cold start alone goes by the horizon: ``cold_start_ipm``).
+    Fields left None take per-camera defaults (:func:`resolve`, from the rig's nominal pose):
+    "forward-looking" below means a *level* camera (horizon in view and nominal pitch below
+    ``LEVEL_MAX_PITCH_DEG``, 10°), "steep" every other one (the cold start alone goes by the
+    horizon: ``cold_start_ipm``). The camera, its nominal pose, height and rolling-shutter
+    readout are the rig's (``rig.Rig``), not settings.
 
     Attributes
     ----------
@@ -67,8 +70,6 @@ class EstimatorConfig:
     refinements : virtual-IPM refinements after the initial estimate; None (default): 1 for
         steep cameras (the paper's), 2 for forward-looking ones (each refinement removes
         part of the pitch/travel coupling left by the distorted image patches).
-    initial_pitch_deg, initial_roll_deg : cold-start pose (paper: 60°, 0°); give the nominal
-        calibration for cameras far from it (forward-looking ones).
     coarse_scale, coarse_patch : downsampling and patch size (downsampled pixels) of the
         cold-start coarse pass (``coarse_scale = 1`` disables it).
     coarse_inlier_px : inlier threshold of the coarse pass, full-resolution pixels.
@@ -89,14 +90,10 @@ class EstimatorConfig:
         they are tried again from the nominal pose with its pitch moved by each of these in
         turn [deg]; the first that succeeds is the result. Default per camera
         (``COLD_PITCH_STEPS_DEG``: ±2° level, ±5° others); ``()`` disables it.
-    readout_s : rolling shutter: time from the exposure of the image's first row to its
-        last [s] (0: global shutter); the residual model then moves each patch by the motion
-        over its rows' exposure times (``bundle`` module doc), given each pair's frame
-        interval (:meth:`TwoFrameEstimator.estimate`).
-    max_deviation_deg : estimates whose pitch or roll differ from the initial (nominal) pose
+    max_deviation_deg : estimates whose pitch or roll differ from the nominal pose (``Rig``)
         by more than this are rejected ("did not converge").
     max_roll_deg : plausible roll of a vehicle camera: estimates whose roll differs from the
-        nominal roll (``initial_roll_deg``: level unless the user says otherwise) by more
+        nominal roll (``Rig.roll_deg``: level unless the user says otherwise) by more
         than this are rejected ("did not converge"); a roll fitted beyond it is vehicles or
         walls taken for the ground, not the mount.
     jackknife_covariance : each fit's covariance is at least its block jackknife's
@@ -119,7 +116,7 @@ class EstimatorConfig:
         (default): on for steep cameras (the whole image below the horizon at the nominal
         pose), off for forward-looking ones, where it is poorly separable from pitch.
     pose_prior_deg : standard deviation of a prior on both frames' pitch and roll around the
-        initial (nominal) pose inside every fit, degrees; it resolves the pitch/translation
+        rig's nominal pose inside every fit, degrees; it resolves the pitch/translation
         ambiguity of a near-level camera (a steeper pitch with a shorter travel explains
         the flow of the near road almost as well). 0 turns it off; None (default): 2° for
         forward-looking cameras, off for steep ones.
@@ -167,8 +164,6 @@ class EstimatorConfig:
     subset_fraction: float = 0.6
     refine_subsets: int = 0
     refinements: int | None = None
-    initial_pitch_deg: float = 60.0
-    initial_roll_deg: float = 0.0
     coarse_scale: int = 4
     coarse_patch: int = 64
     coarse_inlier_px: float = 10.0
@@ -187,7 +182,6 @@ class EstimatorConfig:
     heave_rate_mps: float = 0.05
     cold_start_ipm: bool = True
     cold_pitch_steps_deg: tuple[float, ...] | None = None
-    readout_s: float = 0.0
     ipm_resolution_scale: float = 1.0
     ipm_max_side: int = 3000
     vertical_motion: bool | None = None
@@ -236,12 +230,6 @@ class EstimatorConfig:
                 "estimator config: invalid " + ", ".join(f"{b}={getattr(self, b)!r}" for b in bad)
             )
 
-    @property
-    def initial_pose(self) -> tuple[float, float]:
-        """Cold-start (pitch, roll), radians."""
-        return float(np.radians(self.initial_pitch_deg)), float(np.radians(self.initial_roll_deg))
-
-
 
 def with_camera_defaults(config: EstimatorConfig, level: bool) -> EstimatorConfig:
     """``config`` with the fields left None set to the defaults of a level camera (``level``:
@@ -262,19 +250,20 @@ def with_camera_defaults(config: EstimatorConfig, level: bool) -> EstimatorConfi
     })
 
 
-def camera_kind(camera: CameraModel, config: EstimatorConfig) -> tuple[bool, bool]:
-    """(steep, level) of ``camera`` at ``config``'s nominal pose. Steep: the whole image sees
+def camera_kind(rig: Rig) -> tuple[bool, bool]:
+    """(steep, level) of the rig's camera at its nominal pose. Steep: the whole image sees
     the ground (no horizon in view). Level: a forward-looking camera near the horizontal
     (horizon in view, pitch below ``LEVEL_MAX_PITCH_DEG``), whose pitch trades against the
     travel and whose far-field IPM patches stretch 10-50×. A camera pitched further down
     gets the steep defaults even with the horizon in view (docs/kitti.md)."""
-    pitch, roll = config.initial_pose
-    steep = bool(horizon_row(camera.k, GroundPose(pitch, roll, 1.0), camera.cx) < 0)
-    return steep, bool(not steep and pitch < np.radians(LEVEL_MAX_PITCH_DEG))
+    pose = rig.nominal_pose
+    steep = bool(horizon_row(rig.camera.k, pose, rig.camera.cx) < 0)
+    return steep, bool(not steep and pose.pitch < np.radians(LEVEL_MAX_PITCH_DEG))
 
 
-def resolve(config: EstimatorConfig, camera: CameraModel) -> EstimatorConfig:
-    """The configuration that runs for ``camera``: ``config`` with every field it leaves None
-    set to the level or steep camera's default (:func:`camera_kind`,
-    :func:`with_camera_defaults`). ``TwoFrameEstimator`` runs exactly this."""
-    return with_camera_defaults(config, camera_kind(camera, config)[1])
+def resolve(config: EstimatorConfig, rig: Rig) -> EstimatorConfig:
+    """The configuration that runs for ``rig``: ``config`` with every field it leaves None
+    set to the level or steep camera's default at the rig's nominal pose
+    (:func:`camera_kind`, :func:`with_camera_defaults`). ``TwoFrameEstimator`` runs exactly
+    this."""
+    return with_camera_defaults(config, camera_kind(rig)[1])

@@ -38,11 +38,11 @@ from vipm_track.filters.monitor_table import MONITOR_COLUMNS, MONITOR_TABLE, mon
 from vipm_track.filters.monitor_types import MonitorOutput
 from vipm_track.filters.nominal import NominalCalibration
 
-from .camera import CameraModel
 from .estimator import TwoFrameEstimator
 from .estimator_config import EstimatorConfig
 from .measurement import PairMeasurement
 from .pipeline import WRONG_SIZE, estimate_pair, predict_guess, prepare_image
+from .rig import Rig
 from .sources import Frame
 from .table import TableColumns
 
@@ -144,9 +144,11 @@ class LiveMonitor:
 
     Parameters
     ----------
-    camera : intrinsics of the frames pushed (their size is checked).
-    nominal : the calibration judged against (its height is the estimator's scale).
-    config : estimator settings (default: seeded with the nominal pitch and roll).
+    rig : the camera of the frames pushed (their size is checked) and the estimator's
+        nominal pose, height (its scale) and readout (``NominalCalibration.rig``: the
+        nominal's).
+    nominal : the calibration judged against.
+    config : estimator settings (default: ``EstimatorConfig()``).
     can_decoder : a ``filters.speed_decoder.SpeedDecoder`` for :meth:`push_can`.
     expect_speed : wheel speed will be pushed: its silence puts the monitor on HOLD.
     camera_timeout_s, speed_timeout_s : silence [s] after which the watchdog holds.
@@ -158,7 +160,7 @@ class LiveMonitor:
 
     def __init__(
         self,
-        camera: CameraModel,
+        rig: Rig,
         nominal: NominalCalibration,
         config: EstimatorConfig | None = None,
         *,
@@ -174,11 +176,8 @@ class LiveMonitor:
     ) -> None:
         if not (camera_timeout_s > 0 and speed_timeout_s > 0):
             raise ValueError("the watchdog's timeouts must be > 0 s")
-        if config is None:
-            config = EstimatorConfig(initial_pitch_deg=nominal.pitch_deg,
-                                     initial_roll_deg=nominal.roll_deg)
-        self.camera, self.nominal = camera, nominal
-        self.estimator = TwoFrameEstimator(camera, nominal.height_m, config)
+        self.camera, self.nominal = rig.camera, nominal
+        self.estimator = TwoFrameEstimator(rig, config)
         self.speed = SpeedBuffer()
         self.online = OnlineMonitor(nominal, EkfConfig(height_m=nominal.height_m),
                                     dict(monitor_options or {}), fps=fps, speed=self.speed)

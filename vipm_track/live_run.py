@@ -22,7 +22,6 @@ from vipm_track.filters.speed_decoder import SpeedDecoder
 from vipm_track.filters.track import track_row
 from vipm_track.filters.wheel_speed import SpeedSeries
 
-from .camera import CameraModel
 from .errors import InputError
 from .estimator_config import EstimatorConfig
 from .live_monitor import LIVE_COLUMNS, LIVE_TABLE, LiveMonitor, LiveRow, LiveStats
@@ -35,12 +34,13 @@ from .live_sources import (
     open_bus,
     parse_video,
 )
+from .rig import Rig
 from .table import CONCISE, ColumnChoice, TableWriter, choose_columns
 
 
 def run_live(
     video: str,
-    camera: CameraModel,
+    rig: Rig,
     nominal: NominalCalibration,
     out: str | Path,
     *,
@@ -69,14 +69,16 @@ def run_live(
     """Monitor ``video`` live (module doc); returns the run's statistics.
 
     ``video``: a camera index (``"0"``), a stream URL or a video file (``realtime``: played
-    at its frame rate; ``fps`` times its frames). Wheel speed: ``speed`` (a recording on the
-    video's clock, replayed beside it) or ``bus`` (``"INTERFACE:CHANNEL"`` or a python-can
-    bus) decoded with ``dbc``/``signals``/``combine``/``can_channel``/``speed_scale``. A
-    camera or stream runs until ``duration_s`` or an interrupt; a file until its end or
-    ``max_frames``. ``columns``: the table's columns (``vipm_track.table.choose_columns``).
-    ``sink``: a ``sinks.rerun_sink.RerunSink`` (camera with its patches, mount series with
-    bands, monitor state). The summary goes to stderr unless ``quiet``; a KeyboardInterrupt
-    is raised again after it.
+    at its frame rate; ``fps`` times its frames) seen by ``rig``'s camera (the estimator's
+    nominal pose, height and readout: ``NominalCalibration.rig`` for the nominal's). Wheel
+    speed: ``speed`` (a recording on the video's clock, replayed beside it) or ``bus``
+    (``"INTERFACE:CHANNEL"`` or a python-can bus) decoded with
+    ``dbc``/``signals``/``combine``/``can_channel``/``speed_scale``. A camera or stream runs
+    until ``duration_s`` or an interrupt; a file until its end or ``max_frames``.
+    ``columns``: the table's columns (``vipm_track.table.choose_columns``). ``sink``: a
+    ``sinks.rerun_sink.RerunSink`` (camera with its patches, mount series with bands,
+    monitor state). The summary goes to stderr unless ``quiet``; a KeyboardInterrupt is
+    raised again after it.
     """
     spec = parse_video(video)
     written = choose_columns(LIVE_TABLE, columns)
@@ -100,9 +102,7 @@ def run_live(
         decoder = SpeedDecoder(dbc, signals, combine=combine, channel=can_channel,
                                scale=speed_scale, source=f"bus {bus}")
     if sink is not None:
-        config = replace(config or EstimatorConfig(initial_pitch_deg=nominal.pitch_deg,
-                                                   initial_roll_deg=nominal.roll_deg),
-                         keep_images=True)
+        config = replace(config or EstimatorConfig(), keep_images=True)
     events_file = open(events, "w", newline="\n") if events else None
     writer = TableWriter(Path(out), LIVE_COLUMNS,
                          Path(out).with_suffix(".parquet") if parquet else None, written)
@@ -127,7 +127,7 @@ def run_live(
         print(f"{when} frame {frame if frame is not None else '-'}: {event['state']}: "
               f"{event.get('reason', '')}", file=stdout, flush=True)
 
-    monitor = LiveMonitor(camera, nominal, config, can_decoder=decoder,
+    monitor = LiveMonitor(rig, nominal, config, can_decoder=decoder,
                           expect_speed=speed is not None or bus is not None,
                           camera_timeout_s=camera_timeout_s, speed_timeout_s=speed_timeout_s,
                           monitor_options=monitor_options, on_row=on_row, on_event=on_event)

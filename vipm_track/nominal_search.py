@@ -1,21 +1,22 @@
 """The nominal pose for the cold start when the user gives none (no ``--pitch``).
 
-The estimator starts cold from a nominal pitch (``EstimatorConfig.initial_pitch_deg``, the
-paper's 60°), which also decides its region of interest, its steep/forward-camera defaults
-and the window of plausible poses (``max_deviation_deg`` around it). A forward-looking camera
+The estimator starts cold from the rig's nominal pitch (``Rig.pitch_deg``; without one the
+paper's 60°, ``rig.DEFAULT_PITCH_DEG``), which also decides its region of interest, its
+steep/forward-camera defaults and the window of plausible poses (``max_deviation_deg``
+around it). A forward-looking camera
 (a car's, pitch ~0–5°) does not converge from 60°. Before a run without ``--pitch``,
 :func:`search_nominal_pose` cold-starts the first pair in which the view moves (pixels, not
-patches: a drive may start standing) from the configured pitch; only if that fails — "no
+patches: a drive may start standing) from the rig's pitch; only if that fails — "no
 motion" included, since the 60° start's patches on a level camera sit partly on the sky,
 which stands still — does it try the pair from each of ``CANDIDATE_PITCHES_DEG`` and keep the
 converged estimate with the smallest residual (a wrong start that converges — a steep pitch
 with a short travel on a level camera, the pitch/travel trade-off's second minimum — fits
 the patches worse). A default start that converges far (more than ``SETTLE_PITCH_DEG``) from the
-configured pitch is kept too: a camera 35° down converges from 60° but sits on the edge of
+rig's pitch is kept too: a camera 35° down converges from 60° but sits on the edge of
 the plausible window, and half its frames would be rejected as implausible. The pose is
 settled on the next few pairs (the median pose of pairs started from it, repeated until it
-stops moving) and becomes the run's nominal pose, exactly as if given with
-``--pitch/--roll`` — but for a roll within ``CAMBER_ROLL_DEG`` of level, which the first
+stops moving) and becomes the run's nominal pose (``Rig.with_pose``), exactly as if given
+with ``--pitch/--roll`` — but for a roll within ``CAMBER_ROLL_DEG`` of level, which the first
 frames' road camber explains as well as the camera, so the nominal roll stays 0 there.
 """
 
@@ -40,9 +41,10 @@ if TYPE_CHECKING:
     from .camera import CameraModel
     from .estimator_config import EstimatorConfig
     from .pair_result import PairResult
+    from .rig import Rig
     from .sources import FrameSource
 
-#: cold-start pitches tried when the configured one fails [deg], steep to level
+#: cold-start pitches tried when the rig's fails [deg], steep to level
 CANDIDATE_PITCHES_DEG: tuple[float, ...] = (75.0, 40.0, 25.0, 12.0, 5.0, 1.0)
 #: a found roll within this of level is the road's camber over the first frames, not the
 #: camera's (KITTI 07 starts at 1.5°); the nominal roll stays 0 [deg]
@@ -51,7 +53,7 @@ CAMBER_ROLL_DEG = 3.0
 LEVEL_PITCH_DEG = 15.0
 #: the ground fit's pitch may differ from the direction of travel's by this [deg]
 GROUND_AGREE_DEG = 2.0
-#: a default cold start that converges more than this from the configured pitch moves the
+#: a default cold start that converges more than this from the rig's pitch moves the
 #: nominal pose to where it converged [deg]
 SETTLE_PITCH_DEG = 5.0
 
@@ -59,7 +61,7 @@ SETTLE_PITCH_DEG = 5.0
 @dataclass(frozen=True)
 class NominalSearch:
     """A nominal pose found on the pair (``frames``) [deg], from the start ``start_pitch_deg``
-    (the configured ``default_pitch_deg`` failed there, or converged far from it:
+    (the rig's ``default_pitch_deg`` failed there, or converged far from it:
     ``default_failed`` False). ``roll_deg`` is the nominal roll: the ``measured_roll_deg``,
     or 0 where that is within ``CAMBER_ROLL_DEG`` of level."""
 
@@ -116,8 +118,7 @@ class MovingPair(NamedTuple):
 
 def search_nominal_pose(
     source: FrameSource,
-    camera: CameraModel,
-    height: float,
+    rig: Rig,
     config: EstimatorConfig,
     max_pairs: int = 11,
     max_frames: int = 300,
@@ -125,15 +126,15 @@ def search_nominal_pose(
     confirm_pairs: int = 6,
 ) -> NominalSearch | None:
     """Find a nominal pose on the first ``max_pairs`` pairs of ``source`` in which the view
-    moves, within its first ``max_frames`` frames (module doc; a drive that starts standing
-    is searched from where it moves).
+    moves, within its first ``max_frames`` frames, started from ``rig`` (module doc; a drive
+    that starts standing is searched from where it moves).
 
     The pose from the start that converges best on the first failing pair is then settled
     on up to ``confirm_pairs`` pairs from there (``_settle``): a single pair's pitch is noisy
     (±1° on KITTI's first frames), and a forward camera's pose prior pulls each cold start
-    towards its nominal. None where the configured pitch converges within
+    towards its nominal. None where the rig's pitch converges within
     ``SETTLE_PITCH_DEG`` of itself on the first pair with motion (nothing to change), or where
-    no start converges on ``max_failed_pairs`` pairs (the run then goes as configured and
+    no start converges on ``max_failed_pairs`` pairs (the run then goes from ``rig`` and
     reports its failures). A pair the default start calls "no motion" although the view
     moved is a failing pair; one that every start calls so (traffic past a standing
     vehicle) is skipped."""
@@ -141,9 +142,10 @@ def search_nominal_pose(
     from .pair_result import STATUS_NO_MOTION, STATUS_OK
     from .pipeline import config_with, estimate_pair
 
+    camera = rig.camera
     pairs = moving_pairs(source, camera, max_pairs, max_frames)
     # the default start alone: a forward camera fails from 60° however its pitch is stepped
-    default = TwoFrameEstimator(camera, height, config_with(config, cold_pitch_steps_deg=()))
+    default = TwoFrameEstimator(rig, config_with(config, cold_pitch_steps_deg=()))
     failed = 0
     travel: TravelPitch | None = None
     for i, pair in enumerate(pairs):
@@ -151,29 +153,29 @@ def search_nominal_pose(
         result = estimate_pair(default, pair.before, pair.image, None, pair.interval_s)
         if result.status == STATUS_OK:
             if result.pose_curr is None or abs(math.degrees(result.pose_curr.pitch)
-                                               - config.initial_pitch_deg) <= SETTLE_PITCH_DEG:
+                                               - rig.pitch_deg) <= SETTLE_PITCH_DEG:
                 return None
-            found: tuple[float, PairResult] | None = (config.initial_pitch_deg, result)
+            found: tuple[float, PairResult] | None = (rig.pitch_deg, result)
         else:
             if travel is None:
                 travel = travel_pitch_over(source, camera, max_frames)
             if travel.determined:
-                return _from_travel(camera, height, config, pairs[i:i + confirm_pairs],
+                return _from_travel(rig, config, pairs[i:i + confirm_pairs],
                                     travel, source, max_frames)
             # "no motion" included: the view moved (``moving_pairs``), so the default
             # start's patches sat on what did not (a level camera's sky)
-            found = _best_start(camera, height, config, pair)
+            found = _best_start(rig, config, pair)
             if found is None and result.status == STATUS_NO_MOTION:
                 continue  # nothing moved in any start's view either: traffic past a standing car
             failed += 1
         if found is not None:
             start, r = found
-            pitch, roll, n = _settle(camera, height, config, pairs[i:i + confirm_pairs],
+            pitch, roll, n = _settle(rig, config, pairs[i:i + confirm_pairs],
                                      r.pose_curr.pitch, r.pose_curr.roll)
             search = NominalSearch(round(math.degrees(pitch), 1), round(math.degrees(roll), 1),
-                                   start, config.initial_pitch_deg, frames, n,
+                                   start, rig.pitch_deg, frames, n,
                                    default_failed=r is not result, travel=travel)
-            return replace(search, undetermined=_implausible_roll(search, config)
+            return replace(search, undetermined=_implausible_roll(search, rig, config)
                            or _contradicts_travel(search, travel))
         if failed >= max_failed_pairs:
             break
@@ -201,7 +203,7 @@ def travel_pitch_over(source: FrameSource, camera: CameraModel, max_frames: int,
 
 
 def _from_travel(
-    camera: CameraModel, height: float, config: EstimatorConfig, pairs: list[MovingPair],
+    rig: Rig, config: EstimatorConfig, pairs: list[MovingPair],
     travel: TravelPitch, source: FrameSource, max_frames: int,
 ) -> NominalSearch:
     """The nominal pose of a camera whose pitch the direction of travel gave: the roll of
@@ -211,17 +213,16 @@ def _from_travel(
     (``EstimatorConfig.max_roll_deg``)."""
     from .estimator import TwoFrameEstimator
     from .pair_result import STATUS_OK
-    from .pipeline import config_with, estimate_pair
+    from .pipeline import estimate_pair
 
-    estimator = TwoFrameEstimator(camera, height, config_with(
-        config, initial_pitch_deg=round(travel.pitch_deg, 1)))
+    estimator = TwoFrameEstimator(rig.with_pose(round(travel.pitch_deg, 1)), config)
     poses = [r.pose_curr for p in pairs
              if (r := estimate_pair(estimator, p.before, p.image, None, p.interval_s)
                  ).status == STATUS_OK and r.pose_curr is not None]
     frames = pairs[0].frames
     if not poses:  # the ground fit from the travel's pitch failed: the nominal roll stays
-        return NominalSearch(round(travel.pitch_deg, 1), config.initial_roll_deg,
-                             round(travel.pitch_deg, 1), config.initial_pitch_deg, frames, 0,
+        return NominalSearch(round(travel.pitch_deg, 1), rig.roll_deg,
+                             round(travel.pitch_deg, 1), rig.pitch_deg, frames, 0,
                              travel=travel)
     pitches = np.degrees([p.pitch for p in poses])
     ground_pitch = float(np.median(pitches))
@@ -230,9 +231,9 @@ def _from_travel(
     ground_se = 1.86 * float(np.median(np.abs(pitches - ground_pitch))) / math.sqrt(len(poses))
     roll = math.degrees(float(np.median([p.roll for p in poses])))
     search = NominalSearch(round(travel.pitch_deg, 1), round(roll, 1),
-                           round(travel.pitch_deg, 1), config.initial_pitch_deg, frames,
+                           round(travel.pitch_deg, 1), rig.pitch_deg, frames,
                            len(poses), travel=travel)
-    undetermined = _implausible_roll(search, config)
+    undetermined = _implausible_roll(search, rig, config)
     tolerance = GROUND_AGREE_DEG + 3.0 * ground_se
     if not undetermined and abs(ground_pitch - travel.pitch_deg) > tolerance:
         undetermined = (f"the ground fit's pitch {ground_pitch:.1f}° (median of {len(poses)} "
@@ -241,7 +242,7 @@ def _from_travel(
                         f"walls taken for the ground?)")
     if undetermined:
         return replace(search, undetermined=undetermined)
-    with_roll = travel_pitch_over(source, camera, max_frames, math.radians(search.roll_deg)) \
+    with_roll = travel_pitch_over(source, rig.camera, max_frames, math.radians(search.roll_deg)) \
         if search.roll_deg else travel
     return replace(search, pitch_deg=round(with_roll.pitch_deg, 1), travel=with_roll)
 
@@ -258,17 +259,18 @@ def _contradicts_travel(search: NominalSearch, travel: TravelPitch | None) -> st
             f"{travel.off_axis_deg:.0f}° off its axis")
 
 
-def _implausible_roll(search: NominalSearch, config: EstimatorConfig) -> str:
-    """Why the search's roll is not a vehicle camera's ("" where it is plausible)."""
-    if abs(search.measured_roll_deg - config.initial_roll_deg) <= config.max_roll_deg:
+def _implausible_roll(search: NominalSearch, rig: Rig, config: EstimatorConfig) -> str:
+    """Why the search's roll is not a vehicle camera's on ``rig`` ("" where it is
+    plausible)."""
+    if abs(search.measured_roll_deg - rig.roll_deg) <= config.max_roll_deg:
         return ""
     return (f"the ground fit settled at roll {search.measured_roll_deg:.1f}° (pitch "
             f"{search.pitch_deg:.1f}°), beyond the plausible ±{config.max_roll_deg:g}° of "
-            f"{config.initial_roll_deg:g}° (--max-roll; --roll for a camera mounted rolled)")
+            f"{rig.roll_deg:g}° (--max-roll; --roll for a camera mounted rolled)")
 
 
 def _best_start(
-    camera: CameraModel, height: float, config: EstimatorConfig, pair: MovingPair,
+    rig: Rig, config: EstimatorConfig, pair: MovingPair,
 ) -> tuple[float, PairResult] | None:
     """The start of ``CANDIDATE_PITCHES_DEG`` (deg) whose cold start on the pair converges
     with the smallest residual, with its result; None where none converges.
@@ -293,11 +295,11 @@ def _best_start(
         if best is not None:
             break
         for start in CANDIDATE_PITCHES_DEG:
-            if abs(start - config.initial_pitch_deg) < 1.0:
+            if abs(start - rig.pitch_deg) < 1.0:
                 continue
             try:
-                estimator = TwoFrameEstimator(camera, height, config_with(
-                    config, initial_pitch_deg=start, cold_pitch_steps_deg=steps, **alike))
+                estimator = TwoFrameEstimator(rig.with_pose(start), config_with(
+                    config, cold_pitch_steps_deg=steps, **alike))
             except InputError:  # too few interest points from this start
                 continue
             r = estimate_pair(estimator, pair.before, pair.image, None, pair.interval_s)
@@ -308,7 +310,7 @@ def _best_start(
 
 
 def _settle(
-    camera: CameraModel, height: float, config: EstimatorConfig,
+    rig: Rig, config: EstimatorConfig,
     pairs: list[MovingPair],
     pitch: float, roll: float, rounds: int = 3, tolerance_deg: float = 0.3,
 ) -> tuple[float, float, int]:
@@ -317,13 +319,12 @@ def _settle(
     the last median."""
     from .estimator import TwoFrameEstimator
     from .pair_result import STATUS_OK
-    from .pipeline import config_with, estimate_pair
+    from .pipeline import estimate_pair
 
     n = 1
     for _ in range(rounds):
-        estimator = TwoFrameEstimator(camera, height, config_with(
-            config, initial_pitch_deg=round(math.degrees(pitch), 1),
-            initial_roll_deg=round(math.degrees(roll), 1)))
+        estimator = TwoFrameEstimator(rig.with_pose(round(math.degrees(pitch), 1),
+                                                    round(math.degrees(roll), 1)), config)
         poses = [r.pose_curr for p in pairs
                  if (r := estimate_pair(estimator, p.before, p.image, None, p.interval_s)
                      ).status == STATUS_OK

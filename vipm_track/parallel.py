@@ -22,8 +22,8 @@ from .patch_match import set_threads
 from .pipeline import SequenceStep, run_sequence
 
 if TYPE_CHECKING:
-    from .camera import CameraModel
     from .estimator_config import EstimatorConfig
+    from .rig import Rig
     from .sources import FrameSource
 
 #: Frames per chunk by default: a cold start per 500 frames costs ~0.1 % of a run's time.
@@ -39,8 +39,7 @@ def chunk_bounds(n_frames: int, chunk_frames: int) -> list[tuple[int, int]]:
 
 def run_chunked(
     source: FrameSource,
-    camera: CameraModel,
-    height: float,
+    rig: Rig,
     config: EstimatorConfig | None,
     tracking: bool,
     workers: int,
@@ -53,18 +52,18 @@ def run_chunked(
         raise InputError(f"--chunk-frames must be >= {MIN_CHUNK_FRAMES}, got {chunk_frames}")
     bounds = chunk_bounds(len(source), chunk_frames)
     if len(bounds) <= 1:
-        yield from run_sequence(source, camera, height, config, tracking)
+        yield from run_sequence(source, rig, config, tracking)
         return
     if workers <= 1:  # the same chunks, one after another in this process
         for p, n in bounds:
-            yield from run_chunk(source, camera, height, config, tracking, p, n)
+            yield from run_chunk(source, rig, config, tracking, p, n)
         return
     context = multiprocessing.get_context("spawn")  # no forked OpenCV / numba thread pools
     # one correlation thread per process: the processes already share the cores
     with ProcessPoolExecutor(min(workers, len(bounds)), mp_context=context,
                              initializer=set_threads, initargs=(1,)) as pool:
         futures: list[Future[list[SequenceStep]]] = [
-            pool.submit(run_chunk, source, camera, height, config, tracking, p, n)
+            pool.submit(run_chunk, source, rig, config, tracking, p, n)
             for p, n in bounds]
         try:
             for future in futures:
@@ -76,8 +75,7 @@ def run_chunked(
 
 def run_chunk(
     source: FrameSource,
-    camera: CameraModel,
-    height: float,
+    rig: Rig,
     config: EstimatorConfig | None,
     tracking: bool,
     position: int,
@@ -86,5 +84,5 @@ def run_chunk(
     """The steps of the ``count`` frames from ``position`` on (run in a worker process)."""
     overlap = 1 if position > 0 else 0
     chunk = source.frames(position - overlap, count + overlap)
-    return list(run_sequence(chunk, camera, height, config, tracking,
+    return list(run_sequence(chunk, rig, config, tracking,
                              continuation=position > 0))[overlap:]

@@ -7,7 +7,7 @@ Tracking mode (the default) seeds each pair from the previous result: the previo
 pose for the virtual IPM and the previous motion (scaled by the ratio of frame intervals) to
 predict displacements and offset the patch windows, which is what lets fast motion and
 forward-looking cameras work. The first pair, and the pair after any failure, start cold
-from the nominal guess of the estimator's configuration; a tracked pair that fails is tried
+from the rig's nominal pose; a tracked pair that fails is tried
 once more cold before it is given up.
 
 A frame that cannot be read gets a row with status ``unreadable frame`` and the next frame,
@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 from .camera import CameraModel
 from .errors import InputError
 from .geometry import PlanarMotion
+from .rig import Rig
 from .sources import Frame, FrameSource
 
 if TYPE_CHECKING:
@@ -83,8 +84,7 @@ def predict_guess(previous: PairResult, dt_prev: float, dt: float) -> PairGuess:
 
 def run_sequence(
     source: FrameSource,
-    camera: CameraModel,
-    height: float,
+    rig: Rig,
     config: EstimatorConfig | None = None,
     tracking: bool = True,
     estimator: TwoFrameEstimator | None = None,
@@ -93,18 +93,17 @@ def run_sequence(
 ) -> Iterator[SequenceStep]:
     """Yield one :class:`SequenceStep` per frame of ``source`` (see module doc).
 
-    ``height`` is the assumed camera height [m] that makes the motion metric. Raises
-    :class:`InputError` when the first readable frame's size disagrees with ``camera``;
+    The ``rig``'s height [m] makes the motion metric. Raises :class:`InputError` when the
+    first readable frame's size disagrees with the rig's camera;
     later frames of a wrong size get status ``wrong image size``. ``continuation``: the
     source continues a run (a later chunk), so none of its frames is the run's first: a
     frame of a wrong size gets that status, one without a predecessor ``no previous frame``.
     """
-    if not (np.isfinite(height) and height > 0):
-        raise InputError(f"--height must be a positive number of metres, got {height}")
     if estimator is None:
         from .estimator import TwoFrameEstimator
 
-        estimator = TwoFrameEstimator(camera, height, config)
+        estimator = TwoFrameEstimator(rig, config)
+    camera = rig.camera
     prev_image: NDArray | None = None
     prev_t = prev_dt = float("nan")
     previous_ok: PairResult | None = None

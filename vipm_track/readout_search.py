@@ -2,7 +2,7 @@
 
 A CMOS camera exposes its rows one after another: over the readout time the vehicle moves on,
 so the near field (bottom rows) is seen later than the far field. The two-frame fit models this
-given the readout (``EstimatorConfig.readout_s``); with the wrong one, part of the row-timing
+given the readout (``Rig.readout_s``); with the wrong one, part of the row-timing
 motion cannot be explained by any pose and motion, and the fit's residual rises with the
 error. On rendered car and cart pairs the squared RMS residual grows with the square of the
 readout error (car at 12 m/s, 33 ms readout: 0.060 px² at the truth, +0.04 / +0.16 / +0.37 px²
@@ -31,8 +31,8 @@ from numpy.typing import NDArray
 from .nominal_search import moving_pairs
 
 if TYPE_CHECKING:
-    from .camera import CameraModel
     from .estimator_config import EstimatorConfig
+    from .rig import Rig
     from .sources import FrameSource
 
 FloatArray = NDArray[np.float64]
@@ -107,8 +107,7 @@ class ReadoutSearch:
 
 def search_readout(
     source: FrameSource,
-    camera: CameraModel,
-    height: float,
+    rig: Rig,
     config: EstimatorConfig,
     max_pairs: int = 6,
     max_frames: int = 300,
@@ -117,16 +116,16 @@ def search_readout(
 ) -> ReadoutSearch | None:
     """The readout [s] that fits pairs of ``source`` in which the view moves best (module
     doc). ``scan_pairs`` such pairs, spread over the first ``max_frames`` frames, are started
-    cold from ``config``'s nominal pose at the first readout of ``fractions`` (× the pairs'
+    cold from ``rig``'s nominal pose at the first readout of ``fractions`` (× the pairs'
     median frame interval); the ``max_pairs`` of them that travel furthest (the rolling
     shutter's effect grows with the motion) then at every other one. None where fewer than
     ``MIN_PAIRS`` pairs are solved at the readouts around the best one."""
     from .estimator import TwoFrameEstimator
     from .pair_result import STATUS_OK
-    from .pipeline import config_with, estimate_pair
+    from .pipeline import estimate_pair
 
     stride = max(1, min(len(source), max_frames) // max(scan_pairs, 1))
-    pairs = moving_pairs(source, camera, scan_pairs, max_frames, stride)
+    pairs = moving_pairs(source, rig.camera, scan_pairs, max_frames, stride)
     if not pairs:
         return None
     interval = float(np.median([p.interval_s for p in pairs]))
@@ -136,7 +135,7 @@ def search_readout(
 
     def costs(readout: float, chosen: list) -> tuple[FloatArray, FloatArray]:
         """Squared RMS residual [px²] and travel [m] of each pair at ``readout``."""
-        estimator = TwoFrameEstimator(camera, height, config_with(config, readout_s=readout))
+        estimator = TwoFrameEstimator(rig.with_readout(readout), config)
         cost, travel = np.full(len(chosen), np.nan), np.full(len(chosen), np.nan)
         for j, pair in enumerate(chosen):
             result = estimate_pair(estimator, pair.before, pair.image, None, pair.interval_s)

@@ -13,10 +13,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .camera import CameraModel
 from .measurement import PairMeasurement, measurement_row
 from .parallel import DEFAULT_CHUNK_FRAMES, run_chunked
 from .pipeline import FIRST_FRAME, SequenceStep, run_sequence
+from .rig import Rig
 from .sources import FrameSource
 from .table import (
     CONCISE,
@@ -34,8 +34,7 @@ if TYPE_CHECKING:
 
 def sequence_steps(
     source: FrameSource,
-    camera: CameraModel,
-    height: float,
+    rig: Rig,
     config: EstimatorConfig | None = None,
     tracking: bool = True,
     estimator: TwoFrameEstimator | None = None,
@@ -47,8 +46,8 @@ def sequence_steps(
     (:mod:`vipm_track.parallel`: each chunk's first pair starts cold, and ``estimator`` is
     then each chunk's own)."""
     if workers <= 1 and chunk_frames is None:
-        return run_sequence(source, camera, height, config, tracking, estimator)
-    return run_chunked(source, camera, height, config, tracking, workers,
+        return run_sequence(source, rig, config, tracking, estimator)
+    return run_chunked(source, rig, config, tracking, workers,
                        chunk_frames or DEFAULT_CHUNK_FRAMES)
 
 
@@ -124,8 +123,7 @@ class RunSummary:
 
 def estimate_sequence(
     source: FrameSource,
-    camera: CameraModel,
-    height: float,
+    rig: Rig,
     out: str | Path,
     config: EstimatorConfig | None = None,
     tracking: bool = True,
@@ -143,7 +141,7 @@ def estimate_sequence(
     ``progress``: show progress on stderr (``progress.progress_bar``: a bar on a terminal, a
     line every few seconds where stderr is a file or a pipe; ``None``: as True).
     ``on_step`` is called with every step (e.g. a live display); ``estimator`` replaces the
-    one built from ``camera``, ``height`` and ``config``; ``workers``, ``chunk_frames``: as
+    one built from ``rig`` and ``config``; ``workers``, ``chunk_frames``: as
     :func:`sequence_steps`; ``columns``: the table's columns (:func:`table.choose_columns`)."""
     from .progress import progress_bar
 
@@ -154,14 +152,14 @@ def estimate_sequence(
         progress = True
     summary = RunSummary()
     start = time.perf_counter()
-    steps = sequence_steps(source, camera, height, config, tracking, estimator, workers,
+    steps = sequence_steps(source, rig, config, tracking, estimator, workers,
                            chunk_frames)
     with (
         TableWriter(out, ROW_COLUMNS, parquet_path, written) as writer,
         progress_bar(total=len(source), disable=not progress, unit="frame") as bar,
     ):
         for step in steps:
-            writer.write(step_row(step, height))
+            writer.write(step_row(step, rig.height_m))
             summary.add(step)
             summary.wall_seconds = time.perf_counter() - start
             bar.update(1)

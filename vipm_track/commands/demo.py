@@ -16,10 +16,12 @@ import argparse
 import os
 import sys
 import time
+from dataclasses import replace
 
+from ..camera import load_camera
 from ..errors import InputError
 from .common import add_rerun_options, check_output_dir, check_rerun_output
-from .estimator_options import add_estimator_options, build_config
+from .estimator_options import add_estimator_options, build_config, build_rig
 
 MAX_FRAMES = 2000
 
@@ -61,7 +63,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..demo import default_frames, render_drive, run_demo
     from ..demo_text import demo_lines, files_lines
-    from ..pipeline import config_with
     from ..sim import PRESETS
     from ..sources import open_source
     from .inputs import with_searched_readout
@@ -76,24 +77,22 @@ def run(args: argparse.Namespace) -> int:
     args.rerun = args.rerun or str(out / "demo.rrd")
     check_rerun_output(args)
     preset = PRESETS[args.preset]
+    # the cold start is seeded with the preset's nominal pose unless --pitch / --roll say else
     config = build_config(args, preset.camera())
-    # the cold start is seeded with the rig's nominal pose unless --pitch / --roll say else
-    config = config_with(config,
-                         initial_pitch_deg=preset.pitch_deg if args.pitch is None else None,
-                         initial_roll_deg=preset.roll_deg if args.roll is None else None)
+    rig = build_rig(args, preset.camera(), preset.height_m, preset.pitch_deg, preset.roll_deg)
     progress = not args.quiet and sys.stderr.isatty()
 
     start = time.perf_counter()
     drive = render_drive(out / "sequence", args.preset, frames, args.seed, args.profile,
                          progress=progress)
     rendered = time.perf_counter() - start
-    config = with_searched_readout(args, open_source(images=drive.images), preset.camera(),
-                                   preset.height_m, config)
+    rig = with_searched_readout(args, open_source(images=drive.images),
+                                replace(rig, camera=load_camera(drive.camera_file)), config)
     # a demo is short: every pair's images unless the options say otherwise
     images = {} if args.rerun_image_every is not None else {"image_every": 1}
     sink = sink_from_args(args, "vipm-track demo", layout="drift", **images)
     try:
-        result = run_demo(drive, out, config, tracking=not args.no_tracking,
+        result = run_demo(drive, out, config, rig=rig, tracking=not args.no_tracking,
                           workers=args.workers, sink=sink, progress=progress,
                           render_seconds=rendered)
     finally:

@@ -22,6 +22,7 @@ from .estimator_options import (
     add_estimator_options,
     add_parallel_options,
     build_config,
+    build_rig,
     parallel_settings,
 )
 
@@ -77,7 +78,8 @@ def run(args: argparse.Namespace) -> int:
                   else read_bag_camera(args.bag, args.camera_info_topic))
     else:
         camera = load_camera(args.camera)
-    config = build_config(args, camera)  # bad options are named before the input is read
+    # bad options are named before the input is read
+    config, rig = build_config(args, camera), build_rig(args, camera, height)
     if args.bag:
         source = BagSource(args.bag, args.image_topic, start=args.start,
                            max_frames=args.max_frames)
@@ -85,14 +87,14 @@ def run(args: argparse.Namespace) -> int:
         source = open_source(images=args.images, video=args.video, fps=args.fps,
                              start=args.start, max_frames=args.max_frames)
     parallel = parallel_settings(args)
-    config = with_searched_setup(args, source, camera, height, config)
+    rig, config = with_searched_setup(args, source, rig, config, search_pose=args.pitch is None)
     from ..sinks.rerun_sequence import run_logging
     from .rerun_options import sink_from_args
 
     logging = run_logging(sink_from_args(args, "vipm-track estimate"), source, camera, config)
     try:
         summary = estimate_sequence(
-            logging.source, camera, height, out, logging.config, tracking=not args.no_tracking,
+            logging.source, rig, out, logging.config, tracking=not args.no_tracking,
             parquet=args.parquet, progress=not args.quiet, columns=columns,
             on_step=logging.on_step, **parallel,
         )

@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 from ..camera import CameraModel
 from ..errors import InputError
 from ..estimator_config import REFINEMENT_WEIGHTING
+from ..rig import DEFAULT_PITCH_DEG, Rig
 from .common import seconds_or_auto
 
 #: ``--refinement-weights`` → EstimatorConfig fields ("auto": the estimator's per-camera
@@ -136,8 +137,6 @@ def build_config(args: argparse.Namespace, camera: CameraModel):
         raise InputError(f"--refinements must be between 0 and 10, got {args.refinements}")
     if args.patch_size is not None and (args.patch_size < 32 or args.patch_size % 16):
         raise InputError(f"--patch-size must be a multiple of 16, >= 32, got {args.patch_size}")
-    pitch = _angle(args.pitch, "--pitch", -10.0, 90.0)
-    roll = _angle(args.roll, "--roll", -45.0, 45.0)
     max_roll = _angle(getattr(args, "max_roll", None), "--max-roll", 0.1, 90.0)
     prior = getattr(args, "pose_prior_deg", None)
     if prior is not None and not (math.isfinite(prior) and 0 <= prior <= 45):
@@ -146,19 +145,11 @@ def build_config(args: argparse.Namespace, camera: CameraModel):
     seed = getattr(args, "subset_seed", None)
     if seed is not None and seed < 0:
         raise InputError(f"--subset-seed must be >= 0, got {seed}")
-    readout = getattr(args, "readout_time", 0.0)
-    if readout == "auto":
-        readout = 0.0  # searched on the frames (commands.inputs.with_searched_setup)
-    if not (math.isfinite(readout) and 0 <= readout <= 1):
-        raise InputError(f"--readout-time must be in [0, 1] seconds, got {readout}")
     return config_with(
         EstimatorConfig(),
-        readout_s=float(readout),
         grid=grid,
         refinements=args.refinements,
         patch_image=args.patch_size,
-        initial_pitch_deg=pitch,
-        initial_roll_deg=roll,
         max_roll_deg=max_roll,
         roi=roi,
         vertical_motion=args.vertical_motion,
@@ -166,6 +157,26 @@ def build_config(args: argparse.Namespace, camera: CameraModel):
         seed=seed,
         **REFINEMENT_WEIGHTS[getattr(args, "refinement_weights", "auto")],
     )
+
+
+def build_rig(
+    args: argparse.Namespace, camera: CameraModel, height: float,
+    pitch_deg: float | None = None, roll_deg: float | None = None,
+) -> Rig:
+    """``camera`` at ``height`` [m] with the nominal pose and readout of the options in
+    ``args``: ``--pitch``/``--roll`` where given, else ``pitch_deg``/``roll_deg`` (a nominal
+    calibration's), else ``rig.DEFAULT_PITCH_DEG`` and level; ``--readout-time`` (``auto``: a
+    global shutter until searched, ``commands.inputs.with_searched_setup``)."""
+    pitch = _angle(getattr(args, "pitch", None), "--pitch", -10.0, 90.0)
+    roll = _angle(getattr(args, "roll", None), "--roll", -45.0, 45.0)
+    readout = getattr(args, "readout_time", 0.0)
+    if readout == "auto":
+        readout = 0.0
+    if not (math.isfinite(readout) and 0 <= readout <= 1):
+        raise InputError(f"--readout-time must be in [0, 1] seconds, got {readout}")
+    return Rig(camera, height,
+               next(p for p in (pitch, pitch_deg, DEFAULT_PITCH_DEG) if p is not None),
+               next(r for r in (roll, roll_deg, 0.0) if r is not None), float(readout))
 
 
 def _angle(value: float | None, option: str, low: float, high: float) -> float | None:

@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     from vipm_track.filters.clock_offset import ClockOffsetFit
 
     from ..estimator_config import EstimatorConfig
+    from ..rig import Rig
     from ..sources import FrameSource
 
 
@@ -173,106 +174,95 @@ def read_estimates(path: str, quiet: bool = False, notes: list[str] | None = Non
     return measurements
 
 
-def estimator_config(
+def estimator_setup(
     args: argparse.Namespace,
     camera: CameraModel,
+    height: float,
     pitch_deg: float | None = None,
     roll_deg: float | None = None,
-) -> EstimatorConfig:
-    """The estimator configuration of the estimator options in ``args`` (where the command
-    has them); ``pitch_deg``/``roll_deg`` seed the cold start unless ``--pitch``/``--roll``
-    are given (e.g. the monitor's nominal calibration)."""
+) -> tuple[Rig, EstimatorConfig]:
+    """The rig (``build_rig``: ``camera`` at ``height`` [m], ``pitch_deg``/``roll_deg`` the
+    nominal pose unless ``--pitch``/``--roll`` are given, e.g. the monitor's nominal
+    calibration) and the estimator configuration of the estimator options in ``args``
+    (where the command has them)."""
     from ..estimator_config import EstimatorConfig
-    from ..pipeline import config_with
-    from .estimator_options import build_config
+    from .estimator_options import build_config, build_rig
 
     config = build_config(args, camera) if hasattr(args, "grid") else EstimatorConfig()
-    return config_with(
-        config,
-        initial_pitch_deg=pitch_deg if getattr(args, "pitch", None) is None else None,
-        initial_roll_deg=roll_deg if getattr(args, "roll", None) is None else None,
-    )
+    return build_rig(args, camera, height, pitch_deg, roll_deg), config
 
 
 def with_searched_nominal(
     args: argparse.Namespace,
     source: FrameSource,
-    camera: CameraModel,
-    height: float,
+    rig: Rig,
     config: EstimatorConfig,
-) -> EstimatorConfig:
-    """``config`` with the nominal pose ``nominal_search.search_nominal_pose`` finds on the
-    first frames of ``source`` where the user gave no ``--pitch`` and the cold start from the
-    default pitch fails (a forward-looking camera) or converges far from it (a camera 35°
-    down); unchanged otherwise. Says so on stderr unless ``--quiet``."""
-    from ..estimator_config import EstimatorConfig
+) -> tuple[Rig, EstimatorConfig]:
+    """``rig`` at the nominal pose ``nominal_search.search_nominal_pose`` finds on the first
+    frames of ``source`` where the cold start from the rig's pitch fails (a forward-looking
+    camera) or converges far from it (a camera 35° down), with ``config``; where the drive
+    does not determine the pose, ``config`` says so (``nominal_undetermined``); unchanged
+    otherwise. Says so on stderr unless ``--quiet``. Call it only where the user gave no
+    ``--pitch`` (nor a nominal calibration)."""
     from ..nominal_search import search_nominal_pose
-    from ..pipeline import config_with
 
-    if (getattr(args, "pitch", None) is not None
-            or config.initial_pitch_deg != EstimatorConfig.initial_pitch_deg):
-        return config
-    found = search_nominal_pose(source, camera, height, config)
+    found = search_nominal_pose(source, rig, config)
     if found is None:
-        return config
+        return rig, config
     if not found.determined:
         print(f"vipm-track: warning: {found.line()}", file=sys.stderr)
-        return config_with(config, nominal_undetermined=found.undetermined)
+        return rig, replace(config, nominal_undetermined=found.undetermined)
     if not getattr(args, "quiet", False):
         print(f"vipm-track: {found.line()}", file=sys.stderr)
     roll = found.roll_deg if getattr(args, "roll", None) is None else None
-    return config_with(config, initial_pitch_deg=found.pitch_deg, initial_roll_deg=roll)
+    return rig.with_pose(found.pitch_deg, roll), config
 
 
 def with_searched_setup(
     args: argparse.Namespace,
     source: FrameSource,
-    camera: CameraModel,
-    height: float,
+    rig: Rig,
     config: EstimatorConfig,
-) -> EstimatorConfig:
-    """``config`` with what the user left to the data: the nominal pose
-    (:func:`with_searched_nominal`) and the rolling shutter's readout
-    (:func:`with_searched_readout`, from that nominal pose); where both were searched, the
-    nominal pose is searched again under the readout found."""
-    searched = with_searched_nominal(args, source, camera, height, config)
-    with_readout = with_searched_readout(args, source, camera, height, searched)
-    if searched is config or with_readout.readout_s == searched.readout_s:
-        return with_readout
-    from ..pipeline import config_with
-
-    return with_searched_nominal(args, source, camera, height,
-                                 config_with(config, readout_s=with_readout.readout_s))
+    search_pose: bool,
+) -> tuple[Rig, EstimatorConfig]:
+    """``rig`` and ``config`` with what the user left to the data: the nominal pose where
+    ``search_pose`` (no ``--pitch``: :func:`with_searched_nominal`) and the rolling shutter's
+    readout (:func:`with_searched_readout`, from that nominal pose); where both were searched
+    and the readout found is not the rig's, the nominal pose is searched again under it."""
+    searched = with_searched_nominal(args, source, rig, config) if search_pose else (rig, config)
+    with_readout = with_searched_readout(args, source, *searched)
+    unchanged = searched[0] is rig and searched[1] is config
+    if unchanged or with_readout.readout_s == searched[0].readout_s:
+        return with_readout, searched[1]
+    return with_searched_nominal(args, source, rig.with_readout(with_readout.readout_s), config)
 
 
 def with_searched_readout(
     args: argparse.Namespace,
     source: FrameSource,
-    camera: CameraModel,
-    height: float,
+    rig: Rig,
     config: EstimatorConfig,
-) -> EstimatorConfig:
-    """With ``--readout-time auto``: ``config`` with the readout that
+) -> Rig:
+    """With ``--readout-time auto``: ``rig`` with the readout that
     ``readout_search.search_readout`` finds on pairs of ``source`` that move (said on stderr
     unless ``--quiet``; where none can be fitted or the pairs do not determine it, a warning
-    and a global shutter); otherwise ``config`` itself."""
+    and a global shutter); otherwise ``rig`` itself."""
     if getattr(args, "readout_time", 0.0) != "auto":
-        return config
-    from ..pipeline import config_with
+        return rig
     from ..readout_search import search_readout
 
-    found = search_readout(source, camera, height, config)
+    found = search_readout(source, rig, config)
     if found is None:
         print("vipm-track: warning: --readout-time auto: no readout could be fitted (fewer "
               "than 2 pairs that move were solved at the readouts tried); going on with a "
               "global shutter (give --readout-time SECONDS)", file=sys.stderr)
-        return config_with(config, readout_s=0.0)
+        return rig.with_readout(0.0)
     if not found.determined:
         print(f"vipm-track: warning: {found.line()}", file=sys.stderr)
-        return config_with(config, readout_s=0.0)
+        return rig.with_readout(0.0)
     if not getattr(args, "quiet", False):
         print(f"vipm-track: {found.line()}", file=sys.stderr)
-    return config_with(config, readout_s=found.readout_s)
+    return rig.with_readout(found.readout_s)
 
 
 def estimate_stream(
@@ -280,12 +270,14 @@ def estimate_stream(
     height: float,
     config: EstimatorConfig | None = None,
     sink: Any = None,
-    camera: CameraModel | None = None,
+    rig: Rig | None = None,
 ) -> Iterator[PairMeasurement]:
     """One pair measurement per frame of ``--images``/``--video`` through the sequence runner
     (tracking mode) at the assumed ``height`` [m]; frames without an estimate carry their
     status and NaNs. With a rerun ``sink`` each pair's images, patches and IPM views are
-    logged as they come. ``config`` defaults to :func:`estimator_config` of ``args``."""
+    logged as they come. ``rig`` and ``config`` default to :func:`estimator_setup` of
+    ``args`` (the nominal pose searched where no ``--pitch`` is given); a ``rig`` given is
+    the caller's nominal and is not searched."""
     from ..runs import sequence_steps, step_measurement
     from ..sources import open_source
     from .estimator_options import parallel_settings
@@ -294,19 +286,21 @@ def estimate_stream(
         raise InputError("--images/--video need --camera CAMERA.yaml (none found beside the "
                          "images)")
     parallel = parallel_settings(args)
-    camera = camera or load_camera(args.camera)
-    config = config or estimator_config(args, camera)
+    search_pose = rig is None and getattr(args, "pitch", None) is None
+    if rig is None or config is None:
+        built_rig, built_config = estimator_setup(args, load_camera(args.camera), height)
+        rig, config = rig or built_rig, config or built_config
     frame_window([], int, getattr(args, "start", 0), getattr(args, "max_frames", None))
     source = open_source(images=args.images, video=args.video, fps=args.fps,
                          start=getattr(args, "start", 0),
                          max_frames=getattr(args, "max_frames", None))
-    config = with_searched_setup(args, source, camera, height, config)
+    rig, config = with_searched_setup(args, source, rig, config, search_pose)
     if sink is not None:
         from ..sinks.rerun_sequence import ImageTap
 
-        source = ImageTap(source, camera)
+        source = ImageTap(source, rig.camera)
         config = replace(config, keep_images=True)
-    for step in sequence_steps(source, camera, height, config, **parallel):
+    for step in sequence_steps(source, rig, config, **parallel):
         if sink is not None and step.result is not None:
             sink.log_pair_views(step.frame, step.t, step.result, source.image(step.frame))
         yield step_measurement(step, height)
@@ -327,7 +321,7 @@ def measurements_from_args(
     height: float,
     config: EstimatorConfig | None = None,
     sink: Any = None,
-    camera: CameraModel | None = None,
+    rig: Rig | None = None,
     progress: bool = False,
 ) -> list[PairMeasurement]:
     """All pair measurements of the input: ``--estimates`` read, or ``--images``/``--video``
@@ -347,7 +341,7 @@ def measurements_from_args(
                                     getattr(args, "start", 0), getattr(args, "max_frames", None))
         require_usable(measurements, args.estimates)
         return measurements
-    stream = estimate_stream(args, height, config, sink, camera)
+    stream = estimate_stream(args, height, config, sink, rig)
     if progress:
         from ..progress import progress_bar
 

@@ -21,7 +21,7 @@ from .common import (
     check_writable,
 )
 from .estimator_options import add_estimator_options
-from .inputs import estimator_config, load_speed
+from .inputs import estimator_setup, load_speed
 from .monitor import add_monitor_test_options
 
 
@@ -101,10 +101,10 @@ def run(args: argparse.Namespace) -> int:
     except UnicodeDecodeError as exc:
         raise InputError(f"{args.nominal}: not a text file (undecodable byte at offset "
                          f"{exc.start}); a nominal calibration is YAML") from None
-    nominal_height(args.height, nominal.height_m, args.nominal)
+    height = nominal_height(args.height, nominal.height_m, args.nominal)
     camera = load_camera(args.camera)
-    config = estimator_config(args, camera, pitch_deg=nominal.pitch_deg,
-                              roll_deg=nominal.roll_deg)
+    rig, config = estimator_setup(args, camera, height, pitch_deg=nominal.pitch_deg,
+                                  roll_deg=nominal.roll_deg)
     if args.clock_offset == "auto":
         raise InputError("--clock-offset auto needs the whole drive; live, give the offset in "
                          "seconds")
@@ -114,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
     speed = None if args.bus else load_speed(args)
     sink = sink_from_args(args, "vipm-track live")
     run_live(
-        args.video, camera, nominal, out, config=config, realtime=args.realtime, fps=args.fps,
+        args.video, rig, nominal, out, config=config, realtime=args.realtime, fps=args.fps,
         speed=speed, bus=args.bus, dbc=args.dbc, signals=args.signals, combine=args.combine,
         can_channel=args.can_channel, speed_scale=args.speed_scale, events=args.events,
         parquet=args.parquet, columns=columns, camera_timeout_s=args.camera_timeout,

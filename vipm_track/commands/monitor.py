@@ -34,7 +34,7 @@ from .common import (
 )
 from .estimator_options import add_estimator_options, add_parallel_options
 from .inputs import (
-    estimator_config,
+    estimator_setup,
     load_speed,
     measurements_from_args,
     speed_on_camera_clock,
@@ -109,9 +109,9 @@ def run(args: argparse.Namespace) -> int:
 
     sink = sink_from_args(args, "vipm-track monitor", layout="drift")
     # the cold start of the estimator is seeded with the nominal calibration
-    config = None if args.estimates or camera is None else estimator_config(
-        args, camera, pitch_deg=nominal.pitch_deg, roll_deg=nominal.roll_deg)
-    measurements = measurements_from_args(args, height, config, sink, camera, progress)
+    rig, config = (None, None) if args.estimates or camera is None else estimator_setup(
+        args, camera, height, pitch_deg=nominal.pitch_deg, roll_deg=nominal.roll_deg)
+    measurements = measurements_from_args(args, height, config, sink, rig, progress)
     speed, _ = speed_on_camera_clock(args, speed, measurements)
 
     ekf_config = EkfConfig(height_m=height)

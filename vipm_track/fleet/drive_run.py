@@ -37,7 +37,6 @@ from ..bag_source import BagSource, read_bag_camera, read_bag_speed
 from ..camera import CameraModel, load_camera
 from ..errors import InputError, NothingUsable, printable
 from ..estimator_config import EstimatorConfig
-from ..pipeline import config_with
 from ..runs import sequence_steps, step_measurement, step_row
 from ..sources import FrameSource, open_source
 from ..table import CONCISE, ESTIMATE_TABLE, choose_columns_each, write_table
@@ -185,22 +184,15 @@ def smoother_config(height_m: float, settings: FleetSettings) -> SmootherConfig:
                           lag_s=settings.lag_s, marginals=settings.marginals)
 
 
-def estimator_config_for(nominal: NominalCalibration) -> EstimatorConfig:
-    """The default estimator with its cold start seeded at the nominal pitch and roll."""
-    return config_with(EstimatorConfig(), initial_pitch_deg=nominal.pitch_deg,
-                       initial_roll_deg=nominal.roll_deg)
-
-
 def _process(spec: DriveSpec, folder: Path, settings: FleetSettings) -> dict[str, Any]:
     assert spec.nominal is not None
     nominal = load_nominal(spec.nominal)
     height = nominal.height_m
     source, camera = open_recording(spec, settings)
     speed = drive_speed(spec, settings)
-    config = estimator_config_for(nominal)
     folder.mkdir(parents=True, exist_ok=True)
     estimate_rows, measurements = [], []
-    for step in sequence_steps(source, camera, height, config,
+    for step in sequence_steps(source, nominal.rig(camera), EstimatorConfig(),
                                chunk_frames=settings.chunk_frames):
         estimate_rows.append(step_row(step, height))
         measurements.append(step_measurement(step, height))

@@ -1,0 +1,87 @@
+"""The camera rig: a camera and its nominal mounting on the vehicle (:class:`Rig`).
+
+One place for each fact of the set-up the estimator rests on: the intrinsics, the nominal
+pitch and roll of the camera against the ground (degrees, CONVENTIONS.md signs: pitch > 0
+looking down, roll > 0 the image's right edge dipping toward the ground), its height above
+the ground [m] and the rolling shutter's readout [s]. The estimator's settings
+(``estimator_config.EstimatorConfig``) hold how it runs, never what the rig is.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .camera import CameraModel
+from .errors import InputError
+from .geometry import GroundPose
+
+#: the nominal pitch where nothing says otherwise: the paper's cold start, a steep camera
+#: [deg]
+DEFAULT_PITCH_DEG = 60.0
+
+
+@dataclass(frozen=True)
+class Rig:
+    """A camera and its nominal mounting.
+
+    Attributes
+    ----------
+    camera : intrinsics (and distortion) of the camera.
+    height_m : height of the camera centre above the ground [m]: the scale of every
+        translation (CONVENTIONS.md).
+    pitch_deg, roll_deg : nominal pose of the camera against the ground [deg]: where the
+        estimator's cold start begins, which decides its region of interest and its
+        level/steep defaults (``estimator_config.resolve``).
+    readout_s : rolling shutter: time from the exposure of the image's first row to its
+        last [s] (0: a global shutter).
+    """
+
+    camera: CameraModel
+    height_m: float
+    pitch_deg: float
+    roll_deg: float = 0.0
+    readout_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        checks = (
+            ("height_m", _finite(self.height_m) and self.height_m > 0,
+             "must be a positive number of metres"),
+            ("pitch_deg", _finite(self.pitch_deg), "must be a finite number of degrees"),
+            ("roll_deg", _finite(self.roll_deg), "must be a finite number of degrees"),
+            ("readout_s", _finite(self.readout_s) and self.readout_s >= 0,
+             "must be a number of seconds >= 0"),
+        )
+        for name, ok, why in checks:
+            if not ok:
+                raise InputError(f"rig: {name} {why}, got {getattr(self, name)!r}")
+
+    @property
+    def nominal_pose(self) -> GroundPose:
+        """The nominal pose (pitch, roll [rad], height [m])."""
+        return GroundPose(float(np.radians(self.pitch_deg)), float(np.radians(self.roll_deg)),
+                          float(self.height_m))
+
+    def with_pose(self, pitch_deg: float, roll_deg: float | None = None) -> Rig:
+        """This rig at nominal pitch ``pitch_deg`` and roll ``roll_deg`` [deg] (None: its
+        own roll)."""
+        return dataclasses.replace(self, pitch_deg=float(pitch_deg), roll_deg=float(
+            self.roll_deg if roll_deg is None else roll_deg))
+
+    def with_height(self, height_m: float) -> Rig:
+        """This rig at camera height ``height_m`` [m]."""
+        return dataclasses.replace(self, height_m=float(height_m))
+
+    def with_readout(self, readout_s: float) -> Rig:
+        """This rig with a rolling-shutter readout of ``readout_s`` [s] (0: global shutter)."""
+        return dataclasses.replace(self, readout_s=float(readout_s))
+
+
+def _finite(value: object) -> bool:
+    """Whether ``value`` is a finite real number (bools and strings are not)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+        return False
+    return math.isfinite(float(value))
