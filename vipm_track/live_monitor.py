@@ -43,7 +43,7 @@ from .estimator_config import EstimatorConfig
 from .measurement import PairMeasurement
 from .pipeline import WRONG_SIZE, estimate_pair, predict_guess, prepare_image
 from .rig import Rig
-from .sources import Frame
+from .sources import Frame, _to_grey
 from .table import TableColumns
 
 #: columns a live row adds after the monitor's: the pair's first frame, frames dropped
@@ -214,8 +214,6 @@ class LiveMonitor:
         """A frame (grey or BGR array of the camera's size) taken at ``t`` [s]; ``index``: its
         number in the stream (default: one after the last). Returns at once."""
         if image.ndim == 3:
-            from .sources import _to_grey
-
             image = _to_grey(image)
         now = time.monotonic()
         with self._cond:

@@ -29,6 +29,11 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from .errors import InputError
+from .estimator import TwoFrameEstimator
+from .estimator_config import REFINEMENT_WEIGHTING
+from .pair_result import STATUS_NO_MOTION, STATUS_OK
+from .pipeline import config_with, estimate_pair, prepare_image
+from .static_content import noise_sigma, stands_still
 from .travel_direction import (
     AGREE_DEG,
     MAX_OFF_AXIS_DEG,
@@ -138,10 +143,6 @@ def search_nominal_pose(
     reports its failures). A pair the default start calls "no motion" although the view
     moved is a failing pair; one that every start calls so (traffic past a standing
     vehicle) is skipped."""
-    from .estimator import TwoFrameEstimator
-    from .pair_result import STATUS_NO_MOTION, STATUS_OK
-    from .pipeline import config_with, estimate_pair
-
     camera = rig.camera
     pairs = moving_pairs(source, camera, max_pairs, max_frames)
     # the default start alone: a forward camera fails from 60° however its pitch is stepped
@@ -186,8 +187,6 @@ def travel_pitch_over(source: FrameSource, camera: CameraModel, max_frames: int,
                       roll: float = 0.0) -> TravelPitch:
     """The pitch against the direction of travel (``travel_direction``) over the first
     ``max_frames`` readable frames of ``source``, with ``roll`` [rad]."""
-    from .pipeline import prepare_image
-
     def images():
         for n, frame in enumerate(source):
             if n >= max_frames:
@@ -211,10 +210,6 @@ def _from_travel(
     determined where the ground fit's pitch disagrees with the travel's by more than
     ``GROUND_AGREE_DEG`` (vehicles or walls taken for the ground) or its roll is implausible
     (``EstimatorConfig.max_roll_deg``)."""
-    from .estimator import TwoFrameEstimator
-    from .pair_result import STATUS_OK
-    from .pipeline import estimate_pair
-
     estimator = TwoFrameEstimator(rig.with_pose(round(travel.pitch_deg, 1)), config)
     poses = [r.pose_curr for p in pairs
              if (r := estimate_pair(estimator, p.before, p.image, None, p.interval_s)
@@ -281,11 +276,6 @@ def _best_start(
     a real level camera a steep start beat the level ones by that alone, settling far from
     the truth. The region of interest, the number of refinements and the pose prior still follow
     each start's camera type."""
-    from .estimator import TwoFrameEstimator
-    from .estimator_config import REFINEMENT_WEIGHTING
-    from .pair_result import STATUS_OK
-    from .pipeline import config_with, estimate_pair
-
     alike = {"vertical_motion": False, **REFINEMENT_WEIGHTING["uniform"]}
     best: tuple[float, PairResult] | None = None
     # each start alone first; stepped off its pitch (``cold_pitch_steps_deg``) only where none
@@ -317,10 +307,6 @@ def _settle(
     """Fixed point of "nominal → median pose of the pairs cold-started from it" (radians),
     from (``pitch``, ``roll``), at most ``rounds`` rounds; with the number of pairs behind
     the last median."""
-    from .estimator import TwoFrameEstimator
-    from .pair_result import STATUS_OK
-    from .pipeline import estimate_pair
-
     n = 1
     for _ in range(rounds):
         estimator = TwoFrameEstimator(rig.with_pose(round(math.degrees(pitch), 1),
@@ -349,9 +335,6 @@ def moving_pairs(
     ``max_pairs`` of them within the first ``max_frames`` frames (an unreadable or
     wrong-size frame breaks the chain), each pair's first frame at least ``stride`` frames
     after the last pair's (1: every pair)."""
-    from .pipeline import prepare_image
-    from .static_content import noise_sigma, stands_still
-
     out, prev, next_n = [], None, 0
     for n, frame in enumerate(source):
         if n >= max_frames or len(out) >= max_pairs:

@@ -26,14 +26,15 @@ from numpy.typing import NDArray
 
 from .camera import CameraModel
 from .errors import InputError
+from .estimator import TwoFrameEstimator
 from .geometry import PlanarMotion
+from .pair_result import PairGuess
 from .rig import Rig
 from .sources import Frame, FrameSource
 
 if TYPE_CHECKING:
-    from .estimator import TwoFrameEstimator
     from .estimator_config import EstimatorConfig
-    from .pair_result import PairGuess, PairResult
+    from .pair_result import PairResult
 
 FIRST_FRAME = "first frame"
 NO_PREVIOUS = "no previous frame"
@@ -73,8 +74,6 @@ def prepare_image(frame: Frame, camera: CameraModel) -> NDArray[np.uint8]:
 def predict_guess(previous: PairResult, dt_prev: float, dt: float) -> PairGuess:
     """Seed for the next pair from an ok result: its current pose for both frames and its
     motion scaled by ``dt / dt_prev`` (clipped to [0.25, 4])."""
-    from .pair_result import PairGuess
-
     ratio = dt / dt_prev if dt_prev > 0 and dt > 0 else 1.0
     ratio = float(np.clip(ratio, *_DT_RATIO_RANGE))
     m = previous.motion
@@ -100,8 +99,6 @@ def run_sequence(
     frame of a wrong size gets that status, one without a predecessor ``no previous frame``.
     """
     if estimator is None:
-        from .estimator import TwoFrameEstimator
-
         estimator = TwoFrameEstimator(rig, config)
     camera = rig.camera
     prev_image: NDArray | None = None

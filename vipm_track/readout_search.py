@@ -28,7 +28,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from .estimator import TwoFrameEstimator
 from .nominal_search import moving_pairs
+from .pair_result import STATUS_OK
+from .pipeline import estimate_pair
 
 if TYPE_CHECKING:
     from .estimator_config import EstimatorConfig
@@ -120,10 +123,6 @@ def search_readout(
     median frame interval); the ``max_pairs`` of them that travel furthest (the rolling
     shutter's effect grows with the motion) then at every other one. None where fewer than
     ``MIN_PAIRS`` pairs are solved at the readouts around the best one."""
-    from .estimator import TwoFrameEstimator
-    from .pair_result import STATUS_OK
-    from .pipeline import estimate_pair
-
     stride = max(1, min(len(source), max_frames) // max(scan_pairs, 1))
     pairs = moving_pairs(source, rig.camera, scan_pairs, max_frames, stride)
     if not pairs:

@@ -16,6 +16,7 @@ import numpy as np
 from .measurement import PairMeasurement, measurement_row
 from .parallel import DEFAULT_CHUNK_FRAMES, run_chunked
 from .pipeline import FIRST_FRAME, SequenceStep, run_sequence
+from .progress import progress_bar
 from .rig import Rig
 from .sources import FrameSource
 from .table import (
@@ -143,8 +144,6 @@ def estimate_sequence(
     ``on_step`` is called with every step (e.g. a live display); ``estimator`` replaces the
     one built from ``rig`` and ``config``; ``workers``, ``chunk_frames``: as
     :func:`sequence_steps`; ``columns``: the table's columns (:func:`table.choose_columns`)."""
-    from .progress import progress_bar
-
     written = choose_columns(ESTIMATE_TABLE, columns)
     out = Path(out)
     parquet_path = out.with_suffix(".parquet") if parquet else None

@@ -47,6 +47,7 @@ from .geometry import (
     invert_motion,
     predict_pixels,
 )
+from .progress import progress_bar
 from .render import Effects, ExposureBand, ExposurePose, render_frame, world_pose_motion
 from .table import TableWriter
 from .texture import TEXTURES, GroundTexture, load_texture
@@ -512,8 +513,6 @@ def simulate_sequence(
         _write_traffic_csv(out / "traffic.csv", vehicles, traj)
     iterator = range(frames)
     if progress:
-        from .progress import progress_bar
-
         iterator = progress_bar(iterator, desc=f"simulate {p.name}", unit="frame")
     with TableWriter(out / "gt.csv", GT_EXTRA_COLUMNS) as writer:
         for k, row in zip(iterator, gt_rows(traj), strict=True):
