@@ -62,11 +62,11 @@ class SmootherConfig(FilterConfig):
     #: fixed lag: iSAM2 updates of the window per frame (each relinearises every variable
     #: and solves again), more than one only while the last update still predicts a decrease
     #: of the cost above ``lag_tolerance_chi2`` (χ² units: half the step's squared
-    #: Mahalanobis length). Three: the robust loss's reweighting keeps up with outlier pairs
-    #: (one update per frame left the height of car drives with 10 % outliers at 0.78 mm RMS
-    #: against 0.48 mm; clean drives alike)
+    #: Mahalanobis length). Two: the robust loss's reweighting keeps up with outlier pairs
+    #: (one update per frame left their height 60 % worse); a third costs a third more time
+    #: for no better mount or height (docs/gtsam.md)
     lag_tolerance_chi2: float = 0.1
-    lag_max_iterations: int = 3
+    lag_max_iterations: int = 2
 
     def __post_init__(self) -> None:
         if self.height_m <= 0:

@@ -110,7 +110,8 @@ def main(argv: list[str] | None = None) -> int:
                     n_lag,
                     med,
                     n_lag / med,
-                    f"window of {round(lag * run.config.fps) + 1}+ frames, up to 3 iSAM2 "
+                    f"window of {round(lag * run.config.fps) + 1}+ frames, up to "
+                    f"{SmootherConfig().lag_max_iterations} iSAM2 "
                     f"updates per frame; ms/frame: {detail}",
                 )
             )
