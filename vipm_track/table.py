@@ -353,6 +353,20 @@ def read_table(path: str | Path, required: Sequence[str] = BASE_COLUMNS[:2]) -> 
     return out
 
 
+def rows_to_columns(rows: Sequence[Mapping[str, Any]]) -> dict[str, NDArray]:
+    """Columns of table rows (dicts, as written), in :func:`read_table`'s layout: floats with
+    NaN where a row lacks a number, text columns (``TEXT_COLUMNS``) as object arrays."""
+    names = list(dict.fromkeys(k for row in rows for k in row))
+    out: dict[str, NDArray] = {}
+    for name in names:
+        values = [row.get(name) for row in rows]
+        if name in TEXT_COLUMNS:
+            out[name] = np.array(["" if v is None else str(v) for v in values], dtype=object)
+        else:
+            out[name] = np.array([float_or_nan(v) for v in values], dtype=float)
+    return out
+
+
 def read_text(path: Path) -> str:
     """Text of a file: undecodable bytes and NULs become U+FFFD (so a damaged line fails
     where it is, with its number, rather than the whole file failing to decode)."""
@@ -366,6 +380,14 @@ def _to_float(v: Any) -> float:
         v = v.strip()
         return math.nan if v == "" else float(v)
     return float(v)
+
+
+def float_or_nan(v: Any) -> float:
+    """``v`` as a float; NaN for None, empty or unreadable values."""
+    try:
+        return _to_float(v)
+    except (TypeError, ValueError, OverflowError):
+        return math.nan
 
 
 def _require_pyarrow():

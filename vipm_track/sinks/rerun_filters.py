@@ -11,7 +11,8 @@ from vipm_track.filters.track import track_row
 
 from ..measurement import measurement_row
 from ..progress import progress_bar
-from .rerun_sink import RerunSink, table_columns
+from ..table import rows_to_columns
+from .rerun_sink import RerunSink
 
 
 def log_track_steps(sink: RerunSink | None, steps: Any) -> Any:
@@ -45,12 +46,12 @@ def log_filter_run(sink: RerunSink | None, measurements: Sequence[Any],
 
     ok = [measurement_row(m) for m in measurements if m.ok]
     if ok:
-        sink.log_table(table_columns(ok), "per_frame")
+        sink.log_table(rows_to_columns(ok), "per_frame")
     for m in measurements:
         if not m.ok:
             sink.log_text(m.frame, m.t, f"frame {m.frame}: {m.status}", "WARN")
     if rows:
-        sink.log_table(table_columns(rows), kind)
+        sink.log_table(rows_to_columns(rows), kind)
 
 
 def log_monitor_run(sink: RerunSink | None, measurements: Sequence[Any], states: Sequence[Any],

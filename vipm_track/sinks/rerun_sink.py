@@ -50,7 +50,7 @@ from numpy.typing import NDArray
 
 from ..errors import InputError
 from ..geometry import PlanarMotion, compose_motion
-from ..table import TEXT_COLUMNS
+from ..table import float_or_nan
 from .rerun_blueprint import AXES, FRAME_TIMELINE, TIME_TIMELINE, default_blueprint
 from .trajectory import planar_path
 
@@ -280,22 +280,22 @@ class RerunSink:
         columns (``filters/track.py``) go to the ``mount`` series, its speeds to
         ``motion/speed``."""
         _check_kind(kind)
-        self.set_time(int(row["frame"]), _float(row.get("t")))
+        self.set_time(int(row["frame"]), float_or_nan(row.get("t")))
         for name, (col, std_col) in COLUMNS.items():
-            value = _float(row.get(col))
+            value = float_or_nan(row.get(col))
             if math.isfinite(value):
                 group = "motion" if name in MOTION else "series"
-                self._value(f"{group}/{name}", kind, value, _float(row.get(std_col)))
+                self._value(f"{group}/{name}", kind, value, float_or_nan(row.get(std_col)))
         for name, (col, std_col) in MOUNT_COLUMNS.items():
-            value = _float(row.get(col))
+            value = float_or_nan(row.get(col))
             if math.isfinite(value):
-                self._value(f"series/{name}", "mount", value, _float(row.get(std_col)))
+                self._value(f"series/{name}", "mount", value, float_or_nan(row.get(std_col)))
         for col, path in (("speed_mps", f"motion/speed/{kind}"),
                           ("wheel_speed_mps", "motion/speed/wheel")):
-            value = _float(row.get(col))
+            value = float_or_nan(row.get(col))
             if math.isfinite(value):
                 self._scalar(path, value)
-        motion = [_float(row.get(COLUMNS[n][0])) for n in MOTION]
+        motion = [float_or_nan(row.get(COLUMNS[n][0])) for n in MOTION]
         if all(math.isfinite(v) for v in motion):
             self._step_path(kind, PlanarMotion(motion[0], motion[1], math.radians(motion[2])))
 
@@ -431,7 +431,7 @@ class RerunSink:
         event = getattr(output, "event", None) or {}
         mount = event.get("estimate") or event.get("filter_mount") or {}
         for axis in AXES:
-            value = _float(mount.get(COLUMNS[axis][0]))
+            value = float_or_nan(mount.get(COLUMNS[axis][0]))
             if math.isfinite(value):
                 path = f"series/{axis}/events"
                 if path not in self._styled:
@@ -583,13 +583,6 @@ def _check_kind(kind: str) -> None:
         raise ValueError(f"unknown series kind {kind!r}; expected one of {KINDS}")
 
 
-def _float(value: Any) -> float:
-    try:
-        return float(value) if value not in (None, "") else float("nan")
-    except (TypeError, ValueError):
-        return float("nan")
-
-
 def _flag_colors(inliers: NDArray, measured: NDArray) -> NDArray[np.uint8]:
     """(N, 3) colours: inlier green, measured outlier red, unmeasured grey."""
     colors = np.empty((len(inliers), 3), np.uint8)
@@ -607,18 +600,4 @@ def _to_uint8(image: NDArray) -> NDArray[np.uint8]:
     return np.clip(np.nan_to_num(img, nan=0.0), 0, 255).astype(np.uint8)
 
 
-def table_columns(rows: Sequence[Mapping[str, Any]]) -> dict[str, NDArray]:
-    """Column dict of table rows (``read_table``'s layout): float arrays with NaN where a row
-    lacks a number, text columns (``table.TEXT_COLUMNS``) as object arrays."""
-    names = list(dict.fromkeys(k for row in rows for k in row))
-    out: dict[str, NDArray] = {}
-    for name in names:
-        values = [row.get(name) for row in rows]
-        if name in TEXT_COLUMNS:
-            out[name] = np.array(["" if v is None else str(v) for v in values], dtype=object)
-        else:
-            out[name] = np.array([_float(v) for v in values], dtype=float)
-    return out
-
-
-__all__: Sequence[str] = ["RerunSink", "table_columns"]
+__all__: Sequence[str] = ["RerunSink"]
