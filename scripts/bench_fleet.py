@@ -5,7 +5,7 @@ Renders ``--drives`` ``cart`` drives (``vipm_track.sim``, 800×600, ``shaking`` 
 ``--frames`` each, with wheel speed and a nominal calibration), then processes them all
 (estimate → batch smooth → drive summary → monitor, ``fleet.drive_run.run_drive``) once in
 a plain loop in this process and once with ``fleet.cluster.run_fleet`` on a
-``LocalCluster`` of ``--workers`` single-threaded processes (``WORKER_ENVIRON``) started
+``LocalCluster`` of ``--workers`` processes (``worker_environ``) started
 once (as ``--scheduler`` uses a running cluster; its start-up is reported apart: a fixed cost
 per fleet, not per drive), alternately ``--repeats`` times into fresh outputs. Reports the
 median wall time, drives per hour, the wall and CPU seconds (every thread) per hour of video, the
@@ -36,7 +36,7 @@ import dask  # noqa: E402
 from distributed import Client, LocalCluster  # noqa: E402
 
 from vipm_track.filters.nominal import load_nominal, write_nominal  # noqa: E402
-from vipm_track.fleet.cluster import WORKER_ENVIRON, run_fleet  # noqa: E402
+from vipm_track.fleet.cluster import run_fleet, worker_environ  # noqa: E402
 from vipm_track.fleet.drive_run import FleetSettings, run_drive  # noqa: E402
 from vipm_track.fleet.drives import find_drives  # noqa: E402
 from vipm_track.resources import data_path  # noqa: E402
@@ -72,7 +72,8 @@ def main(argv: list[str] | None = None) -> int:
                                          "workers": []}
         mounts: dict[str, dict[str, float]] = {}
         start = time.perf_counter()
-        with dask.config.set({"distributed.nanny.pre-spawn-environ": WORKER_ENVIRON}):
+        with dask.config.set({"distributed.nanny.pre-spawn-environ":
+                              worker_environ(args.workers)}):
             cluster = LocalCluster(n_workers=args.workers, threads_per_worker=1,
                                    dashboard_address=None)
         startup = time.perf_counter() - start

@@ -302,6 +302,18 @@ def test_thread_count_default_comes_from_the_environment(value: str, expected: i
     assert int(out) == (expected or min(2, os.cpu_count() or 1))
 
 
+@pytest.mark.parametrize("workers", [1, 2, 64])
+def test_fleet_workers_share_the_cores_as_correlation_threads(workers: int) -> None:
+    import os
+
+    from vipm_track.fleet.cluster import worker_environ
+    from vipm_track.patch_match import THREADS_ENV
+
+    env = worker_environ(workers)
+    assert env[THREADS_ENV] == max(1, (os.cpu_count() or 1) // workers)
+    assert env["OMP_NUM_THREADS"] == 1
+
+
 def test_chunked_runs_are_the_same_in_one_process_or_two(cart_sequence: Path,
                                                          tmp_path: Path) -> None:
     """Chunks of 2 frames (each estimating the pair across its start, cold): every pair of

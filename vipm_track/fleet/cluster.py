@@ -13,6 +13,7 @@ stopped resumes where it stopped.
 from __future__ import annotations
 
 import csv
+import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -31,12 +32,17 @@ from ..table import format_value
 from .drive_run import FleetSettings, run_drive
 from .drives import DriveSpec
 
-#: environment of the local cluster's worker processes: Dask's default without its
-#: ``MALLOC_TRIM_THRESHOLD_=65536``, which hands every freed block back to the system and made
-#: the estimator, which allocates many short-lived arrays per pair, half as fast in a worker;
-#: one BLAS / OpenMP / patch-correlation thread each, as a worker runs one drive per core
-WORKER_ENVIRON: dict[str, int] = {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1,
-                                  "OPENBLAS_NUM_THREADS": 1, THREADS_ENV: 1}
+
+def worker_environ(workers: int) -> dict[str, int]:
+    """Environment of a local cluster's ``workers`` worker processes: Dask's default without
+    its ``MALLOC_TRIM_THRESHOLD_=65536``, which hands every freed block back to the system and
+    made the estimator, which allocates many short-lived arrays per pair, half as fast in a
+    worker; one BLAS / OpenMP thread each, as a worker runs one drive at a time, and the
+    machine's cores shared out as patch-correlation threads (one each where workers fill
+    the cores)."""
+    threads = max(1, (os.cpu_count() or 1) // max(workers, 1))
+    return {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1,
+            THREADS_ENV: threads}
 
 #: fleet_summary columns, in order (see docs/fleet.md)
 SUMMARY_COLUMNS: tuple[str, ...] = (
@@ -79,7 +85,7 @@ def run_fleet(
     rows: dict[str, dict[str, Any]] = {}
     start = time.perf_counter()
     with dask.config.set({"distributed.scheduler.allowed-failures": retries,
-                          "distributed.nanny.pre-spawn-environ": WORKER_ENVIRON}), \
+                          "distributed.nanny.pre-spawn-environ": worker_environ(workers)}), \
             _client(workers, scheduler, processes) as client:
         futures = {client.submit(run_drive, spec, str(out), settings, key=f"drive-{spec.drive}",
                                  pure=False, retries=retries): spec for spec in specs}
