@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -28,24 +29,50 @@ def _default_threads() -> int:
 
 _threads = _default_threads()
 _pool: ThreadPoolExecutor | None = None
+#: guards ``_threads`` and ``_pool``: a live monitor, a fleet of threads or an embedding
+#: application may correlate on several threads while another changes the count
+_lock = threading.Lock()
+
+
+def _forget_pool() -> None:
+    """In a forked child: the parent's pool object came along, its threads did not."""
+    global _pool, _lock
+    _pool, _lock = None, threading.Lock()
+
+
+os.register_at_fork(after_in_child=_forget_pool)
 
 
 def set_threads(threads: int) -> None:
-    """Threads that correlate one pair's patches (the FFTs and numpy work release the GIL).
-    Each patch's result does not depend on how the batch is split, so the estimates are the
-    same for any count; 1 where processes already share the cores (parallel chunks)."""
+    """Threads that correlate one pair's patches (the FFTs and numpy work release the GIL),
+    for the whole process. Each patch's result does not depend on how the batch is split, so
+    the estimates are the same for any count; 1 where processes already share the cores
+    (parallel chunks). Safe while other threads correlate: their running batches finish on
+    the old pool."""
     global _threads, _pool
     if threads < 1:
         raise ValueError(f"threads must be >= 1, got {threads}")
-    if threads != _threads and _pool is not None:
-        _pool.shutdown(wait=True)
-        _pool = None
-    _threads = int(threads)
+    with _lock:
+        if threads == _threads:
+            return
+        old, _pool, _threads = _pool, None, int(threads)
+    if old is not None:
+        old.shutdown(wait=False)
 
 
 def threads() -> int:
     """The thread count :func:`match_grouped` uses."""
     return _threads
+
+
+def _map(fn, items: list) -> list:
+    """``fn`` over ``items`` on the pool (made on first use), in order."""
+    global _pool
+    with _lock:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(_threads, thread_name_prefix="vipm-poc")
+        futures = [_pool.submit(fn, item) for item in items]
+    return [f.result() for f in futures]
 
 
 def _batches(sizes: NDArray[np.int64]) -> list[tuple[int, NDArray[np.intp]]]:
@@ -68,7 +95,6 @@ def match_grouped(
     """POC displacements (N, 2) and peaks (N,) of patches batched by size (one call per
     size, or per part of a size on :func:`threads` threads); NaN displacement and zero
     peak where ``sizes`` is 0."""
-    global _pool
     disp = np.full((len(centres), 2), np.nan)
     peaks = np.zeros(len(centres))
 
@@ -81,9 +107,7 @@ def match_grouped(
 
     batches = _batches(sizes)
     if _threads > 1 and len(batches) > 1:
-        if _pool is None:
-            _pool = ThreadPoolExecutor(_threads, thread_name_prefix="vipm-poc")
-        results = list(_pool.map(run, batches))
+        results = _map(run, batches)
     else:
         results = [run(b) for b in batches]
     for sel, d, p in results:

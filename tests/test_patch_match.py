@@ -1,0 +1,75 @@
+"""The patch-correlation thread pool: the same results for any thread count, safe to change
+while other threads correlate, usable in a forked child."""
+
+from __future__ import annotations
+
+import multiprocessing
+import sys
+import threading
+
+import numpy as np
+import pytest
+
+from vipm_track import patch_match
+
+RNG = np.random.default_rng(0)
+IMAGE = (RNG.random((400, 400)) * 255).astype(np.float32)
+MOVED = np.roll(IMAGE, (3, -2), axis=(0, 1))
+CENTRES = np.column_stack([RNG.uniform(80, 320, 40), RNG.uniform(80, 320, 40)])
+SIZES = np.array([64] * 20 + [32] * 20)
+
+
+def _correlate() -> tuple[np.ndarray, np.ndarray]:
+    return patch_match.match_grouped(IMAGE, MOVED, CENTRES, SIZES, np.zeros((40, 2)))
+
+
+@pytest.fixture
+def two_threads():
+    before = patch_match.threads()
+    patch_match.set_threads(2)
+    yield
+    patch_match.set_threads(before)
+
+
+def test_the_shift_is_found_on_any_thread_count(two_threads) -> None:
+    shift, peak = _correlate()
+    np.testing.assert_allclose(shift, np.tile([-2.0, 3.0], (40, 1)), atol=0.15)
+    for n in (1, 3):
+        patch_match.set_threads(n)
+        again = _correlate()
+        assert np.array_equal(again[0], shift) and np.array_equal(again[1], peak)
+
+
+def test_changing_the_count_while_others_correlate_loses_nothing(two_threads) -> None:
+    reference = _correlate()
+    errors: list[str] = []
+    stop = threading.Event()
+
+    def correlate_on() -> None:
+        while not stop.is_set():
+            try:
+                shift, peak = _correlate()
+                assert np.array_equal(shift, reference[0]) and np.array_equal(peak, reference[1])
+            except Exception as exc:  # any failure is the finding
+                errors.append(repr(exc))
+
+    workers = [threading.Thread(target=correlate_on) for _ in range(2)]
+    for w in workers:
+        w.start()
+    for i in range(300):
+        patch_match.set_threads(2 + i % 2)
+    stop.set()
+    for w in workers:
+        w.join()
+    assert errors == []
+
+
+def _child_peak_sum(_: int) -> float:
+    return float(np.sum(_correlate()[1]))
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="fork is POSIX only")
+def test_a_forked_child_correlates_after_the_parent_did(two_threads) -> None:
+    expected = float(np.sum(_correlate()[1]))  # the parent's pool exists now
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        assert pool.apply_async(_child_peak_sum, (0,)).get(timeout=60) == expected
