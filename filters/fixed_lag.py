@@ -117,6 +117,23 @@ def _keys(k: int) -> list[int]:
     return [F.key(c, k) for c in BLOCK_LETTERS]
 
 
+def restart_pose(last: SmoothedFrame, m: PairMeasurement) -> tuple[float, float, float]:
+    """World pose (x, y, ψ) at which a restarted window's first frame ``m`` starts: the last
+    reported frame moved by ``m``'s pair where that agrees with the last speed and yaw rate
+    (within 3σ of the pair's travel plus a fifth of the step), else moved by those: the pair
+    has not been through the robust loss, and an outlier would shift the track for good."""
+    pose = (float(last.position[0]), float(last.position[1]), float(last.heading))
+    propagated = M.propagate_pose(*pose, last.speed, last.yaw_rate, m.t - last.t)
+    if not m.ok:
+        return propagated
+    height = float(last.mount[2])
+    paired = dead_reckoned(pose, height, last.mount_yaw, m)
+    step = math.hypot(propagated[0] - pose[0], propagated[1] - pose[1])
+    travel_std = float(np.hypot(*m.std[4:6])) * height / m.height_assumed
+    gap = math.hypot(paired[0] - propagated[0], paired[1] - propagated[1])
+    return paired if gap <= 3.0 * travel_std + 0.2 * step else propagated
+
+
 class FixedLagSmoother:
     """Sliding-window smoother over ``config.lag_s`` seconds. Feed frames with ``step``; it
     returns the frames that have ``lag_s`` of later data (smoothed with it), oldest first;
@@ -327,13 +344,7 @@ class FixedLagSmoother:
         out = self._emit(final=True, marginals=False)
         good = [f for f in out if np.all(np.isfinite(f.position))]
         if good:
-            last = good[-1]
-            pose = (float(last.position[0]), float(last.position[1]), float(last.heading))
-            # the new window starts at m: its pose is the last one moved by m's pair (by the
-            # last speed and yaw rate without a usable pair), not the last one itself
-            self._start_pose = (
-                dead_reckoned(pose, float(last.mount[2]), last.mount_yaw, m) if m.ok
-                else M.propagate_pose(*pose, last.speed, last.yaw_rate, m.t - last.t))
+            self._start_pose = restart_pose(good[-1], m)
         self._reset = (m.frame, why)
         self._started = False
         self._boot = [(m, speed, body_std)]

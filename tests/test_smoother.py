@@ -818,3 +818,25 @@ def test_fixed_lag_keeps_the_track_of_a_rendered_wheel_speed_drive():
     assert not [f.frame for f in fixed if f.status == "reset"]
     gap = np.array([f.position for f in fixed]) - np.array([b.position for b in batch])
     assert np.sqrt(np.mean(np.sum(gap**2, axis=1))) < 0.005  # metres
+
+
+@pytest.mark.parametrize(("tz", "status", "expected_y"), [
+    (1.05, "ok", 1.05),  # the pair agrees with the last speed: its own travel
+    (3.0, "ok", 1.0),  # an outlier pair (3x the speed): the last speed and yaw rate
+    (1.05, "no motion", 1.0),  # no usable pair: the last speed and yaw rate
+])
+def test_a_restarted_window_starts_where_the_track_goes_on(tz, status, expected_y):
+    from types import SimpleNamespace
+
+    from vipm_track.filters.fixed_lag import restart_pose
+
+    last = SimpleNamespace(position=np.array([2.0, 0.0]), heading=0.0, speed=10.0,
+                           yaw_rate=0.0, t=5.0, mount=np.array([0.01, 0.0, 1.5]),
+                           mount_yaw=0.0)
+    z = np.array([0.01, 0.0, 0.01, 0.0, 0.0, tz, 0.0])
+    cov = np.diag(np.full(7, 1e-4**2))
+    m = PairMeasurement(frame=51, t=5.1, z=z, covariance=cov, height_assumed=1.5,
+                        status=status)
+    x, y, psi = restart_pose(last, m)
+    assert (x, psi) == pytest.approx((2.0, 0.0), abs=1e-9)
+    assert y == pytest.approx(expected_y, abs=1e-9)

@@ -97,10 +97,22 @@ def add_parallel_options(parser: argparse.ArgumentParser) -> None:
                        help="frames per chunk (default with --workers > 1: 500; given with "
                        "--workers 1, the same chunks run one after another); each chunk's "
                        "first pair starts cold, as after a failed pair")
-    group.add_argument("--threads", type=int, default=None, metavar="T",
+    group.add_argument("--threads", type=_thread_count, default=None, metavar="T",
                        help="threads that correlate one pair's patches (default: 2, or the "
-                       "machine's cores if fewer; 1 in each process with --workers > 1); the "
-                       "estimates do not depend on it")
+                       "machine's cores if fewer); with --workers > 1 each process uses one "
+                       "and T has no effect; the estimates do not depend on it")
+
+
+def _thread_count(text: str) -> int:
+    """``--threads``: a whole number >= 1 (checked as the options are read, whether or not
+    the command estimates)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
+    return value
 
 
 def parallel_settings(args: argparse.Namespace) -> dict[str, Any]:
@@ -117,8 +129,6 @@ def parallel_settings(args: argparse.Namespace) -> dict[str, Any]:
     if workers < 1:
         raise InputError(f"--workers must be >= 1, got {workers}")
     if threads is not None:
-        if threads < 1:
-            raise InputError(f"--threads must be >= 1, got {threads}")
         set_threads(threads)
     if chunk is not None and chunk < MIN_CHUNK_FRAMES:
         raise InputError(f"--chunk-frames must be >= {MIN_CHUNK_FRAMES}, got {chunk}")
