@@ -270,6 +270,21 @@ def test_estimate_cli_bad_options_exit_2_with_a_message(
     assert __import__("re").search(message, err), err
 
 
+@pytest.mark.parametrize("command", ["track", "smooth"])
+def test_a_bad_estimator_option_stops_the_filters_before_they_write(
+        command: str, cart_sequence: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    from vipm_track.cli import main
+
+    out = tmp_path / "out.csv"
+    rc = main([command, "--images", str(cart_sequence / "images"), "--camera",
+               str(cart_sequence / "camera.yaml"), "--height", "0.7", "--pitch", "nan",
+               "--out", str(out), "--quiet"])
+    assert rc == 2
+    assert "--pitch must be in" in capsys.readouterr().err
+    assert not out.exists()
+
+
 def test_estimates_do_not_depend_on_the_thread_count(cart_sequence: Path,
                                                      tmp_path: Path) -> None:
     """One pair's patches correlated on 1 or 3 threads (the large batches split across

@@ -277,8 +277,9 @@ def estimate_stream(
     status and NaNs. With a rerun ``sink`` each pair's images, patches and IPM views are
     logged as they come. ``rig`` and ``config`` default to :func:`estimator_setup` of
     ``args`` (the nominal pose searched where no ``--pitch`` is given); a ``rig`` given is
-    the caller's nominal and is not searched."""
-    from ..runs import sequence_steps, step_measurement
+    the caller's nominal and is not searched. The options are checked and the source opened
+    here, before the first measurement is asked for (so a bad option stops the command
+    before it writes anything)."""
     from ..sources import open_source
     from .estimator_options import parallel_settings
 
@@ -300,6 +301,14 @@ def estimate_stream(
 
         source = ImageTap(source, rig.camera)
         config = replace(config, keep_images=True)
+    return _measurements(source, rig, config, parallel, height, sink)
+
+
+def _measurements(source: Any, rig: Rig, config: EstimatorConfig, parallel: dict[str, Any],
+                  height: float, sink: Any) -> Iterator[PairMeasurement]:
+    """The pair measurements of :func:`estimate_stream`, as the sequence runner makes them."""
+    from ..runs import sequence_steps, step_measurement
+
     for step in sequence_steps(source, rig, config, **parallel):
         if sink is not None and step.result is not None:
             sink.log_pair_views(step.frame, step.t, step.result, source.image(step.frame))
