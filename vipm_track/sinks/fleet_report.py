@@ -8,6 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from ..table import float_or_nan
 from .report import _pyplot
 
 AXES: tuple[tuple[str, str, str], ...] = (("pitch", "deg", "°"), ("roll", "deg", "°"),
@@ -22,7 +23,7 @@ def by_vehicle(rows: Sequence[dict[str, Any]]) -> dict[str, list[dict[str, Any]]
         if row.get("status") == "ok":
             groups.setdefault(str(row.get("vehicle") or "(none)"), []).append(row)
     for drives in groups.values():
-        drives.sort(key=lambda r: (str(r.get("started") or ""), _num(r.get("t_start_s")),
+        drives.sort(key=lambda r: (str(r.get("started") or ""), float_or_nan(r.get("t_start_s")),
                                    str(r["drive"])))
     return dict(sorted(groups.items()))
 
@@ -31,20 +32,13 @@ def moved(previous: dict[str, Any], drive: dict[str, Any]) -> list[str]:
     """The mount axes whose 95 % intervals of two consecutive drives do not overlap."""
     out = []
     for axis, unit, _ in AXES:
-        a = (_num(previous.get(f"mount_{axis}_ci95_low_{unit}")),
-             _num(previous.get(f"mount_{axis}_ci95_high_{unit}")))
-        b = (_num(drive.get(f"mount_{axis}_ci95_low_{unit}")),
-             _num(drive.get(f"mount_{axis}_ci95_high_{unit}")))
+        a = (float_or_nan(previous.get(f"mount_{axis}_ci95_low_{unit}")),
+             float_or_nan(previous.get(f"mount_{axis}_ci95_high_{unit}")))
+        b = (float_or_nan(drive.get(f"mount_{axis}_ci95_low_{unit}")),
+             float_or_nan(drive.get(f"mount_{axis}_ci95_high_{unit}")))
         if a[1] < b[0] or b[1] < a[0]:
             out.append(axis)
     return out
-
-
-def _num(value: Any) -> float:
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        return float("nan")
 
 
 def fleet_markdown(rows: Sequence[dict[str, Any]]) -> str:
@@ -62,9 +56,9 @@ def fleet_markdown(rows: Sequence[dict[str, Any]]) -> str:
             cells = []
             for axis, unit, _ in AXES:
                 fmt = "{:.4f}" if unit == "m" else "{:.3f}"
-                cells.append(f"{fmt.format(_num(r.get(f'mount_{axis}_{unit}')))} "
-                             f"[{fmt.format(_num(r.get(f'mount_{axis}_ci95_low_{unit}')))}, "
-                             f"{fmt.format(_num(r.get(f'mount_{axis}_ci95_high_{unit}')))}]")
+                mid, lo, hi = (float_or_nan(r.get(f"mount_{axis}_{part}{unit}"))
+                               for part in ("", "ci95_low_", "ci95_high_"))
+                cells.append(f"{fmt.format(mid)} [{fmt.format(lo)}, {fmt.format(hi)}]")
             shift = ", ".join(moved(drives[i - 1], r)) if i else ""
             flag = f"**{shift}**" if shift else ""
             lines.append(f"| {r['drive']} | {r.get('frames')} | {' | '.join(cells)} | "
@@ -92,13 +86,13 @@ def write_fleet_report(rows: Sequence[dict[str, Any]], out: str | Path) -> tuple
     for (vehicle, drives), panel in zip(groups.items(), axes, strict=False):
         x = range(len(drives))
         for ax, (axis, unit, sign) in zip(panel, AXES, strict=True):
-            mean = [_num(r.get(f"mount_{axis}_{unit}")) for r in drives]
-            low = [m - _num(r.get(f"mount_{axis}_ci95_low_{unit}")) for m, r in zip(mean, drives,
-                                                                                   strict=True)]
-            high = [_num(r.get(f"mount_{axis}_ci95_high_{unit}")) - m
+            mean = [float_or_nan(r.get(f"mount_{axis}_{unit}")) for r in drives]
+            low = [m - float_or_nan(r.get(f"mount_{axis}_ci95_low_{unit}"))
+                   for m, r in zip(mean, drives, strict=True)]
+            high = [float_or_nan(r.get(f"mount_{axis}_ci95_high_{unit}")) - m
                     for m, r in zip(mean, drives, strict=True)]
             ax.errorbar(list(x), mean, yerr=[low, high], fmt="o", capsize=3)
-            ax.plot(list(x), [_num(r.get(f"nominal_{axis}_{unit}")) for r in drives], "k--",
+            ax.plot(list(x), [float_or_nan(r.get(f"nominal_{axis}_{unit}")) for r in drives], "k--",
                     lw=0.8, label="nominal")
             ax.set_title(f"{vehicle}: mount {axis}")
             ax.set_ylabel(f"{axis} ({sign.strip()})")
