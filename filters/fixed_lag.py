@@ -79,7 +79,8 @@ def _params() -> gtsam.ISAM2Params:
     params.relinearizeSkip = 1
     # QR, not the default Cholesky: marginalising ten frames of a wheel-speed drive (tight
     # height random walk next to metric speed factors) squares a condition number Cholesky
-    # could not take ("indeterminate system" near a height, then a restart); QR costs ~10 %
+    # could not take ("indeterminate system" near a height, then a restart); its cost is
+    # measured in docs/gtsam.md
     params.setFactorization("QR")
     return params
 
