@@ -305,6 +305,21 @@ def test_every_python_can_format_reads_the_same_frames(tmp_path, can_data, fmt):
     assert summary.frames == 4000 and summary.bad == 0 and len(series) > 100
 
 
+def test_a_cut_blf_says_it_was_cut_and_keeps_what_it_read(tmp_path, capsys, can_data):
+    """A BLF shorter than its header says (a copy or a recording cut short) reads the frames
+    it holds and says that it was cut, instead of passing for a short drive."""
+    cut = tmp_path / "cut.blf"
+    cut.write_bytes((can_data / "rav4_drive.blf").read_bytes()[:300_000])
+    out = tmp_path / "s.csv"
+    rc, err = _run(capsys, "can-speed", cut, "--dbc", can_data / "toyota_2017.dbc", "--out",
+                   out)
+    assert rc == 0 and len(_rows(out)) > 500
+    assert "holds 300000 bytes but its header says" in err and "cut short" in err
+    rc, err = _run(capsys, "can-speed", can_data / "rav4_drive.blf", "--dbc",
+                   can_data / "toyota_2017.dbc", "--out", out)
+    assert rc == 0 and "cut short" not in err
+
+
 def test_binary_dbc_is_not_echoed(tmp_path, capsys, can_data):
     dbc = tmp_path / "garbage.dbc"
     dbc.write_bytes(bytes(np.random.default_rng(1).integers(0, 256, 3000, dtype=np.uint8)))
