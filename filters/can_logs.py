@@ -199,6 +199,7 @@ class LogRecords:
                 try:
                     msg = next(iterator)
                 except StopIteration:
+                    self._check_complete(reader, index)
                     return
                 except Exception as exc:
                     self.position = index
@@ -212,6 +213,18 @@ class LogRecords:
             stop = getattr(reader, "stop", None)
             if stop is not None:
                 stop()
+
+    def _check_complete(self, reader: Any, index: int) -> None:
+        """A BLF whose header announces more bytes than the file holds was cut short (a copy
+        or a recording that ended early): its frames stop early, so say so in ``stopped``."""
+        announced = getattr(reader, "file_size", None)
+        if not isinstance(announced, int) or announced <= 0:
+            return
+        size = self.path.stat().st_size
+        if size < announced:
+            self.position = index
+            self.stopped = (f"the file holds {size} bytes but its header says {announced}: cut "
+                            f"short, only its first {index} frames could be read")
 
 
 def _why(exc: BaseException) -> str:

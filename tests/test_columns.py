@@ -175,6 +175,18 @@ def test_default_and_named_columns_on_the_command_line(tmp_path: Path):
     assert list(read_table(tmp_path / "t.csv")) == [*BASE_COLUMNS, "mount_pitch_deg", "nis"]
 
 
+@pytest.mark.parametrize("names", ["pitch_deg,roll_deg", "status", "pitch_deg,pitch_deg"])
+def test_naming_only_base_columns_writes_the_base_columns(tmp_path: Path, names: str):
+    """Base columns only (always written) is a valid choice, not 'no column named'."""
+    est = DATA / "knock_cart_est.csv"
+    for command, extra in (("track", []), ("monitor", ["--nominal", str(NOMINAL)])):
+        out = tmp_path / f"{command}.csv"
+        assert main([command, "--estimates", str(est), "--height", "0.7", "--out", str(out),
+                     "--quiet", "--max-frames", "20", "--columns", names, *extra]) == 0
+        assert list(read_table(out)) == list(BASE_COLUMNS)
+    assert choose_columns(ESTIMATE_TABLE, ()) == ()
+
+
 def test_unknown_columns_exit_2_naming_them(tmp_path: Path, capsys: pytest.CaptureFixture):
     code = main(["track", "--estimates", str(DATA / "knock_cart_est.csv"), "--height", "0.7",
                  "--out", str(tmp_path / "t.csv"), "--quiet", "--columns", "nis,pich_deg"])

@@ -305,6 +305,21 @@ def test_every_python_can_format_reads_the_same_frames(tmp_path, can_data, fmt):
     assert summary.frames == 4000 and summary.bad == 0 and len(series) > 100
 
 
+def test_a_cut_blf_says_it_was_cut_and_keeps_what_it_read(tmp_path, capsys, can_data):
+    """A BLF shorter than its header says (a copy or a recording cut short) reads the frames
+    it holds and says that it was cut, instead of passing for a short drive."""
+    cut = tmp_path / "cut.blf"
+    cut.write_bytes((can_data / "rav4_drive.blf").read_bytes()[:300_000])
+    out = tmp_path / "s.csv"
+    rc, err = _run(capsys, "can-speed", cut, "--dbc", can_data / "toyota_2017.dbc", "--out",
+                   out)
+    assert rc == 0 and len(_rows(out)) > 500
+    assert "holds 300000 bytes but its header says" in err and "cut short" in err
+    rc, err = _run(capsys, "can-speed", can_data / "rav4_drive.blf", "--dbc",
+                   can_data / "toyota_2017.dbc", "--out", out)
+    assert rc == 0 and "cut short" not in err
+
+
 def test_binary_dbc_is_not_echoed(tmp_path, capsys, can_data):
     dbc = tmp_path / "garbage.dbc"
     dbc.write_bytes(bytes(np.random.default_rng(1).integers(0, 256, 3000, dtype=np.uint8)))
@@ -395,6 +410,26 @@ def test_backward_times_and_missing_numbers_are_reported_with_rows(tmp_path, cap
                 "--quiet")[0] == 0
     notes = json.loads(out.with_suffix(".summary.json").read_text())["input_notes"]
     assert len(notes) == 2 and "row 22 t " in notes[0] and "row 32 frame 30" in notes[1]
+
+
+def test_report_leaves_out_repeated_and_backward_rows_naming_them(tmp_path, capsys, est):
+    """report reads a table as track does: a repeated frame counts once, a frame going
+    backwards is left out, each named by its row; the time span stays positive."""
+    lines = est.read_text().splitlines()
+    bad = tmp_path / "bad.csv"
+    # frame 7 twice, then frame 3 again after frame 50
+    bad.write_text("\n".join([*lines[:9], lines[8], *lines[9:52], lines[4], *lines[52:]])
+                   + "\n")
+    rc, err = _run(capsys, "report", bad, "--out", tmp_path / "rep")
+    assert rc == 0
+    assert "row 10 frame 7 (first row 9)" in err and "row 54 frame 3" in err
+    text = (tmp_path / "rep" / "report.md").read_text()
+    assert "(120 rows, frames 0–119)" in text
+    backwards = tmp_path / "backwards.csv"
+    backwards.write_text("\n".join([lines[0], *lines[1:][::-1]]) + "\n")
+    rc, err = _run(capsys, "report", backwards, "--out", tmp_path / "rep2")
+    assert rc == 0 and "119 rows have a frame before the previous row's" in err
+    assert "(-" not in (tmp_path / "rep2" / "report.md").read_text()  # no negative span
 
 
 def test_numbers_are_written_at_sensible_precision_with_one_line_ending(tmp_path, capsys):

@@ -368,6 +368,42 @@ def test_chunked_runs_are_the_same_in_one_process_or_two(cart_sequence: Path,
     assert statuses[:1] + statuses[2:] == [FIRST_FRAME, NO_PREVIOUS, "ok", "ok"]
 
 
+class _SlowSource(ArraySource):
+    """Frames that take a minute to read: a chunk that runs while the run is interrupted."""
+
+    def frames(self, position: int, count: int) -> ArraySource:
+        import time
+
+        time.sleep(60)
+        return super().frames(position, count)
+
+
+def test_an_interrupted_parallel_run_ends_without_waiting_for_running_chunks() -> None:
+    """Ctrl-C / SIGTERM (a KeyboardInterrupt in the main process) while chunks run in worker
+    processes ends the run within seconds: the workers are ended, not waited for."""
+    import signal
+    import time
+
+    from vipm_track.parallel import run_chunked
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    images = [np.zeros((48, 64), np.uint8)] * 8
+    k = np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]])
+    rig = Rig(CameraModel(k, 64, 48), 0.7, DEFAULT_PITCH_DEG)
+    previous = signal.signal(signal.SIGALRM, interrupt)
+    start = time.monotonic()
+    try:
+        signal.setitimer(signal.ITIMER_REAL, 3.0)
+        with pytest.raises(KeyboardInterrupt):
+            list(run_chunked(_SlowSource(images, np.arange(8) * 0.1), rig, None, True, 2, 4))
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+    assert time.monotonic() - start < 15
+
+
 def test_estimate_cli_bad_camera_file(cart_sequence: Path, tmp_path: Path,
                                       capsys: pytest.CaptureFixture) -> None:
     from vipm_track.cli import main

@@ -213,6 +213,42 @@ def in_sequence(
                                 tuple(missing))
 
 
+def table_in_sequence(
+    table: dict[str, NDArray], first_row: int = 2
+) -> tuple[dict[str, NDArray], SequenceIssues]:
+    """The rows of any per-frame table (``frame`` and, where it has one, ``t``) that form a
+    sequence, as :func:`in_sequence` keeps them: a repeated frame, a frame not after the
+    previous row's, a time not after it (or no time) is left out, the first row of a frame
+    kept; and what was left out, by row number counted from ``first_row``."""
+    frames = np.asarray(table["frame"], dtype=float)
+    times = np.asarray(table["t"], dtype=float) if "t" in table else None
+    keep: list[int] = []
+    seen: dict[float, int] = {}
+    duplicated, out_of_order, backwards = [], [], []
+    for i, frame in enumerate(frames):
+        row = i + first_row
+        last = keep[-1] if keep else None
+        if frame in seen:
+            duplicated.append((row, int(frame), seen[frame]))
+            continue
+        if not np.isfinite(frame) or (last is not None and frame < frames[last]):
+            out_of_order.append((row, frame if not np.isfinite(frame) else int(frame),
+                                 int(frames[last]) if last is not None else float("nan")))
+            continue
+        if times is not None and (not np.isfinite(times[i])
+                                  or (last is not None and not times[i] > times[last])):
+            backwards.append((row, float(times[i]),
+                              float(times[last]) if last is not None else float("nan")))
+            continue
+        seen[frame] = row
+        keep.append(i)
+    issues = SequenceIssues(tuple(duplicated), tuple(out_of_order), tuple(backwards))
+    if not issues:
+        return table, issues
+    rows = np.asarray(keep, dtype=int)
+    return {name: np.asarray(values)[rows] for name, values in table.items()}, issues
+
+
 def measurement_row(m: PairMeasurement) -> dict[str, object]:
     """The estimates-table row (base + ``ESTIMATE_COLUMNS``) of a measurement."""
     z = np.where(_ANGLE, np.degrees(m.z), m.z)

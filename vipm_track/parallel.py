@@ -13,6 +13,7 @@ few pairs; a level camera's run is chaotic in its last bits, see ``docs/kitti.md
 from __future__ import annotations
 
 import multiprocessing
+import signal
 from collections.abc import Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 from typing import TYPE_CHECKING
@@ -60,17 +61,40 @@ def run_chunked(
         return
     context = multiprocessing.get_context("spawn")  # no forked OpenCV / numba thread pools
     # one correlation thread per process: the processes already share the cores
-    with ProcessPoolExecutor(min(workers, len(bounds)), mp_context=context,
-                             initializer=set_threads, initargs=(1,)) as pool:
+    pool = ProcessPoolExecutor(min(workers, len(bounds)), mp_context=context,
+                               initializer=_start_worker, initargs=(1,))
+    finished = False
+    try:
         futures: list[Future[list[SequenceStep]]] = [
             pool.submit(run_chunk, source, rig, config, tracking, p, n)
             for p, n in bounds]
-        try:
-            for future in futures:
-                yield from future.result()
-        finally:
-            for future in futures:
-                future.cancel()
+        for future in futures:
+            yield from future.result()
+        finished = True
+    finally:
+        if finished:
+            pool.shutdown()
+        else:  # interrupted (Ctrl-C, SIGTERM) or failed: end now, not after the running chunks
+            _stop(pool)
+
+
+def _start_worker(threads: int) -> None:
+    """A worker process: ``threads`` correlation threads, and Ctrl-C left to the main process
+    (it ends the workers; a worker's own KeyboardInterrupt would only race with it)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    set_threads(threads)
+
+
+def _stop(pool: ProcessPoolExecutor) -> None:
+    """Cancel ``pool``'s pending chunks and end its workers without waiting for the running
+    ones (``shutdown`` alone waits for them: minutes for chunks of 500 frames)."""
+    workers = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in workers:
+        if process.is_alive():
+            process.terminate()
+    for process in workers:
+        process.join(timeout=5)
 
 
 def run_chunk(

@@ -110,7 +110,8 @@ def choose_columns(table: TableColumns, choice: ColumnChoice = CONCISE,
     """The columns after ``BASE_COLUMNS`` that ``table`` writes for ``choice``, in the table's
     order: ``"all"``, ``"concise"``, or names (a sequence, or one comma-separated string; base
     columns may be named and are always written). An :class:`InputError` naming ``option``
-    lists unknown names and the valid ones."""
+    lists unknown names and the valid ones. A string naming no column is an error; an empty
+    sequence (what naming only base columns chooses) writes the base columns only."""
     return choose_columns_each((table,), choice, option)[0]
 
 
@@ -119,13 +120,16 @@ def choose_columns_each(tables: Sequence[TableColumns], choice: ColumnChoice = C
     """:func:`choose_columns` for tables written together (a fleet's estimates, smoothed
     and monitor tables): a named column goes to each table that has it, a name none has is
     an :class:`InputError`."""
-    if isinstance(choice, str):
+    # A typed string naming nothing is a mistake; a sequence is a choice already made (an
+    # empty one, from names that were all base columns, writes the base columns only).
+    typed = isinstance(choice, str)
+    if typed:
         key = choice.strip().lower()
         if key in (ALL, CONCISE):
             return [t.every if key == ALL else t.concise for t in tables]
         choice = choice.split(",")
     names = [c for c in (str(c).strip() for c in choice) if c]
-    if not names:
+    if not names and typed:
         raise InputError(f"{option}: no column named; give '{ALL}', '{CONCISE}' or a "
                          "comma-separated list of columns")
     valid = list(BASE_COLUMNS)

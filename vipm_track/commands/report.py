@@ -47,8 +47,12 @@ def run(args: argparse.Namespace) -> int:
 
     check_output_dir(args.out)
     nominal = load_nominal(args.nominal) if args.nominal else None
+    notes: list[str] = []
     report = write_report(args.table, args.out, gt=args.gt, title=args.title, nominal=nominal,
-                          html=args.html, start=args.start, max_frames=args.max_frames)
+                          html=args.html, start=args.start, max_frames=args.max_frames,
+                          notes=notes)
+    for line in notes:
+        print(f"vipm-track: warning: {line}", file=sys.stderr)
     names = ", ".join(p.name for p in report.plots.values())
     page = f" and {report.html.name}" if report.html is not None else ""
     print(f"wrote {report.markdown}{page} and {names} in {report.out}", file=sys.stderr)

@@ -37,6 +37,7 @@ from numpy.typing import NDArray
 from ..errors import InputError
 from ..evaluate import frame_errors
 from ..kitti import is_kitti_poses, kitti_truth_table
+from ..measurement import table_in_sequence
 from ..table import read_table
 from .drift_report import STATE_COLORS, drift_figure, fmt, summary_lines, write_html
 from .drift_summary import (
@@ -106,17 +107,26 @@ def write_report(
     html: bool = False,
     start: int = 0,
     max_frames: int | None = None,
+    notes: list[str] | None = None,
 ) -> Report:
     """Write the plots and ``report.md`` of the table ``track`` (optional ground truth ``gt``:
     a table of our format or a KITTI ``poses.txt``) into the folder ``out`` (see module doc).
     ``nominal``: a ``filters.nominal.NominalCalibration`` the mount is held against; ``html``:
     also ``report.html``, one self-contained page; ``start``/``max_frames``: the rows of frames
-    ``start`` on, at most ``max_frames`` of them. Raises :class:`InputError` naming the file
+    ``start`` on, at most ``max_frames`` of them; ``notes``: gets a line per kind of row left
+    out (``measurement.table_in_sequence``: repeated frames, frames or times going backwards,
+    named by row). Raises :class:`InputError` naming the file
     for a missing/unreadable table or one without any pose column."""
     track, out = Path(track), Path(out)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a folder")
-    est = window_rows(read_table(track), start, max_frames)
+    first_row = 1 if track.suffix.lower() == ".parquet" else 2
+    table = read_table(track)
+    if "frame" in table:  # repeats, frames or times going backwards: left out, said in notes
+        table, issues = table_in_sequence(table, first_row)
+        if issues and notes is not None:
+            notes.extend(issues.lines(str(track)))
+    est = window_rows(table, start, max_frames)
     if not any(c in est for c, *_ in POSE_PANELS + MOTION_PANELS):
         raise InputError(f"{track}: no pose or motion column (pitch_deg, roll_deg, height_m, "
                          "tx_m, tz_m, yaw_deg); is this a per-frame table?")
