@@ -183,45 +183,13 @@ class SequenceIssues:
         return out
 
 
-def in_sequence(
-    measurements: list[PairMeasurement], first_row: int = 2
-) -> tuple[list[PairMeasurement], SequenceIssues]:
-    """The measurements that form a sequence (frames and times strictly increasing; a row
-    saying ``ok`` without all its numbers gets :data:`MISSING_NUMBERS`), and what was done to
-    the others. Row numbers count from ``first_row`` (2: a CSV's first data row)."""
-    kept: list[PairMeasurement] = []
-    seen: dict[int, int] = {}
-    duplicated, out_of_order, backwards, missing = [], [], [], []
-    for i, m in enumerate(measurements):
-        row = i + first_row
-        if m.frame in seen:
-            duplicated.append((row, m.frame, seen[m.frame]))
-            continue
-        if kept and m.frame < kept[-1].frame:
-            out_of_order.append((row, m.frame, kept[-1].frame))
-            continue
-        if not np.isfinite(m.t) or (kept and not m.t > kept[-1].t):
-            backwards.append((row, m.t, kept[-1].t if kept else float("nan")))
-            continue
-        seen[m.frame] = row
-        if m.status == "ok" and not (np.isfinite(m.z).all()
-                                     and np.isfinite(np.diag(m.covariance)).all()):
-            missing.append((row, m.frame))
-            m = replace(m, status=MISSING_NUMBERS)
-        kept.append(m)
-    return kept, SequenceIssues(tuple(duplicated), tuple(out_of_order), tuple(backwards),
-                                tuple(missing))
-
-
-def table_in_sequence(
-    table: dict[str, NDArray], first_row: int = 2
-) -> tuple[dict[str, NDArray], SequenceIssues]:
-    """The rows of any per-frame table (``frame`` and, where it has one, ``t``) that form a
-    sequence, as :func:`in_sequence` keeps them: a repeated frame, a frame not after the
-    previous row's, a time not after it (or no time) is left out, the first row of a frame
-    kept; and what was left out, by row number counted from ``first_row``."""
-    frames = np.asarray(table["frame"], dtype=float)
-    times = np.asarray(table["t"], dtype=float) if "t" in table else None
+def sequence_rows(
+    frames: NDArray, times: NDArray | None = None, first_row: int = 2
+) -> tuple[list[int], SequenceIssues]:
+    """Indices of the rows that form a sequence (frames and, where given, times strictly
+    increasing; the first row of a repeated frame kept) and the rows left out, numbered from
+    ``first_row`` (2: a CSV's first data row)."""
+    frames = np.asarray(frames, dtype=float)
     keep: list[int] = []
     seen: dict[float, int] = {}
     duplicated, out_of_order, backwards = [], [], []
@@ -242,7 +210,36 @@ def table_in_sequence(
             continue
         seen[frame] = row
         keep.append(i)
-    issues = SequenceIssues(tuple(duplicated), tuple(out_of_order), tuple(backwards))
+    return keep, SequenceIssues(tuple(duplicated), tuple(out_of_order), tuple(backwards))
+
+
+def in_sequence(
+    measurements: list[PairMeasurement], first_row: int = 2
+) -> tuple[list[PairMeasurement], SequenceIssues]:
+    """The measurements that form a sequence (:func:`sequence_rows`; a row saying ``ok``
+    without all its numbers gets :data:`MISSING_NUMBERS`), and what was done to the others.
+    Row numbers count from ``first_row`` (2: a CSV's first data row)."""
+    keep, issues = sequence_rows(np.array([m.frame for m in measurements], dtype=float),
+                                 np.array([m.t for m in measurements], dtype=float), first_row)
+    kept: list[PairMeasurement] = []
+    missing = []
+    for i in keep:
+        m = measurements[i]
+        if m.status == "ok" and not (np.isfinite(m.z).all()
+                                     and np.isfinite(np.diag(m.covariance)).all()):
+            missing.append((i + first_row, m.frame))
+            m = replace(m, status=MISSING_NUMBERS)
+        kept.append(m)
+    return kept, replace(issues, missing=tuple(missing))
+
+
+def table_in_sequence(
+    table: dict[str, NDArray], first_row: int = 2
+) -> tuple[dict[str, NDArray], SequenceIssues]:
+    """The rows of any per-frame table (``frame`` and, where it has one, ``t``) that form a
+    sequence (:func:`sequence_rows`), and what was left out."""
+    times = np.asarray(table["t"], dtype=float) if "t" in table else None
+    keep, issues = sequence_rows(table["frame"], times, first_row)
     if not issues:
         return table, issues
     rows = np.asarray(keep, dtype=int)
