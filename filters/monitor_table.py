@@ -10,6 +10,8 @@ from typing import Any
 from vipm_track.measurement import PairMeasurement
 from vipm_track.table import TableColumns
 
+from .track import WAITING
+
 MONITOR_COLUMNS: tuple[str, ...] = (
     "monitor_state", "reason", "stat_pitch", "stat_roll", "stat_height",
     "dev_pitch_deg", "dev_roll_deg", "dev_height_m",
@@ -28,7 +30,12 @@ def monitor_row(m: PairMeasurement, state: Any, out: Any) -> dict[str, Any]:
     """One output row (module doc) from a measurement, its filter state and monitor output."""
     deg = math.degrees
     row: dict[str, Any] = {"frame": m.frame, "t": m.t, "status": m.status}
-    if state is not None and getattr(state, "status", "waiting") != "waiting":
+    if state is None or getattr(state, "status", "waiting") == "waiting":
+        # no filter estimate yet: the base columns are empty, so the row must not say ``ok``
+        # (CONVENTIONS.md; the track table's status for the same frames)
+        if m.status == "ok":
+            row["status"] = WAITING
+    else:
         row.update(pitch_deg=deg(state.pose[0]), roll_deg=deg(state.pose[1]),
                    height_m=float(state.mount[2]), tx_m=float(state.motion[0]),
                    tz_m=float(state.motion[1]), yaw_deg=deg(state.motion[2]),

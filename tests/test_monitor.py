@@ -390,6 +390,24 @@ def test_cli_monitor_from_estimates(cli_inputs):
     assert any(e["state"] == "RECALIBRATE" and "filter_mount" in e for e in events)
 
 
+def test_cli_monitor_rows_saying_ok_have_their_numbers(cli_inputs):
+    """CONVENTIONS.md: a row's status is ``ok`` only with its numbers. While the EKF waits for
+    its first pairs the monitor has no pose to write, so those rows say so, as ``track``'s do
+    (they said ``ok`` with empty numbers)."""
+    from vipm_track.cli import main
+    from vipm_track.filters.track import WAITING
+    from vipm_track.table import read_table
+
+    d, nominal = cli_inputs
+    assert main(["monitor", "--estimates", str(d / "est.csv"), "--nominal", str(nominal),
+                 "--out", str(d / "mon.csv"), "--quiet"]) == 0
+    table = read_table(d / "mon.csv")
+    ok = table["status"] == "ok"
+    assert np.all(np.isfinite(np.asarray(table["pitch_deg"], float)[ok]))
+    waiting = table["status"] == WAITING
+    assert waiting.any() and np.all(np.isnan(np.asarray(table["pitch_deg"], float)[waiting]))
+
+
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
