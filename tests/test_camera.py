@@ -88,6 +88,8 @@ def test_kitti_calib():
     ({"image_width": 0}, "image_width"),
     ({"distortion_model": "fancy"}, "distortion_model"),
     ({"distortion_coefficients": {"data": [0.1, 0.2, 0.3]}}, "distortion_coefficients"),
+    ({"distortion_coefficients": {"rows": 1, "cols": 4, "data": [0.1, 0.01, 0, 0, 0.001]}},
+     "distortion_coefficients"),
     ({"distortion_model": "equidistant"}, "distortion_coefficients"),
 ])
 def test_ros_yaml_errors_name_file_and_field(tmp_path, changes, field):

@@ -326,6 +326,12 @@ def _matrix(doc: dict, name: str, path: Path, shape: tuple[int, int] | None) -> 
         arr = np.asarray(data, dtype=float)
     except (TypeError, ValueError) as exc:
         raise CameraFileError(path, f"data must be numbers ({exc})", name) from exc
+    declared = [node.get(k) for k in ("rows", "cols")] if isinstance(node, dict) else []
+    if all(isinstance(n, int) and not isinstance(n, bool) for n in declared) and declared:
+        if declared[0] * declared[1] != arr.size:
+            # a header that disagrees with its data is a file written wrongly: which is meant?
+            raise CameraFileError(path, f"rows × cols is {declared[0]} × {declared[1]} but "
+                                  f"data holds {arr.size} numbers", name)
     if shape is not None:
         if arr.size != shape[0] * shape[1]:
             raise CameraFileError(
