@@ -110,7 +110,6 @@ class TwoFrameEstimator:
         self._maps = camera.undistortion_maps() if camera.has_distortion else None
         self._cache: tuple[int, NDArray] | None = None
         self._noise: tuple[NDArray, float] | None = None  # the last prepared image's noise
-        self._upsampled: list[tuple[NDArray, NDArray]] = []  # StageContext.upsampled_frames
 
     # --- public -----------------------------------------------------------------------------
 
@@ -185,7 +184,6 @@ class TwoFrameEstimator:
             heave_std_m=self.config.heave_rate_mps * (
                 frame_interval_s if frame_interval_s and frame_interval_s > 0 else 0.1),
             previous_motion=previous_motion, prior_mean=prior_mean, prior_sigma=prior_sigma,
-            upsampled_frames=self._upsampled,
         )
 
     def _estimate_starts(

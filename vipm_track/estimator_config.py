@@ -110,10 +110,6 @@ class EstimatorConfig:
     ipm_resolution_scale : IPM metres per pixel as a multiple of the interest points'
         median ground sampling distance.
     ipm_max_side : largest IPM image side, pixels.
-    ipm_upsample_rows : the refinements warp from frames upsampled this many times along
-        their rows with a Lanczos kernel (``ipm.upsample_rows``; 1: the frame itself, linear
-        interpolation). None (default): 4 for forward-looking cameras, whose IPM stretches the
-        far field 10-50× along the range, 1 for steep ones.
     vertical_motion : also estimate the camera's vertical motion within the pair (an eighth
         parameter; the paper neglects it, which costs ~0.25° of pitch per millimetre on a
         bouncing 0.7 m cart camera). Frame k's pose then has height ``height + dh``. None
@@ -188,7 +184,6 @@ class EstimatorConfig:
     cold_pitch_steps_deg: tuple[float, ...] | None = None
     ipm_resolution_scale: float = 1.0
     ipm_max_side: int = 3000
-    ipm_upsample_rows: int | None = None
     vertical_motion: bool | None = None
     pose_prior_deg: float | None = None
     track_prior_deg: float = 0.5
@@ -217,8 +212,6 @@ class EstimatorConfig:
             "inlier_px_ipm": self.inlier_px_ipm > 0,
             "refine_outlier_px": self.refine_outlier_px > 0,
             "ipm_resolution_scale": self.ipm_resolution_scale > 0,
-            "ipm_upsample_rows": (self.ipm_upsample_rows is None
-                                  or 1 <= self.ipm_upsample_rows <= 16),
             "roi_max_range_h": self.roi_max_range_h is None or self.roi_max_range_h > 0,
             "roi_max_lateral_h": self.roi_max_lateral_h > 0,
             "max_deviation_deg": self.max_deviation_deg > 0,
@@ -249,7 +242,6 @@ def with_camera_defaults(config: EstimatorConfig, level: bool) -> EstimatorConfi
         "stage_median": level,
         "pose_prior_deg": 2.0 if level else 0.0,
         "moved_ipm": not level,
-        "ipm_upsample_rows": 4 if level else 1,
         "cold_pitch_steps_deg": COLD_PITCH_STEPS_DEG["level" if level else "steep"],
         **REFINEMENT_WEIGHTING["uniform" if level else "noise"],
     }

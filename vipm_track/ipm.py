@@ -73,39 +73,17 @@ def choose_grid(
     return IpmGrid.from_extent(lo[0] - pad, hi[0] + pad, lo[1] - pad, hi[1] + pad, mpp)
 
 
-def upsample_rows(image: NDArray, factor: int) -> NDArray:
-    """``image`` with ``factor`` times as many rows, Lanczos-interpolated (a warp from it
-    takes ``row_factor=factor``); ``image`` itself for a factor of 1.
-
-    A level camera's virtual IPM stretches the far field 10-50× along the range, i.e. across
-    the image rows. Linear interpolation between rows there draws ramps and kinks on the image
-    row grid, a pattern fixed to the camera that the IPM patches correlate at zero shift: at
-    low speed, where the far field moves a fraction of a pixel per frame, it pulled those
-    displacements towards zero (a car at 2 m/s read its pitch 1.3° low and its travel 7 %
-    long). Interpolated once per frame with a Lanczos kernel, the rows a warp then blends
-    linearly are close enough to leave no such pattern (docs/kitti.md)."""
-    if factor <= 1:
-        return image
-    return cv2.resize(image, (image.shape[1], image.shape[0] * factor),
-                      interpolation=cv2.INTER_LANCZOS4)
-
-
 def warp(image: NDArray, k: FloatArray, pose: GroundPose, grid: IpmGrid,
-         motion: PlanarMotion | None = None, row_factor: int = 1) -> NDArray[np.float32]:
+         motion: PlanarMotion | None = None) -> NDArray[np.float32]:
     """Virtual IPM image (grid.height, grid.width) float32 of a grey image for ``pose``.
 
     With ``motion`` (frame k-1 → k), the image is frame k's and ``grid`` lies on frame
     k-1's ground: each pixel shows the ground point of G_{k-1} moved into G_k, so frame k's
     plane lines up with frame k-1's (no rotation left between them in a turn) wherever
-    ``motion`` is right. ``row_factor``: ``image`` is the frame upsampled that many times
-    along its rows (:func:`upsample_rows`)."""
+    ``motion`` is right."""
     h = image_from_ipm_homography(k, pose, grid)
     if motion is not None:
         h = h @ moved_pixels_matrix(grid, motion)
-    if row_factor > 1:
-        # cv2.resize's pixel centres: row y of the frame is row f·y + (f − 1)/2 of the result
-        h = np.array([[1.0, 0.0, 0.0], [0.0, row_factor, (row_factor - 1) / 2],
-                      [0.0, 0.0, 1.0]]) @ h
     return cv2.warpPerspective(
         image, h, (grid.width, grid.height),
         flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT,

@@ -37,8 +37,7 @@ def refine(
     t0 = time.perf_counter()
     grid = ipm.choose_grid(context.k, pose_p, motion, context.centres, cfg.patch_ipm,
                            cfg.ipm_resolution_scale, cfg.ipm_max_side)
-    rows = context.config.ipm_upsample_rows or 1
-    ipm_p = ipm.warp(context.upsampled(prev), context.k, pose_p, grid, row_factor=rows)
+    ipm_p = ipm.warp(prev, context.k, pose_p, grid)
     # Patch centres: interest points on the previous virtual IPM plane, on whole pixels.
     q_p = np.round(grid.pixel_from_ground(back_project(context.k, pose_p, context.centres)))
     valid = np.all(np.isfinite(q_p), axis=1)
@@ -56,12 +55,12 @@ def refine(
         # with no offset and no rotation between them (POC assumes a translation; a
         # turn's rotation within a patch biased its shift by the texture's layout).
         moved = ipm.moved_pixels_matrix(grid, motion)
-        ipm_c = ipm.warp(context.upsampled(curr), context.k, pose_c, grid, motion, rows)
+        ipm_c = ipm.warp(curr, context.k, pose_c, grid, motion)
         poly_c = apply_homography(np.linalg.inv(moved), poly_c)
         # zero but for the rolling shutter's part of the motion
         offsets = np.round(apply_homography(np.linalg.inv(moved), q_p + pred) - q_p)
     else:
-        ipm_c = ipm.warp(context.upsampled(curr), context.k, pose_c, grid, row_factor=rows)
+        ipm_c = ipm.warp(curr, context.k, pose_c, grid)
         offsets = np.round(pred)
     sizes = ipm.patch_sizes(grid, poly_p, poly_c, q_p, offsets, cfg.patch_ipm,
                             cfg.min_patch_ipm)

@@ -14,7 +14,6 @@ from .camera import CameraModel
 from .displacement_model import DisplacementModel, pack, unpack
 from .estimator_config import EstimatorConfig
 from .geometry import GroundPose
-from .ipm import upsample_rows
 from .pair_result import (
     STATUS_DEGENERATE,
     STATUS_FEW_INLIERS,
@@ -83,24 +82,6 @@ class StageContext:
     previous_motion: FloatArray | None = None
     prior_mean: FloatArray | None = None
     prior_sigma: FloatArray = field(default_factory=lambda: np.zeros(4))
-    #: (frame, upsampled frame) of the last frames upsampled, newest last; the estimator
-    #: passes its own list, so that frame k is upsampled once for pairs k and k+1
-    upsampled_frames: list = field(default_factory=list, repr=False)
-
-    def upsampled(self, image: NDArray) -> NDArray:
-        """``image`` (the pair's previous or current frame) upsampled along its rows by
-        ``config.ipm_upsample_rows`` for the virtual-IPM warps (``ipm.upsample_rows``); made
-        once per frame."""
-        for original, up in self.upsampled_frames:
-            if original is image:
-                return up
-        up = upsample_rows(image, self.config.ipm_upsample_rows or 1)
-        self.upsampled_frames.append((image, up))
-        del self.upsampled_frames[:-2]
-        return up
-        up = upsample_rows(image, self.config.ipm_upsample_rows or 1)
-        self._upsampled.append((image, up))
-        return up
 
     def model_args(self, inlier_px: float) -> dict:
         """Arguments of a residual model for the pair: the pose prior (:meth:`prior`) and the
