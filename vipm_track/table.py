@@ -294,6 +294,12 @@ def write_parquet(
     pq.write_table(pa.table(arrays), str(path))
 
 
+def first_data_row(path: str | Path) -> int:
+    """Number of a table file's first data row, as messages about its rows count them: 2 in a
+    CSV (the header is row 1), 1 in a Parquet file."""
+    return 1 if Path(path).suffix.lower() == ".parquet" else 2
+
+
 def read_table(path: str | Path, required: Sequence[str] = BASE_COLUMNS[:2]) -> dict[str, NDArray]:
     """Columns of a per-frame CSV or Parquet file: floats (NaN where empty), ``frame`` as int,
     text columns as ``str`` arrays. Raises :class:`TableError` naming file, row and column."""

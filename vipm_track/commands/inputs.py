@@ -21,6 +21,7 @@ from vipm_track.filters.wheel_speed import SpeedSeries, read_speed_csv
 from ..camera import CameraModel, load_camera
 from ..errors import InputError, NothingUsable
 from ..measurement import PairMeasurement, in_sequence, read_measurements
+from ..table import first_data_row
 from .common import frame_window
 
 if TYPE_CHECKING:
@@ -163,8 +164,7 @@ def read_estimates(path: str, quiet: bool = False, notes: list[str] | None = Non
         raise InputError(f"{path}: {exc}") from exc
     if not measurements:
         raise InputError(f"{path}: no rows")
-    first_row = 1 if str(path).lower().endswith(".parquet") else 2
-    measurements, issues = in_sequence(measurements, first_row)
+    measurements, issues = in_sequence(measurements, first_data_row(path))
     lines = issues.lines(str(path)) if issues else []
     if notes is not None:
         notes.extend(lines)

@@ -38,7 +38,7 @@ from ..errors import InputError
 from ..evaluate import frame_errors
 from ..kitti import is_kitti_poses, kitti_truth_table
 from ..measurement import table_in_sequence
-from ..table import read_table
+from ..table import first_data_row, read_table
 from .drift_report import STATE_COLORS, drift_figure, fmt, summary_lines, write_html
 from .drift_summary import (
     MIN_RATE_SPAN_S,
@@ -120,10 +120,9 @@ def write_report(
     track, out = Path(track), Path(out)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a folder")
-    first_row = 1 if track.suffix.lower() == ".parquet" else 2
     table = read_table(track)
     if "frame" in table:  # repeats, frames or times going backwards: left out, said in notes
-        table, issues = table_in_sequence(table, first_row)
+        table, issues = table_in_sequence(table, first_data_row(track))
         if issues and notes is not None:
             notes.extend(issues.lines(str(track)))
     est = window_rows(table, start, max_frames)
