@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .geometry import GroundPose, PlanarMotion, rotation_ground_from_camera
-from .homography_lsq import homography_normal_equations
+from .geometry import GroundPose, PlanarMotion
+from .homography_lsq import homography_normal_equations, pair_homography_factors
 from .shutter import moved_pixels
 
 FloatArray = NDArray[np.float64]
@@ -304,24 +304,10 @@ def pair_homographies(
     Returns ``ground_from_image(Θ_p)`` (B, 3, 3) and ``image_from_ground(Θ_c) · T(Ψ)``
     (B, 3, 3), equal to geometry's ``ground_from_image_homography``,
     ``image_from_ground_homography`` and ``motion_matrix`` (checked by the tests) but built
-    for the whole batch at once: R_GC = Rx(-pitch)·Rz(roll), lift (X, Z) → (X, h, Z).
+    for the whole batch at once in a compiled loop (``homography_lsq``).
     """
-    xs = np.asarray(xs, dtype=float)
-    kinv = np.linalg.inv(k)
-    lift_inv = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0 / height, 0.0]])
-    lift = np.zeros((len(xs), 3, 3))
-    lift[:, 0, 0] = lift[:, 2, 1] = 1.0
-    lift[:, 1, 2] = height + (xs[:, 7] if xs.shape[1] > N_PARAMS else 0.0)
-    r_p = rotation_ground_from_camera(xs[:, 0], xs[:, 1])
-    r_c = rotation_ground_from_camera(xs[:, 2], xs[:, 3])
-    g_from_i = lift_inv @ r_p @ kinv
-    cy, sy = np.cos(xs[:, 6]), np.sin(xs[:, 6])
-    t = np.zeros((len(xs), 3, 3))
-    t[:, 0, 0], t[:, 0, 1], t[:, 1, 0], t[:, 1, 1], t[:, 2, 2] = cy, -sy, sy, cy, 1.0
-    t[:, 0, 2] = -(cy * xs[:, 4] - sy * xs[:, 5])
-    t[:, 1, 2] = -(sy * xs[:, 4] + cy * xs[:, 5])
-    out_from_g = k @ np.swapaxes(r_c, 1, 2) @ lift @ t
-    return g_from_i, out_from_g
+    return pair_homography_factors(np.asarray(k, dtype=float), float(height),
+                                   np.ascontiguousarray(xs, dtype=float))
 
 
 @dataclass(frozen=True)

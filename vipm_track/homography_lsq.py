@@ -1,4 +1,5 @@
-"""Normal equations of the pair's reprojection residuals under a homography, compiled.
+"""Normal equations of the pair's reprojection residuals under a homography, and the pair
+homographies themselves, compiled.
 
 The geometric bundle adjustment (``bundle``) maps each patch centre m of frame k-1 through a
 pair homography H(x) onto frame k's measurement plane; Levenberg–Marquardt needs, for every
@@ -86,3 +87,46 @@ def homography_normal_equations(
             for k in range(i):
                 a[b, k, i] = a[b, i, k]
     return cost, a, g
+
+
+@kernel
+def pair_homography_factors(k: FloatArray, height: float, xs: FloatArray,
+                            ) -> tuple[FloatArray, FloatArray]:
+    """``ground_from_image(Θ_p)`` (B, 3, 3) and ``image_from_ground(Θ_c) · T(Ψ)`` (B, 3, 3)
+    of parameter vectors ``xs`` (B, 7 or 8): R_GC = Rx(−pitch)·Rz(roll), ground (X, Z) lifted
+    to (X, h, Z), frame k at ``height + xs[7]`` for 8-vectors (``displacement_model``)."""
+    n_sets, n_par = xs.shape
+    kinv = np.linalg.inv(k)
+    g_from_i = np.empty((n_sets, 3, 3))
+    out_from_g = np.empty((n_sets, 3, 3))
+    r = np.empty((3, 3))
+    m = np.empty((3, 3))
+    for b in range(n_sets):
+        _rotation(xs[b, 0], xs[b, 1], r)
+        # lift⁻¹ · R_GC(Θ_p): rows x, z, y/h of R
+        for j in range(3):
+            m[0, j], m[1, j], m[2, j] = r[0, j], r[2, j], r[1, j] / height
+        g_from_i[b] = m @ kinv
+        _rotation(xs[b, 2], xs[b, 3], r)
+        h_c = height + (xs[b, 7] if n_par > 7 else 0.0)
+        cy, sy = math.cos(xs[b, 6]), math.sin(xs[b, 6])
+        tx = -(cy * xs[b, 4] - sy * xs[b, 5])
+        tz = -(sy * xs[b, 4] + cy * xs[b, 5])
+        # R_GCᵀ(Θ_c) · lift · T(Ψ): lift · T = rows (cy, −sy, tx), (0, 0, h_c), (sy, cy, tz)
+        for i in range(3):
+            a0, a1, a2 = r[0, i], r[1, i] * h_c, r[2, i]
+            m[i, 0] = a0 * cy + a2 * sy
+            m[i, 1] = -a0 * sy + a2 * cy
+            m[i, 2] = a0 * tx + a1 + a2 * tz
+        out_from_g[b] = k @ m
+    return g_from_i, out_from_g
+
+
+@kernel
+def _rotation(pitch: float, roll: float, out: FloatArray) -> None:
+    """R_GC = Rx(−pitch) · Rz(roll) into ``out`` (3, 3), as
+    ``geometry.rotation_ground_from_camera``."""
+    c, s, cr, sr = math.cos(pitch), math.sin(pitch), math.cos(roll), math.sin(roll)
+    out[0, 0], out[0, 1], out[0, 2] = cr, -sr, 0.0
+    out[1, 0], out[1, 1], out[1, 2] = c * sr, c * cr, s
+    out[2, 0], out[2, 1], out[2, 2] = -s * sr, -s * cr, c

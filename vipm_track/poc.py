@@ -44,6 +44,8 @@ import numpy as np
 import scipy.fft
 from numpy.typing import ArrayLike, NDArray
 
+from . import poc_kernels
+
 FloatArray = NDArray[np.float64]
 
 #: Default fraction of the Nyquist frequency kept by the band limit (per axis).
@@ -54,8 +56,6 @@ DEFAULT_ITERATIONS = 2
 DEFAULT_WEIGHTING = 0.5
 #: Patches whose band-passed RMS (grey levels) is below this have no texture to correlate.
 MIN_TEXTURE = 1e-3
-#: Largest Newton step, pixels (keeps the ascent on the peak it started on).
-MAX_STEP_PX = 0.5
 _MIN_SIZE = 8
 
 
@@ -126,27 +126,11 @@ def patch_spectra(patches: ArrayLike, *, band: float = DEFAULT_BAND, window: boo
     """
     arr = _as_batch(patches, "patches")
     _, h, w = arr.shape
-    layout = _band_layout(h, w, band)
-    win = _hann(h, w) if window else np.ones((h, w), np.float32)
-    workers = workers or _default_workers()
-    # The window-weighted mean is removed so that the window leaves no DC hump; a NaN or
-    # inf anywhere in a patch shows in its mean, which saves a pass over the data. (einsum,
-    # not a BLAS matrix-vector product: BLAS threads stall on a busy machine.)
-    with np.errstate(invalid="ignore", over="ignore"):
-        mean = np.einsum("nij,ij->n", arr, win) / np.float32(win.sum())
-    finite = np.isfinite(mean)
-    if not finite.all():
-        arr = np.where(finite[:, None, None], arr, np.float32(0.0))
-        mean = np.where(finite, mean, np.float32(0.0))
-    centred = np.subtract(arr, mean[:, None, None], dtype=np.float32)
-    centred *= win
-    spectra = _band_spectra(centred, layout, workers)
-    power = ((spectra.real**2 + spectra.imag**2) * layout.hermitian).sum(axis=(1, 2))
-    texture = np.sqrt(np.maximum(power, 0) / (h * w * float(np.square(win).sum())))
-    valid = finite & (texture > MIN_TEXTURE)
-    texture = np.where(valid, texture, 0.0).astype(np.float64)
-    return PatchSpectra(spectra.astype(np.complex64, copy=False), valid, texture, (h, w),
-                        float(band))
+    win = _window(h, w, window)
+    # the batch as one tall image, each patch one crop of it
+    corners = np.column_stack([np.zeros(len(arr), np.int64), h * np.arange(len(arr))])
+    centred, finite = poc_kernels.crop_centre_and_window(arr.reshape(-1, w), corners, win)
+    return _spectra(centred, finite, win, band, workers)
 
 
 def correlate_spectra(ref: PatchSpectra, moving: PatchSpectra, *,
@@ -189,34 +173,16 @@ def correlate_spectra(ref: PatchSpectra, moving: PatchSpectra, *,
     ok = np.flatnonzero(ref.valid & moving.valid)
     if ok.size == 0:
         return shift, peak
-    cross = moving.spectra[ok] * np.conj(ref.spectra[ok])
-    mag = np.abs(cross)
-    nonzero = mag > 0
-    # Multiply by a real reciprocal: a complex division costs several times more.
-    inv = np.divide(layout.hermitian, mag, out=np.zeros_like(mag), where=nonzero)
-    r = cross * inv  # unit phasors times the Hermitian weights, 0 where there is no signal
-
     # Coarse: the band-limited POC surface sampled on the smallest grid that holds the band
     # (one inverse FFT for the batch); its highest sample is within a grid step of the peak.
-    gy, gx = layout.grid
-    small = np.zeros((ok.size, gy, gx // 2 + 1), np.complex64)
-    small[:, layout.small_rows, : layout.kx_max] = r
-    surface = scipy.fft.irfft2(small, s=(gy, gx), workers=workers or _default_workers())
-    iy, ix = np.divmod(surface.reshape(ok.size, -1).argmax(axis=1), gx)
-    fy, fx = _parabolic_offsets(surface, iy, ix)
-    d = np.stack([(_wrap(ix, gx) + fx) * (w / gx), (_wrap(iy, gy) + fy) * (h / gy)], axis=1)
-
-    # Fine: Newton ascent on the (weighted) continuous POC function from the coarse peak.
-    if weighting == 0:
-        rw = r
-    else:
-        rw = r * (np.sqrt(mag) if weighting == 0.5 else np.power(mag, np.float32(weighting)))
-    for _ in range(iterations):
-        _, grad, hess = _poc_moments(rw, layout, d)
-        step = _ascent_step(grad, hess)
-        norm = np.linalg.norm(step, axis=1, keepdims=True)
-        d += step * np.minimum(1.0, MAX_STEP_PX / np.maximum(norm, 1e-12))
-    value = _poc_moments(r, layout, d)[0] / layout.n_frequencies
+    # Fine: Newton ascent on the (weighted) continuous POC function from there.
+    r, rw, small = poc_kernels.cross_power(
+        _interleaved(ref.spectra), _interleaved(moving.spectra), ok, layout.hermitian,
+        layout.small_rows, layout.grid, float(weighting))
+    surface = scipy.fft.irfft2(small, s=layout.grid, workers=workers or _default_workers())
+    d, value = poc_kernels.subpixel_peaks(surface, r, rw, layout.uy, layout.ux, (h, w),
+                                          int(iterations))
+    value /= layout.n_frequencies
     usable = (value > 0) & (np.abs(d) < [w / 2, h / 2]).all(axis=1)
     shift[ok[usable]] = d[usable]
     peak[ok[usable]] = value[usable]
@@ -308,12 +274,9 @@ def crop_patches(image: ArrayLike, centres: ArrayLike, size: int | tuple[int, in
     if img.ndim != 2:
         raise ValueError(f"crop_patches needs a 2-D grey image, got shape {img.shape}")
     ph, pw = _patch_size(size)
-    points = _as_points(centres, "centres")
-    known = np.isfinite(points).all(axis=1)
-    corner = np.zeros(points.shape, np.int64)
-    corner[known] = np.floor(points[known] + 0.5).astype(np.int64) - [pw // 2, ph // 2]
+    corner = _corners(_as_points(centres, "centres"), ph, pw)
     height, width = img.shape
-    inside = (known & (corner[:, 0] >= 0) & (corner[:, 1] >= 0)
+    inside = ((corner[:, 0] >= 0) & (corner[:, 1] >= 0)
               & (corner[:, 0] + pw <= width) & (corner[:, 1] + ph <= height))
     # slice copies into an uninitialised batch: half the memory traffic of a NaN-filled
     # batch overwritten by a fancy-indexed gather
@@ -374,11 +337,10 @@ def match_patches(img_ref: ArrayLike, img_moving: ArrayLike, centres_ref: ArrayL
                              f"{offset.shape}")
         offset = np.broadcast_to(offset, centres.shape)
     offset = np.floor(offset + 0.5)  # a NaN offset makes a NaN centre: that patch gets peak 0
-    ref_spec = patch_spectra(crop_patches(img_ref, centres, size), band=band, workers=workers)
+    ref_spec = _cropped_spectra(img_ref, centres, size, band, workers)
     passes = 2 if recentre else 1
     for k in range(passes):
-        mov_patches = crop_patches(img_moving, centres + offset, size)
-        mov_spec = patch_spectra(mov_patches, band=band, workers=workers)
+        mov_spec = _cropped_spectra(img_moving, centres + offset, size, band, workers)
         residual, peak = correlate_spectra(ref_spec, mov_spec, iterations=iterations,
                                            weighting=weighting, workers=workers)
         shift = offset + residual
@@ -389,6 +351,48 @@ def match_patches(img_ref: ArrayLike, img_moving: ArrayLike, centres_ref: ArrayL
 
 
 # --------------------------------------------------------------------------- helpers
+
+
+def _corners(points: FloatArray, ph: int, pw: int) -> NDArray[np.int64]:
+    """Top-left pixels (x, y) of (ph, pw) patches centred on ``points`` (rounded, halves
+    up); a NaN centre gets a corner left of every image."""
+    known = np.isfinite(points).all(axis=1)
+    corner = np.full(points.shape, -(1 << 40), np.int64)
+    corner[known] = np.floor(points[known] + 0.5).astype(np.int64) - [pw // 2, ph // 2]
+    return corner
+
+
+def _cropped_spectra(image: ArrayLike, centres: FloatArray, size: int | tuple[int, int],
+                     band: float, workers: int | None) -> PatchSpectra:
+    """:func:`patch_spectra` of ``crop_patches(image, centres, size)``, without the copies."""
+    img = np.asarray(image)
+    if img.ndim != 2:
+        raise ValueError(f"crop_patches needs a 2-D grey image, got shape {img.shape}")
+    ph, pw = _patch_size(size)
+    if ph < _MIN_SIZE or pw < _MIN_SIZE:
+        raise ValueError(f"patches must be at least {_MIN_SIZE}×{_MIN_SIZE} pixels, got "
+                         f"{ph}×{pw}")
+    win = _window(ph, pw, True)
+    centred, finite = poc_kernels.crop_centre_and_window(
+        np.ascontiguousarray(img, np.float32), _corners(centres, ph, pw), win)
+    return _spectra(centred, finite, win, band, workers)
+
+
+def _interleaved(spectra: NDArray[np.complex64]) -> NDArray[np.float32]:
+    """Complex spectra as float32 (…, 2·K) re, im pairs, as the kernels read them."""
+    return np.ascontiguousarray(spectra).view(np.float32)
+
+
+def _spectra(centred: NDArray[np.float32], finite: NDArray[np.bool_],
+             win: NDArray[np.float32], band: float, workers: int | None) -> PatchSpectra:
+    """The :class:`PatchSpectra` of mean-removed, windowed patches."""
+    _, h, w = centred.shape
+    layout = _band_layout(h, w, band)
+    spectra, power = _band_spectra(centred, layout, workers or _default_workers())
+    texture = np.sqrt(np.maximum(power, 0) / (h * w * float(np.square(win).sum())))
+    valid = finite & (texture > MIN_TEXTURE)
+    texture = np.where(valid, texture, 0.0)
+    return PatchSpectra(spectra, valid, texture, (h, w), float(band))
 
 
 def _as_batch(patches: ArrayLike, name: str) -> NDArray[np.float32]:
@@ -422,27 +426,15 @@ def _patch_size(size: int | tuple[int, int]) -> tuple[int, int]:
     return int(ph), int(pw)
 
 
-def _parabolic_offsets(surface: NDArray[np.float32], iy: NDArray[np.int64],
-                       ix: NDArray[np.int64]) -> tuple[FloatArray, FloatArray]:
-    """Sub-sample offsets (rows, cols), within ±0.5, of a parabola through each peak sample
-    and its neighbours (the surface is periodic): a better start for Newton."""
-    n, gy, gx = surface.shape
-    k = np.arange(n)
-
-    def vertex(minus: NDArray[np.float32], centre: NDArray[np.float32],
-               plus: NDArray[np.float32]) -> FloatArray:
-        curve = minus.astype(np.float64) - 2 * centre + plus
-        safe = np.where(curve < 0, curve, -1.0)
-        return np.where(curve < 0, np.clip((minus - plus) / (2 * safe), -0.5, 0.5), 0.0)
-
-    centre = surface[k, iy, ix]
-    fy = vertex(surface[k, (iy - 1) % gy, ix], centre, surface[k, (iy + 1) % gy, ix])
-    fx = vertex(surface[k, iy, (ix - 1) % gx], centre, surface[k, iy, (ix + 1) % gx])
-    return fy, fx
+def _window(h: int, w: int, hann: bool) -> NDArray[np.float32]:
+    return _hann(h, w) if hann else _flat(h, w)
 
 
-def _wrap(index: NDArray[np.int64], n: int) -> NDArray[np.int64]:
-    return np.where(index >= n // 2, index - n, index)
+@lru_cache(maxsize=16)
+def _flat(h: int, w: int) -> NDArray[np.float32]:
+    win = np.ones((h, w), np.float32)
+    win.flags.writeable = False
+    return win
 
 
 @lru_cache(maxsize=16)
@@ -492,8 +484,9 @@ def _band_layout(h: int, w: int, band: float) -> _BandLayout:
 
 
 def _band_spectra(centred: NDArray[np.float32], layout: _BandLayout, workers: int,
-                  ) -> NDArray[np.complex64]:
-    """The band block (N, Ky', Kx) of the 2-D DFT of each patch, computed for the batch.
+                  ) -> tuple[NDArray[np.complex64], FloatArray]:
+    """The band block (N, Ky', Kx) of the 2-D DFT of each patch, computed for the batch,
+    and each patch's power in the band.
 
     Only the band is needed. The real DFT along the rows goes through one ``cv2.dft`` call
     for all rows of all patches (``DFT_ROWS``; several times faster than pocketfft at these
@@ -501,55 +494,10 @@ def _band_spectra(centred: NDArray[np.float32], layout: _BandLayout, workers: in
     are unpacked and one complex ``scipy.fft.fft`` down the columns finishes the transform.
     """
     n, h, w = centred.shape
-    kx = layout.kx_max
     ccs = cv2.dft(centred.reshape(n * h, w), flags=cv2.DFT_ROWS)
-    half = np.empty((n * h, kx), np.complex64)
-    half[:, 0] = ccs[:, 0]
-    half[:, 1:] = ccs[:, 1: 2 * kx - 1].view(np.complex64)  # a view: rows are contiguous
-    full = scipy.fft.fft(half.reshape(n, h, kx), axis=1, workers=workers, overwrite_x=True)
-    return np.concatenate([full[:, : layout.ky_max], full[:, h - layout.ky_max + 1:]], axis=1)
-
-
-def _phasors(layout: _BandLayout, d: FloatArray) -> tuple[NDArray[np.complex64], ...]:
-    ey = np.exp(2j * np.pi * d[:, 1:2] * layout.uy[None, :]).astype(np.complex64)  # (N, Ky)
-    ex = np.exp(2j * np.pi * d[:, 0:1] * layout.ux[None, :]).astype(np.complex64)  # (N, Kx')
-    return ey, ex
-
-
-def _poc_moments(r: NDArray[np.complex64], layout: _BandLayout, d: FloatArray,
-                 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Value (N,), gradient (N, 2) and Hessian (N, 2, 2) in (dx, dy) of the POC function
-    r(d) = Σ Re(R(u) e^{2πi u·d}) (R already carries the Hermitian weights).
-
-    The phasor is separable, so every moment Σ R e^{…} uy^a ux^b comes out of two batched
-    matrix products (with three columns: numpy's batched matrix-vector path is slow).
-    """
-    ey, ex = _phasors(layout, d)
-    ux, uy = layout.ux.astype(np.float32), layout.uy.astype(np.float32)
-    px = np.stack([ex, ex * ux, ex * ux * ux], axis=2)  # (N, Kx', 3)
-    py = np.stack([ey, ey * uy, ey * uy * uy], axis=1)  # (N, 3, Ky)
-    m = (py @ (r @ px)).astype(np.complex128)  # m[a, b] = Σ R e^{…} uy^a ux^b
-    two_pi = 2 * np.pi
-    grad = -two_pi * np.stack([m[:, 0, 1].imag, m[:, 1, 0].imag], axis=1)
-    hxx = -(two_pi**2) * m[:, 0, 2].real
-    hyy = -(two_pi**2) * m[:, 2, 0].real
-    hxy = -(two_pi**2) * m[:, 1, 1].real
-    hess = np.stack([np.stack([hxx, hxy], -1), np.stack([hxy, hyy], -1)], -2)
-    return m[:, 0, 0].real, grad, hess
-
-
-def _ascent_step(grad: FloatArray, hess: FloatArray) -> FloatArray:
-    """Newton step −H⁻¹g where the 2×2 Hessian is negative definite (near the peak);
-    elsewhere a gradient step scaled by the largest curvature, so the ascent never
-    climbs down."""
-    a, b, c = hess[:, 0, 0], hess[:, 0, 1], hess[:, 1, 1]
-    det = a * c - b * b
-    half_gap = np.sqrt(0.25 * (a - c) ** 2 + b * b)
-    lam_max = 0.5 * (a + c) + half_gap  # the larger eigenvalue
-    scale = np.maximum(np.abs(0.5 * (a + c)) + half_gap, 1e-12)
-    newton = (lam_max < -1e-3 * scale) & (det > 0)
-    safe = np.where(newton, det, 1.0)
-    gx, gy = grad[:, 0], grad[:, 1]
-    nx = -(c * gx - b * gy) / safe
-    ny = -(a * gy - b * gx) / safe
-    return np.where(newton[:, None], np.stack([nx, ny], axis=1), grad / scale[:, None])
+    half = poc_kernels.unpack_band_columns(ccs, layout.kx_max).view(np.complex64)
+    full = scipy.fft.fft(half.reshape(n, h, layout.kx_max), axis=1, workers=workers,
+                         overwrite_x=True)
+    band, power = poc_kernels.band_rows_and_power(full.view(np.float32), layout.ky_max,
+                                                  layout.hermitian)
+    return band.view(np.complex64), power
