@@ -13,7 +13,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .geometry import GroundPose, PlanarMotion
-from .homography_lsq import homography_normal_equations, pair_homography_factors
+from .homography_lsq import (
+    homography_normal_equations,
+    pair_homography_factors,
+    project_points,
+)
 from .shutter import moved_pixels
 
 FloatArray = NDArray[np.float64]
@@ -139,23 +143,17 @@ class DisplacementModel:
         """:meth:`predict_batch`, and under a rolling shutter the row times (B, n) of frame k
         the points were solved at (None under a global shutter); ``start`` and ``active``
         as ``shutter.moved_pixels`` (rolling shutter only)."""
-        xs = self.full(xs)
-        pix = self.pixels_prev if idx is None else self.pixels_prev[idx]
+        pix = np.ascontiguousarray(self.pixels_prev if idx is None else self.pixels_prev[idx],
+                                   dtype=float)
+        if not self.readout_frames:
+            return project_points(*self._homographies(xs), pix), None
+        # rolling shutter: NaN off the ground of frame k-1 (at the row's time)
+        img, times = self._rolling_shutter(self.full(xs), pix, start, active)
         a = np.eye(3) if self.plane_from_image is None else self.plane_from_image
-        times = None
-        if self.readout_frames:  # NaN off the ground of frame k-1 (at the row's time)
-            img, times = self._rolling_shutter(xs, pix, start, active)
-            good = img[..., 2] > 0  # in front of camera k
-        else:
-            m = np.concatenate([pix, np.ones((len(pix), 1))], axis=1)  # (n, 3)
-            g_from_i, out_from_g = pair_homographies(self.k, self.height, xs)
-            ground = np.einsum("bij,nj->bni", g_from_i, m)  # (B, n, 3); w > 0 on the ground
-            img = np.einsum("bij,bnj->bni", out_from_g, ground)
-            good = (ground[..., 2] > 0) & (img[..., 2] > 0)  # and in front of camera k
         plane = img @ a.T
         with np.errstate(divide="ignore", invalid="ignore"):
             out = plane[..., :2] / plane[..., 2:3]
-        out[~good] = np.nan
+        out[~(img[..., 2] > 0)] = np.nan  # and in front of camera k
         return out, times
 
     def _rolling_shutter(
