@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from .compiled import kernel
 from .geometry import (
     GroundPose,
     IpmGrid,
@@ -130,22 +131,53 @@ def _clip_half_plane(poly: FloatArray, n: FloatArray, delta: float) -> FloatArra
     return np.array(out).reshape(-1, 2)
 
 
-def squares_inside(polygon: FloatArray, centres: FloatArray, size: int) -> NDArray[np.bool_]:
-    """(N,) whether squares of side ``size`` centred at ``centres`` (N, 2) lie in a convex
-    polygon (M, 2) (any orientation)."""
+def _orientation(polygon: FloatArray) -> float:
+    """+1 for a counter-clockwise polygon (M, 2) in (x, y), −1 for a clockwise one (0 if
+    degenerate)."""
     if len(polygon) < 3:
-        return np.zeros(len(centres), bool)
-    half = size / 2
-    corners = centres[:, None, :] + np.array([[-half, -half], [half, -half], [half, half],
-                                              [-half, half]])[None]
-    a = polygon
-    b = np.roll(polygon, -1, axis=0)
-    edge = b - a  # (M, 2)
-    rel = corners[:, :, None, :] - a[None, None]  # (N, 4, M, 2)
-    cross = edge[None, None, :, 0] * rel[..., 1] - edge[None, None, :, 1] * rel[..., 0]
-    orient = np.sign(np.sum(edge[:, 0] * np.roll(edge, -1, axis=0)[:, 1]
-                            - edge[:, 1] * np.roll(edge, -1, axis=0)[:, 0]))
-    return np.all(cross * orient >= 0, axis=(1, 2))
+        return 0.0
+    edge = np.roll(polygon, -1, axis=0) - polygon
+    nxt = np.roll(edge, -1, axis=0)
+    return float(np.sign(np.sum(edge[:, 0] * nxt[:, 1] - edge[:, 1] * nxt[:, 0])))
+
+
+@kernel
+def _square_fits(polygon: FloatArray, orient: float, cx: float, cy: float, half: float) -> bool:
+    """Whether the square of half-side ``half`` centred at (cx, cy) lies in the convex
+    ``polygon`` (M, 2) of orientation ``orient`` (:func:`_orientation`)."""
+    m = polygon.shape[0]
+    if m < 3:
+        return False
+    for sx, sy in ((-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)):
+        px, py = cx + sx * half, cy + sy * half
+        for i in range(m):
+            ax, ay = polygon[i, 0], polygon[i, 1]
+            ex, ey = polygon[(i + 1) % m, 0] - ax, polygon[(i + 1) % m, 1] - ay
+            if not ((ex * (py - ay) - ey * (px - ax)) * orient >= 0):
+                return False
+    return True
+
+
+@kernel
+def _largest_sizes(polygons: tuple[FloatArray, FloatArray, FloatArray],
+                   orients: tuple[float, float, float], centres: FloatArray,
+                   moved: FloatArray, candidates: NDArray[np.int64]) -> NDArray[np.int64]:
+    """For each centre the first of ``candidates`` (sizes, largest first) whose square lies
+    in the grid's box and the previous frame's polygon at ``centres`` and in the box and
+    the current frame's polygon at ``moved``; 0 where none does."""
+    box, prev, curr = polygons
+    o_box, o_prev, o_curr = orients
+    sizes = np.zeros(centres.shape[0], np.int64)
+    for j in range(centres.shape[0]):
+        for s in candidates:
+            half = s / 2
+            if (_square_fits(prev, o_prev, centres[j, 0], centres[j, 1], half)
+                    and _square_fits(box, o_box, centres[j, 0], centres[j, 1], half)
+                    and _square_fits(curr, o_curr, moved[j, 0], moved[j, 1], half)
+                    and _square_fits(box, o_box, moved[j, 0], moved[j, 1], half)):
+                sizes[j] = s
+                break
+    return sizes
 
 
 def patch_sizes(
@@ -162,18 +194,13 @@ def patch_sizes(
     the current one's, both inside the grid; 0 where even ``min_patch`` does not fit."""
     box = np.array([[0.0, 0.0], [grid.width - 1.0, 0.0], [grid.width - 1.0, grid.height - 1.0],
                     [0.0, grid.height - 1.0]])
-    sizes = np.zeros(len(centres), np.int64)
     top = int(patch // SIZE_STEP * SIZE_STEP) if patch >= SIZE_STEP else patch
     candidates = list(range(top, min_patch - 1, -SIZE_STEP)) or [patch]
-    for s in candidates:
-        fits = (
-            squares_inside(polygon_prev, centres, s)
-            & squares_inside(box, centres, s)
-            & squares_inside(polygon_curr, centres + offsets, s)
-            & squares_inside(box, centres + offsets, s)
-        )
-        sizes = np.where((sizes == 0) & fits, s, sizes)
-    return sizes
+    polygons = tuple(np.ascontiguousarray(p, dtype=float).reshape(-1, 2)
+                     for p in (box, polygon_prev, polygon_curr))
+    centres = np.ascontiguousarray(centres, dtype=float)
+    return _largest_sizes(polygons, tuple(_orientation(p) for p in polygons), centres,
+                          np.ascontiguousarray(centres + offsets), np.array(candidates))
 
 
 #: Exponent of the area-magnification term of :func:`patch_noise_whitening`. On rendered
