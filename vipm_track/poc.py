@@ -338,15 +338,21 @@ def match_patches(img_ref: ArrayLike, img_moving: ArrayLike, centres_ref: ArrayL
         offset = np.broadcast_to(offset, centres.shape)
     offset = np.floor(offset + 0.5)  # a NaN offset makes a NaN centre: that patch gets peak 0
     ref_spec = _cropped_spectra(img_ref, centres, size, band, workers)
-    passes = 2 if recentre else 1
-    for k in range(passes):
-        mov_spec = _cropped_spectra(img_moving, centres + offset, size, band, workers)
-        residual, peak = correlate_spectra(ref_spec, mov_spec, iterations=iterations,
-                                           weighting=weighting, workers=workers)
-        shift = offset + residual
-        if k + 1 < passes:
-            good = peak > 0
-            offset = np.where(good[:, None], np.floor(shift + 0.5), offset)
+    mov_spec = _cropped_spectra(img_moving, centres + offset, size, band, workers)
+    residual, peak = correlate_spectra(ref_spec, mov_spec, iterations=iterations,
+                                       weighting=weighting, workers=workers)
+    shift = offset + residual
+    if recentre:
+        # only patches whose rounded displacement moved are cropped anew: the others' second
+        # crop would be the first one
+        moved = np.flatnonzero((peak > 0) & np.any(np.floor(shift + 0.5) != offset, axis=1))
+        if moved.size:
+            at = np.floor(shift[moved] + 0.5)
+            again = _cropped_spectra(img_moving, centres[moved] + at, size, band, workers)
+            residual, peak[moved] = correlate_spectra(ref_spec[moved], again,
+                                                      iterations=iterations,
+                                                      weighting=weighting, workers=workers)
+            shift[moved] = at + residual
     return shift, peak
 
 
