@@ -8,6 +8,7 @@ for its Jacobian. ``bundle`` fits it."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
@@ -107,7 +108,7 @@ class DisplacementModel:
     def n_points(self) -> int:
         return int(self.pixels_prev.shape[0])
 
-    @property
+    @cached_property  # asked at every residual evaluation
     def n_prior(self) -> int:
         """Number of prior residuals appended to the points' (0 or 4)."""
         return 0 if self.prior_mean is None or np.all(np.asarray(self.prior_scale) <= 0) else 4
