@@ -404,6 +404,71 @@ def test_an_interrupted_parallel_run_ends_without_waiting_for_running_chunks() -
     assert time.monotonic() - start < 15
 
 
+class _MarkedChunk(ArraySource):
+    """A chunk that leaves a mark (``marker``) once all its frames were taken: its run is
+    then over."""
+
+    marker: Path
+
+    def __iter__(self):
+        yield from super().__iter__()
+        self.marker.write_text("done")
+
+
+class _FirstChunkSlowSource(ArraySource):
+    """The first chunk takes a minute to read; the others are read at once and marked."""
+
+    marker: Path
+
+    def frames(self, position: int, count: int) -> ArraySource:
+        import time
+
+        if position == 0:
+            time.sleep(60)
+            return super().frames(position, count)
+        chunk = super().frames(position, count)
+        marked = _MarkedChunk(chunk.images, chunk.t, chunk.description)
+        marked.first_index, marked.marker = chunk.first_index, self.marker
+        return marked
+
+
+def test_an_interrupted_parallel_run_keeps_the_chunks_that_finished(tmp_path: Path) -> None:
+    """Interrupted while the first chunk still runs, a parallel run yields the steps of the
+    later chunk that finished before it passes the interruption on: nothing computed is
+    lost."""
+    import signal
+    import time
+
+    from vipm_track.parallel import run_chunked
+
+    source = _FirstChunkSlowSource([np.zeros((48, 64), np.uint8)] * 8, np.arange(8) * 0.1)
+    source.marker = tmp_path / "second chunk done"
+    k = np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]])
+    rig = Rig(CameraModel(k, 64, 48), 0.7, DEFAULT_PITCH_DEG)
+    start = time.monotonic()
+
+    def interrupt(signum, frame):
+        # a second after the second chunk's run is over (its result is back by then), or
+        # after 50 s anyway
+        seen = source.marker.exists() and source.marker.stat().st_mtime < time.time() - 1
+        if seen or time.monotonic() - start > 50:
+            raise KeyboardInterrupt
+        signal.setitimer(signal.ITIMER_REAL, 0.5)
+
+    previous = signal.signal(signal.SIGALRM, interrupt)
+    frames = []
+    try:
+        signal.setitimer(signal.ITIMER_REAL, 0.5)
+        with pytest.raises(KeyboardInterrupt):
+            for step in run_chunked(source, rig, None, True, 2, 4):
+                frames.append(step.frame)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+    assert source.marker.exists()
+    assert frames == [4, 5, 6, 7]
+
+
 def test_estimate_cli_bad_camera_file(cart_sequence: Path, tmp_path: Path,
                                       capsys: pytest.CaptureFixture) -> None:
     from vipm_track.cli import main

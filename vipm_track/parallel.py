@@ -48,7 +48,9 @@ def run_chunked(
 ) -> Iterator[SequenceStep]:
     """The steps of :func:`run_sequence` over ``source``, from chunks of ``chunk_frames``
     frames run in ``workers`` processes (1: in this one), in frame order. A source of unknown
-    length (a video whose container does not say) or of one chunk runs as one sequence."""
+    length (a video whose container does not say) or of one chunk runs as one sequence.
+    Interrupted (KeyboardInterrupt: Ctrl-C, SIGTERM) while waiting on a chunk, it yields the
+    steps of the later chunks that have finished, then raises."""
     if chunk_frames < MIN_CHUNK_FRAMES:
         raise InputError(f"--chunk-frames must be >= {MIN_CHUNK_FRAMES}, got {chunk_frames}")
     bounds = chunk_bounds(len(source), chunk_frames)
@@ -64,13 +66,23 @@ def run_chunked(
     pool = ProcessPoolExecutor(min(workers, len(bounds)), mp_context=context,
                                initializer=_start_worker, initargs=(1,))
     finished = False
+    futures: list[Future[list[SequenceStep]]] = []
+    waiting = 0  # the chunk whose steps come next
     try:
-        futures: list[Future[list[SequenceStep]]] = [
-            pool.submit(run_chunk, source, rig, config, tracking, p, n)
-            for p, n in bounds]
+        futures = [pool.submit(run_chunk, source, rig, config, tracking, p, n)
+                   for p, n in bounds]
         for future in futures:
             yield from future.result()
+            waiting += 1
         finished = True
+    except KeyboardInterrupt:
+        # Ctrl-C or SIGTERM while waiting on a chunk: the later chunks that have already
+        # finished are not lost; their steps follow (in frame order, after a gap where the
+        # unfinished chunks were), then the interruption goes on
+        for future in futures[waiting + 1:]:
+            if future.done() and not future.cancelled() and future.exception() is None:
+                yield from future.result()
+        raise
     finally:
         if finished:
             pool.shutdown()
