@@ -180,6 +180,37 @@ def test_fixed_lag_rows_are_on_disk_as_they_leave_the_window(tmp_path, capsys, e
     assert seen[-1] > 100  # at the last frame, all but the window's ~10 frames are written
 
 
+def test_a_table_cut_mid_row_is_read_up_to_the_cut(tmp_path, capsys, est):
+    """An estimates table whose writer died mid-row (the last line cut, no line end) is read
+    without its last row, which is named on stderr; the rows before are all used."""
+    text = est.read_text()
+    cut = tmp_path / "cut.csv"
+    cut.write_text(text[: text.rstrip("\n").rfind(",") - 3])  # inside the last row
+    rows = len(text.splitlines()) - 1
+    table = read_table(cut)
+    assert len(table["frame"]) == rows - 1
+    err = capsys.readouterr().err
+    assert f"{cut}: line {rows + 1}: the last row is cut short" in err
+    out = tmp_path / "track.csv"
+    assert main(["track", "--estimates", str(cut), "--out", str(out), "--quiet"]) == 0
+    assert len(read_table(out)["frame"]) == rows - 1
+
+
+def test_a_damaged_row_before_the_last_is_still_an_error(tmp_path, capsys, est):
+    lines = est.read_text().splitlines(keepends=True)
+    damaged = tmp_path / "damaged.csv"
+    lines[5] = lines[5][: lines[5].rfind(",")] + "\n"  # one cell short, mid-file
+    damaged.write_text("".join(lines))
+    assert main(["track", "--estimates", str(damaged), "--out", str(tmp_path / "t.csv")]) == 2
+    assert f"{damaged}: line 6: " in capsys.readouterr().err
+    whole = tmp_path / "whole.csv"  # the last row short but ended: damaged, not cut
+    lines = est.read_text().splitlines(keepends=True)
+    lines[-1] = lines[-1][: lines[-1].rfind(",")] + "\n"
+    whole.write_text("".join(lines))
+    assert main(["track", "--estimates", str(whole), "--out", str(tmp_path / "u.csv")]) == 2
+    assert "cells but the header has" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("sig", [False, True])
 def test_interrupted_monitor_keeps_complete_rows(tmp_path, capsys, est, nominal, monkeypatch, sig):
     from vipm_track.filters.monitor import DriftMonitor

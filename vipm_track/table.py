@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import sys
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -319,7 +320,8 @@ def read_table(path: str | Path, required: Sequence[str] = BASE_COLUMNS[:2]) -> 
         header = list(raw)
         records = [[raw[c][i] for c in header] for i in range(table.num_rows)]
     else:
-        reader = csv.reader(io.StringIO(read_text(path), newline=""))
+        text = read_text(path)
+        reader = csv.reader(io.StringIO(text, newline=""))
         try:
             header = [h.strip() for h in next(reader)]
             records = []
@@ -327,6 +329,12 @@ def read_table(path: str | Path, required: Sequence[str] = BASE_COLUMNS[:2]) -> 
                 if not r:
                     continue
                 if len(r) != len(header):
+                    if _cut_last_row(text, reader, r, header):
+                        # a run that ended mid-write: the rows before it are kept
+                        print(f"vipm-track: warning: {path}: line {reader.line_num}: the last "
+                              f"row is cut short ({len(r)} of {len(header)} cells); left out",
+                              file=sys.stderr)
+                        break
                     raise TableError(f"{path}: line {reader.line_num}: {len(r)} cells but the "
                                      f"header has {len(header)} (a cut or damaged row)")
                 records.append(r)
@@ -375,6 +383,13 @@ def rows_to_columns(rows: Sequence[Mapping[str, Any]]) -> dict[str, NDArray]:
         else:
             out[name] = np.array([float_or_nan(v) for v in values], dtype=float)
     return out
+
+
+def _cut_last_row(text: str, reader: Any, row: list[str], header: list[str]) -> bool:
+    """Whether ``row``, the one ``reader`` just read from ``text``, is its last and was cut
+    short: fewer cells than the header and no line end after it."""
+    return (len(row) < len(header) and not text.endswith(("\n", "\r"))
+            and next(reader, None) is None)
 
 
 def read_text(path: Path) -> str:
