@@ -305,7 +305,7 @@ def pair_homographies(
     ``image_from_ground_homography`` and ``motion_matrix`` (checked by the tests) but built
     for the whole batch at once in a compiled loop (``homography_lsq``).
     """
-    return pair_homography_factors(np.asarray(k, dtype=float), float(height),
+    return pair_homography_factors(np.ascontiguousarray(k, dtype=float), float(height),
                                    np.ascontiguousarray(xs, dtype=float))
 
 
