@@ -3,10 +3,12 @@ and the phase correlation's inner loops."""
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable
 from typing import TypeVar
 
 from numba import njit
+from numba.core import event
 
 _F = TypeVar("_F", bound=Callable[..., object])
 
@@ -35,3 +37,25 @@ def _compile(fn: _F, fastmath: bool | set[str]) -> _F:
         return njit(cache=True, nogil=True, fastmath=fastmath)(fn)  # type: ignore[return-value]
     except RuntimeError:  # numba: "cannot cache function …: no locator available"
         return njit(nogil=True, fastmath=fastmath)(fn)  # type: ignore[return-value]
+
+
+class _FirstCompileNotice(event.Listener):
+    """Says once per process, on stderr, when one of the project's kernels is compiled rather
+    than loaded from the cache: the first run on a machine (or after an upgrade) spends
+    10–20 s compiling before its first result, which would otherwise look like a hang."""
+
+    said = False
+
+    def on_start(self, ev: event.Event) -> None:
+        dispatcher = (ev.data or {}).get("dispatcher")
+        module = getattr(getattr(dispatcher, "py_func", None), "__module__", "") or ""
+        if not self.said and module.startswith("vipm_track"):
+            type(self).said = True
+            print("vipm-track: compiling the numerical kernels for this machine (the first "
+                  "run only; 10–20 s)", file=sys.stderr, flush=True)
+
+    def on_end(self, ev: event.Event) -> None:
+        pass
+
+
+event.register("numba:compile", _FirstCompileNotice())
