@@ -201,3 +201,19 @@ def test_match_patches_recovers_a_large_shift_with_offsets() -> None:
     again, peak = match_patches(img_ref, img_mov, centres[:3], 128, offsets, recentre=True)
     np.testing.assert_allclose(again[:2], np.tile(true, (2, 1)), atol=0.06)
     assert peak[2] == 0 and np.isnan(again[2]).all()
+
+
+def test_centres_beyond_the_int64_range_leave_the_image() -> None:
+    """A centre or offset so far out that its pixel overflows int64 (a diverged prediction)
+    gives a patch outside the image (peak 0), not a crop read past the image's memory."""
+    rng = np.random.default_rng(3)
+    image = rng.uniform(0, 255, (120, 160))
+    centres = np.array([[80.0, 60.0], [80.0, 60.0], [80.0, 60.0], [1e19, 60.0]])
+    offsets = np.array([[0.0, 0.0], [1e19, 0.0], [0.0, -3e19], [0.0, 0.0]])
+    shift, peak = match_patches(image, image, centres, 32, offsets)
+    assert peak[0] > 0.99
+    np.testing.assert_array_equal(peak[1:], 0.0)
+    assert np.isnan(shift[1:]).all()
+    patches, inside = crop_patches(image, centres + offsets, 32, return_mask=True)
+    np.testing.assert_array_equal(inside, [True, False, False, False])
+    assert np.isnan(patches[1:]).all()

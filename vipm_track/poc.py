@@ -361,8 +361,9 @@ def match_patches(img_ref: ArrayLike, img_moving: ArrayLike, centres_ref: ArrayL
 
 def _corners(points: FloatArray, ph: int, pw: int) -> NDArray[np.int64]:
     """Top-left pixels (x, y) of (ph, pw) patches centred on ``points`` (rounded, halves
-    up); a NaN centre gets a corner left of every image."""
-    known = np.isfinite(points).all(axis=1)
+    up); a NaN centre, or one too far out for int64 pixels (a diverged prediction), gets a
+    corner left of every image."""
+    known = (np.abs(points) < 2.0**40).all(axis=1)  # False for NaN
     corner = np.full(points.shape, -(1 << 40), np.int64)
     corner[known] = np.floor(points[known] + 0.5).astype(np.int64) - [pw // 2, ph // 2]
     return corner

@@ -39,7 +39,7 @@ def crop_centre_and_window(image: NDArray, corners: NDArray[np.int64], win: Floa
             win_sum += win[i, j]
     for k in range(n):
         x, y = corners[k, 0], corners[k, 1]
-        if x < 0 or y < 0 or x + w > cols or y + h > rows:
+        if x < 0 or y < 0 or x > cols - w or y > rows - h:  # no overflow for any corner
             continue
         total = 0.0
         for i in range(h):
