@@ -134,3 +134,18 @@ def test_rolling_shutter_solves_from_a_start_and_only_the_active_points():
     warm = model._predict(near, start=times, active=active)[0]
     np.testing.assert_allclose(warm[active], model.predict_batch(near)[active], atol=1e-9)
     assert np.isnan(warm[~active]).all()
+
+
+def test_a_point_mapped_to_the_planes_line_at_infinity_is_undefined_not_an_error():
+    """A measurement plane whose w vanishes exactly at a predicted pixel (the compiled
+    projection divides by it) gives that point no prediction, as the normal equations do,
+    instead of a ZeroDivisionError out of the LM."""
+    rng = np.random.default_rng(5)
+    model, x = _cart_model(rng)
+    image = model.predict(x)
+    plane = np.eye(3)
+    plane[2] = [1.0, 0.0, -image[0, 0]]  # w = u - u_0: zero at the first point only
+    moved = dataclasses.replace(model, plane_from_image=plane)
+    out = moved.predict(x)
+    assert np.isnan(out[0]).all() and np.isfinite(out[1:]).all()
+    assert np.isinf(moved.errors(x)[0])

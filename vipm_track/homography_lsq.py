@@ -137,7 +137,7 @@ def project_points(h: FloatArray, ground_w: FloatArray, image_w: FloatArray,
                    pixels: FloatArray) -> FloatArray:
     """``π(H_b m_j)`` (B, N, 2) of previous-frame pixels ``pixels`` (N, 2) through each
     homography ``h`` (B, 3, 3); NaN where the point is invalid (``ground_w``, ``image_w`` as
-    :func:`homography_normal_equations`)."""
+    :func:`homography_normal_equations`) or maps to infinity on the plane."""
     n_sets, n_points = h.shape[0], pixels.shape[0]
     out = np.empty((n_sets, n_points, 2))
     for b in range(n_sets):
@@ -146,7 +146,7 @@ def project_points(h: FloatArray, ground_w: FloatArray, image_w: FloatArray,
             gw = ground_w[b, 0] * u + ground_w[b, 1] * v + ground_w[b, 2]
             iw = image_w[b, 0] * u + image_w[b, 1] * v + image_w[b, 2]
             p2 = h[b, 2, 0] * u + h[b, 2, 1] * v + h[b, 2, 2]
-            if gw > 0.0 and iw > 0.0:
+            if gw > 0.0 and iw > 0.0 and p2 != 0.0:  # (p2 = 0: at infinity on the plane)
                 out[b, j, 0] = (h[b, 0, 0] * u + h[b, 0, 1] * v + h[b, 0, 2]) / p2
                 out[b, j, 1] = (h[b, 1, 0] * u + h[b, 1, 1] * v + h[b, 1, 2]) / p2
             else:
