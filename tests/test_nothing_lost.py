@@ -209,6 +209,13 @@ def test_a_damaged_row_before_the_last_is_still_an_error(tmp_path, capsys, est):
     whole.write_text("".join(lines))
     assert main(["track", "--estimates", str(whole), "--out", str(tmp_path / "u.csv")]) == 2
     assert "cells but the header has" in capsys.readouterr().err
+    unended = tmp_path / "unended.csv"  # damaged mid-file, the last row without a line end
+    lines = est.read_text().splitlines(keepends=True)
+    lines[5] = lines[5][: lines[5].rfind(",")] + "\n"
+    lines[-1] = lines[-1].rstrip("\n")
+    unended.write_text("".join(lines))
+    assert main(["track", "--estimates", str(unended), "--out", str(tmp_path / "v.csv")]) == 2
+    assert f"{unended}: line 6: " in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("sig", [False, True])

@@ -329,13 +329,14 @@ def read_table(path: str | Path, required: Sequence[str] = BASE_COLUMNS[:2]) -> 
                 if not r:
                     continue
                 if len(r) != len(header):
+                    line = reader.line_num  # (_cut_last_row reads on)
                     if _cut_last_row(text, reader, r, header):
                         # a run that ended mid-write: the rows before it are kept
-                        print(f"vipm-track: warning: {path}: line {reader.line_num}: the last "
+                        print(f"vipm-track: warning: {path}: line {line}: the last "
                               f"row is cut short ({len(r)} of {len(header)} cells); left out",
                               file=sys.stderr)
                         break
-                    raise TableError(f"{path}: line {reader.line_num}: {len(r)} cells but the "
+                    raise TableError(f"{path}: line {line}: {len(r)} cells but the "
                                      f"header has {len(header)} (a cut or damaged row)")
                 records.append(r)
         except StopIteration:
