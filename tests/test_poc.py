@@ -217,3 +217,17 @@ def test_centres_beyond_the_int64_range_leave_the_image() -> None:
     patches, inside = crop_patches(image, centres + offsets, 32, return_mask=True)
     np.testing.assert_array_equal(inside, [True, False, False, False])
     assert np.isnan(patches[1:]).all()
+
+
+@pytest.mark.parametrize("weighting", [0.0, 0.5, 1.0])
+def test_large_grey_levels_do_not_overflow_the_cross_power(weighting: float) -> None:
+    """Patches of grey levels ~1e9 (float images in large units): their cross-power
+    magnitudes pass float32's range only when squared; the shifts are those at unit scale."""
+    rng = np.random.default_rng(6)
+    tex = cv2.GaussianBlur(rng.normal(0, 1, (64, 64)), (0, 0), 1.5)
+    ref, mov = tex[8:40, 8:40], tex[9:41, 6:38]
+    unit = phase_correlate(ref, mov, weighting=weighting)
+    scaled = phase_correlate(ref * 1e10, mov * 1e10, weighting=weighting)
+    assert unit[1] > 0.9
+    np.testing.assert_allclose(scaled[0], unit[0], atol=1e-3)
+    assert abs(scaled[1] - unit[1]) < 1e-3

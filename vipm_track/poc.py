@@ -177,7 +177,7 @@ def correlate_spectra(ref: PatchSpectra, moving: PatchSpectra, *,
     # (one inverse FFT for the batch); its highest sample is within a grid step of the peak.
     # Fine: Newton ascent on the (weighted) continuous POC function from there.
     r, rw, small = poc_kernels.cross_power(
-        _interleaved(ref.spectra), _interleaved(moving.spectra), ok, layout.hermitian,
+        _interleaved(ref), _interleaved(moving), ok, layout.hermitian,
         layout.small_rows, layout.grid, float(weighting))
     surface = scipy.fft.irfft2(small, s=layout.grid, workers=workers or _default_workers())
     d, value = poc_kernels.subpixel_peaks(surface, r, rw, layout.uy, layout.ux, (h, w),
@@ -385,9 +385,24 @@ def _cropped_spectra(image: ArrayLike, centres: FloatArray, size: int | tuple[in
     return _spectra(centred, finite, win, band, workers)
 
 
-def _interleaved(spectra: NDArray[np.complex64]) -> NDArray[np.float32]:
-    """Complex spectra as float32 (…, 2·K) re, im pairs, as the kernels read them."""
-    return np.ascontiguousarray(spectra).view(np.float32)
+#: Largest spectral magnitude the cross-power kernel takes: it squares |F_mov · F_ref| in
+#: float32 (and its vectorised 1/sqrt turns an overflowed square into NaN)
+_MAX_MAGNITUDE = 2.0**28
+
+
+def _interleaved(spectra: PatchSpectra) -> NDArray[np.float32]:
+    """Complex spectra as float32 (…, 2·K) re, im pairs, as the kernels read them. Patches
+    whose magnitudes may pass :data:`_MAX_MAGNITUDE` (grey levels beyond ~1e7) are scaled
+    by a power of two, which is exact: their correlation is unchanged."""
+    out = np.ascontiguousarray(spectra.spectra).view(np.float32)
+    # |F| ≤ sqrt(band power) = texture · sqrt(h·w·Σ window²) ≤ texture · h·w
+    big = np.flatnonzero(spectra.texture * float(np.prod(spectra.shape)) > _MAX_MAGNITUDE)
+    if big.size:
+        out = out.copy()
+        largest = np.abs(out[big]).max(axis=(1, 2)).astype(np.float64)
+        halvings = np.ceil(np.log2(np.maximum(largest, _MAX_MAGNITUDE) / _MAX_MAGNITUDE))
+        out[big] = np.ldexp(out[big], -halvings.astype(np.int32)[:, None, None])
+    return out
 
 
 def _spectra(centred: NDArray[np.float32], finite: NDArray[np.bool_],
