@@ -36,4 +36,4 @@ def test_the_first_compile_of_a_project_kernel_is_announced_once(capsys, monkeyp
     first, second = (generated(n, "vipm_track.generated") for n in ("first", "second"))
     assert first(1.0) == second(1.0) == 2.0
     err = capsys.readouterr().err
-    assert err.count("vipm-track: compiling the numerical kernels") == 1
+    assert err.count("vipm-track: compiling numerical kernels") == 1

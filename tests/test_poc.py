@@ -169,6 +169,15 @@ def test_shape_mismatch_and_bad_arguments_raise() -> None:
         crop_patches(np.zeros((10, 10)), [[5, 5, 5]], 4)
     with pytest.raises(ValueError, match="offsets"):
         match_patches(np.zeros((64, 64)), np.zeros((64, 64)), [[32, 32]], 16, [[1, 2, 3]])
+    with pytest.raises(ValueError, match="weighting"):
+        phase_correlate(a, a, weighting=-0.5)
+
+
+def test_empty_batches_give_empty_results() -> None:
+    shift, peak = phase_correlate(np.zeros((0, 16, 16)), np.zeros((0, 16, 16)))
+    assert shift.shape == (0, 2) and peak.shape == (0,)
+    shift, peak = match_patches(np.zeros((64, 64)), np.zeros((64, 64)), np.zeros((0, 2)), 16)
+    assert shift.shape == (0, 2) and peak.shape == (0,)
 
 
 def test_crop_patches_matches_slices_and_flags_patches_leaving_the_image() -> None:

@@ -51,8 +51,8 @@ class _FirstCompileNotice(event.Listener):
         module = getattr(getattr(dispatcher, "py_func", None), "__module__", "") or ""
         if not self.said and module.startswith("vipm_track"):
             type(self).said = True
-            print("vipm-track: compiling the numerical kernels for this machine (the first "
-                  "run only; 10–20 s)", file=sys.stderr, flush=True)
+            print("vipm-track: compiling numerical kernels for this machine (10–20 s; cached "
+                  "for later runs)", file=sys.stderr, flush=True)
 
     def on_end(self, ev: event.Event) -> None:
         pass

@@ -67,21 +67,24 @@ def run_chunked(
                                initializer=_start_worker, initargs=(1,))
     finished = False
     futures: list[Future[list[SequenceStep]]] = []
-    waiting = 0  # the chunk whose steps come next
+    waiting, sent = 0, 0  # the chunk whose steps come next, and how many of them went out
     try:
         futures = [pool.submit(run_chunk, source, rig, config, tracking, p, n)
                    for p, n in bounds]
         for future in futures:
-            yield from future.result()
-            waiting += 1
+            steps = future.result()
+            while sent < len(steps):
+                sent += 1
+                yield steps[sent - 1]
+            waiting, sent = waiting + 1, 0
         finished = True
     except KeyboardInterrupt:
-        # Ctrl-C or SIGTERM while waiting on a chunk: the later chunks that have already
-        # finished are not lost; their steps follow (in frame order, after a gap where the
+        # Ctrl-C or SIGTERM while waiting on a chunk: the chunks that have already finished
+        # are not lost; their steps not yet out follow (in frame order, after a gap where the
         # unfinished chunks were), then the interruption goes on
-        for future in futures[waiting + 1:]:
+        for j, future in enumerate(futures[waiting:]):
             if future.done() and not future.cancelled() and future.exception() is None:
-                yield from future.result()
+                yield from future.result()[sent if j == 0 else 0:]
         raise
     finally:
         if finished:

@@ -160,6 +160,8 @@ def correlate_spectra(ref: PatchSpectra, moving: PatchSpectra, *,
         Band-limited POC peak height at ``shift``: 1 for identical content, about
         ``1/sqrt(number of band frequencies)`` for unrelated content, 0 for unusable pairs.
     """
+    if not weighting >= 0:
+        raise ValueError(f"weighting must be >= 0, got {weighting}")
     if ref.shape != moving.shape or len(ref) != len(moving) or ref.band != moving.band:
         raise ValueError(
             f"phase correlation needs equal batches of equal patch shapes and bands: ref has "
@@ -516,6 +518,8 @@ def _band_spectra(centred: NDArray[np.float32], layout: _BandLayout, workers: in
     are unpacked and one complex ``scipy.fft.fft`` down the columns finishes the transform.
     """
     n, h, w = centred.shape
+    if n == 0:  # (cv2.dft gives None for no rows)
+        return np.zeros((0, 2 * layout.ky_max - 1, layout.kx_max), np.complex64), np.zeros(0)
     ccs = cv2.dft(centred.reshape(n * h, w), flags=cv2.DFT_ROWS)
     half = poc_kernels.unpack_band_columns(ccs, layout.kx_max).view(np.complex64)
     full = scipy.fft.fft(half.reshape(n, h, layout.kx_max), axis=1, workers=workers,
