@@ -190,3 +190,30 @@ def test_bad_manifests_are_input_errors(tmp_path, content):
     except InputError:
         return
     assert all(s.problem for s in specs)  # nothing in tmp_path is a drive
+
+
+def test_interrupt_keeps_every_drive_in_the_summary(fleet, drives, cluster, tmp_path):
+    """Ctrl-C after the first drive: the summary has a row for every drive (finished ones
+    from their done.json, the rest saying they were interrupted), and resuming completes it."""
+    out, _ = fleet
+    again = tmp_path / "out"
+    shutil.copytree(out, again)
+    (again / "fleet_summary.csv").unlink()
+    shutil.rmtree(again / "drive=b")  # b has to run again
+    seen: list[str] = []
+
+    def interrupt(row):
+        seen.append(row["drive"])
+        if len(seen) == 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_fleet(find_drives(drives), again, SETTINGS, scheduler=cluster.scheduler_address,
+                  progress=False, on_row=interrupt)
+    summary = pd.read_csv(again / "fleet_summary.csv")
+    names = [s.drive for s in find_drives(drives)]
+    assert list(summary["drive"]) == names and sorted(seen) == sorted(names)
+    status = dict(zip(summary["drive"], summary["status"], strict=True))
+    assert status["a"] == "ok" and status["c_bag"] == "ok"  # done before: kept
+    assert status["b"] == "ok" or "interrupted" in status["b"]
+    assert status["no_nominal"].startswith("error:") and "interrupted" not in status["no_nominal"]

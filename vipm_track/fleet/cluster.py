@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import csv
 import os
+import signal
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -24,12 +25,12 @@ import dask
 import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
-from distributed import Client, LocalCluster, as_completed
+from distributed import Client, LocalCluster, WorkerPlugin, as_completed
 
 from ..patch_match import THREADS_ENV
 from ..progress import progress_bar
 from ..table import format_value
-from .drive_run import FleetSettings, run_drive
+from .drive_run import FleetSettings, _done_row, drive_folder, run_drive
 from .drives import DriveSpec
 
 
@@ -84,6 +85,48 @@ def run_fleet(
     out.mkdir(parents=True, exist_ok=True)
     rows: dict[str, dict[str, Any]] = {}
     start = time.perf_counter()
+    try:
+        _run_all(specs, out, settings, workers, scheduler, processes, retries, progress,
+                 on_row, rows)
+    except KeyboardInterrupt:
+        # the cluster is closed by now: a drive that finished as the interrupt came has its
+        # done.json; every other unfinished drive is a row saying so (run again to resume)
+        for spec in specs:
+            if spec.drive not in rows:
+                row = _finished_row(spec, out, settings) or {
+                    "drive": spec.drive, "vehicle": spec.vehicle, "started": spec.started,
+                    "status": f"error: {spec.problem}" if spec.problem else
+                              "error: interrupted before the drive finished (run again with "
+                              "the same --out to resume)", "skipped": False}
+                rows[spec.drive] = row
+                if on_row is not None:
+                    on_row(row)
+        write_summary(out, [rows[s.drive] for s in specs if s.drive in rows])
+        raise
+    ordered = [rows[s.drive] for s in specs if s.drive in rows]
+    if progress:
+        ok = sum(r.get("status") == "ok" for r in ordered)
+        print(f"vipm-track fleet: {ok} of {len(specs)} drives ok in "
+              f"{time.perf_counter() - start:.1f} s → {out / 'fleet_summary.csv'}",
+              file=sys.stderr)
+    return ordered
+
+
+def _finished_row(spec: DriveSpec, out: Path, settings: FleetSettings) -> dict[str, Any] | None:
+    """The row of a drive whose ``done.json`` holds its current input hash, else None."""
+    try:
+        if spec.problem:
+            return None
+        row = _done_row(drive_folder(out, spec.drive), spec.input_hash(settings.key()))
+    except Exception:  # unreadable inputs: the drive is not done
+        return None
+    return None if row is None else {**row, "skipped": False}
+
+
+def _run_all(specs: Sequence[DriveSpec], out: Path, settings: FleetSettings, workers: int,
+             scheduler: str | None, processes: bool, retries: int, progress: bool,
+             on_row: Callable[[dict[str, Any]], None] | None,
+             rows: dict[str, dict[str, Any]]) -> None:
     with dask.config.set({"distributed.scheduler.allowed-failures": retries,
                           "distributed.nanny.pre-spawn-environ": worker_environ(workers)}), \
             _client(workers, scheduler, processes) as client:
@@ -109,13 +152,6 @@ def run_fleet(
             bar.close()
             for future in futures:
                 future.cancel()
-    ordered = [rows[s.drive] for s in specs if s.drive in rows]
-    if progress:
-        ok = sum(r.get("status") == "ok" for r in ordered)
-        print(f"vipm-track fleet: {ok} of {len(specs)} drives ok in "
-              f"{time.perf_counter() - start:.1f} s → {out / 'fleet_summary.csv'}",
-              file=sys.stderr)
-    return ordered
 
 
 def _client(workers: int, scheduler: str | None, processes: bool) -> Any:
@@ -124,7 +160,22 @@ def _client(workers: int, scheduler: str | None, processes: bool) -> Any:
         return Client(scheduler)
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=processes,
                            dashboard_address=None)
-    return _ClosingClient(Client(cluster), cluster)
+    client = Client(cluster)
+    if processes:
+        client.register_plugin(_IgnoreSigint(), name="vipm-track-ignore-sigint")
+    return _ClosingClient(client, cluster)
+
+
+class _IgnoreSigint(WorkerPlugin):
+    """Makes a local cluster's worker processes ignore SIGINT: Ctrl-C reaches the whole
+    process group, and this process, not each worker, ends the run (closing the cluster);
+    a worker interrupted itself printed its tracebacks."""
+
+    def setup(self, worker: Any) -> None:
+        try:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        except ValueError:  # not the worker process's main thread: leave it
+            pass
 
 
 class _ClosingClient:
