@@ -30,7 +30,7 @@ from distributed import Client, LocalCluster, WorkerPlugin, as_completed
 from ..patch_match import THREADS_ENV
 from ..progress import progress_bar
 from ..table import format_value
-from .drive_run import FleetSettings, _done_row, drive_folder, run_drive
+from .drive_run import FleetSettings, done_row, drive_folder, run_drive
 from .drives import DriveSpec
 
 
@@ -117,7 +117,7 @@ def _finished_row(spec: DriveSpec, out: Path, settings: FleetSettings) -> dict[s
     try:
         if spec.problem:
             return None
-        row = _done_row(drive_folder(out, spec.drive), spec.input_hash(settings.key()))
+        row = done_row(drive_folder(out, spec.drive), spec.input_hash(settings.key()))
     except Exception:  # unreadable inputs: the drive is not done
         return None
     return None if row is None else {**row, "skipped": False}

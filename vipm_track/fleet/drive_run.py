@@ -103,7 +103,7 @@ def run_drive(spec: DriveSpec, out: str | Path, settings: FleetSettings) -> dict
         if spec.problem:
             raise InputError(spec.problem)
         key = spec.input_hash(settings.key())
-        done = _done_row(folder, key)
+        done = done_row(folder, key)
         if done is not None:
             return {**done, "skipped": True}
         (folder / DONE_FILE).unlink(missing_ok=True)
@@ -127,7 +127,9 @@ def _worker() -> str:
     return f"{os.uname().nodename}:{os.getpid()}"
 
 
-def _done_row(folder: Path, key: str) -> dict[str, Any] | None:
+def done_row(folder: Path, key: str) -> dict[str, Any] | None:
+    """The summary row a finished drive left in ``folder`` (its done file), if it was made
+    from inputs and settings of hash ``key``; None otherwise (not run, or run on others)."""
     try:
         row = json.loads((folder / DONE_FILE).read_text())
     except (OSError, ValueError):
