@@ -151,6 +151,27 @@ def test_chunks_of_sources_are_their_frames(tmp_path: Path, fourcc: str) -> None
             np.testing.assert_array_equal(a.image, b.image)
 
 
+def test_a_video_cut_short_says_so(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """A video whose file ends before the frames its header states (a copy cut short): the
+    frames before the cut are read, and the run is told where the file ends."""
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (64, 48))
+    rng = np.random.default_rng(2)
+    for _ in range(30):
+        writer.write(rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
+    writer.release()
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    frames = list(open_source(video=cut))
+    read = [f for f in frames if f.image is not None]
+    assert 5 <= len(read) < 30 and read == frames[: len(read)]
+    err = capsys.readouterr().err
+    assert f"{cut}: no frame reads from frame {len(read)} on" in err
+    assert "header says 30 frames: the file ends early" in err
+    list(open_source(video=path))  # the whole video: nothing said
+    assert "ends early" not in capsys.readouterr().err
+
+
 def test_unreadable_video_fails_fast(tmp_path: Path) -> None:
     path = tmp_path / "junk.mp4"
     path.write_bytes(b"definitely not a video")

@@ -359,6 +359,11 @@ class VideoSource(FrameSource):
                 # Past the reported end, or several failures in a row: the video is over.
                 past_end = bool(self.frame_count) and index >= self.frame_count
                 if past_end or failures >= _MAX_VIDEO_READ_FAILURES:
+                    if not past_end and self.frame_count:
+                        first = index - failures + 1
+                        _say_once(f"vipm-track: warning: {self.path}: no frame reads from frame "
+                                  f"{first} on, though its header says {self.frame_count} "
+                                  "frames: the file ends early (cut short?)")
                     return
                 yield Frame(index, index / rate, None, f"unreadable frame: {name}", name)
             else:
