@@ -179,3 +179,11 @@ def test_kitti_poses_bad_input_fuzz(text: str) -> None:
             assert "poses.txt" in str(exc)
         else:
             assert len(table["frame"]) >= 1
+
+
+def test_times_keep_a_20_fps_frame_apart():
+    """At 20 fps frames are 0.05 s apart: the report's times must tell them apart (1 decimal
+    put frame 1 at 0.1 s and made a one-frame state last 0.1 s)."""
+    from vipm_track.sinks.drift_report import fmt
+
+    assert [fmt(t, "s") for t in (0.05, 0.1, 8.15)] == ["0.05", "0.10", "8.15"]

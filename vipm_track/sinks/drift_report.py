@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from .drift_summary import MOUNT_AXES, Z95, DriftSummary, state_runs
 
 #: decimals a number is written with, by unit
-DECIMALS: dict[str, int] = {"deg": 3, "m": 4, "s": 1, "%": 2, "rate": 4, "": 3,
+DECIMALS: dict[str, int] = {"deg": 3, "m": 4, "s": 2, "%": 2, "rate": 4, "": 3,
                              "deg error": 4, "m error": 5}
 STATE_COLORS: dict[str, str] = {
     "UNCALIBRATED": "#bdbdbd", "CALIBRATED": "#4caf50", "DRIFTING": "#ffb300",
