@@ -570,3 +570,26 @@ def test_interrupted_can_speed_writes_the_samples_decoded_before_it(tmp_path, ca
     assert rc == 130 and "interrupted after 20000 frames" in err
     rows = _rows(out)
     assert 500 < len(rows) < 2000 and all(len(r.split(",")) == 2 for r in rows)
+
+
+@pytest.mark.parametrize("command", ["track", "smooth"])
+def test_a_cut_last_row_is_named_once(tmp_path, capsys, est, command):
+    """Without --height the table is read for its height and then for its rows: the cut last
+    row is still named once, not once per reading."""
+    text = est.read_text()
+    cut = tmp_path / "cut.csv"
+    cut.write_text(text[: text.rstrip("\n").rfind(",") - 3])
+    rc, err = _run(capsys, command, "--estimates", cut, "--out", tmp_path / "o.csv")
+    assert rc == 0
+    assert err.count("the last row is cut short") == 1
+
+
+@pytest.mark.parametrize("command", ["track", "smooth"])
+def test_a_table_of_only_a_header_says_it_has_no_rows(tmp_path, capsys, est, command):
+    """A header without rows (a run that died before its first row) and no --height: the
+    error says the table has no rows, not that it lacks the height_m it has."""
+    empty = tmp_path / "header.csv"
+    empty.write_text(est.read_text().splitlines(keepends=True)[0])
+    rc, err = _run(capsys, command, "--estimates", empty, "--out", tmp_path / "o.csv")
+    assert rc == 2
+    assert f"{empty}: no rows" in err and "has no height_m" not in err

@@ -301,9 +301,12 @@ def first_data_row(path: str | Path) -> int:
     return 1 if Path(path).suffix.lower() == ".parquet" else 2
 
 
-def read_table(path: str | Path, required: Sequence[str] = BASE_COLUMNS[:2]) -> dict[str, NDArray]:
+def read_table(path: str | Path, required: Sequence[str] = BASE_COLUMNS[:2], *,
+               quiet: bool = False) -> dict[str, NDArray]:
     """Columns of a per-frame CSV or Parquet file: floats (NaN where empty), ``frame`` as int,
-    text columns as ``str`` arrays. Raises :class:`TableError` naming file, row and column."""
+    text columns as ``str`` arrays. Raises :class:`TableError` naming file, row and column.
+    ``quiet``: a cut last row is left out without a warning (for a reading whose caller
+    reads the table again, which names it)."""
     path = Path(path)
     if not path.is_file():
         raise TableError(f"{path}: file not found")
@@ -332,9 +335,10 @@ def read_table(path: str | Path, required: Sequence[str] = BASE_COLUMNS[:2]) -> 
                     line = reader.line_num  # (_cut_last_row reads on)
                     if _cut_last_row(text, reader, r, header):
                         # a run that ended mid-write: the rows before it are kept
-                        print(f"vipm-track: warning: {path}: line {line}: the last "
-                              f"row is cut short ({len(r)} of {len(header)} cells); left out",
-                              file=sys.stderr)
+                        if not quiet:
+                            print(f"vipm-track: warning: {path}: line {line}: the last "
+                                  f"row is cut short ({len(r)} of {len(header)} cells); "
+                                  "left out", file=sys.stderr)
                         break
                     raise TableError(f"{path}: line {line}: {len(r)} cells but the "
                                      f"header has {len(header)} (a cut or damaged row)")

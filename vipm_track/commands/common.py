@@ -80,10 +80,14 @@ def camera_beside(images: str | Path) -> Path | None:
 
 def height_of_table(path: str | Path) -> float | None:
     """The camera height an estimates table was made with: the median of its ``height_m``
-    column [m]; None where it has none."""
+    column [m]; None where it has none. InputError where the table has no rows (the reading
+    that follows would say so too, after this one had blamed the missing height)."""
     from ..table import read_table
 
-    heights = np.asarray(read_table(path).get("height_m", []), dtype=float)
+    table = read_table(path, quiet=True)  # the table is read again for its rows: named there
+    if not len(table.get("frame", [])):
+        raise InputError(f"{path}: no rows")
+    heights = np.asarray(table.get("height_m", []), dtype=float)
     heights = heights[np.isfinite(heights) & (heights > 0)]
     return float(np.median(heights)) if heights.size else None
 
