@@ -111,4 +111,25 @@ def summary_markdown(summary: dict[str, object]) -> str:
             f"{f(d['std'])} | {d.get('interval_from', 'model')} | {f(d['start'])} | "
             f"{f(d['end'])} | {f(d['drift_per_min'])} | {f(d['max_minus_min'])} |"
         )
-    return "\n".join(lines) + "\n"
+    warning = _rejection_warning(summary)
+    return "\n".join(lines) + "\n" + (f"\n{warning}\n" if warning else "")
+
+
+#: share of the frames beyond which the pairs' rejection is called out in the summary
+REJECTED_SHARE_WARNING = 0.5
+
+
+def _rejection_warning(summary: dict[str, object]) -> str:
+    """A warning where most frames' pairs were rejected in part or whole (``partial`` /
+    ``gated``): the intervals then rest on what the model kept, which may be the wrong part (a
+    wheel speed from another drive or offset in time wins over the images)."""
+    counts: dict[str, int] = summary.get("status_counts", {})  # type: ignore[assignment]
+    frames = int(summary.get("frames", 0) or 0)  # type: ignore[call-overload]
+    rejected = counts.get("partial", 0) + counts.get("gated", 0)
+    if not frames or rejected <= REJECTED_SHARE_WARNING * frames:
+        return ""
+    return (f"**Warning:** the pairs' pose or motion was rejected on {rejected} of {frames} "
+            "frames: the images and the rest of the model disagree there (a wheel speed from "
+            "another drive or offset in time, a mount that changed, a body the model does not "
+            "describe). The intervals above rest on what was kept; check the inputs before "
+            "trusting them.")

@@ -840,3 +840,15 @@ def test_a_restarted_window_starts_where_the_track_goes_on(tz, status, expected_
     x, y, psi = restart_pose(last, m)
     assert (x, psi) == pytest.approx((2.0, 0.0), abs=1e-9)
     assert y == pytest.approx(expected_y, abs=1e-9)
+
+
+def test_summary_warns_where_most_pairs_were_rejected():
+    """A drive whose pairs the smoother rejected on most frames (a wheel speed from another
+    drive made the images' motion disagree on 54 of 80) says so under its mount table; a
+    drive with a few rejected pairs does not."""
+    from vipm_track.filters.drive_summary import summary_markdown
+
+    text = summary_markdown({"frames": 80, "status_counts": {"ok": 26, "partial": 54}})
+    assert "rejected on 54 of 80 frames" in text and "another drive" in text
+    text = summary_markdown({"frames": 80, "status_counts": {"ok": 75, "partial": 3, "gated": 2}})
+    assert "Warning" not in text
