@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 from vipm_track.measurement import PairMeasurement
 
 from .long_run import batch_means
+from .mount_change import short_drive_note
 from .smoother_config import SmoothedFrame
 
 FloatArray = NDArray[np.float64]
@@ -41,6 +42,9 @@ def summarize_mount(
         out["note"] = "no frame has an estimate"
         return out
     t = np.array([f.t for f in good])
+    note = short_drive_note(float(t[-1] - t[0]))
+    if note:
+        out["short_drive"] = note
     mount = np.array([f.mount for f in good])
     std = np.array([f.mount_std for f in good])
     residual = _pose_residuals(good, measurements)
@@ -111,8 +115,9 @@ def summary_markdown(summary: dict[str, object]) -> str:
             f"{f(d['std'])} | {d.get('interval_from', 'model')} | {f(d['start'])} | "
             f"{f(d['end'])} | {f(d['drift_per_min'])} | {f(d['max_minus_min'])} |"
         )
-    warning = _rejection_warning(summary)
-    return "\n".join(lines) + "\n" + (f"\n{warning}\n" if warning else "")
+    warnings = [w for w in (_rejection_warning(summary), str(summary.get("short_drive", "")))
+                if w]
+    return "\n".join(lines) + "\n" + "".join(f"\n**Warning:** {w}\n" for w in warnings)
 
 
 #: share of the frames beyond which the pairs' rejection is called out in the summary
@@ -128,7 +133,7 @@ def _rejection_warning(summary: dict[str, object]) -> str:
     rejected = counts.get("partial", 0) + counts.get("gated", 0)
     if not frames or rejected <= REJECTED_SHARE_WARNING * frames:
         return ""
-    return (f"**Warning:** the pairs' pose or motion was rejected on {rejected} of {frames} "
+    return (f"the pairs' pose or motion was rejected on {rejected} of {frames} "
             "frames: the images and the rest of the model disagree there (a wheel speed from "
             "another drive or offset in time, a mount that changed, a body the model does not "
             "describe). The intervals above rest on what was kept; check the inputs before "

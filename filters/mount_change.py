@@ -55,6 +55,19 @@ class MountChangeConfig:
     unmeasured_variance: float = 4.0
 
 
+def short_drive_note(seconds: float, cfg: MountChangeConfig | None = None) -> str:
+    """A warning for a drive of ``seconds`` shorter than the test needs to be fully sensitive
+    (``min_blocks + holdout`` blocks): a mount change there is caught late or not at all,
+    and the filters' mount intervals assume there was none. Empty for longer drives."""
+    cfg = cfg or MountChangeConfig()
+    armed_s = (cfg.min_blocks + cfg.holdout) * cfg.block_s
+    if not cfg.enabled or not seconds < armed_s:
+        return ""
+    return (f"the drive spans {seconds:.1f} s, less than the {armed_s:g} s the mount-change "
+            "test needs to be fully sensitive: a mount change within it is caught late or not "
+            "at all, and the mount intervals assume none (docs/filters.md)")
+
+
 def jump_variance(step: float) -> float:
     """Variance (rad²) a smoother lets its mount jump by where the test found a ``step``
     (rad): (2 × step)², wide enough that the pairs, not the prior, set the new mount."""

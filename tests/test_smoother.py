@@ -852,3 +852,17 @@ def test_summary_warns_where_most_pairs_were_rejected():
     assert "rejected on 54 of 80 frames" in text and "another drive" in text
     text = summary_markdown({"frames": 80, "status_counts": {"ok": 75, "partial": 3, "gated": 2}})
     assert "Warning" not in text
+
+
+def test_a_drive_too_short_for_the_mount_change_test_says_so():
+    """Shorter than the 6 s of blocks the mount-change test needs, a drive's summary warns
+    that a change within it may go unseen (a 4-s knock render's mount stayed 5-8 sigma off
+    with no word); a longer drive's does not."""
+    from vipm_track.filters.drive_summary import summary_markdown
+    from vipm_track.filters.mount_change import short_drive_note
+
+    note = short_drive_note(4.0)
+    assert "4.0 s" in note and "caught late or not at all" in note
+    assert short_drive_note(6.5) == ""
+    text = summary_markdown({"frames": 80, "status_counts": {"ok": 80}, "short_drive": note})
+    assert "**Warning:** the drive spans 4.0 s" in text

@@ -4,6 +4,7 @@ or of an estimates table; columns in ``filters/track.py``."""
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Iterator
 
@@ -58,6 +59,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from vipm_track.filters.ekf_state import EkfConfig
     from vipm_track.filters.model import NoiseParams
+    from vipm_track.filters.mount_change import short_drive_note
     from vipm_track.filters.track import TRACK_TABLE, track, write_track
 
     out = check_output(args.out, args.parquet)
@@ -108,6 +110,10 @@ def run(args: argparse.Namespace) -> int:
         summary = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
         print(f"vipm-track track: {sum(counts.values())} frames ({summary}) → {args.out}",
               file=sys.stderr)
+        times = [t for t in frame_times if math.isfinite(t)]
+        note = short_drive_note(times[-1] - times[0]) if len(times) > 1 else ""
+        if note:
+            print(f"vipm-track track: warning: {note}", file=sys.stderr)
     if usable[0] == 0:
         raise NothingUsable(f"{args.images or args.video}: no frame has a usable pair "
                             f"estimate; {args.out} holds the filter's priors only")
