@@ -22,6 +22,22 @@ FloatArray = NDArray[np.float64]
 
 
 @kernel
+def _projected(h: FloatArray, ground_w: FloatArray, image_w: FloatArray, u: float, v: float,
+               ) -> tuple[bool, float, float, float]:
+    """Whether pixel (u, v) is a valid point of homography ``h`` (3, 3) — on the ground of
+    frame k-1 (``ground_w`` · m > 0), in front of camera k (``image_w`` · m > 0), not at
+    infinity on the plane — its plane position (x, y) there, and the third coordinate of
+    ``h`` · m."""
+    gw = ground_w[0] * u + ground_w[1] * v + ground_w[2]
+    iw = image_w[0] * u + image_w[1] * v + image_w[2]
+    p2 = h[2, 0] * u + h[2, 1] * v + h[2, 2]
+    if not (gw > 0.0 and iw > 0.0 and p2 != 0.0):
+        return False, np.nan, np.nan, p2
+    return (True, (h[0, 0] * u + h[0, 1] * v + h[0, 2]) / p2,
+            (h[1, 0] * u + h[1, 1] * v + h[1, 2]) / p2, p2)
+
+
+@kernel
 def homography_normal_equations(
     h: FloatArray, dh: FloatArray, ground_w: FloatArray, image_w: FloatArray,
     pixels: FloatArray, targets: FloatArray, whitening: FloatArray, weights: FloatArray,
@@ -53,15 +69,10 @@ def homography_normal_equations(
             if w == 0.0:
                 continue
             u, v = pixels[j, 0], pixels[j, 1]
-            gw = ground_w[b, 0] * u + ground_w[b, 1] * v + ground_w[b, 2]
-            iw = image_w[b, 0] * u + image_w[b, 1] * v + image_w[b, 2]
-            p0 = h[b, 0, 0] * u + h[b, 0, 1] * v + h[b, 0, 2]
-            p1 = h[b, 1, 0] * u + h[b, 1, 1] * v + h[b, 1, 2]
-            p2 = h[b, 2, 0] * u + h[b, 2, 1] * v + h[b, 2, 2]
-            if not (gw > 0.0 and iw > 0.0 and p2 != 0.0):
+            valid, ox, oy, p2 = _projected(h[b], ground_w[b], image_w[b], u, v)
+            if not valid:
                 cost[b] += w * 2.0 * invalid * invalid
                 continue
-            ox, oy = p0 / p2, p1 / p2
             ex, ey = ox - targets[j, 0], oy - targets[j, 1]
             for i in range(n_par):
                 d0 = dh[b, i, 0, 0] * u + dh[b, i, 0, 1] * v + dh[b, i, 0, 2]
@@ -142,13 +153,7 @@ def project_points(h: FloatArray, ground_w: FloatArray, image_w: FloatArray,
     out = np.empty((n_sets, n_points, 2))
     for b in range(n_sets):
         for j in range(n_points):
-            u, v = pixels[j, 0], pixels[j, 1]
-            gw = ground_w[b, 0] * u + ground_w[b, 1] * v + ground_w[b, 2]
-            iw = image_w[b, 0] * u + image_w[b, 1] * v + image_w[b, 2]
-            p2 = h[b, 2, 0] * u + h[b, 2, 1] * v + h[b, 2, 2]
-            if gw > 0.0 and iw > 0.0 and p2 != 0.0:  # (p2 = 0: at infinity on the plane)
-                out[b, j, 0] = (h[b, 0, 0] * u + h[b, 0, 1] * v + h[b, 0, 2]) / p2
-                out[b, j, 1] = (h[b, 1, 0] * u + h[b, 1, 1] * v + h[b, 1, 2]) / p2
-            else:
-                out[b, j, 0] = out[b, j, 1] = np.nan
+            valid, ox, oy, _ = _projected(h[b], ground_w[b], image_w[b], pixels[j, 0],
+                                          pixels[j, 1])
+            out[b, j, 0], out[b, j, 1] = (ox, oy) if valid else (np.nan, np.nan)
     return out
