@@ -272,9 +272,7 @@ def crop_patches(image: ArrayLike, centres: ArrayLike, size: int | tuple[int, in
     inside : ndarray, bool, shape (N,)
         Only with ``return_mask``.
     """
-    img = np.asarray(image)
-    if img.ndim != 2:
-        raise ValueError(f"crop_patches needs a 2-D grey image, got shape {img.shape}")
+    img = _grey_image(image)
     ph, pw = _patch_size(size)
     corner = _corners(_as_points(centres, "centres"), ph, pw)
     height, width = img.shape
@@ -374,13 +372,9 @@ def _corners(points: FloatArray, ph: int, pw: int) -> NDArray[np.int64]:
 def _cropped_spectra(image: ArrayLike, centres: FloatArray, size: int | tuple[int, int],
                      band: float, workers: int | None) -> PatchSpectra:
     """:func:`patch_spectra` of ``crop_patches(image, centres, size)``, without the copies."""
-    img = np.asarray(image)
-    if img.ndim != 2:
-        raise ValueError(f"crop_patches needs a 2-D grey image, got shape {img.shape}")
+    img = _grey_image(image)
     ph, pw = _patch_size(size)
-    if ph < _MIN_SIZE or pw < _MIN_SIZE:
-        raise ValueError(f"patches must be at least {_MIN_SIZE}×{_MIN_SIZE} pixels, got "
-                         f"{ph}×{pw}")
+    _check_patch_shape(ph, pw, "patches")
     win = _window(ph, pw, True)
     centred, finite = poc_kernels.crop_centre_and_window(
         np.ascontiguousarray(img, np.float32), _corners(centres, ph, pw), win)
@@ -428,10 +422,21 @@ def _as_batch(patches: ArrayLike, name: str) -> NDArray[np.float32]:
     if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)
             or arr.dtype == np.bool_):
         raise ValueError(f"{name} must be real numbers, got dtype {arr.dtype}")
-    if arr.shape[1] < _MIN_SIZE or arr.shape[2] < _MIN_SIZE:
-        raise ValueError(f"{name} must be at least {_MIN_SIZE}×{_MIN_SIZE} pixels, got "
-                         f"{arr.shape[1]}×{arr.shape[2]}")
+    _check_patch_shape(arr.shape[1], arr.shape[2], name)
     return np.ascontiguousarray(arr, np.float32)
+
+
+def _check_patch_shape(h: int, w: int, name: str) -> None:
+    if h < _MIN_SIZE or w < _MIN_SIZE:
+        raise ValueError(f"{name} must be at least {_MIN_SIZE}×{_MIN_SIZE} pixels, got "
+                         f"{h}×{w}")
+
+
+def _grey_image(image: ArrayLike) -> NDArray:
+    img = np.asarray(image)
+    if img.ndim != 2:
+        raise ValueError(f"crop_patches needs a 2-D grey image, got shape {img.shape}")
+    return img
 
 
 def _as_points(points: ArrayLike, name: str) -> FloatArray:
