@@ -2,12 +2,15 @@
 homography peers measured in the same run, and the command line's start-up times.
 
 For each of ``--pairs`` consecutive pairs, tracking mode with default settings and the
-nominal pitch given (``--pitch 0.5``, as ``vipm-track estimate`` would run them): the
-estimator's time per pair (``PairResult.timings`` per stage), pairs per second, share ok
-and the median travel-distance / yaw-change errors against KITTI's poses. The peers, on the
-same frames in the same run: ORB (2000 features in the image below the horizon, brute-force
-Hamming matches, RANSAC homography, ``cv2.decomposeHomographyMat`` with the camera height
-for scale, the solution whose plane normal is nearest the road's) and SIFT the same way.
+nominal pitch given (``--pitch 0.5``, as ``vipm-track estimate`` would run them): the wall
+time per frame of the sequence runner (read, preparation and pair), the estimator's own time
+(``PairResult.timings`` per stage), pairs per second, share ok and the median
+travel-distance / yaw-change errors against KITTI's poses. The peers, on the same frames in
+the same run: ORB (2000 features in the image below the horizon, brute-force Hamming
+matches, RANSAC homography, ``cv2.decomposeHomographyMat`` with the camera height for
+scale, the solution whose plane normal is nearest the road's), once detecting in both frames
+of each pair and once keeping each frame's features for the next pair, and SIFT the first
+way.
 Start-up: ``vipm-track --help`` and ``vipm-track estimate`` up to its first pair's row
 (``--max-frames 2``), wall time of the process, medians over ``--repeats`` runs.
 
@@ -51,6 +54,10 @@ from vipm_track.sources import open_source  # noqa: E402
 HEIGHT_M = 1.65
 PITCH_DEG = 0.5
 STAGES = ("poc", "warp", "lm")
+#: the feature-homography peers: (detector, features kept for the next pair, table row)
+PEERS = (("orb", False, "ORB homography"),
+         ("orb", True, "ORB homography, features kept for the next pair"),
+         ("sift", False, "SIFT homography"))
 DEFAULT_THREADS = threads()
 
 
@@ -63,13 +70,18 @@ def ours(data: Path, pairs: int, threads: int | None = None, tracking: bool = Tr
     camera = load_camera(data / "calib.txt")
     source = open_source(images=data / "image_0", max_frames=pairs + 1)
     rows, est = [], {k: [] for k in ("frame", "status", "tx_m", "tz_m", "yaw_deg")}
+    last = time.perf_counter()
     for step in run_sequence(source, Rig(camera, HEIGHT_M, PITCH_DEG), EstimatorConfig(),
                              tracking):
+        # the wall time since the step before: this frame's read, its preparation (on the
+        # read-ahead thread where it did not overlap the pair before) and its pair
+        now, wall = time.perf_counter(), 1e3 * (time.perf_counter() - last)
+        last = now
         if step.result is None:
             continue
         r = step.result
-        rows.append({"ms": 1e3 * step.seconds, "tracked": step.tracked, "status": r.status,
-                     **{s: 1e3 * r.timings.get(s, 0.0) for s in STAGES}})
+        rows.append({"ms": wall, "estimator": 1e3 * step.seconds, "tracked": step.tracked,
+                     "status": r.status, **{s: 1e3 * r.timings.get(s, 0.0) for s in STAGES}})
         est["frame"].append(step.frame)
         est["status"].append(r.status)
         est["tx_m"].append(r.motion.tx if r.motion else math.nan)
@@ -78,9 +90,12 @@ def ours(data: Path, pairs: int, threads: int | None = None, tracking: bool = Tr
     return rows, {k: np.asarray(v) for k, v in est.items()}
 
 
-def feature_peer(data: Path, pairs: int, kind: str) -> tuple[list[dict], dict]:
+def feature_peer(data: Path, pairs: int, kind: str, reuse: bool = False,
+                 ) -> tuple[list[dict], dict]:
     """A feature-homography pipeline on the same frames (module doc): per-pair times and the
-    motion it gives, in the estimate table's columns (road frame: x right, z forward)."""
+    motion it gives, in the estimate table's columns (road frame: x right, z forward).
+    ``reuse``: each frame's features are detected once and kept for the next pair, as a
+    sequence runner would (otherwise each pair detects in both of its frames)."""
     camera = load_camera(data / "calib.txt")
     k = camera.k
     frames = [f.image for f in open_source(images=data / "image_0", max_frames=pairs + 1)]
@@ -95,10 +110,11 @@ def feature_peer(data: Path, pairs: int, kind: str) -> tuple[list[dict], dict]:
         detector = cv2.SIFT_create(nfeatures=2000)
         matcher = cv2.BFMatcher(cv2.NORM_L2, crossCheck=True)
     rows, est = [], {k_: [] for k_ in ("frame", "status", "tx_m", "tz_m", "yaw_deg")}
+    features = detector.detectAndCompute(grey[0], mask) if reuse else None
     for i in range(1, len(grey)):
         t0 = time.perf_counter()
-        # each pair detects in both frames, as a two-frame pipeline would without a cache
-        prev = detector.detectAndCompute(grey[i - 1], mask)
+        # without reuse each pair detects in both frames, as a two-frame pipeline would
+        prev = features if reuse else detector.detectAndCompute(grey[i - 1], mask)
         features = detector.detectAndCompute(grey[i], mask)
         motion = _homography_motion(prev, features, matcher, k)
         ms = 1e3 * (time.perf_counter() - t0)
@@ -181,15 +197,15 @@ def main(argv: list[str] | None = None) -> int:
     variants = (("vipm-track (ours)", None, True), ("vipm-track, 1 thread", 1, True),
                 ("vipm-track, cold start every pair", None, False))
     runs: dict[str, list[list[dict]]] = {
-        **{name: [] for name, _, _ in variants}, "ORB homography": [], "SIFT homography": []}
+        **{name: [] for name, _, _ in variants}, **{name: [] for _, _, name in PEERS}}
     accuracy: dict[str, dict] = {}
     for _ in range(args.repeats):  # interleaved, so that load spikes hit all alike
         for name, n, tracking in variants:
             rows, est = ours(data, args.pairs, n, tracking)
             runs[name].append(rows)
             accuracy[name] = scored(est, data)
-        for kind, name in (("orb", "ORB homography"), ("sift", "SIFT homography")):
-            rows, est = feature_peer(data, args.pairs, kind)
+        for kind, reuse, name in PEERS:
+            rows, est = feature_peer(data, args.pairs, kind, reuse)
             runs[name].append(rows)
             accuracy[name] = scored(est, data)
     medians = {name: statistics.median(r["ms"] for rep in reps for r in rep)
@@ -198,17 +214,19 @@ def main(argv: list[str] | None = None) -> int:
     lines = [
         "# Speed on real frames: KITTI 07, against feature-homography peers",
         "",
-        "| pipeline | ms/pair | pairs/s | ÷ ORB | POC ms | warp ms | LM ms | ok | "
-        "median distance error % | median yaw error ° |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| pipeline | ms/pair | pairs/s | ÷ ORB | ÷ ORB, features kept | estimator ms | "
+        "POC ms | warp ms | LM ms | ok | median distance error % | median yaw error ° |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
+    orb_kept = medians["ORB homography, features kept for the next pair"]
     for name, reps in runs.items():
         flat = [r for rep in reps for r in rep]
         stage = [f"{statistics.median(r[s] for r in flat):.0f}" if s in flat[0] else "—"
-                 for s in STAGES]
+                 for s in ("estimator", *STAGES)]
         a = accuracy[name]
         lines.append(f"| {name} | {medians[name]:.0f} | {1e3 / medians[name]:.1f} | "
-                     f"{medians[name] / orb:.2f} | {' | '.join(stage)} | {a['ok']}/{a['pairs']} "
+                     f"{medians[name] / orb:.2f} | {medians[name] / orb_kept:.2f} | "
+                     f"{' | '.join(stage)} | {a['ok']}/{a['pairs']} "
                      f"| {a['distance_pct']:.2f} | {a['yaw_deg']:.3f} |")
     times = startup(data, args.repeats)
     lines += [
@@ -216,9 +234,13 @@ def main(argv: list[str] | None = None) -> int:
         f"Medians over {args.pairs} pairs × {args.repeats} runs, interleaved; ours in tracking "
         f"mode with default settings ({DEFAULT_THREADS} correlation threads; the 1-thread row: "
         f"`--threads 1`; the cold row: no tracking, `--no-tracking`) and `--pitch {PITCH_DEG}` "
-        "(ms/pair: the estimator's time, "
-        "retries included, image loading excluded; stage columns from `PairResult.timings`). "
-        "Peers: 2000 features below the horizon in both frames of each pair, cross-checked "
+        "(ms/pair: wall time from one frame's row to the next as `run_sequence` yields "
+        "them, the frame's read and preparation included — with two threads they are made "
+        "on a read-ahead thread while the pair before is estimated; estimator ms: "
+        "`TwoFrameEstimator.estimate` alone, retries included; stage columns from "
+        "`PairResult.timings`). "
+        "Peers (frames read beforehand, not timed): 2000 features below the horizon in both "
+        "frames of each pair (or, in the kept row, in the new frame only), cross-checked "
         "brute-force matches, RANSAC homography (2 px), `cv2.decomposeHomographyMat` scaled by "
         f"the {HEIGHT_M} m camera height. Errors against KITTI's poses, ok pairs only. "
         f"Machine: {platform.machine()}, {os.cpu_count()} cores, CPython "

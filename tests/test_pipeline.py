@@ -3,6 +3,8 @@ end to end on a rendered sequence (checked against its ground truth)."""
 
 from __future__ import annotations
 
+import threading
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -580,3 +582,87 @@ def test_estimates_table_keeps_the_full_covariance(tmp_path: Path) -> None:
     write_table(tmp_path / "bad.csv", rows, ESTIMATE_COLUMNS)
     with pytest.raises(InputError, match=r"row 1 \(frame 1\): corr_pitch__tz = 1.5"):
         read_measurements(tmp_path / "bad.csv")
+
+
+class _WatchedSource:
+    """A source that records how far it has been read and may fail at one position."""
+
+    description = "watched frames"
+
+    def __init__(self, inner, fail_at: int | None = None) -> None:
+        self.inner, self.fail_at = inner, fail_at
+        self.read: list[int] = []
+        self.events: dict[int, threading.Event] = {}
+
+    def __iter__(self):
+        for position, frame in enumerate(self.inner):
+            if position == self.fail_at:
+                raise InputError(f"{self.description}: frame {position} is corrupt")
+            self.read.append(position)
+            self.events.setdefault(position, threading.Event()).set()
+            yield frame
+
+
+@pytest.fixture
+def two_threads():
+    from vipm_track.patch_match import set_threads, threads
+
+    before = threads()
+    set_threads(2)
+    yield
+    set_threads(before)
+
+
+def _cart(cart_sequence: Path, frames: int):
+    from vipm_track.camera import load_camera
+
+    camera = load_camera(cart_sequence / "camera.yaml")
+    return (open_source(images=cart_sequence / "images", max_frames=frames),
+            Rig(camera, 0.7, DEFAULT_PITCH_DEG))
+
+
+def test_the_next_frame_is_read_and_prepared_while_a_pair_is_estimated(
+        cart_sequence: Path, two_threads) -> None:
+    from vipm_track.estimator import TwoFrameEstimator
+
+    inner, rig = _cart(cart_sequence, 4)
+    source = _WatchedSource(inner)
+    prepared_ahead = []
+
+    class Watching(TwoFrameEstimator):
+        def estimate(self, prev, curr, guess=None, frame_interval_s=None, prepared=None):
+            # pair (k-1, k) is estimated while frame k+1 is being read on the other thread
+            k = len(prepared_ahead) + 1
+            if k + 1 < len(inner):
+                event = source.events.setdefault(k + 1, threading.Event())
+                prepared_ahead.append(event.wait(10.0))
+            assert prepared is not None and prepared.curr.image.dtype == np.float32
+            return super().estimate(prev, curr, guess, frame_interval_s, prepared)
+
+    steps = list(run_sequence(source, rig, estimator=Watching(rig)))
+    assert prepared_ahead == [True, True]
+    assert [s.status for s in steps] == [FIRST_FRAME, "ok", "ok", "ok"]
+
+
+def test_a_source_failing_mid_run_raises_after_the_steps_before_it(
+        cart_sequence: Path, two_threads) -> None:
+    inner, rig = _cart(cart_sequence, 4)
+    steps = []
+    with pytest.raises(InputError, match="frame 3 is corrupt"):
+        for step in run_sequence(_WatchedSource(inner, fail_at=3), rig):
+            steps.append(step)
+    assert [s.status for s in steps] == [FIRST_FRAME, "ok", "ok"]
+
+
+def test_a_run_stopped_early_leaves_no_reading_thread(cart_sequence: Path, two_threads) -> None:
+    inner, rig = _cart(cart_sequence, 5)
+    source = _WatchedSource(inner)
+    steps = run_sequence(source, rig)
+    assert next(steps).status == FIRST_FRAME
+    assert next(steps).ok
+    steps.close()  # as a Ctrl-C in the consumer does
+    assert not [t for t in threading.enumerate() if t.name.startswith("vipm-read-ahead")]
+    read = list(source.read)
+    assert read in ([0, 1, 2], [0, 1, 2, 3])  # at most the frame in the making, then no more
+    time.sleep(0.2)
+    assert source.read == read

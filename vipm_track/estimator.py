@@ -23,6 +23,7 @@ guess), ``refinement`` (2), ``stage_context`` (what they share for a pair); the 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -66,8 +67,30 @@ __all__ = [
     "EstimatorConfig",
     "PairGuess",
     "PairResult",
+    "PreparedFrame",
+    "PreparedPair",
     "TwoFrameEstimator",
 ]
+
+
+@dataclass(frozen=True)
+class PreparedFrame:
+    """A frame as the stages read it: grey float32, undistorted to the camera matrix
+    (``image``), and its sensor noise σ [grey levels] (``static_content.noise_sigma``)."""
+
+    image: NDArray[np.float32]
+    noise: float
+
+
+@dataclass(frozen=True)
+class PreparedPair:
+    """What a pair needs before its stages run, made from the images alone (so it can be
+    made ahead, while the pair before is estimated): both prepared frames and the share of
+    content fixed to the camera around each pixel (``static_content.static_share``)."""
+
+    prev: PreparedFrame
+    curr: PreparedFrame
+    static: NDArray[np.float32]
 
 
 class TwoFrameEstimator:
@@ -115,7 +138,7 @@ class TwoFrameEstimator:
 
     def estimate(
         self, prev_img: NDArray, curr_img: NDArray, guess: PairGuess | None = None,
-        frame_interval_s: float | None = None,
+        frame_interval_s: float | None = None, prepared: PreparedPair | None = None,
     ) -> PairResult:
         """Estimate both poses and the motion from frame k-1 (``prev_img``) to k.
 
@@ -124,7 +147,8 @@ class TwoFrameEstimator:
         ``frame_interval_s`` [s], the time between the frames, is needed with a rolling
         shutter (``Rig.readout_s``) and unused otherwise; there the ``guess``'s
         motion (the previous pair's, scaled to this interval) also gives the vehicle's
-        acceleration.
+        acceleration. ``prepared``: the pair's :meth:`prepare_pair` of these images, where
+        the caller made it ahead (``pipeline.run_sequence`` does, on another thread).
         Cold, both starts are tried (with ``cold_start_ipm``), the second where the first
         fails: a forward camera first from the nominal pose's virtual IPM, then from the
         coarse image-plane pass (a camera ~10° down on a fast car: the near field's IPM is
@@ -138,9 +162,13 @@ class TwoFrameEstimator:
         t_start = time.perf_counter()
         # a rolling shutter without the pair's interval fails before the images are read
         self._shutter_readout_frames(frame_interval_s)
-        prev = self.prepare(prev_img, "previous frame")
-        curr = self.prepare(curr_img, "current frame")
-        context = self.stage_context(prev, curr, guess, frame_interval_s)
+        if prepared is None:
+            prev, curr = self.prepare(prev_img, "previous frame"), self.prepare(curr_img,
+                                                                                "current frame")
+            static = None
+        else:
+            prev, curr, static = prepared.prev.image, prepared.curr.image, prepared.static
+        context = self.stage_context(prev, curr, guess, frame_interval_s, static)
         prepared_s = time.perf_counter() - t_start
         result = self._estimate_starts(context, prev, curr, guess, 0.0)
         if guess is None and result.status in (STATUS_FEW_INLIERS, STATUS_NOT_CONVERGED):
@@ -164,22 +192,26 @@ class TwoFrameEstimator:
     def stage_context(
         self, prev: NDArray[np.float32], curr: NDArray[np.float32],
         guess: PairGuess | None = None, frame_interval_s: float | None = None,
+        static: NDArray[np.float32] | None = None,
     ) -> StageContext:
         """What every stage needs for the prepared pair ``prev``, ``curr`` (:meth:`prepare`):
-        the camera's set-up, the content fixed to the camera, the rolling shutter's and the
+        the camera's set-up, the content fixed to the camera (``static``, the pair's
+        :attr:`PreparedPair.static`, where made already), the rolling shutter's and the
         heave's share of a pair ``frame_interval_s`` apart and the pose prior (with the
         ``guess`` of tracking mode); for running one stage alone as :meth:`estimate` would."""
         # the interval before's motion (tracking), for the rolling shutter's acceleration
         previous_motion = None if guess is None else np.array(
             [guess.motion.tx, guess.motion.tz, guess.motion.yaw])
         # content fixed to the camera, once per pair (both cold starts leave it out)
-        noise = (self._noise_sigma(prev), self._noise_sigma(curr))
+        if static is None:
+            static = self._static(prev, curr, (self._noise_sigma(prev),
+                                               self._noise_sigma(curr)))
         prior_mean, prior_sigma = pose_prior(self.config, self.nominal, guess)
         return StageContext(
             camera=self.camera, k=self.k, height=self.height, config=self.config,
             nominal=self.nominal, centres=self.centres, sizes=self.sizes,
             horizon_margin_px=self._horizon_margin_px,
-            static=static_share(static_pixels(prev, curr, noise), self.config.patch_image // 2),
+            static=static,
             readout_frames=self._shutter_readout_frames(frame_interval_s),
             heave_std_m=self.config.heave_rate_mps * (
                 frame_interval_s if frame_interval_s and frame_interval_s > 0 else 0.1),
@@ -297,10 +329,33 @@ class TwoFrameEstimator:
             self._noise = (prepared, noise_sigma(prepared))
         return self._noise[1]
 
+    def prepare_frame(self, image: NDArray, name: str) -> PreparedFrame:
+        """The :class:`PreparedFrame` of a grey or BGR image of the camera's size (``name``
+        says which in an error); touches no state, so another thread may run it."""
+        prepared = self._prepared_image(image, name)
+        return PreparedFrame(prepared, noise_sigma(prepared))
+
+    def prepare_pair(self, prev: PreparedFrame, curr: PreparedFrame) -> PreparedPair:
+        """The :class:`PreparedPair` of two prepared frames; touches no state."""
+        return PreparedPair(prev, curr, self._static(prev.image, curr.image,
+                                                     (prev.noise, curr.noise)))
+
     def prepare(self, image: NDArray, name: str) -> NDArray[np.float32]:
         """Grey float32 undistorted image; the last one is cached (tracking reuses it)."""
         if self._cache is not None and self._cache[0] is image:
             return self._cache[1]
+        out = self._prepared_image(image, name)
+        self._cache = (image, out)
+        return out
+
+    def _static(self, prev: NDArray[np.float32], curr: NDArray[np.float32],
+                noise: tuple[float, float]) -> NDArray[np.float32]:
+        """The share of content fixed to the camera around each pixel of a prepared pair
+        whose frames' noise σ are ``noise``."""
+        return static_share(static_pixels(prev, curr, noise), self.config.patch_image // 2)
+
+    def _prepared_image(self, image: NDArray, name: str) -> NDArray[np.float32]:
+        """Grey float32 undistorted copy of ``image`` (``InputError`` naming ``name``)."""
         arr = np.asarray(image)
         if arr.ndim == 3 and arr.shape[2] in (3, 4):
             code = cv2.COLOR_BGR2GRAY if arr.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
@@ -315,6 +370,5 @@ class TwoFrameEstimator:
         out = arr.astype(np.float32)
         if self._maps is not None:
             out = cv2.remap(out, self._maps[0], self._maps[1], cv2.INTER_LINEAR)
-        self._cache = (image, out)
         return out
 

@@ -10,14 +10,22 @@ forward-looking cameras work. The first pair, and the pair after any failure, st
 from the rig's nominal pose; a tracked pair that fails is tried
 once more cold before it is given up.
 
+With more than one correlation thread (``patch_match.threads``), the next frame is read
+and its pair prepared (``TwoFrameEstimator.prepare_pair``: the grey image, its noise, the
+content fixed to the camera) on a second thread while the current pair is estimated: the
+estimator's least-squares and warps keep one core, which the preparation then uses.
+
 A frame that cannot be read gets a row with status ``unreadable frame`` and the next frame,
 having no predecessor, a row with status ``no previous frame``; the run goes on.
 """
 
 from __future__ import annotations
 
+import os
+import threading
 import time
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
@@ -26,9 +34,10 @@ from numpy.typing import NDArray
 
 from .camera import CameraModel
 from .errors import InputError
-from .estimator import TwoFrameEstimator
+from .estimator import PreparedFrame, PreparedPair, TwoFrameEstimator
 from .geometry import PlanarMotion
 from .pair_result import PairGuess
+from .patch_match import threads
 from .rig import Rig
 from .sources import Frame, FrameSource
 
@@ -105,7 +114,8 @@ def run_sequence(
     prev_t = prev_dt = float("nan")
     previous_ok: PairResult | None = None
     checked_size = continuation
-    for frame in source:
+    frames = _prepared_frames(source, estimator, camera)
+    for frame, prepared in (_read_ahead(frames) if threads() > 1 else frames):
         if frame.image is None:
             prev_image, previous_ok = None, None
             yield SequenceStep(frame.index, frame.t, None, frame.error or UNREADABLE)
@@ -131,9 +141,9 @@ def run_sequence(
         if tracking and previous_ok is not None:
             guess = predict_guess(previous_ok, prev_dt, dt)
         start = time.perf_counter()
-        result = estimate_pair(estimator, prev_image, image, guess, dt)
+        result = estimate_pair(estimator, prev_image, image, guess, dt, prepared)
         if guess is not None and result.status != "ok" and retry_cold:
-            result = estimate_pair(estimator, prev_image, image, None, dt)
+            result = estimate_pair(estimator, prev_image, image, None, dt, prepared)
             guess = None
         seconds = time.perf_counter() - start
         previous_ok = result if result.status == "ok" else None
@@ -141,13 +151,61 @@ def run_sequence(
         yield SequenceStep(frame.index, frame.t, result, result.status, guess is not None, seconds)
 
 
+def _prepared_frames(source: FrameSource, estimator: TwoFrameEstimator, camera: CameraModel,
+                     ) -> Iterator[tuple[Frame, PreparedPair | None]]:
+    """The frames of ``source``, each with the :class:`PreparedPair` of it and the frame
+    before where both were read and are of the camera's size (None otherwise, or when the
+    estimator is not a :class:`TwoFrameEstimator`)."""
+    before: PreparedFrame | None = None
+    for frame in source:
+        prepared = None
+        if frame.image is not None and isinstance(estimator, TwoFrameEstimator):
+            try:
+                curr = estimator.prepare_frame(prepare_image(frame, camera), "frame")
+            except (ValueError, InputError):  # the runner reports it
+                curr = None
+            if before is not None and curr is not None:
+                prepared = estimator.prepare_pair(before, curr)
+            before = curr
+        else:
+            before = None
+        yield frame, prepared
+
+
+_END = object()
+
+
+def _read_ahead(items: Iterator) -> Iterator:
+    """``items``, the next one made on a worker thread while the caller works on this one.
+    Closed early (a consumer that stops, Ctrl-C), it waits for the item in the making (one
+    frame's read and preparation) so that the source is never read from two threads."""
+    with ThreadPoolExecutor(1, thread_name_prefix="vipm-read-ahead",
+                            initializer=_yield_the_cores) as pool:
+        pending = pool.submit(next, items, _END)
+        while (item := pending.result()) is not _END:
+            pending = pool.submit(next, items, _END)
+            yield item
+
+
+def _yield_the_cores() -> None:
+    """Lowest scheduling priority for the calling thread (Linux: a thread's own nice value),
+    so that reading ahead takes only the cores the correlation threads leave idle."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)
+    except (AttributeError, OSError):  # not Linux (or not allowed): an ordinary thread
+        pass
+
+
 def estimate_pair(
     estimator: TwoFrameEstimator, prev: NDArray, curr: NDArray, guess: PairGuess | None,
-    frame_interval_s: float | None = None,
+    frame_interval_s: float | None = None, prepared: PreparedPair | None = None,
 ) -> PairResult:
-    """One pair ``frame_interval_s`` seconds apart; an exception inside the estimator becomes
-    a failed result, not a dead run."""
+    """One pair ``frame_interval_s`` seconds apart (``prepared``: its
+    :meth:`TwoFrameEstimator.prepare_pair`, where made ahead); an exception inside the
+    estimator becomes a failed result, not a dead run."""
     try:
+        if prepared is not None:
+            return estimator.estimate(prev, curr, guess, frame_interval_s, prepared)
         return estimator.estimate(prev, curr, guess, frame_interval_s)
     except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
         return _FailedResult(f"estimator error: {type(exc).__name__}: {exc}"[:200])
