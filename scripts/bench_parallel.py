@@ -30,6 +30,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from vipm_track.allocator import keep_freed_memory  # noqa: E402
 from vipm_track.camera import load_camera  # noqa: E402
 from vipm_track.estimator_config import EstimatorConfig  # noqa: E402
 from vipm_track.evaluate import frame_errors  # noqa: E402
@@ -66,6 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path,
                         default=ROOT / "scripts" / "results" / "bench_parallel.md")
     args = parser.parse_args(argv)
+    keep_freed_memory()  # as the command line does (its worker processes do too)
     lines = ["| preset | run | wall s | pairs/s | speed-up | ok | pitch RMS ° "
              "| distance err % median | table |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]

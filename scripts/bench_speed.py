@@ -36,6 +36,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from vipm_track.allocator import keep_freed_memory  # noqa: E402
 from vipm_track.estimator import TwoFrameEstimator  # noqa: E402
 from vipm_track.estimator_config import EstimatorConfig  # noqa: E402
 from vipm_track.pipeline import run_sequence  # noqa: E402
@@ -166,6 +167,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path,
                         default=ROOT / "scripts" / "results" / "bench_speed.md")
     args = parser.parse_args(argv)
+    keep_freed_memory()  # as the command line does
     rows, log_rows = [], []
     with tempfile.TemporaryDirectory() as tmp:
         for preset in args.presets.split(","):

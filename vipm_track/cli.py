@@ -9,6 +9,7 @@ import signal
 import sys
 from collections.abc import Sequence
 
+from .allocator import keep_freed_memory
 from .commands.common import infer_inputs
 from .errors import InputError, NothingUsable, os_error_line, printable
 
@@ -70,6 +71,7 @@ def _terminate(signum: int, frame: object) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    keep_freed_memory()
     parser = build_parser(only=_command_in(argv))
     args = parser.parse_args(argv)
     name = f"vipm-track {args.command}"

@@ -18,6 +18,7 @@ from collections.abc import Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 from typing import TYPE_CHECKING
 
+from .allocator import keep_freed_memory
 from .errors import InputError
 from .patch_match import set_threads
 from .pipeline import SequenceStep, run_sequence
@@ -94,9 +95,11 @@ def run_chunked(
 
 
 def _start_worker(threads: int) -> None:
-    """A worker process: ``threads`` correlation threads, and Ctrl-C left to the main process
+    """A worker process: ``threads`` correlation threads, freed memory kept for reuse
+    (``allocator``: its chunks run on its first thread), and Ctrl-C left to the main process
     (it ends the workers; a worker's own KeyboardInterrupt would only race with it)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    keep_freed_memory()
     set_threads(threads)
 
 
