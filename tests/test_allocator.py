@@ -8,7 +8,6 @@ import sys
 import textwrap
 
 import pytest
-
 from conftest import ROOT, shared_data
 
 #: one correlation thread (the pairs on the process's first thread, as in ``--threads 1``
