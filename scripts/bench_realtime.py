@@ -47,10 +47,10 @@ from vipm_track.allocator import keep_freed_memory  # noqa: E402
 from vipm_track.camera import load_camera  # noqa: E402
 from vipm_track.estimator_config import EstimatorConfig  # noqa: E402
 from vipm_track.evaluate import frame_errors  # noqa: E402
-from vipm_track.patch_match import set_threads, threads  # noqa: E402
 from vipm_track.pipeline import run_sequence  # noqa: E402
 from vipm_track.rig import Rig  # noqa: E402
 from vipm_track.sources import open_source  # noqa: E402
+from vipm_track.workers import set_threads, threads  # noqa: E402
 
 HEIGHT_M = 1.65
 PITCH_DEG = 0.5

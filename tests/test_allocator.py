@@ -19,7 +19,7 @@ _FAULTS_PER_PAIR = textwrap.dedent("""
     kept = sys.argv[2] == "keep" and keep_freed_memory()
     from vipm_track.camera import load_camera
     from vipm_track.estimator_config import EstimatorConfig
-    from vipm_track.patch_match import set_threads
+    from vipm_track.workers import set_threads
     from vipm_track.pipeline import run_sequence
     from vipm_track.rig import Rig
     from vipm_track.sources import open_source

@@ -124,7 +124,7 @@ def test_default_start_calling_a_moving_view_still_is_a_failed_start(tmp_path):
     from vipm_track.pipeline import estimate_pair, prepare_image
 
     preset = _level_wide_rig()
-    traj = simulate_sequence(preset, 3, tmp_path, seed=12, profile="gradual")
+    traj = simulate_sequence(preset, 3, tmp_path, seed=13, profile="gradual")
     camera = preset.camera()
     frames = list(open_source(images=tmp_path / "images"))
     before, image = (prepare_image(f, camera) for f in frames[:2])

@@ -10,7 +10,7 @@ import threading
 import numpy as np
 import pytest
 
-from vipm_track import patch_match
+from vipm_track import patch_match, workers
 
 RNG = np.random.default_rng(0)
 IMAGE = (RNG.random((400, 400)) * 255).astype(np.float32)
@@ -25,17 +25,17 @@ def _correlate() -> tuple[np.ndarray, np.ndarray]:
 
 @pytest.fixture
 def two_threads():
-    before = patch_match.threads()
-    patch_match.set_threads(2)
+    before = workers.threads()
+    workers.set_threads(2)
     yield
-    patch_match.set_threads(before)
+    workers.set_threads(before)
 
 
 def test_the_shift_is_found_on_any_thread_count(two_threads) -> None:
     shift, peak = _correlate()
     np.testing.assert_allclose(shift, np.tile([-2.0, 3.0], (40, 1)), atol=0.15)
     for n in (1, 3):
-        patch_match.set_threads(n)
+        workers.set_threads(n)
         again = _correlate()
         assert np.array_equal(again[0], shift) and np.array_equal(again[1], peak)
 
@@ -53,14 +53,16 @@ def test_changing_the_count_while_others_correlate_loses_nothing(two_threads) ->
             except Exception as exc:  # any failure is the finding
                 errors.append(repr(exc))
 
-    workers = [threading.Thread(target=correlate_on) for _ in range(2)]
-    for w in workers:
-        w.start()
-    for i in range(300):
-        patch_match.set_threads(2 + i % 2)
-    stop.set()
-    for w in workers:
-        w.join()
+    correlators = [threading.Thread(target=correlate_on) for _ in range(2)]
+    for c in correlators:
+        c.start()
+    try:
+        for i in range(300):
+            workers.set_threads(2 + i % 2)
+    finally:
+        stop.set()
+        for c in correlators:
+            c.join()
     assert errors == []
 
 

@@ -292,7 +292,7 @@ def test_estimates_do_not_depend_on_the_thread_count(cart_sequence: Path,
     """One pair's patches correlated on 1 or 3 threads (the large batches split across
     them): the same file, byte for byte."""
     from vipm_track.cli import main
-    from vipm_track.patch_match import set_threads, threads
+    from vipm_track.workers import set_threads, threads
 
     base = ["estimate", "--images", str(cart_sequence / "images"), "--camera",
             str(cart_sequence / "camera.yaml"), "--height", "0.7", "--quiet"]
@@ -316,7 +316,7 @@ def test_thread_count_default_comes_from_the_environment(value: str, expected: i
     import subprocess
     import sys
 
-    code = "from vipm_track.patch_match import threads; print(threads())"
+    code = "from vipm_track.workers import threads; print(threads())"
     env = {**os.environ, "VIPM_TRACK_THREADS": value}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
                          text=True, check=True).stdout
@@ -328,7 +328,7 @@ def test_fleet_workers_share_the_cores_as_correlation_threads(workers: int) -> N
     import os
 
     from vipm_track.fleet.cluster import worker_environ
-    from vipm_track.patch_match import THREADS_ENV
+    from vipm_track.workers import THREADS_ENV
 
     env = worker_environ(workers)
     assert env[THREADS_ENV] == max(1, (os.cpu_count() or 1) // workers)
@@ -605,7 +605,7 @@ class _WatchedSource:
 
 @pytest.fixture
 def two_threads():
-    from vipm_track.patch_match import set_threads, threads
+    from vipm_track.workers import set_threads, threads
 
     before = threads()
     set_threads(2)

@@ -43,6 +43,7 @@ from scipy.optimize import least_squares
 
 from .displacement_model import N_PARAMS, DisplacementModel
 from .geometry import PlanarMotion, compose_motion, invert_motion
+from .workers import map_on_threads, threads
 
 FloatArray = NDArray[np.float64]
 @dataclass(frozen=True)
@@ -58,12 +59,29 @@ class FitResult:
     n_evaluations: int
 
 
+#: the random subsets are split across threads only from this many on (a thread's start
+#: costs about what a few subsets' LM does)
+MIN_SPLIT_SUBSETS = 16
+
+#: relative cost decrease and relative step at which a re-fit on the inliers stops (the
+#: ``ftol`` and ``xtol`` MINPACK had)
+REFIT_TOLERANCE = 1e-10
+
+
 def fit_lm(
     model: DisplacementModel, x0: FloatArray, idx: NDArray[np.intp], max_nfev: int = 400
 ) -> tuple[FloatArray, bool, FloatArray, FloatArray, int]:
-    """Levenberg-Marquardt on the points ``idx`` from ``x0``.
+    """Levenberg-Marquardt on the points ``idx`` from ``x0``: compiled under a global
+    shutter (:meth:`DisplacementModel.lm`), MINPACK's otherwise.
 
     Returns (x, success, jacobian (2n, 7), residuals (2n,), function evaluations)."""
+    if not model.readout_frames:
+        weights = np.zeros((1, model.n_points))
+        weights[0, idx] = 1.0
+        xs, converged, n = model.lm(np.asarray(x0, dtype=float)[None], weights, max_nfev,
+                                    REFIT_TOLERANCE, REFIT_TOLERANCE)
+        x = xs[0]
+        return x, bool(converged[0]), model.jacobian(x, idx), model.residuals(x, idx), n + 2
     res = least_squares(
         model.residuals,
         np.asarray(x0, dtype=float),
@@ -89,8 +107,9 @@ def lm_batch(
     """Levenberg-Marquardt run for many point subsets at once (the random subsets).
 
     Each subset s minimises ``Σ_n weights[s, n] · |r_n(x_s)|²`` from ``x0`` with
-    Marquardt's diagonal damping; all subsets step in lockstep so that a step costs one
-    vectorised residual and Jacobian evaluation for the whole batch.
+    Marquardt's diagonal damping: compiled, subset by subset, under a global shutter
+    (:meth:`DisplacementModel.lm`); under a rolling shutter all subsets step in lockstep so
+    that a step costs one vectorised residual and Jacobian evaluation for the whole batch.
 
     Parameters
     ----------
@@ -107,6 +126,25 @@ def lm_batch(
     n_sets = weights.shape[0]
     n_par = np.shape(x0)[-1]
     x = np.broadcast_to(np.asarray(x0, dtype=float), (n_sets, n_par)).copy()
+    if not model.readout_frames:
+        # the subsets are independent: split across the pair's threads (the kernel releases
+        # the GIL), the same solutions for any split
+        parts = np.array_split(np.arange(n_sets), threads() if n_sets >= MIN_SPLIT_SUBSETS
+                               else 1)
+        solved = map_on_threads(
+            lambda part: model.lm(x[part], weights[part], max_iterations, tolerance), parts)
+        return (np.concatenate([found for found, _, _ in solved]),
+                np.concatenate([converged for _, converged, _ in solved]))
+    return _lm_lockstep(model, x, weights, max_iterations, tolerance)
+
+
+def _lm_lockstep(
+    model: DisplacementModel, x: FloatArray, weights: FloatArray, max_iterations: int,
+    tolerance: float,
+) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """:func:`lm_batch` with the subsets stepping in lockstep (rolling shutter: one
+    vectorised evaluation of the model for the whole batch per step)."""
+    n_sets, n_par = x.shape
     # The normal equations at each subset's current x, refreshed when a step is accepted.
     c, a, g = model.normal_equations(x, weights)
     lam = np.full(n_sets, 1e-3)
@@ -243,7 +281,7 @@ def robust_fit(
         weights[s, rng.choice(use_idx, size=m, replace=False)] = 1.0
     candidates, _ = lm_batch(model, x0, weights)
     if candidates.shape[1] >= N_PARAMS:
-        candidates = np.array([canonical(c) for c in candidates])
+        candidates = canonical_batch(candidates)
     c2 = inlier_px**2
     e = model.errors_batch(candidates)[:, use_idx]
     scores = np.sum(np.minimum(e**2, c2), axis=1) + np.sum(model.prior_batch(candidates)**2,
@@ -331,6 +369,16 @@ def canonical(x: FloatArray) -> FloatArray:
                            compose_motion(PlanarMotion(w[4], w[5], w[6]), flips[1]))
         w[4:7] = m.tx, m.tz, m.yaw
     return wrap_angles(w)
+
+
+def canonical_batch(xs: FloatArray) -> FloatArray:
+    """:func:`canonical` of each row of ``xs`` (S, 7); the rows with no pitch beyond 90°
+    (nearly all) in one vectorised step."""
+    w = wrap_angles(xs)
+    out = wrap_angles(w)
+    for s in np.flatnonzero(np.any(np.abs(w[:, [0, 2]]) > np.pi / 2, axis=1)):
+        out[s] = canonical(xs[s])
+    return out
 
 
 def plausible(x: FloatArray) -> NDArray[np.bool_]:

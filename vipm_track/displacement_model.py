@@ -17,6 +17,7 @@ from .geometry import GroundPose, PlanarMotion
 from .homography_lsq import (
     homography_normal_equations,
     pair_homography_factors,
+    pair_lm,
     project_points,
 )
 from .shutter import moved_pixels
@@ -130,7 +131,37 @@ class DisplacementModel:
 
     def full(self, xs: FloatArray) -> FloatArray:
         """The 7- (or 8-) parameter vectors (..., 7|8) of this model's parameters."""
-        return np.asarray(xs, dtype=float)
+        xs = np.asarray(xs, dtype=float)
+        return xs[..., self.full_index(xs.shape[-1])]
+
+    def full_index(self, n: int) -> NDArray[np.intp]:
+        """For each of the full vector's parameters, which of this model's ``n`` it is."""
+        return np.arange(n)
+
+    def lm(self, x0: FloatArray, weights: FloatArray, max_iterations: int, tolerance: float,
+           x_tolerance: float = 0.0) -> tuple[FloatArray, NDArray[np.bool_], int]:
+        """Levenberg–Marquardt from ``x0`` (S, n) for each row of point weights (S, N),
+        compiled (``homography_lsq.pair_lm``, tolerances as there): solutions, whether each
+        converged, evaluations. Global shutter only (the rolling shutter's prediction is
+        solved point by point)."""
+        if self.readout_frames:
+            raise ValueError("the compiled LM models a global shutter only")
+        x0 = np.ascontiguousarray(x0, dtype=float)
+        prior = self.n_prior > 0
+        return pair_lm(
+            x0, np.ascontiguousarray(weights, dtype=float), np.ascontiguousarray(self.k, float),
+            float(self.height),
+            np.eye(3) if self.plane_from_image is None else np.ascontiguousarray(
+                self.plane_from_image, dtype=float),
+            np.ascontiguousarray(self.pixels_prev, dtype=float),
+            np.ascontiguousarray(self.targets, dtype=float),
+            np.zeros((0, 2, 2)) if self.point_whitening is None else np.ascontiguousarray(
+                self.point_whitening, dtype=float),
+            self.full_index(x0.shape[1]),
+            np.asarray(self.prior_mean, dtype=float) if prior else np.zeros(0),
+            np.broadcast_to(np.asarray(self.prior_scale, dtype=float), (4,)).copy() if prior
+            else np.zeros(0),
+            INVALID_RESIDUAL, int(max_iterations), float(tolerance), float(x_tolerance))
 
     def predict_batch(self, xs: FloatArray, idx: NDArray[np.intp] | None = None) -> FloatArray:
         """Predicted positions (B, n, 2) for parameter vectors ``xs`` (B, 7); NaN where a
@@ -316,9 +347,8 @@ class SteadyPoseModel(DisplacementModel):
     Fewer unknowns for the cold start's coarse pass, whose few trusted displacements only
     need to predict where the patches go."""
 
-    def full(self, xs: FloatArray) -> FloatArray:
-        xs = np.asarray(xs, dtype=float)
-        return np.concatenate([xs[..., :2], xs[..., :2], xs[..., 2:5]], axis=-1)
+    def full_index(self, n: int) -> NDArray[np.intp]:
+        return np.array([0, 1, 0, 1, 2, 3, 4])
 
     @staticmethod
     def reduce(x: FloatArray) -> FloatArray:

@@ -157,3 +157,114 @@ def project_points(h: FloatArray, ground_w: FloatArray, image_w: FloatArray,
                                           pixels[j, 1])
             out[b, j, 0], out[b, j, 1] = (ox, oy) if valid else (np.nan, np.nan)
     return out
+
+
+
+#: central-difference step of the parameters, radians / metres (``displacement_model``)
+FD_STEP = 1e-6
+
+
+@kernel
+def _product(a: FloatArray, b: FloatArray) -> FloatArray:
+    """The 3 × 3 product ``a · b``."""
+    out = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = a[i, 0] * b[0, j] + a[i, 1] * b[1, j] + a[i, 2] * b[2, j]
+    return out
+
+
+@kernel
+def pair_normal_equations(
+    x: FloatArray, weights: FloatArray, k: FloatArray, height: float, plane: FloatArray,
+    pixels: FloatArray, targets: FloatArray, whitening: FloatArray, full_index: NDArray,
+    prior_mean: FloatArray, prior_scale: FloatArray, invalid: float,
+) -> tuple[float, FloatArray, FloatArray]:
+    """Cost, JᵀWJ (n, n) and JᵀWr (n,) of one parameter vector ``x`` (n,) over the points
+    weighted by ``weights`` (N,), as ``DisplacementModel.normal_equations`` under a global
+    shutter: the model's full parameters are ``x[full_index]``, ``plane`` maps frame k's
+    image onto the measurement plane, the prior (``prior_scale`` (4,) or empty) adds
+    ``prior_scale · (full[:4] − prior_mean)``; ∂H/∂x by central differences."""
+    n = x.shape[0]
+    xs = np.empty((1 + 2 * n, full_index.shape[0]))
+    for r in range(1 + 2 * n):
+        for c in range(full_index.shape[0]):
+            i = full_index[c]
+            xs[r, c] = x[i] + (FD_STEP if r == 1 + i else -FD_STEP if r == 1 + n + i else 0.0)
+    g_from_i, out_from_g = pair_homography_factors(k, height, xs)
+    h = np.empty((1 + 2 * n, 3, 3))
+    for r in range(1 + 2 * n):
+        h[r] = _product(plane, _product(out_from_g[r], g_from_i[r]))
+    dh = np.empty((1, n, 3, 3))
+    for i in range(n):
+        dh[0, i] = (h[1 + i] - h[1 + n + i]) / (2 * FD_STEP)
+    image_w = _product(out_from_g[0], g_from_i[0])[2].reshape(1, 3)
+    cost, a, g = homography_normal_equations(h[:1], dh, g_from_i[:1, 2].copy(), image_w,
+                                             pixels, targets, whitening,
+                                             weights.reshape(1, -1), invalid)
+    total, jtj, jtr = cost[0], a[0], g[0]
+    for q in range(prior_scale.shape[0]):  # ∂p_q/∂x_i = prior_scale[q] where x_i is full[q]
+        i = full_index[q]
+        p = prior_scale[q] * (x[i] - prior_mean[q])
+        total += p * p
+        jtr[i] += prior_scale[q] * p
+        jtj[i, i] += prior_scale[q] * prior_scale[q]
+    return total, jtj, jtr
+
+
+@kernel
+def pair_lm(
+    x0: FloatArray, weights: FloatArray, k: FloatArray, height: float, plane: FloatArray,
+    pixels: FloatArray, targets: FloatArray, whitening: FloatArray, full_index: NDArray,
+    prior_mean: FloatArray, prior_scale: FloatArray, invalid: float, max_iterations: int,
+    tolerance: float, x_tolerance: float,
+) -> tuple[FloatArray, NDArray[np.bool_], int]:
+    """Levenberg–Marquardt from ``x0`` (S, n) for each row of point weights ``weights``
+    (S, N), the model as :func:`pair_normal_equations`: Marquardt's diagonal damping
+    (``bundle.lm_batch``, whose steps these are, subset by subset); a subset stops once its
+    relative cost decrease falls below ``tolerance``, its step below 1e-12, or (with
+    ``x_tolerance`` > 0, as MINPACK's ``xtol``) a rejected step below ``x_tolerance`` of
+    ``|x|``: the central-difference gradient is not exactly zero at the minimum, so its last
+    steps never lower the cost; else once its damping passes 1e9 or after
+    ``max_iterations`` steps (neither converged).
+    Returns the solutions (S, n), whether each converged, and the evaluations made."""
+    n_sets, n = x0.shape
+    x_out = x0.copy()
+    converged = np.zeros(n_sets, np.bool_)
+    evaluations = 0
+    damped = np.empty((n, n))
+    for s in range(n_sets):
+        x = x0[s].copy()
+        c, a, g = pair_normal_equations(x, weights[s], k, height, plane, pixels, targets,
+                                        whitening, full_index, prior_mean, prior_scale,
+                                        invalid)
+        evaluations += 1
+        lam = 1e-3
+        for _ in range(max_iterations):
+            largest = 0.0
+            for i in range(n):
+                largest = max(largest, a[i, i])
+            damped[:] = a
+            for i in range(n):
+                damped[i, i] += lam * (a[i, i] + 1e-9 * largest + 1e-12)
+            step = -np.linalg.solve(damped, g)
+            x_new = x + step
+            c_new, a_new, g_new = pair_normal_equations(
+                x_new, weights[s], k, height, plane, pixels, targets, whitening, full_index,
+                prior_mean, prior_scale, invalid)
+            evaluations += 1
+            better = c_new < c
+            rel = (c - c_new) / max(c, 1e-300)
+            if better:
+                x, c, a, g = x_new, c_new, a_new, g_new
+                lam = max(lam / 3.0, 1e-9)
+            else:
+                lam *= 4.0
+            small = np.sqrt(np.sum(step**2)) <= x_tolerance * (np.sqrt(np.sum(x**2))
+                                                               + x_tolerance)
+            if ((better and rel < tolerance) or lam > 1e9 or np.max(np.abs(step)) < 1e-12
+                    or (small and not better)):
+                converged[s] = lam <= 1e9
+                break
+        x_out[s] = x
+    return x_out, converged, evaluations

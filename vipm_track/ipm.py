@@ -34,12 +34,16 @@ SIZE_STEP = 32
 
 def ground_sampling(k: FloatArray, pose: GroundPose, pixels: FloatArray) -> FloatArray:
     """Finest ground sampling distance (N,) at image pixels (N, 2): metres per pixel along
-    the ground direction that one image pixel spans least (lateral, for oblique views)."""
+    the ground direction that one image pixel spans least (lateral, for oblique views); NaN
+    where the pixel or its neighbours miss the ground (at the horizon)."""
     g0 = back_project(k, pose, pixels)
     gx = back_project(k, pose, pixels + np.array([1.0, 0.0])) - g0
     gy = back_project(k, pose, pixels + np.array([0.0, 1.0])) - g0
     jac = np.stack([gx, gy], axis=-1)  # (N, 2, 2): columns d(ground)/du, d(ground)/dv
-    return np.linalg.svd(jac, compute_uv=False)[:, -1]
+    out = np.full(len(jac), np.nan)
+    finite = np.all(np.isfinite(jac), axis=(1, 2))
+    out[finite] = np.linalg.svd(jac[finite], compute_uv=False)[:, -1]
+    return out
 
 
 def choose_grid(
@@ -59,11 +63,12 @@ def choose_grid(
     would exceed ``max_side`` pixels.
     """
     ground_p = back_project(k, pose_prev, pixels_prev)
-    ok = np.all(np.isfinite(ground_p), axis=1)
+    sampling = ground_sampling(k, pose_prev, pixels_prev)
+    ok = np.all(np.isfinite(ground_p), axis=1) & np.isfinite(sampling)
     if not np.any(ok):
         raise ValueError("no interest point meets the ground under the estimated pose")
     ground_p = ground_p[ok]
-    mpp = float(np.median(ground_sampling(k, pose_prev, pixels_prev[ok]))) * resolution_scale
+    mpp = float(np.median(sampling[ok])) * resolution_scale
     ground_c = transform_ground(motion, ground_p)
     pts = np.concatenate([ground_p, ground_c])
     lo, hi = pts.min(axis=0), pts.max(axis=0)

@@ -20,8 +20,8 @@ from typing import TYPE_CHECKING
 
 from .allocator import keep_freed_memory
 from .errors import InputError
-from .patch_match import set_threads
 from .pipeline import SequenceStep, run_sequence
+from .workers import set_threads
 
 if TYPE_CHECKING:
     from .estimator_config import EstimatorConfig

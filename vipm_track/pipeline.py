@@ -10,7 +10,7 @@ forward-looking cameras work. The first pair, and the pair after any failure, st
 from the rig's nominal pose; a tracked pair that fails is tried
 once more cold before it is given up.
 
-With more than one correlation thread (``patch_match.threads``), the next frame is read
+With more than one correlation thread (``workers.threads``), the next frame is read
 and its pair prepared (``TwoFrameEstimator.prepare_pair``: the grey image, its noise, the
 content fixed to the camera) on a second thread while the current pair is estimated: the
 estimator's least-squares and warps keep one core, which the preparation then uses.
@@ -37,9 +37,9 @@ from .errors import InputError
 from .estimator import PreparedFrame, PreparedPair, TwoFrameEstimator
 from .geometry import PlanarMotion
 from .pair_result import PairGuess
-from .patch_match import threads
 from .rig import Rig
 from .sources import Frame, FrameSource
+from .workers import threads
 
 if TYPE_CHECKING:
     from .estimator_config import EstimatorConfig

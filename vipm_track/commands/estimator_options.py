@@ -120,7 +120,7 @@ def parallel_settings(args: argparse.Namespace) -> dict[str, Any]:
     ``sequence_steps``, and this process's patch-correlation threads set from ``--threads``;
     InputError for unusable values (and for ``--rerun`` with workers)."""
     from ..parallel import MIN_CHUNK_FRAMES
-    from ..patch_match import set_threads
+    from ..workers import set_threads
     from .rerun_options import wants_rerun
 
     workers = getattr(args, "workers", 1)

@@ -27,9 +27,9 @@ import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 from distributed import Client, LocalCluster, WorkerPlugin, as_completed
 
-from ..patch_match import THREADS_ENV
 from ..progress import progress_bar
 from ..table import format_value
+from ..workers import THREADS_ENV
 from .drive_run import FleetSettings, done_row, drive_folder, run_drive
 from .drives import DriveSpec
 
