@@ -129,10 +129,12 @@ def lm_batch(
     if not model.readout_frames:
         # the subsets are independent: split across the pair's threads (the kernel releases
         # the GIL), the same solutions for any split
-        parts = np.array_split(np.arange(n_sets), threads() if n_sets >= MIN_SPLIT_SUBSETS
-                               else 1)
+        if threads() == 1 or n_sets < MIN_SPLIT_SUBSETS:
+            found, converged, _ = model.lm(x, weights, max_iterations, tolerance)
+            return found, converged
         solved = map_on_threads(
-            lambda part: model.lm(x[part], weights[part], max_iterations, tolerance), parts)
+            lambda part: model.lm(x[part], weights[part], max_iterations, tolerance),
+            np.array_split(np.arange(n_sets), threads()))
         return (np.concatenate([found for found, _, _ in solved]),
                 np.concatenate([converged for _, converged, _ in solved]))
     return _lm_lockstep(model, x, weights, max_iterations, tolerance)
