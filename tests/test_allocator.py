@@ -48,8 +48,9 @@ def test_kept_memory_spares_each_kitti_pair_thousands_of_page_faults() -> None:
         pytest.skip("not glibc: the allocator setting is a no-op here")
     _, _, default_faults = _faults_per_pair("default")
     assert pairs == 3
-    # measured: about 40 against 11,000 faults (45 MB of fresh pages) per pair
-    assert kept_faults < 1000 < 5000 < default_faults
+    # measured: about 40 against 11,000 faults (45 MB of fresh pages) per pair; relative, as
+    # transparent huge pages would fault fewer, larger pages in either way
+    assert kept_faults < default_faults / 10
 
 
 def test_the_command_line_keeps_freed_memory(monkeypatch: pytest.MonkeyPatch) -> None:

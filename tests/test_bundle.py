@@ -225,3 +225,11 @@ def test_compiled_lm_takes_the_lockstep_steps(prior, steady):
 def test_canonical_batch_is_canonical_row_by_row(xs):
     np.testing.assert_array_equal(bundle.canonical_batch(xs),
                                   np.array([bundle.canonical(x) for x in xs]))
+
+
+@pytest.mark.parametrize("readout", [0.0, 0.4])
+def test_a_refit_on_fewer_residuals_than_parameters_is_refused(readout):
+    rng = np.random.default_rng(0)
+    model, x = _cart_model(rng, readout_frames=readout, image_rows=600)
+    with pytest.raises(ValueError, match="residuals"):
+        bundle.fit_lm(model, x, np.arange(3))

@@ -629,7 +629,13 @@ def test_the_next_frame_is_read_and_prepared_while_a_pair_is_estimated(
     source = _WatchedSource(inner)
     prepared_ahead = []
 
+    preparing_threads = set()
+
     class Watching(TwoFrameEstimator):
+        def prepare_pair(self, prev, curr):
+            preparing_threads.add(threading.current_thread().name)
+            return super().prepare_pair(prev, curr)
+
         def estimate(self, prev, curr, guess=None, frame_interval_s=None, prepared=None):
             # pair (k-1, k) is estimated while frame k+1 is being read on the other thread
             k = len(prepared_ahead) + 1
@@ -642,6 +648,8 @@ def test_the_next_frame_is_read_and_prepared_while_a_pair_is_estimated(
     steps = list(run_sequence(source, rig, estimator=Watching(rig)))
     assert prepared_ahead == [True, True]
     assert [s.status for s in steps] == [FIRST_FRAME, "ok", "ok", "ok"]
+    assert len(preparing_threads) == 1
+    assert next(iter(preparing_threads)).startswith("vipm-read-ahead")
 
 
 def test_a_source_failing_mid_run_raises_after_the_steps_before_it(
@@ -666,3 +674,19 @@ def test_a_run_stopped_early_leaves_no_reading_thread(cart_sequence: Path, two_t
     assert read in ([0, 1, 2], [0, 1, 2, 3])  # at most the frame in the making, then no more
     time.sleep(0.2)
     assert source.read == read
+
+
+def test_a_failed_preparation_ahead_leaves_the_pair_to_the_estimator(
+        cart_sequence: Path, two_threads) -> None:
+    """Preparing ahead is an optimisation: where it raises, the estimator prepares the pair
+    itself (as without read-ahead) and reports what it meets there."""
+    from vipm_track.estimator import TwoFrameEstimator
+
+    inner, rig = _cart(cart_sequence, 3)
+
+    class Failing(TwoFrameEstimator):
+        def prepare_pair(self, prev, curr):
+            raise RuntimeError("out of memory on the read-ahead thread")
+
+    steps = list(run_sequence(_WatchedSource(inner), rig, estimator=Failing(rig)))
+    assert [s.status for s in steps] == [FIRST_FRAME, "ok", "ok"]

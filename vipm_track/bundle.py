@@ -75,6 +75,9 @@ def fit_lm(
     shutter (:meth:`DisplacementModel.lm`), MINPACK's otherwise.
 
     Returns (x, success, jacobian (2n, 7), residuals (2n,), function evaluations)."""
+    if 2 * np.size(idx) + model.n_prior < len(x0):  # as MINPACK's LM said
+        raise ValueError(f"{2 * np.size(idx) + model.n_prior} residuals for {len(x0)} "
+                         "parameters: LM needs at least as many residuals as parameters")
     if not model.readout_frames:
         weights = np.zeros((1, model.n_points))
         weights[0, idx] = 1.0

@@ -10,8 +10,8 @@ forward-looking cameras work. The first pair, and the pair after any failure, st
 from the rig's nominal pose; a tracked pair that fails is tried
 once more cold before it is given up.
 
-With more than one correlation thread (``workers.threads``), the next frame is read
-and its pair prepared (``TwoFrameEstimator.prepare_pair``: the grey image, its noise, the
+With more than one thread (``workers.threads``), the next frame is read and its pair
+prepared (``TwoFrameEstimator.prepare_pair``: the grey image, its noise, the
 content fixed to the camera) on a second thread while the current pair is estimated: the
 estimator's least-squares and warps keep one core, which the preparation then uses.
 
@@ -21,8 +21,6 @@ having no predecessor, a row with status ``no previous frame``; the run goes on.
 
 from __future__ import annotations
 
-import os
-import threading
 import time
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -162,10 +160,10 @@ def _prepared_frames(source: FrameSource, estimator: TwoFrameEstimator, camera: 
         if frame.image is not None and isinstance(estimator, TwoFrameEstimator):
             try:
                 curr = estimator.prepare_frame(prepare_image(frame, camera), "frame")
-            except (ValueError, InputError):  # the runner reports it
-                curr = None
-            if before is not None and curr is not None:
-                prepared = estimator.prepare_pair(before, curr)
+                if before is not None:
+                    prepared = estimator.prepare_pair(before, curr)
+            except Exception:  # the runner's own path meets it again and reports it
+                curr, prepared = None, None
             before = curr
         else:
             before = None
@@ -176,24 +174,16 @@ _END = object()
 
 
 def _read_ahead(items: Iterator) -> Iterator:
-    """``items``, the next one made on a worker thread while the caller works on this one.
+    """``items``, the next one made on a worker thread while the caller works on this one
+(at the same priority: a lowered one starved it on a busy machine, and OpenCV's own threads,
+when first started from it, kept the lowered priority).
     Closed early (a consumer that stops, Ctrl-C), it waits for the item in the making (one
     frame's read and preparation) so that the source is never read from two threads."""
-    with ThreadPoolExecutor(1, thread_name_prefix="vipm-read-ahead",
-                            initializer=_yield_the_cores) as pool:
+    with ThreadPoolExecutor(1, thread_name_prefix="vipm-read-ahead") as pool:
         pending = pool.submit(next, items, _END)
         while (item := pending.result()) is not _END:
             pending = pool.submit(next, items, _END)
             yield item
-
-
-def _yield_the_cores() -> None:
-    """Lowest scheduling priority for the calling thread (Linux: a thread's own nice value),
-    so that reading ahead takes only the cores the correlation threads leave idle."""
-    try:
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)
-    except (AttributeError, OSError):  # not Linux (or not allowed): an ordinary thread
-        pass
 
 
 def estimate_pair(
@@ -205,7 +195,7 @@ def estimate_pair(
     estimator becomes a failed result, not a dead run."""
     try:
         if prepared is not None:
-            return estimator.estimate(prev, curr, guess, frame_interval_s, prepared)
+            return estimator.estimate(prev, curr, guess, frame_interval_s, prepared=prepared)
         return estimator.estimate(prev, curr, guess, frame_interval_s)
     except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
         return _FailedResult(f"estimator error: {type(exc).__name__}: {exc}"[:200])
