@@ -98,9 +98,10 @@ def add_parallel_options(parser: argparse.ArgumentParser) -> None:
                        "--workers 1, the same chunks run one after another); each chunk's "
                        "first pair starts cold, as after a failed pair")
     group.add_argument("--threads", type=_thread_count, default=None, metavar="T",
-                       help="threads that correlate one pair's patches (default: 2, or the "
-                       "machine's cores if fewer); with --workers > 1 each process uses one "
-                       "and T has no effect; the estimates do not depend on it")
+                       help="threads of one pair's work: its patches' correlation and its "
+                       "random subsets' LM, and with T > 1 the next frame read ahead (default: "
+                       "2, or the machine's cores if fewer); with --workers > 1 each process "
+                       "uses one and T has no effect; the estimates do not depend on it")
 
 
 def _thread_count(text: str) -> int:
