@@ -686,7 +686,9 @@ def test_a_failed_preparation_ahead_leaves_the_pair_to_the_estimator(
 
     class Failing(TwoFrameEstimator):
         def prepare_pair(self, prev, curr):
-            raise RuntimeError("out of memory on the read-ahead thread")
+            if threading.current_thread().name.startswith("vipm-read-ahead"):
+                raise RuntimeError("out of memory on the read-ahead thread")
+            return super().prepare_pair(prev, curr)
 
     steps = list(run_sequence(_WatchedSource(inner), rig, estimator=Failing(rig)))
     assert [s.status for s in steps] == [FIRST_FRAME, "ok", "ok"]

@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from .geometry import GroundPose, PlanarMotion
 from .homography_lsq import (
+    FD_STEP,
     homography_normal_equations,
     pair_homography_factors,
     pair_lm,
@@ -356,15 +357,13 @@ class SteadyPoseModel(DisplacementModel):
         return np.concatenate([x[2:4], x[4:7]])
 
 
-#: Central-difference step of the Jacobian, radians / metres.
-_FD_STEP = 1e-6
 
 
 def central_points(xs: FloatArray) -> FloatArray:
     """Parameter vectors (B·2n, n) at which central differences evaluate a function of
-    ``xs`` (B, n): for each vector, +:data:`_FD_STEP` along each parameter, then −."""
+    ``xs`` (B, n): for each vector, +:data:`FD_STEP` along each parameter, then −."""
     n = xs.shape[1]
-    steps = np.eye(n) * _FD_STEP
+    steps = np.eye(n) * FD_STEP
     pert = np.concatenate([xs[:, None] + steps[None], xs[:, None] - steps[None]], axis=1)
     return pert.reshape(-1, n)
 
@@ -373,4 +372,4 @@ def central_difference(values: FloatArray, b: int) -> FloatArray:
     """Derivatives (B, n, ...) from a function's ``values`` (B·2n, ...) at
     :func:`central_points` of B parameter vectors."""
     v = values.reshape(b, 2, -1, *values.shape[1:])
-    return (v[:, 0] - v[:, 1]) / (2 * _FD_STEP)
+    return (v[:, 0] - v[:, 1]) / (2 * FD_STEP)

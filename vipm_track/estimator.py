@@ -131,8 +131,9 @@ class TwoFrameEstimator:
                 f"than min_inliers={self.config.min_inliers}; enlarge the ROI or the grid"
             )
         self._maps = camera.undistortion_maps() if camera.has_distortion else None
-        self._cache: tuple[int, NDArray] | None = None
-        self._noise: tuple[NDArray, float] | None = None  # the last prepared image's noise
+        # the last image prepared, as given and prepared (in a sequence a frame is the
+        # current one of a pair and the previous one of the next)
+        self._last: tuple[NDArray, PreparedFrame] | None = None
 
     # --- public -----------------------------------------------------------------------------
 
@@ -163,12 +164,10 @@ class TwoFrameEstimator:
         # a rolling shutter without the pair's interval fails before the images are read
         self._shutter_readout_frames(frame_interval_s)
         if prepared is None:
-            prev, curr = self.prepare(prev_img, "previous frame"), self.prepare(curr_img,
-                                                                                "current frame")
-            static = None
-        else:
-            prev, curr, static = prepared.prev.image, prepared.curr.image, prepared.static
-        context = self.stage_context(prev, curr, guess, frame_interval_s, static)
+            prepared = self.prepare_pair(self._frame(prev_img, "previous frame"),
+                                         self._frame(curr_img, "current frame"))
+        prev, curr = prepared.prev.image, prepared.curr.image
+        context = self.stage_context(prev, curr, guess, frame_interval_s, prepared.static)
         prepared_s = time.perf_counter() - t_start
         result = self._estimate_starts(context, prev, curr, guess, 0.0)
         if guess is None and result.status in (STATUS_FEW_INLIERS, STATUS_NOT_CONVERGED):
@@ -204,8 +203,7 @@ class TwoFrameEstimator:
             [guess.motion.tx, guess.motion.tz, guess.motion.yaw])
         # content fixed to the camera, once per pair (both cold starts leave it out)
         if static is None:
-            static = self._static(prev, curr, (self._noise_sigma(prev),
-                                               self._noise_sigma(curr)))
+            static = self._static(prev, curr, (noise_sigma(prev), noise_sigma(curr)))
         prior_mean, prior_sigma = pose_prior(self.config, self.nominal, guess)
         return StageContext(
             camera=self.camera, k=self.k, height=self.height, config=self.config,
@@ -322,13 +320,6 @@ class TwoFrameEstimator:
                              f"interval, got {frame_interval_s}")
         return readout / frame_interval_s
 
-    def _noise_sigma(self, prepared: NDArray[np.float32]) -> float:
-        """``noise_sigma`` of a prepared image; the last one is cached (in a sequence a frame
-        is the current one of a pair and the previous one of the next)."""
-        if self._noise is None or self._noise[0] is not prepared:
-            self._noise = (prepared, noise_sigma(prepared))
-        return self._noise[1]
-
     def prepare_frame(self, image: NDArray, name: str) -> PreparedFrame:
         """The :class:`PreparedFrame` of a grey or BGR image of the camera's size (``name``
         says which in an error); touches no state, so another thread may run it."""
@@ -342,11 +333,13 @@ class TwoFrameEstimator:
 
     def prepare(self, image: NDArray, name: str) -> NDArray[np.float32]:
         """Grey float32 undistorted image; the last one is cached (tracking reuses it)."""
-        if self._cache is not None and self._cache[0] is image:
-            return self._cache[1]
-        out = self._prepared_image(image, name)
-        self._cache = (image, out)
-        return out
+        return self._frame(image, name).image
+
+    def _frame(self, image: NDArray, name: str) -> PreparedFrame:
+        """:meth:`prepare_frame`, the last one cached."""
+        if self._last is None or self._last[0] is not image:
+            self._last = (image, self.prepare_frame(image, name))
+        return self._last[1]
 
     def _static(self, prev: NDArray[np.float32], curr: NDArray[np.float32],
                 noise: tuple[float, float]) -> NDArray[np.float32]:

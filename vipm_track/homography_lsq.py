@@ -159,8 +159,8 @@ def project_points(h: FloatArray, ground_w: FloatArray, image_w: FloatArray,
     return out
 
 
-
-#: central-difference step of the parameters, radians / metres (``displacement_model``)
+#: central-difference step of the parameters, radians / metres (here and in
+#: ``displacement_model``)
 FD_STEP = 1e-6
 
 
@@ -193,12 +193,15 @@ def pair_normal_equations(
             xs[r, c] = x[i] + (FD_STEP if r == 1 + i else -FD_STEP if r == 1 + n + i else 0.0)
     g_from_i, out_from_g = pair_homography_factors(k, height, xs)
     h = np.empty((1 + 2 * n, 3, 3))
+    image_w = np.empty((1, 3))
     for r in range(1 + 2 * n):
-        h[r] = _product(plane, _product(out_from_g[r], g_from_i[r]))
+        image_from_prev = _product(out_from_g[r], g_from_i[r])
+        h[r] = _product(plane, image_from_prev)
+        if r == 0:
+            image_w[0] = image_from_prev[2]
     dh = np.empty((1, n, 3, 3))
     for i in range(n):
         dh[0, i] = (h[1 + i] - h[1 + n + i]) / (2 * FD_STEP)
-    image_w = _product(out_from_g[0], g_from_i[0])[2].reshape(1, 3)
     cost, a, g = homography_normal_equations(h[:1], dh, g_from_i[:1, 2].copy(), image_w,
                                              pixels, targets, whitening,
                                              weights.reshape(1, -1), invalid)

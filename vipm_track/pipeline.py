@@ -175,10 +175,10 @@ _END = object()
 
 def _read_ahead(items: Iterator) -> Iterator:
     """``items``, the next one made on a worker thread while the caller works on this one
-(at the same priority: a lowered one starved it on a busy machine, and OpenCV's own threads,
-when first started from it, kept the lowered priority).
-    Closed early (a consumer that stops, Ctrl-C), it waits for the item in the making (one
-    frame's read and preparation) so that the source is never read from two threads."""
+    (at the same priority: a lowered one starved it on a busy machine, and OpenCV's own
+    threads, when first started from it, kept the lowered priority). Closed early (a
+    consumer that stops, Ctrl-C), it waits for the item in the making (one frame's read and
+    preparation) so that the source is never read from two threads."""
     with ThreadPoolExecutor(1, thread_name_prefix="vipm-read-ahead") as pool:
         pending = pool.submit(next, items, _END)
         while (item := pending.result()) is not _END:
