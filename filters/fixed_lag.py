@@ -41,6 +41,7 @@ from .smoother import (
     _status,
     dead_reckoned,
     held_linearization_point,
+    optimize,
 )
 from .smoother_config import SmoothedFrame, SmootherConfig
 from .smoother_marginals import BLOCK_LETTERS, block_norms, state_covariances
@@ -239,7 +240,11 @@ class FixedLagSmoother:
             # rejects the pair, and every later one (the estimate locks onto the old motion)
             new[0:3] = dead_reckoned((prev[0], prev[1], prev[2]), prev[7], prev[8], m)
             new[3:5] = M.pair_rates(m.z, prev[7], m.height_assumed, dt)
-            new[9:11] = m.z[2:4] - prev[5:7]
+            # the body moved by the pair's change of pose (what it measures best) from where
+            # the window has frame k-1: set to the pair's own pose of frame k instead, the
+            # change would miss by the two pairs' disagreement on frame k-1, and a
+            # redescending loss would reject the pair at its first linearisation
+            new[9:11] = prev[9:11] + (m.z[2:4] - m.z[0:2])
         else:
             new[0:3] = M.propagate_pose(prev[0], prev[1], prev[2], prev[3], prev[4], dt)
             new[9:11] = 0.0
@@ -325,7 +330,20 @@ class FixedLagSmoother:
             self._added[k] = (args, [])
             keys.append(k)
         self._ms, self._k = list(ms), keys
+        convex = cfg.convex_start()
         try:
+            if convex is not None:  # the redescending loss from the convex solution
+                boot_graph = gtsam.NonlinearFactorGraph()
+                for f in _prior_factors(keys[0], g, convex, self._start_pose):
+                    boot_graph.add(f)
+                for k in keys:
+                    args = self._added[k][0]
+                    for f in _frame_factors(k, args[0], *args[1:3], convex, *args[4:]):
+                        boot_graph.add(f)
+                try:
+                    values = optimize(boot_graph, values, convex)[0]
+                except RuntimeError as exc:  # as _solve: gtsam's indeterminate system
+                    raise SolveError(_first_line(exc)) from None
             self._solve(graph, values, keys, cfg.max_iterations)
         except SolveError as exc:  # nothing to fall back on: report the frames as skipped
             self._started = False

@@ -430,6 +430,35 @@ class BatchInfo:
     timings: dict[str, float]
 
 
+def _batch_graph(
+    inputs: Sequence[tuple], guess: _Guess, cfg: SmootherConfig, progress: bool = False
+) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values,
+           dict[int, tuple[gtsam.CustomFactor, gtsam.CustomFactor]]]:
+    """The drive's graph, its initial values (``guess``) and each pair's factors (key index →
+    angle and motion factors); ``inputs`` per frame: (measurement, wheel speed, dt, first,
+    metric, body std, mount jump variance), as ``_frame_factors`` takes them."""
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    pairs: dict[int, tuple[gtsam.CustomFactor, gtsam.CustomFactor]] = {}
+    frames: Iterable[tuple[int, tuple]] = enumerate(inputs)
+    if progress:
+        from vipm_track.progress import progress_bar
+
+        frames = progress_bar(frames, total=len(inputs), desc=f"smoother: graph ({cfg.loss})",
+                              unit="frame")
+    for k, (m, speed, dt, first, metric, body_std, jump) in frames:
+        _insert_guess(values, k, guess, k)
+        if first:
+            for f in _prior_factors(k, guess, cfg):
+                graph.add(f)
+        fs = _frame_factors(k, m, speed, dt, cfg, first, metric, body_std, jump)
+        for f in fs:
+            graph.add(f)
+        if not first and m.ok:
+            pairs[k] = (fs[5], fs[6])
+    return graph, values, pairs
+
+
 def smooth_batch(
     measurements: Sequence[PairMeasurement],
     speeds: FloatArray | None = None,
@@ -462,37 +491,29 @@ def smooth_batch(
     metric = _metric_frames(t, sp, cfg.speed_timeout_s)
     body_std = BodyTracker(cfg).stds(ms)
     jumps = mount_jumps(ms, sp, cfg)
-    graph = gtsam.NonlinearFactorGraph()
-    values = gtsam.Values()
-    pairs: dict[int, tuple[gtsam.CustomFactor, gtsam.CustomFactor]] = {}
-    frames_it: Iterable[tuple[int, PairMeasurement]] = enumerate(ms)
-    if progress:
-        from vipm_track.progress import progress_bar
-
-        frames_it = progress_bar(frames_it, total=len(ms), desc="smoother: graph", unit="frame")
-    for k, m in frames_it:
-        _insert_guess(values, k, guess, k)
-        if k == 0:
-            for f in _prior_factors(0, guess, cfg):
-                graph.add(f)
-        fs = _frame_factors(
-            k, m, float(sp[k]), float(dts[k]), cfg, k == 0, bool(metric[k]), body_std[k],
-            jumps.get(k),
-        )
-        for f in fs:
-            graph.add(f)
-        if k > 0 and m.ok:
-            pairs[k] = (fs[5], fs[6])
+    inputs = [(m, float(sp[k]), float(dts[k]), k == 0, bool(metric[k]), body_std[k],
+               jumps.get(k)) for k, m in enumerate(ms)]
+    convex = cfg.convex_start()
+    stages = [cfg] if convex is None else [convex, cfg]
+    graphs = [_batch_graph(inputs, guess, c, progress) for c in stages]
+    graph, values, pairs = graphs[-1]
     timings["build"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     bar = None
     if progress:
-        bar = progress_bar(total=cfg.max_iterations, desc="smoother: Gauss-Newton", unit="step")
+        from vipm_track.progress import progress_bar
+
+        bar = progress_bar(total=cfg.max_iterations * len(stages),
+                           desc="smoother: Gauss-Newton", unit="step")
     try:
-        values, iters, e0, e1 = optimize(
-            graph, values, cfg, on_step=None if bar is None else lambda: bar.update(1)
-        )
+        on_step = None if bar is None else lambda: bar.update(1)
+        iters, errors = 0, []
+        for (stage_graph, _, _), c in zip(graphs, stages, strict=True):
+            values, n, e, e1 = optimize(stage_graph, values, c, on_step)
+            iters += n
+            errors.append(e)
+        e0 = errors[0]
     finally:
         if bar is not None:  # converged: the bar ends full
             bar.total = bar.n

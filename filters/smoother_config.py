@@ -5,7 +5,7 @@ common settings) and ``SmoothedFrame`` (one frame's smoothed state: the EKF's
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -75,6 +75,17 @@ class SmootherConfig(FilterConfig):
             raise ValueError(f"lag must be >= 0 s, got {self.lag_s}")
         if self.loss not in F.LOSSES:
             raise ValueError(f"loss must be one of {F.LOSSES}, got {self.loss!r}")
+
+    def convex_start(self) -> SmootherConfig | None:
+        """These settings with the convex Huber loss, where the pair loss redescends (its
+        weight falls to zero far out): the solution to start that loss from. Started from
+        the dead-reckoned guess, whose frames each take the pose of their own pair, the
+        pairs' precise pose changes miss by the disagreement of two pairs on a frame (a
+        degree where the pose is loose) and the redescending loss rejects them for good:
+        a rendered shaking drive in traffic came out 0.54° pitch error instead of 0.06°."""
+        if self.loss not in F.REDESCENDING:
+            return None
+        return replace(self, loss="huber")
 
     def loss_k(self, dof: int) -> float:
         """Robust-loss threshold on the whitened norm of a ``dof``-dimensional block."""
