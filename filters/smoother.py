@@ -213,35 +213,45 @@ def _frame_factors(
     metric: bool = True,
     body_std: FloatArray | None = None,
     mount_jump_var: FloatArray | None = None,
+    with_pair: bool = True,
 ) -> list[gtsam.NonlinearFactor]:
     """Factors that frame k (key index) adds: process, body (std ``body_std``, rad; None: the
     model's), mount walk (unless ``first``; ``mount_jump_var``: see ``mount_walk_factors``),
-    the pair (if usable and not ``first``; ``metric``: see ``motion_pair_factor``), the wheel
-    speed (if finite) and the standstill (``model.standstill_states``)."""
+    the pair (``pair_factors``; at 5 and 6, if usable, not ``first`` and ``with_pair``), the
+    wheel speed (if finite) and the standstill (``model.standstill_states``)."""
     nz = cfg.noise
     out: list[gtsam.NonlinearFactor] = []
     if not first:
         out.append(F.process_factor(k, dt, nz, cfg.cross_track_std_m))
         out.append(F.body_factor(k, dt, nz, body_std))
         out.extend(F.mount_walk_factors(k, dt, nz, mount_jump_var))
-        if m.ok:
-            cov = nz.pair_covariance(m.covariance, m.z[6])
-            if mount_jump_var is not None:
-                cov = across_jump(cov, mount_jump_var)
-            out.append(F.pose_pair_factor(k, m.z[:4], cov[:4, :4], cfg.loss, cfg.pair_loss_k(4)))
-            given = None
-            if cfg.motion_given_pose:
-                given = F.GivenPose.of_pair(cov, m.z[:4], cfg.loss, cfg.pair_loss_k(4))
-            out.append(
-                F.motion_pair_factor(
-                    k, m.z[4:7], cov[4:7, 4:7], m.height_assumed, cfg.loss, cfg.pair_loss_k(3),
-                    metric, given,
-                )
-            )
+        if with_pair:
+            out.extend(pair_factors(k, m, cfg, metric, mount_jump_var))
     if math.isfinite(speed):
         out.append(F.speed_factor(k, speed, nz, cfg.speed_loss, cfg.loss_k(1)))
     out.extend(F.standstill_factors(k, M.standstill_states(speed, m.status, nz), nz))
     return out
+
+
+def pair_factors(
+    k: int, m: PairMeasurement, cfg: SmootherConfig, metric: bool = True,
+    mount_jump_var: FloatArray | None = None,
+) -> list[gtsam.NonlinearFactor]:
+    """Pair ``m``'s angle and motion factors at key index ``k`` under ``cfg.loss`` (none if the
+    pair is not usable); ``metric``: see ``motion_pair_factor``."""
+    if not m.ok:
+        return []
+    cov = cfg.noise.pair_covariance(m.covariance, m.z[6])
+    if mount_jump_var is not None:
+        cov = across_jump(cov, mount_jump_var)
+    given = None
+    if cfg.motion_given_pose:
+        given = F.GivenPose.of_pair(cov, m.z[:4], cfg.loss, cfg.pair_loss_k(4))
+    return [
+        F.pose_pair_factor(k, m.z[:4], cov[:4, :4], cfg.loss, cfg.pair_loss_k(4)),
+        F.motion_pair_factor(k, m.z[4:7], cov[4:7, 4:7], m.height_assumed, cfg.loss,
+                             cfg.pair_loss_k(3), metric, given),
+    ]
 
 
 def mount_jumps(
@@ -431,32 +441,37 @@ class BatchInfo:
 
 
 def _batch_graph(
-    inputs: Sequence[tuple], guess: _Guess, cfg: SmootherConfig, progress: bool = False
-) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values,
+    inputs: Sequence[tuple], guess: _Guess, configs: Sequence[SmootherConfig],
+    progress: bool = False,
+) -> tuple[list[gtsam.NonlinearFactorGraph], gtsam.Values,
            dict[int, tuple[gtsam.CustomFactor, gtsam.CustomFactor]]]:
-    """The drive's graph, its initial values (``guess``) and each pair's factors (key index →
-    angle and motion factors); ``inputs`` per frame: (measurement, wheel speed, dt, first,
-    metric, body std, mount jump variance), as ``_frame_factors`` takes them."""
-    graph = gtsam.NonlinearFactorGraph()
+    """The drive's graph for each of ``configs``, which differ only in the pair factors'
+    loss (every other factor is shared), its initial values (``guess``) and the last graph's
+    pair factors (key index → angle and motion factors); ``inputs`` per frame: (measurement,
+    wheel speed, dt, first, metric, body std, mount jump variance), as ``_frame_factors``
+    takes them."""
+    graphs = [gtsam.NonlinearFactorGraph() for _ in configs]
     values = gtsam.Values()
     pairs: dict[int, tuple[gtsam.CustomFactor, gtsam.CustomFactor]] = {}
     frames: Iterable[tuple[int, tuple]] = enumerate(inputs)
     if progress:
         from vipm_track.progress import progress_bar
 
-        frames = progress_bar(frames, total=len(inputs), desc=f"smoother: graph ({cfg.loss})",
-                              unit="frame")
+        frames = progress_bar(frames, total=len(inputs), desc="smoother: graph", unit="frame")
+    cfg = configs[-1]
     for k, (m, speed, dt, first, metric, body_std, jump) in frames:
         _insert_guess(values, k, guess, k)
+        shared = _frame_factors(k, m, speed, dt, cfg, first, metric, body_std, jump,
+                                with_pair=False)
         if first:
-            for f in _prior_factors(k, guess, cfg):
+            shared = _prior_factors(k, guess, cfg) + shared
+        for graph, c in zip(graphs, configs, strict=True):
+            own = [] if first else pair_factors(k, m, c, metric, jump)
+            for f in shared + own:
                 graph.add(f)
-        fs = _frame_factors(k, m, speed, dt, cfg, first, metric, body_std, jump)
-        for f in fs:
-            graph.add(f)
-        if not first and m.ok:
-            pairs[k] = (fs[5], fs[6])
-    return graph, values, pairs
+            if own and c is cfg:
+                pairs[k] = (own[0], own[1])
+    return graphs, values, pairs
 
 
 def smooth_batch(
@@ -495,8 +510,8 @@ def smooth_batch(
                jumps.get(k)) for k, m in enumerate(ms)]
     convex = cfg.convex_start()
     stages = [cfg] if convex is None else [convex, cfg]
-    graphs = [_batch_graph(inputs, guess, c, progress) for c in stages]
-    graph, values, pairs = graphs[-1]
+    graphs, values, pairs = _batch_graph(inputs, guess, stages, progress)
+    graph = graphs[-1]
     timings["build"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -509,7 +524,7 @@ def smooth_batch(
     try:
         on_step = None if bar is None else lambda: bar.update(1)
         iters, errors = 0, []
-        for (stage_graph, _, _), c in zip(graphs, stages, strict=True):
+        for stage_graph, c in zip(graphs, stages, strict=True):
             values, n, e, e1 = optimize(stage_graph, values, c, on_step)
             iters += n
             errors.append(e)
