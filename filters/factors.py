@@ -86,9 +86,10 @@ LOSSES: tuple[str, ...] = ("huber", "cauchy", "geman-mcclure", "tukey", "none")
 #: weight is 1 − 2r²/k² + O(r⁴), Cauchy's 1 − r²/k², so GM at √2·k weighs the good pairs as
 #: Cauchy at k does (at k itself it cost ~1 % pitch / roll RMS on clean drives)
 LOSS_K_SCALE: dict[str, float] = {"geman-mcclure": math.sqrt(2.0)}
-#: the losses whose weight falls to zero far out: started from a convex solution
-#: (``SmootherConfig.convex_start``), as their cost has minima wherever pairs are rejected
-REDESCENDING: tuple[str, ...] = ("geman-mcclure", "tukey")
+#: the losses whose cost is not convex (their influence falls back towards zero far out):
+#: started from the Huber solution (``SmootherConfig.convex_start``), as their cost has
+#: minima wherever pairs are rejected
+NON_CONVEX: tuple[str, ...] = ("cauchy", "geman-mcclure", "tukey")
 
 
 #: the losses as the compiled code's codes (``residuals.robust_weight``)

@@ -2,10 +2,13 @@
 
 The window holds the frames of the last ``lag_s`` seconds plus one anchor frame, with the
 batch's factors (``smoother._frame_factors``: the same graph, frame by frame); iSAM2 solves it
-incrementally and marginalises the frames that leave (gtsam's fixed-lag smoother). Each new
-frame starts where its pair's measured motion puts it (``smoother.dead_reckoned``, as the
-batch's initial guess; ``model.propagate_pose`` without a usable pair); the window is updated
-(one iSAM2 update; ``lag_max_iterations`` allows more while one still predicts more than
+incrementally and marginalises the frames that leave (gtsam's fixed-lag smoother). The
+window opens on the bootstrap frames solved as the batch solves a drive (a loss that is not
+convex started from steps with the Huber loss). Each new frame starts where its pair's
+measured motion puts it (``smoother.dead_reckoned``, as the batch's initial guess;
+``model.propagate_pose`` without a usable pair), its body where the window has the frame
+before moved by the pair's change of pose; the window is updated (one iSAM2 update;
+``lag_max_iterations`` allows more while one still predicts more than
 ``lag_tolerance_chi2``); a frame
 is reported once ``lag_s`` of later data is in, with its joint marginal covariance with the
 previous frame (iSAM2's ``jointMarginalCovariance``), and the frame before it leaves the
@@ -299,7 +302,8 @@ class FixedLagSmoother:
     def _start(
         self, boot: list[tuple[PairMeasurement, float, FloatArray]], final: bool = False
     ) -> list[SmoothedFrame]:
-        """Open a window on the bootstrap frames (the batch's initial guess), solve it."""
+        """Open a window on the bootstrap frames (the batch's initial guess), solve it (first
+        with the Huber loss where the pair loss is not convex, as the batch)."""
         cfg = self._cfg
         ms = [b for b, _, _ in boot]
         sp = np.array([s for _, s, _ in boot], dtype=float)
@@ -332,7 +336,8 @@ class FixedLagSmoother:
         self._ms, self._k = list(ms), keys
         convex = cfg.convex_start()
         try:
-            if convex is not None:  # the redescending loss from the convex solution
+            if convex is not None:
+                t0 = time.perf_counter()
                 boot_graph = gtsam.NonlinearFactorGraph()
                 for f in _prior_factors(keys[0], g, convex, self._start_pose):
                     boot_graph.add(f)
@@ -344,6 +349,8 @@ class FixedLagSmoother:
                     values = optimize(boot_graph, values, convex)[0]
                 except RuntimeError as exc:  # as _solve: gtsam's indeterminate system
                     raise SolveError(_first_line(exc)) from None
+                finally:
+                    self.timings["update"] += time.perf_counter() - t0
             self._solve(graph, values, keys, cfg.max_iterations)
         except SolveError as exc:  # nothing to fall back on: report the frames as skipped
             self._started = False

@@ -5,7 +5,8 @@ frame k the vehicle pose X_k (Pose2), speed V_k and yaw rate W_k, mount angles M
 H_k and yaw offset Y_k, body B_k; pair factors (angles, and motion scaled by height),
 constant-velocity process factors, Gauss–Markov body factors, mount random walks, wheel-speed
 priors, and priors on frame 0 (the EKF's). Pair factors use a redescending robust loss
-(Geman–McClure by default), so an outlier pair is down-weighted instead of pulling the estimate.
+(Geman–McClure by default, started from the Huber solution), so an outlier pair is
+down-weighted instead of pulling the estimate.
 
 - ``smooth_batch``: the whole drive at once (gtsam's iSAM2 relinearising every variable at
   every update: Gauss–Newton, ``optimize``); marginal covariances of the graph linearised at
@@ -238,7 +239,8 @@ def pair_factors(
     mount_jump_var: FloatArray | None = None,
 ) -> list[gtsam.NonlinearFactor]:
     """Pair ``m``'s angle and motion factors at key index ``k`` under ``cfg.loss`` (none if the
-    pair is not usable); ``metric``: see ``motion_pair_factor``."""
+    pair is not usable); ``metric``: see ``motion_pair_factor``; ``mount_jump_var``: the
+    mount's jump variance within the pair (``across_jump``), None if none."""
     if not m.ok:
         return []
     cov = cfg.noise.pair_covariance(m.covariance, m.z[6])
@@ -432,7 +434,9 @@ def _status(
 
 @dataclass(frozen=True)
 class BatchInfo:
-    """How a batch solve went: iterations, graph error before/after, seconds per stage."""
+    """How a batch solve went: Gauss–Newton iterations (of both solves where the loss is
+    started from the convex solution), the graph's error where its solve began (the
+    initial guess, or the convex solution) and at the estimate, seconds per stage."""
 
     iterations: int
     initial_error: float
@@ -441,37 +445,50 @@ class BatchInfo:
 
 
 def _batch_graph(
-    inputs: Sequence[tuple], guess: _Guess, configs: Sequence[SmootherConfig],
-    progress: bool = False,
-) -> tuple[list[gtsam.NonlinearFactorGraph], gtsam.Values,
-           dict[int, tuple[gtsam.CustomFactor, gtsam.CustomFactor]]]:
-    """The drive's graph for each of ``configs``, which differ only in the pair factors'
-    loss (every other factor is shared), its initial values (``guess``) and the last graph's
-    pair factors (key index → angle and motion factors); ``inputs`` per frame: (measurement,
+    inputs: Sequence[tuple], guess: _Guess, cfg: SmootherConfig, progress: bool = False
+) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values,
+           dict[int, tuple[gtsam.CustomFactor, gtsam.CustomFactor]],
+           list[gtsam.NonlinearFactor]]:
+    """The drive's graph, its initial values (``guess``), each pair's factors (key index →
+    angle and motion factors) and every other factor; ``inputs`` per frame: (measurement,
     wheel speed, dt, first, metric, body std, mount jump variance), as ``_frame_factors``
     takes them."""
-    graphs = [gtsam.NonlinearFactorGraph() for _ in configs]
+    graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     pairs: dict[int, tuple[gtsam.CustomFactor, gtsam.CustomFactor]] = {}
+    shared: list[gtsam.NonlinearFactor] = []
     frames: Iterable[tuple[int, tuple]] = enumerate(inputs)
     if progress:
         from vipm_track.progress import progress_bar
 
         frames = progress_bar(frames, total=len(inputs), desc="smoother: graph", unit="frame")
-    cfg = configs[-1]
     for k, (m, speed, dt, first, metric, body_std, jump) in frames:
         _insert_guess(values, k, guess, k)
-        shared = _frame_factors(k, m, speed, dt, cfg, first, metric, body_std, jump,
-                                with_pair=False)
+        fs = _frame_factors(k, m, speed, dt, cfg, first, metric, body_std, jump,
+                            with_pair=False)
         if first:
-            shared = _prior_factors(k, guess, cfg) + shared
-        for graph, c in zip(graphs, configs, strict=True):
-            own = [] if first else pair_factors(k, m, c, metric, jump)
-            for f in shared + own:
+            fs = _prior_factors(k, guess, cfg) + fs
+        own = [] if first else pair_factors(k, m, cfg, metric, jump)
+        if own:
+            pairs[k] = (own[0], own[1])
+        shared.extend(fs)
+        for f in fs + own:
+            graph.add(f)
+    return graph, values, pairs, shared
+
+
+def with_pair_loss(shared: Sequence[gtsam.NonlinearFactor], inputs: Sequence[tuple],
+                   cfg: SmootherConfig) -> gtsam.NonlinearFactorGraph:
+    """The graph of ``shared`` factors and the pairs of ``inputs`` (as ``_batch_graph``
+    takes them) under ``cfg.loss``."""
+    graph = gtsam.NonlinearFactorGraph()
+    for f in shared:
+        graph.add(f)
+    for k, (m, _, _, first, metric, _, jump) in enumerate(inputs):
+        if not first:
+            for f in pair_factors(k, m, cfg, metric, jump):
                 graph.add(f)
-            if own and c is cfg:
-                pairs[k] = (own[0], own[1])
-    return graphs, values, pairs
+    return graph
 
 
 def smooth_batch(
@@ -480,7 +497,9 @@ def smooth_batch(
     config: SmootherConfig | None = None,
     progress: bool = False,
 ) -> tuple[list[SmoothedFrame], BatchInfo]:
-    """Smooth a whole drive: one :class:`SmoothedFrame` per measurement (in order).
+    """Smooth a whole drive: one :class:`SmoothedFrame` per measurement (in order). A pair
+    loss that is not convex is started from Gauss–Newton steps with the Huber loss
+    (``SmootherConfig.convex_start``).
 
     ``speeds``: wheel speed (m/s) at each measurement's time, NaN where none (see
     ``speeds_at_frames``)."""
@@ -508,10 +527,11 @@ def smooth_batch(
     jumps = mount_jumps(ms, sp, cfg)
     inputs = [(m, float(sp[k]), float(dts[k]), k == 0, bool(metric[k]), body_std[k],
                jumps.get(k)) for k, m in enumerate(ms)]
+    graph, values, pairs, shared = _batch_graph(inputs, guess, cfg, progress)
+    stages = [(graph, cfg)]
     convex = cfg.convex_start()
-    stages = [cfg] if convex is None else [convex, cfg]
-    graphs, values, pairs = _batch_graph(inputs, guess, stages, progress)
-    graph = graphs[-1]
+    if convex is not None:
+        stages.insert(0, (with_pair_loss(shared, inputs, convex), convex))
     timings["build"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -523,12 +543,10 @@ def smooth_batch(
                            desc="smoother: Gauss-Newton", unit="step")
     try:
         on_step = None if bar is None else lambda: bar.update(1)
-        iters, errors = 0, []
-        for stage_graph, c in zip(graphs, stages, strict=True):
-            values, n, e, e1 = optimize(stage_graph, values, c, on_step)
+        iters = 0
+        for stage_graph, c in stages:
+            values, n, e0, e1 = optimize(stage_graph, values, c, on_step)
             iters += n
-            errors.append(e)
-        e0 = errors[0]
     finally:
         if bar is not None:  # converged: the bar ends full
             bar.total = bar.n

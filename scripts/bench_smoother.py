@@ -134,7 +134,9 @@ def main(argv: list[str] | None = None) -> int:
     ]
     for name, frames, sec, fps, note in rows:
         lines.append(f"| {name} | {frames} | {sec:.2f} | {fps:.0f} | {note} |")
-    lines += ["", *optimizer_table(args.repeats)]
+    lines += ["", *optimizer_table(args.repeats), "",
+              f"Command: `python scripts/bench_smoother.py --minutes {args.minutes:g} "
+              f"--lag-minutes {args.lag_minutes:g} --repeats {args.repeats}`."]
     text = "\n".join(lines) + "\n"
     print(text)
     out = Path(args.out)

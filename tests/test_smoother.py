@@ -644,7 +644,7 @@ def test_loose_pair_poses_with_precise_changes_are_not_rejected(seed, lag_s):
     raw = np.array([m.z[2] if m.ok else np.nan for m in run.measurements])
     err, raw_err = (np.degrees(np.sqrt(np.nanmean((p - run.truth.pitch) ** 2)))
                     for p in (pitch, raw))
-    assert raw_err > 0.7 and err < 0.1  # degrees
+    assert raw_err > 0.5 and err < min(0.1, raw_err / 5)  # degrees
 
 
 @pytest.mark.parametrize("start", ["moving", "standing"])
