@@ -65,7 +65,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         choices=LOSSES,
         default=SmootherConfig.loss,
         help="robust loss of the pair factors (default: %(default)s; redescending, so a strong "
-        "outlier pair pulls the trajectory far less than with cauchy)",
+        "outlier pair pulls the trajectory far less than with cauchy; cauchy, geman-mcclure "
+        "and tukey start from two huber steps)",
     )
     group.add_argument(
         "--motion-given-pose",
