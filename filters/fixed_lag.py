@@ -45,6 +45,7 @@ from .smoother import (
     dead_reckoned,
     held_linearization_point,
     optimize,
+    with_pair_loss,
 )
 from .smoother_config import SmoothedFrame, SmootherConfig
 from .smoother_marginals import BLOCK_LETTERS, block_norms, state_covariances
@@ -338,13 +339,11 @@ class FixedLagSmoother:
         try:
             if convex is not None:
                 t0 = time.perf_counter()
-                boot_graph = gtsam.NonlinearFactorGraph()
-                for f in _prior_factors(keys[0], g, convex, self._start_pose):
-                    boot_graph.add(f)
-                for k in keys:
-                    args = self._added[k][0]
-                    for f in _frame_factors(k, args[0], *args[1:3], convex, *args[4:]):
-                        boot_graph.add(f)
+                paired = {id(f) for fs in self._pairs.values() for f in fs}
+                boot_graph = with_pair_loss(
+                    (f for _, f in graph if id(f) not in paired),
+                    ((k, a[0], a[5], a[7]) for k, (a, _) in self._added.items() if not a[4]),
+                    convex)
                 try:
                     values = optimize(boot_graph, values, convex)[0]
                 except RuntimeError as exc:  # as _solve: gtsam's indeterminate system

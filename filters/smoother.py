@@ -477,17 +477,19 @@ def _batch_graph(
     return graph, values, pairs, shared
 
 
-def with_pair_loss(shared: Sequence[gtsam.NonlinearFactor], inputs: Sequence[tuple],
-                   cfg: SmootherConfig) -> gtsam.NonlinearFactorGraph:
-    """The graph of ``shared`` factors and the pairs of ``inputs`` (as ``_batch_graph``
-    takes them) under ``cfg.loss``."""
+def with_pair_loss(
+    shared: Iterable[gtsam.NonlinearFactor],
+    pairs: Iterable[tuple[int, PairMeasurement, bool, FloatArray | None]],
+    cfg: SmootherConfig,
+) -> gtsam.NonlinearFactorGraph:
+    """The graph of the ``shared`` factors and the ``pairs`` (key index, measurement,
+    metric, mount jump variance: ``pair_factors``' arguments) under ``cfg.loss``."""
     graph = gtsam.NonlinearFactorGraph()
     for f in shared:
         graph.add(f)
-    for k, (m, _, _, first, metric, _, jump) in enumerate(inputs):
-        if not first:
-            for f in pair_factors(k, m, cfg, metric, jump):
-                graph.add(f)
+    for k, m, metric, jump in pairs:
+        for f in pair_factors(k, m, cfg, metric, jump):
+            graph.add(f)
     return graph
 
 
@@ -531,7 +533,9 @@ def smooth_batch(
     stages = [(graph, cfg)]
     convex = cfg.convex_start()
     if convex is not None:
-        stages.insert(0, (with_pair_loss(shared, inputs, convex), convex))
+        frame_pairs = [(k, m, metric, jump) for k, (m, _, _, first, metric, _, jump)
+                       in enumerate(inputs) if not first]
+        stages.insert(0, (with_pair_loss(shared, frame_pairs, convex), convex))
     timings["build"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
