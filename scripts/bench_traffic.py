@@ -113,6 +113,13 @@ def pose_truth(table: dict, truth: dict, rows: np.ndarray, truth_rows: np.ndarra
     return fast_pose_truth(table, truth, rows)
 
 
+def pose_errors(table: dict, rows: np.ndarray, true: dict[str, np.ndarray]
+                ) -> dict[str, np.ndarray]:
+    """Absolute pitch and roll error [deg] of ``rows`` of ``table`` against ``true``."""
+    return {angle: np.abs(table[f"{angle}_deg"][rows] - true[angle])
+            for angle in ("pitch", "roll")}
+
+
 def normal_error_deg(pitch_deg: np.ndarray, roll_deg: np.ndarray,
                      true: dict[str, np.ndarray]) -> float:
     """Mean angle [deg] between the estimated and the true road normal."""
@@ -142,8 +149,7 @@ def score(est: dict, truth: dict, absolute: bool) -> dict[str, float]:
     true = pose_truth(est, truth, r, t, absolute)
     wrong = np.zeros(len(r), bool)
     confident = np.zeros(len(r), bool)
-    for angle in ("pitch", "roll"):
-        e = np.abs(est[f"{angle}_deg"][r] - true[angle])
+    for angle, e in pose_errors(est, r, true).items():
         z = e / est[f"{angle}_std_deg"][r]
         out[f"{angle}_z_rms"] = float(np.sqrt(np.mean(z**2)))
         wrong |= e > WRONG_DEG
@@ -189,9 +195,8 @@ def filtered_errors(out_dir: Path, est_csv: Path, height: float, truth: dict,
         true = pose_truth(table, truth, rows, ti, absolute)
         out[f"{command}_normal_err_mean_deg"] = normal_error_deg(
             table["pitch_deg"][rows], table["roll_deg"][rows], true)
-        out[f"{command}_wrong"] = float(np.count_nonzero(
-            (np.abs(table["pitch_deg"][rows] - true["pitch"]) > WRONG_DEG)
-            | (np.abs(table["roll_deg"][rows] - true["roll"]) > WRONG_DEG)))
+        out[f"{command}_wrong"] = float(np.count_nonzero(np.any(
+            [e > WRONG_DEG for e in pose_errors(table, rows, true).values()], axis=0)))
     for angle in ("pitch", "roll"):
         col = f"mount_{angle}_deg"
         if absolute and col in table and np.all(np.isfinite(truth.get(col, [np.nan]))):
