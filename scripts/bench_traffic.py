@@ -300,6 +300,7 @@ COLUMNS = [
     ("smooth_pitch_rms_deg", "smoothed pitch RMS °", "{:.3f}"),
     ("smooth_roll_rms_deg", "smoothed roll RMS °", "{:.3f}"),
     ("smooth_dist_median_pct", "smoothed dist med %", "{:.2f}"),
+    ("smooth_wrong", "smoothed > 1.5° off", "{:.0f}"),
     ("given_pose_dist_median_pct", "motion given pose: dist med %", "{:.2f}"),
     ("given_pose_dist_p95_pct", "… p95 %", "{:.1f}"),
     ("given_pose_normal_err_mean_deg", "… normal err °", "{:.3f}"),

@@ -250,7 +250,7 @@ def test_other_status_rows_quote_the_results_files():
     bite = (RESULTS / "check_tests_bite.md").read_text()
     caught, total = re.search(r"(\d+) of (\d+) mutants caught", bite).groups()
     assert f"| {caught} of {total} |" in _status("tests")
-    traffic = [r for r in _rows(RESULTS / "bench_traffic.md") if len(r) == 28 and r[0] != "run"]
+    traffic = [r for r in _rows(RESULTS / "bench_traffic.md") if len(r) == 29 and r[0] != "run"]
     renders = [r for r in traffic if "seed" in r[0] and "no --pitch" in r[0]]
     wrong = [int(r[2]) for r in renders]
     confident = [int(r[3]) for r in renders]
@@ -261,9 +261,9 @@ def test_other_status_rows_quote_the_results_files():
             in _status("traffic, forward camera"))
     renders = [r for r in traffic if "seed" in r[0]]
     given = next(r for r in traffic if r[0] == "KITTI 07 (no --pitch)")
-    assert (f"| {_range([float(r[25]) for r in renders], '.2f')} / "
-            f"{_range([float(r[26]) for r in renders], '.1f')} %; {given[25]} / {given[26]} % |"
-            in _status("traffic, distance"))
+    assert (f"| {_range([float(r[26]) for r in renders], '.2f')} / "
+            f"{_range([float(r[27]) for r in renders], '.1f')} %; {given[26]} / {given[27]} %; "
+            f"{given[11]} / {given[12]} % |" in _status("traffic, distance"))
     ours = next(r for r in _rows(RESULTS / "bench_realtime.md") if r[0] == "vipm-track (ours)")
     assert f"| {ours[1]}; {ours[3]} |" in _status("speed, real frames")
     fleet = {r[0]: r for r in _rows(RESULTS / "bench_fleet.md") if len(r) == 6}

@@ -206,22 +206,33 @@ def test_default_config_is_the_one_that_states_honest_covariances():
 
 def _bench_traffic():
     import importlib.util
-    import sys
 
     from tests.conftest import ROOT
 
     spec = importlib.util.spec_from_file_location("bench_traffic",
                                                   ROOT / "scripts" / "bench_traffic.py")
     module = importlib.util.module_from_spec(spec)
-    sys.modules["bench_traffic"] = module
     spec.loader.exec_module(module)
     return module
 
 
-def test_kitti_pitch_truth_follows_the_body_not_the_road_grade():
+def _rx(angle: float) -> np.ndarray:
+    """Rotation about x taking (0, 0, 1) to (0, −sin a, cos a): raises z by ``angle`` (y down)."""
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def _ry(angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+
+
+@pytest.mark.parametrize("yaw_deg, roll_deg", [(0.0, 0.0), (8.0, 1.5), (-10.0, -2.0)])
+def test_kitti_pitch_truth_follows_the_body_not_the_road_grade(yaw_deg, roll_deg):
     # bench_traffic scores KITTI's pitch against the direction of travel from the poses: a
     # car at 0.5 m per frame over a vertical curve (grade 0 → 3°) whose camera pitches
-    # 1° ± 0.5° against the road; the truth must give that pitch, not the grade
+    # 1° ± 0.5° against the road, rolled and yawed against its travel (a camera ahead of
+    # the rear axle in a turn); given the roll, the truth gives that pitch, not the grade
     bench = _bench_traffic()
     k = np.arange(160)
     s = 0.5 * k
@@ -229,17 +240,24 @@ def test_kitti_pitch_truth_follows_the_body_not_the_road_grade():
     elevation = np.concatenate([[0.0], np.cumsum(np.tan(grade[:-1] + np.diff(grade) / 2)
                                                 * np.diff(s))])
     pitch = np.radians(1.0 + 0.5 * np.sin(2 * np.pi * k / 20))
+    roll, yaw = math.radians(roll_deg), math.radians(yaw_deg)
     poses = np.tile(np.eye(4), (len(k), 1, 1))
-    for i, angle in enumerate(grade - pitch):
-        c, si = math.cos(angle), math.sin(angle)
-        # camera axes in the first camera's frame (y down): optical axis raised by the
-        # grade less the pitch
-        poses[i, :3, :3] = [[1, 0, 0], [0, c, -si], [0, si, c]]
+    for i in range(len(k)):
+        # camera axes in the first camera's frame (y down): the road frame raised by the
+        # grade, the camera yawed about the road normal and posed by R_GC (CONVENTIONS.md)
+        poses[i, :3, :3] = _rx(grade[i]) @ _ry(yaw) @ _r_gc(pitch[i], roll)
         poses[i, :3, 3] = [0.0, -elevation[i], s[i]]
-    truth = bench.travel_pitch_truth(poses, np.zeros(len(k)))
+    truth = bench.travel_pitch_truth(poses, np.full(len(k), roll_deg))
     err = truth - np.degrees(pitch)
     assert np.max(np.abs(err[5:-5])) < 0.02
     assert np.max(np.abs(err)) < 0.1
+    if roll_deg:  # the roll it is given counts where the travel is off the optical axis
+        level = bench.travel_pitch_truth(poses, np.zeros(len(k)))
+        assert np.median(np.abs(level - np.degrees(pitch))) > 0.1
+
+
+def test_kitti_roll_stand_in_median_keeps_the_end_rows_errors():
+    bench = _bench_traffic()
     # the running median of the roll's slow part is not pulled to the end rows' own values
     # (padding with copies of them hid their errors)
     rows = np.zeros(50)
