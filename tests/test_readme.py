@@ -120,8 +120,13 @@ def test_readme_tour_has_the_five_steps():
 
 def _rows(path) -> list[list[str]]:
     """Cells of every Markdown table row of a results file."""
+    return _text_rows(path.read_text())
+
+
+def _text_rows(text: str) -> list[list[str]]:
+    """Cells of every Markdown table row of ``text``."""
     return [[c.strip() for c in line.strip().strip("|").split("|")]
-            for line in path.read_text().splitlines()
+            for line in text.splitlines()
             if line.startswith("|") and not line.startswith("| ---")]
 
 
@@ -250,20 +255,27 @@ def test_other_status_rows_quote_the_results_files():
     bite = (RESULTS / "check_tests_bite.md").read_text()
     caught, total = re.search(r"(\d+) of (\d+) mutants caught", bite).groups()
     assert f"| {caught} of {total} |" in _status("tests")
-    traffic = [r for r in _rows(RESULTS / "bench_traffic.md") if len(r) == 29 and r[0] != "run"]
+    rows_text, filters_text = (RESULTS / "bench_traffic.md").read_text().split(
+        "The filters on them", 1)
+    traffic = [r for r in _text_rows(rows_text) if len(r) == 17 and r[0] != "run"]
+    filtered = [r for r in _text_rows(filters_text) if len(r) == 17 and r[0] != "run"]
     renders = [r for r in traffic if "seed" in r[0] and "no --pitch" in r[0]]
     wrong = [int(r[2]) for r in renders]
     confident = [int(r[3]) for r in renders]
     kitti = next(r for r in traffic if r[0] == "KITTI 07 (no --pitch)")
-    tracked = [int(r[14]) for r in traffic]
+    tracked = [int(r[1]) for r in filtered]
     assert (f"| {_range(wrong, 'd')} ({_range(confident, 'd')} > 3σ), {kitti[2]} "
             f"({kitti[3]}); {_range(tracked, 'd')}; {kitti[5]} / {kitti[6]} |"
             in _status("traffic, forward camera"))
-    renders = [r for r in traffic if "seed" in r[0]]
-    given = next(r for r in traffic if r[0] == "KITTI 07 (no --pitch)")
-    assert (f"| {_range([float(r[26]) for r in renders], '.2f')} / "
-            f"{_range([float(r[27]) for r in renders], '.1f')} %; {given[26]} / {given[27]} %; "
-            f"{given[11]} / {given[12]} % |" in _status("traffic, distance"))
+    given = [r for r in filtered if "seed" in r[0]]
+    kitti_given = next(r for r in filtered if r[0] == "KITTI 07 (no --pitch)")
+    assert (f"| {_range([float(r[14]) for r in given], '.2f')} / "
+            f"{_range([float(r[15]) for r in given], '.1f')} %; {kitti_given[14]} / "
+            f"{kitti_given[15]} %; {kitti[11]} / {kitti[12]} % |" in _status("traffic, distance"))
+    smoothed_kitti = next(r for r in filtered if r[0] == "KITTI 07 (no --pitch)")
+    assert (f"| {_range([float(r[9]) for r in given], '.2f')} / "
+            f"{_range([float(r[10]) for r in given], '.2f')}; {smoothed_kitti[9]} / "
+            f"{smoothed_kitti[10]} |" in _status("traffic, filter σ"))
     ours = next(r for r in _rows(RESULTS / "bench_realtime.md") if r[0] == "vipm-track (ours)")
     assert f"| {ours[1]}; {ours[3]} |" in _status("speed, real frames")
     fleet = {r[0]: r for r in _rows(RESULTS / "bench_fleet.md") if len(r) == 6}
