@@ -49,6 +49,7 @@ from .body_scale import BodyScale, pair_change, pairs_to_start
 from .ekf_state import EkfConfig, FilterState
 from .model import NoiseParams
 from .mount_change import MountChangeDetector
+from .row_correlation import PoseErrorCorrelation
 from .wheel_speed import interpolate_speed
 
 FloatArray = NDArray[np.float64]
@@ -571,4 +572,5 @@ def run_filter(
         from vipm_track.progress import progress_bar
 
         it = progress_bar(it, total=len(measurements), desc="ekf", unit="frame")
-    return [ekf.step(m, m.t, float(v), m.frame) for m, v in it]
+    correlation = PoseErrorCorrelation()
+    return [correlation.widened(ekf.step(m, m.t, float(v), m.frame), m) for m, v in it]

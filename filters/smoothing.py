@@ -12,6 +12,7 @@ from vipm_track.measurement import PairMeasurement
 
 from .ekf import SpeedSource, speed_at
 from .fixed_lag import FixedLagSmoother
+from .row_correlation import PoseErrorCorrelation, widened_drive
 from .smoother import smooth_batch
 from .smoother_config import SmoothedFrame, SmootherConfig
 from .track import track_row
@@ -54,9 +55,20 @@ def smoothed_frames(
     the whole drive is solved."""
     cfg = config or SmootherConfig()
     speeds = speeds_at_frames(measurements, speed_series, clock_offset_s)
+    by_frame = {m.frame: m for m in measurements}
+    # the pose σ widened by the pairs' error correlation (row_correlation): the batch's by
+    # the whole drive's, the fixed lag's by the residuals up to each frame
     if cfg.lag_s == 0:
-        yield from smooth_batch(measurements, speeds, cfg, progress)[0]
+        yield from widened_drive(smooth_batch(measurements, speeds, cfg, progress)[0], by_frame)
         return
+    correlation = PoseErrorCorrelation()
+    for f in _fixed_lag_frames(measurements, cfg, speeds, progress):
+        yield correlation.widened(f, by_frame.get(f.frame))
+
+
+def _fixed_lag_frames(measurements: Sequence[PairMeasurement], cfg: SmootherConfig,
+                      speeds: NDArray, progress: bool) -> Iterator[SmoothedFrame]:
+    """The fixed-lag smoother's frames as they leave its window."""
     sm = FixedLagSmoother(cfg)
     it = zip(measurements, speeds, strict=True)
     if progress:

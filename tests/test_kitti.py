@@ -98,13 +98,13 @@ def _travel_pitch_truth(table: dict) -> np.ndarray:
 
 
 @pytest.mark.parametrize(
-    ("method", "frames", "median_ratio", "p95_ratio", "yaw_ratio", "pitch_ratio"),
-    [("ekf", 150, 1.02, 1.4, 1.6, 1.3), ("fixed-lag 2 s", 159, 0.92, 1.06, 1.3, 0.95),
-     ("batch", 159, 0.92, 1.06, 1.3, 0.85)],
+    ("method", "frames", "median_ratio", "p95_ratio", "yaw_ratio", "pitch_ratio", "z_max"),
+    [("ekf", 150, 1.02, 1.4, 1.6, 1.3, 1.6), ("fixed-lag 2 s", 159, 0.92, 1.06, 1.3, 0.95, 2.0),
+     ("batch", 159, 0.92, 1.06, 1.3, 0.85, 1.6)],
 )
 def test_filters_follow_the_real_kitti_drive(method: str, frames: int, median_ratio: float,
                                              p95_ratio: float, yaw_ratio: float,
-                                             pitch_ratio: float):
+                                             pitch_ratio: float, z_max: float):
     # Real driving: a turn at 30°/s from standstill, then hard acceleration. The camera sits
     # ahead of the axle the car turns about, and the estimator's covariance is optimistic,
     # so a filter that trusts its motion model gates the pairs after the turn and keeps the
@@ -161,6 +161,12 @@ def test_filters_follow_the_real_kitti_drive(method: str, frames: int, median_ra
     rms = np.sqrt(np.mean((pitch[known] - true_pitch[frame[known]]) ** 2))
     held = np.sqrt(np.mean((mount - true_pitch[frame[known]]) ** 2))
     assert rms < pitch_ratio * held, (rms, held)
+    # and the frames' stated σ: the pairs' errors run on from frame to frame, which the
+    # filters' σ takes in (filters/row_correlation.py; z RMS 1.26 / 1.66 / 1.22, 3–4 before)
+    std = np.array([math.degrees(s.pose_std[0]) if s.pose is not None else np.nan
+                    for s in states])
+    z = np.sqrt(np.mean(((pitch[known] - true_pitch[frame[known]]) / std[known]) ** 2))
+    assert z < z_max, z
 
 
 def test_smoothed_summary_interval_is_honest_on_the_real_drive():
