@@ -5,7 +5,8 @@ One row per frame. The base columns (``CONVENTIONS.md``) hold the *filtered* fra
 (metric, at the estimated height); ``status`` is ``ok`` whenever the filter has an estimate
 and ``waiting for first pairs`` before it starts (numbers empty). Then, in this order:
 
-- ``pitch_std_deg, roll_std_deg, height_std_m``: 1-σ of the filtered frame pose;
+- ``pitch_std_deg, roll_std_deg, height_std_m``: 1-σ of the filtered frame pose (pitch
+  and roll widened by the pairs' error correlation: ``row_correlation``);
 - ``tx_std_m, tz_std_m, yaw_std_deg``: 1-σ of the filtered motion;
 - ``mount_pitch_deg, mount_pitch_std_deg, mount_roll_deg, mount_roll_std_deg,
   mount_height_m, mount_height_std_m``: the slow mount part, i.e. the calibration;
