@@ -162,7 +162,7 @@ def test_filters_follow_the_real_kitti_drive(method: str, frames: int, median_ra
     held = np.sqrt(np.mean((mount - true_pitch[frame[known]]) ** 2))
     assert rms < pitch_ratio * held, (rms, held)
     # and the frames' stated σ: the pairs' errors run on from frame to frame, which the
-    # filters' σ takes in (filters/row_correlation.py; z RMS 1.26 / 1.66 / 1.22, 3–4 before)
+    # filters' σ takes in (filters/row_correlation.py; z RMS 1.22 / 1.60 / 1.18, 3–4 before)
     std = np.array([math.degrees(s.pose_std[0]) if s.pose is not None else np.nan
                     for s in states])
     z = np.sqrt(np.mean(((pitch[known] - true_pitch[frame[known]]) / std[known]) ** 2))
