@@ -90,7 +90,9 @@ class _ClonedEKF(ExtendedKalmanFilter):
 class ExtrinsicsEKF:
     """Recursive estimate of mount extrinsics, body shaking and planar motion (module doc)."""
 
-    def __init__(self, config: EkfConfig | None = None) -> None:
+    def __init__(self, config: EkfConfig | None = None, widen_pose: bool = True) -> None:
+        """``widen_pose``: widen each state's pose σ by the pairs' error correlation
+        (:meth:`step`); off where only the mount is read (it costs a sixth of a step)."""
         self._cfg = config or EkfConfig()
         if self._cfg.height_m <= 0:
             raise ValueError(f"nominal height must be > 0, got {self._cfg.height_m}")
@@ -117,6 +119,7 @@ class ExtrinsicsEKF:
         #: pairs up to this time are in the body window already (the bootstrap's)
         self._body_seen_t = -math.inf
         self._mount_change = MountChangeDetector(cfg.mount_change)
+        self._correlation = PoseErrorCorrelation() if widen_pose else None
         #: mount steps found so far: (onset time s, axis 0 pitch / 1 roll, step rad)
         self.mount_changes: list[tuple[float, int, float]] = []
         h0 = self._cfg.height_m
@@ -138,7 +141,17 @@ class ExtrinsicsEKF:
         frame: int | None = None,
     ) -> FilterState:
         """Advance to frame time ``t`` (default: the measurement's) and apply the pair
-        ``measurement`` (skipped unless ok) and the wheel ``speed`` (m/s; None/NaN: none)."""
+        ``measurement`` (skipped unless ok) and the wheel ``speed`` (m/s; None/NaN: none).
+        The state's pose σ is widened by the pairs' error correlation (``row_correlation``;
+        the filter's own covariance is not) unless the filter was made without."""
+        state = self._step(measurement, t, speed, frame)
+        if self._correlation is None:
+            return state
+        return self._correlation.widened(state, measurement)
+
+    def _step(self, measurement: PairMeasurement | None, t: float | None, speed: float | None,
+              frame: int | None) -> FilterState:
+        """:meth:`step`, before the pose σ is widened."""
         if t is None:
             if measurement is None:
                 raise ValueError("step needs a time t when there is no measurement")
@@ -572,5 +585,4 @@ def run_filter(
         from vipm_track.progress import progress_bar
 
         it = progress_bar(it, total=len(measurements), desc="ekf", unit="frame")
-    correlation = PoseErrorCorrelation()
-    return [correlation.widened(ekf.step(m, m.t, float(v), m.frame), m) for m, v in it]
+    return [ekf.step(m, m.t, float(v), m.frame) for m, v in it]

@@ -33,7 +33,6 @@ from .ekf_state import EkfConfig
 from .monitor import DriftMonitor
 from .monitor_types import MonitorConfig, MonitorInput, MonitorOutput
 from .nominal import NominalCalibration
-from .row_correlation import PoseErrorCorrelation
 from .wheel_speed import cumulative_distance
 
 FloatArray = NDArray[np.float64]
@@ -285,12 +284,11 @@ def monitor_frames(
         from vipm_track.progress import progress_bar
 
         it = progress_bar(it, total=len(measurements), desc="monitor", unit="frame")
-    correlation = PoseErrorCorrelation()  # the frames' pose σ as `track` states it
     for m, v, frame_input in it:
         state = ekf.step(m, m.t, float(v), m.frame)
         mount, mount_cov, gated = mount_from_state(state)
         judged = replace(frame_input, mount=mount, mount_cov=mount_cov, gated=gated)
-        yield m, correlation.widened(state, m), mon.update(judged)
+        yield m, state, mon.update(judged)
 
 
 def frame_rate(measurements: Sequence[PairMeasurement], default: float = 10.0) -> float:

@@ -27,7 +27,6 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import replace
-from itertools import pairwise
 from typing import TypeVar
 
 import numpy as np
@@ -67,35 +66,35 @@ class PoseErrorCorrelation:
         """``estimate`` with its pitch and roll σ widened by the residuals up to it."""
         self.observe(estimate, m)
         while self._residuals and self._residuals[0][1] < estimate.t - self.window_s:
-            self._residuals.popleft()  # a stretch without usable pairs ages the window too
+            self._residuals.popleft()  # also through a stretch without usable pairs
         return widen(estimate, self.scale())
 
     def observe(self, estimate: FrameEstimate, m: PairMeasurement | None) -> None:
-        """Take the residual of ``m``'s pose (frame k) against ``estimate``'s."""
+        """Take the residual of ``m``'s pose (frame k) against ``estimate``'s (the window is
+        aged by :meth:`widened`)."""
         pose = estimate.pose
         if m is None or not m.ok or pose is None or not np.all(np.isfinite(pose[:2])):
             return
-        std = np.sqrt(np.diag(m.covariance)[2:4])
-        if not np.all(np.isfinite(std) & (std > 0)):
+        var = np.diag(m.covariance)[2:4]
+        if not np.all(np.isfinite(var) & (var > 0)):
             return
-        z = np.clip((m.z[2:4] - pose[:2]) / std, -MAX_Z, MAX_Z)
+        z = np.clip((m.z[2:4] - pose[:2]) / np.sqrt(var), -MAX_Z, MAX_Z)
         self._residuals.append((m.frame, m.t, z))
-        while self._residuals and self._residuals[0][1] < m.t - self.window_s:
-            self._residuals.popleft()
 
     def scale(self) -> FloatArray:
         """Factor on the pitch and roll σ from the window's residuals (1 where their
         autocorrelation is not significant or there are too few lagged pairs)."""
-        rows = list(self._residuals)
-        lagged = [(a[2], b[2]) for a, b in pairwise(rows)
-                  if 0 < b[0] - a[0] <= MAX_LAG_FRAMES]
-        n = len(lagged)
+        if len(self._residuals) <= self.min_lag_pairs:
+            return np.ones(2)
+        frames = np.fromiter((f for f, _, _ in self._residuals), float, len(self._residuals))
+        r = np.array([v for _, _, v in self._residuals])
+        step = np.diff(frames)
+        lagged = (step > 0) & (step <= MAX_LAG_FRAMES)
+        n = int(np.count_nonzero(lagged))
         if n < self.min_lag_pairs:
             return np.ones(2)
-        r = np.array([v for _, _, v in rows])
         mean = r.mean(axis=0)
-        first = np.array([a for a, _ in lagged]) - mean
-        second = np.array([b for _, b in lagged]) - mean
+        first, second = r[:-1][lagged] - mean, r[1:][lagged] - mean
         # each sum over its own count: gaps between the pairs must not dilute the covariance
         variance = np.maximum(np.mean((r - mean) ** 2, axis=0), 1e-12)
         rho = np.mean(first * second, axis=0) / variance

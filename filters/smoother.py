@@ -266,7 +266,7 @@ def mount_jumps(
     if not cfg.mount_change.enabled:
         return {}
     ekf = ExtrinsicsEKF(EkfConfig(height_m=cfg.height_m, noise=cfg.noise,
-                                  mount_change=cfg.mount_change))
+                                  mount_change=cfg.mount_change), widen_pose=False)
     for m, v in zip(ms, speeds, strict=True):
         ekf.step(m, m.t, float(v), m.frame)
     t = np.array([m.t for m in ms])

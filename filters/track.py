@@ -36,7 +36,6 @@ from vipm_track.table import CONCISE, ColumnChoice, TableColumns, TableWriter, c
 
 from .ekf import ExtrinsicsEKF, SpeedSource, speed_at
 from .ekf_state import EkfConfig, FilterState
-from .row_correlation import PoseErrorCorrelation
 
 TRACK_COLUMNS: tuple[str, ...] = (
     "pitch_std_deg", "roll_std_deg", "height_std_m", "tx_std_m", "tz_std_m", "yaw_std_deg",
@@ -112,13 +111,12 @@ def track(
     """Filter a stream of measurements (one per frame), yielding (state, measurement, speed
     applied) per frame; speeds are taken from ``speed_series`` (camera clock) at frame times."""
     ekf = ExtrinsicsEKF(config)
-    correlation = PoseErrorCorrelation()
     for m in measurements:
         v = None
         if speed_series is not None:
             s = float(speed_at(speed_series, np.array([m.t]))[0])
             v = s if np.isfinite(s) else None
-        yield correlation.widened(ekf.step(m, m.t, v, m.frame), m), m, v
+        yield ekf.step(m, m.t, v, m.frame), m, v
 
 
 def write_track(

@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import IO, Any
 
 from vipm_track.filters.nominal import NominalCalibration
-from vipm_track.filters.row_correlation import PoseErrorCorrelation
 from vipm_track.filters.speed_decoder import SpeedDecoder
 from vipm_track.filters.track import track_row
 from vipm_track.filters.wheel_speed import SpeedSeries
@@ -108,8 +107,6 @@ def run_live(
     writer = TableWriter(Path(out), LIVE_COLUMNS,
                          Path(out).with_suffix(".parquet") if parquet else None, written)
 
-    correlation = PoseErrorCorrelation()  # the dashboard's pose σ as `track`'s
-
     def on_row(live: LiveRow) -> None:
         writer.write(live.row)
         if sink is not None:
@@ -117,8 +114,7 @@ def run_live(
             if live.result is not None:
                 sink.log_pair_views(m.frame, m.t, live.result, live.image)
             sink.log_measurement(m)
-            sink.log_track_row(track_row(correlation.widened(live.state, m), m, None),
-                               "filtered")
+            sink.log_track_row(track_row(live.state, m, None), "filtered")
             sink.log_monitor(live.output)
 
     def on_event(event: dict[str, Any]) -> None:
