@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import importlib.util
+import sys
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 
@@ -16,6 +19,16 @@ def shared_data(*parts: str) -> Path:
     if not path.exists():
         pytest.skip(f"shared data not found at {path} (the real-data tests need ../shared/data)")
     return path
+
+
+def load_script(name: str) -> ModuleType:
+    """The module of ``scripts/NAME.py`` (registered under ``NAME``: its dataclasses look
+    their module up)."""
+    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
 
 
 #: A 1280×720 pinhole camera (fx = fy = 900 px, no distortion) as a ROS camera_info YAML.

@@ -83,15 +83,10 @@ def test_stored_kitti_estimates_score_as_stated():
 def _travel_pitch_truth(table: dict) -> np.ndarray:
     """KITTI 07's pitch against the road per frame [deg]: scripts/bench_traffic.py's, the
     pitch at which the poses' direction of travel lies in the ground plane."""
-    import importlib.util
-
-    from tests.conftest import ROOT
+    from tests.conftest import load_script
     from vipm_track.kitti import kitti_truth_table
 
-    spec = importlib.util.spec_from_file_location("bench_traffic",
-                                                  ROOT / "scripts" / "bench_traffic.py")
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = load_script("bench_traffic")
     poses = shared_data("kitti07", "poses.txt")
     _, truth = bench.score(table, kitti_truth_table(poses, 0.0), read_poses(poses))
     return truth["pitch"]

@@ -5,13 +5,12 @@ set-up and tour commands that exist."""
 from __future__ import annotations
 
 import importlib
-import importlib.util
 import re
 import shlex
 import tomllib
 
 import pytest
-from conftest import ROOT
+from conftest import ROOT, load_script
 
 README = ROOT / "README.md"
 DOCS = ROOT / "docs"
@@ -20,11 +19,7 @@ LINK = re.compile(r"\[[^\]]*\]\(([^)\s]+)\)")
 
 
 def _load_update_docs():
-    path = ROOT / "scripts" / "update_docs.py"
-    spec = importlib.util.spec_from_file_location("update_docs", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("update_docs")
 
 
 def test_readme_is_short():

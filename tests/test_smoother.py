@@ -727,18 +727,9 @@ def test_fixed_lag_frame_is_the_batch_of_the_data_up_to_its_lag():
 
 @pytest.fixture(scope="module")
 def bench_filters():
-    import importlib.util
-    import sys
+    from conftest import load_script
 
-    from conftest import ROOT
-
-    spec = importlib.util.spec_from_file_location(
-        "bench_filters", ROOT / "scripts" / "bench_filters.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["bench_filters"] = module  # its dataclasses look their module up
-    spec.loader.exec_module(module)
-    return module
+    return load_script("bench_filters")
 
 
 def test_reference_lag_beyond_the_drive_is_its_batch(bench_filters):

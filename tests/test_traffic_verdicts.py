@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tests.conftest import shared_data
+from tests.conftest import load_script, shared_data
 from vipm_track import bundle, geometry
 from vipm_track import displacement_model as dm
 from vipm_track.camera import load_camera
@@ -204,18 +204,6 @@ def test_default_config_is_the_one_that_states_honest_covariances():
     assert config.max_roll_deg == 10.0
 
 
-def _bench_traffic():
-    import importlib.util
-
-    from tests.conftest import ROOT
-
-    spec = importlib.util.spec_from_file_location("bench_traffic",
-                                                  ROOT / "scripts" / "bench_traffic.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def _rx(angle: float) -> np.ndarray:
     """Rotation about x taking (0, 0, 1) to (0, −sin a, cos a): raises z by ``angle`` (y down)."""
     c, s = math.cos(angle), math.sin(angle)
@@ -233,7 +221,7 @@ def test_kitti_pitch_truth_follows_the_body_not_the_road_grade(yaw_deg, roll_deg
     # car at 0.5 m per frame over a vertical curve (grade 0 → 3°) whose camera pitches
     # 1° ± 0.5° against the road, rolled and yawed against its travel (a camera ahead of
     # the rear axle in a turn); given the roll, the truth gives that pitch, not the grade
-    bench = _bench_traffic()
+    bench = load_script("bench_traffic")
     k = np.arange(160)
     s = 0.5 * k
     grade = np.radians(1.5) * (1 - np.cos(np.pi * s / 80.0))
@@ -257,7 +245,7 @@ def test_kitti_pitch_truth_follows_the_body_not_the_road_grade(yaw_deg, roll_deg
 
 
 def test_kitti_roll_stand_in_median_keeps_the_end_rows_errors():
-    bench = _bench_traffic()
+    bench = load_script("bench_traffic")
     # the running median of the roll's slow part is not pulled to the end rows' own values
     # (padding with copies of them hid their errors)
     rows = np.zeros(50)
