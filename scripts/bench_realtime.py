@@ -63,7 +63,7 @@ DEFAULT_THREADS = threads()
 
 
 def ours(data: Path, pairs: int, threads: int | None = None, tracking: bool = True,
-         ) -> tuple[list[dict], dict]:
+         config: EstimatorConfig | None = None) -> tuple[list[dict], dict]:
     """Per-pair rows (time, stage times, status) of the estimator (in tracking mode, or cold
     at every pair), and the estimate-table columns its errors are scored from; ``threads``:
     patch-correlation threads (``--threads``; None: the default)."""
@@ -72,8 +72,8 @@ def ours(data: Path, pairs: int, threads: int | None = None, tracking: bool = Tr
     source = open_source(images=data / "image_0", max_frames=pairs + 1)
     rows, est = [], {k: [] for k in ("frame", "status", "tx_m", "tz_m", "yaw_deg")}
     last, last_cpu = time.perf_counter(), time.process_time()
-    for step in run_sequence(source, Rig(camera, HEIGHT_M, PITCH_DEG), EstimatorConfig(),
-                             tracking):
+    for step in run_sequence(source, Rig(camera, HEIGHT_M, PITCH_DEG),
+                             config or EstimatorConfig(), tracking):
         # the wall time since the step before: this frame's read, its preparation (on the
         # read-ahead thread where it did not overlap the pair before) and its pair; and the
         # CPU time of all the process's threads over it
@@ -199,14 +199,16 @@ def main(argv: list[str] | None = None) -> int:
     if not (data / "image_0").is_dir():
         print(f"KITTI frames not found at {data}", file=sys.stderr)
         return 2
-    variants = (("vipm-track (ours)", None, True), ("vipm-track, 1 thread", 1, True),
-                ("vipm-track, cold start every pair", None, False))
+    half = EstimatorConfig(ipm_poc_level=1)
+    variants = (("vipm-track (ours)", None, True, None), ("vipm-track, 1 thread", 1, True, None),
+                ("vipm-track, cold start every pair", None, False, None),
+                ("vipm-track, `--refinement-resolution half`", None, True, half))
     runs: dict[str, list[list[dict]]] = {
-        **{name: [] for name, _, _ in variants}, **{name: [] for _, _, name in PEERS}}
+        **{name: [] for name, *_ in variants}, **{name: [] for _, _, name in PEERS}}
     accuracy: dict[str, dict] = {}
     for _ in range(args.repeats):  # interleaved, so that load spikes hit all alike
-        for name, n, tracking in variants:
-            rows, est = ours(data, args.pairs, n, tracking)
+        for name, n, tracking, config in variants:
+            rows, est = ours(data, args.pairs, n, tracking, config)
             runs[name].append(rows)
             accuracy[name] = scored(est, data)
         for kind, reuse, name in PEERS:
@@ -239,7 +241,9 @@ def main(argv: list[str] | None = None) -> int:
         "",
         f"Medians over {args.pairs} pairs × {args.repeats} runs, interleaved; ours in tracking "
         f"mode with default settings ({DEFAULT_THREADS} correlation threads; the 1-thread row: "
-        f"`--threads 1`; the cold row: no tracking, `--no-tracking`) and `--pitch {PITCH_DEG}` "
+        "`--threads 1`; the cold row: no tracking, `--no-tracking`; the half row: the "
+        "refinements correlating on halved bird's-eye planes) and "
+        f"`--pitch {PITCH_DEG}` "
         "(ms/pair: wall time from one frame's row to the next as `run_sequence` yields "
         "them, the frame's read and preparation included — with two threads they are made "
         "on a read-ahead thread while the pair before is estimated; CPU ms: the process's "

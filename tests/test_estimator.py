@@ -826,3 +826,17 @@ def test_resolve_is_the_config_that_runs(preset, level):
     assert resolved.refinements == (2 if level else 1)
     assert resolved.vertical_motion is (not level)
     assert resolve(resolved, rig) == resolved  # nothing left to fill
+
+
+def test_refinements_on_halved_planes_keep_a_level_camera_accurate():
+    # --refinement-resolution half: the IPM patches correlated at a quarter of the pixels
+    traj, imgs, cam = _sequence("car", "gradual", 3)
+    est = TwoFrameEstimator(Rig(cam, float(traj.height[1]), 3.0),
+                            EstimatorConfig(ipm_poc_level=1))
+    for k in (1, 2):
+        result = est.estimate(imgs[k - 1], imgs[k])
+        assert result.status == "ok", result.reason
+        err = _errors(traj, k, result.pose_prev, result.pose_curr, result.motion)
+        # full resolution on these pairs: pitch 0.011-0.033°, roll 0.025-0.036°, 0.3-1.1 mm
+        assert err["pitch"] < 0.05 and err["roll"] < 0.08, err
+        assert err["dist_mm"] < 2.0 and err["yaw"] < 0.01, err

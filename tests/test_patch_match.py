@@ -75,3 +75,40 @@ def test_a_forked_child_correlates_after_the_parent_did(two_threads) -> None:
     expected = float(np.sum(_correlate()[1]))  # the parent's pool exists now
     with multiprocessing.get_context("fork").Pool(1) as pool:
         assert pool.apply_async(_child_peak_sum, (0,)).get(timeout=60) == expected
+
+
+def _fourier_shifted(image: np.ndarray, shift: tuple[float, float]) -> np.ndarray:
+    """``image`` (periodic) with its content moved by ``shift`` = (dx, dy) pixels."""
+    fy = np.fft.fftfreq(image.shape[0])[:, None]
+    fx = np.fft.fftfreq(image.shape[1])[None, :]
+    phase = np.exp(-2j * np.pi * (fx * shift[0] + fy * shift[1]))
+    return np.real(np.fft.ifft2(np.fft.fft2(image) * phase)).astype(np.float32)
+
+
+# a texture whose detail lies mostly within POC's band (half the Nyquist frequency)
+SMOOTH = np.real(np.fft.ifft2(np.fft.fft2(RNG.random((400, 400))) * np.exp(
+    -0.5 * ((np.fft.fftfreq(400)[:, None] ** 2 + np.fft.fftfreq(400)[None, :] ** 2)
+            / 0.12**2)))).astype(np.float32) * 2000
+
+
+@pytest.mark.parametrize("shift", [(3.3, -2.6), (-5.75, 0.4), (0.2, 6.9)])
+@pytest.mark.parametrize("offset", [(0.0, 0.0), (3.0, -3.0)])
+def test_a_pyramid_level_finds_the_full_resolution_shift(shift, offset) -> None:
+    moved = _fourier_shifted(SMOOTH, shift)
+    centres = CENTRES + 0.5  # off the pixel grid of either level
+    offsets = np.tile(offset, (40, 1))
+    # level 1's tolerance: pyrDown aliases the texture's detail next to the halved
+    # Nyquist frequency into the band (measured: 0.03 px at most; level 0: 0.006 px)
+    for level, tolerance in ((0, 0.01), (1, 0.05)):
+        found, peak = patch_match.match_grouped(SMOOTH, moved, centres, SIZES * 2, offsets,
+                                                recentre=True, level=level)
+        assert np.all(peak > 0.5)
+        np.testing.assert_allclose(found, np.tile(shift, (40, 1)), atol=tolerance)
+
+
+def test_patches_too_small_for_the_level_are_not_matched() -> None:
+    sizes = np.array([64] * 20 + [12] * 20)
+    found, peak = patch_match.match_grouped(IMAGE, MOVED, CENTRES, sizes, np.zeros((40, 2)),
+                                            level=1)
+    assert np.all(peak[20:] == 0) and np.all(np.isnan(found[20:]))
+    assert np.all(peak[:20] > 0)

@@ -528,6 +528,23 @@ def test_refinement_weights_option_sets_the_estimator(choice: str, steep: bool,
     assert got == expected
 
 
+@pytest.mark.parametrize(("flag", "expected"), [
+    ([], 0), (["--refinement-resolution", "full"], 0), (["--refinement-resolution", "half"], 1),
+])
+def test_refinement_resolution_option_sets_the_estimator(flag: list[str], expected: int) -> None:
+    import argparse
+
+    from vipm_track.commands.estimator_options import add_estimator_options, build_config
+    from vipm_track.sim import PRESETS
+
+    parser = argparse.ArgumentParser()
+    add_estimator_options(parser)
+    assert build_config(parser.parse_args(flag), PRESETS["car"].camera()).ipm_poc_level == expected
+    with pytest.raises(SystemExit) as exit_info:
+        parser.parse_args(["--refinement-resolution", "quarter"])
+    assert exit_info.value.code == 2
+
+
 @pytest.mark.parametrize(("flag", "steep", "expected"), [
     ([], True, True), ([], False, False),
     (["--vertical-motion"], False, True), (["--no-vertical-motion"], True, False),

@@ -193,14 +193,15 @@ def patch_sizes(
     offsets: FloatArray,
     patch: int,
     min_patch: int,
+    step: int = SIZE_STEP,
 ) -> NDArray[np.int64]:
-    """Largest size (N,) ≤ ``patch`` (multiples of :data:`SIZE_STEP`) whose square at
-    ``centres`` stays in the previous frame's visible polygon and, moved by ``offsets``, in
-    the current one's, both inside the grid; 0 where even ``min_patch`` does not fit."""
+    """Largest size (N,) ≤ ``patch`` (multiples of ``step``) whose square at ``centres``
+    stays in the previous frame's visible polygon and, moved by ``offsets``, in the current
+    one's, both inside the grid; 0 where even ``min_patch`` does not fit."""
     box = np.array([[0.0, 0.0], [grid.width - 1.0, 0.0], [grid.width - 1.0, grid.height - 1.0],
                     [0.0, grid.height - 1.0]])
-    top = int(patch // SIZE_STEP * SIZE_STEP) if patch >= SIZE_STEP else patch
-    candidates = list(range(top, min_patch - 1, -SIZE_STEP)) or [patch]
+    top = int(patch // step * step) if patch >= step else patch
+    candidates = list(range(top, min_patch - 1, -step)) or [patch]
     polygons = tuple(np.ascontiguousarray(p, dtype=float).reshape(-1, 2)
                      for p in (box, polygon_prev, polygon_curr))
     centres = np.ascontiguousarray(centres, dtype=float)

@@ -1,7 +1,9 @@
-"""POC of many patches of several sizes between two planes, batched by size, on threads."""
+"""POC of many patches of several sizes between two planes, batched by size, on threads,
+at full resolution or on the planes halved (a pyramid level)."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -27,13 +29,47 @@ def _batches(sizes: NDArray[np.int64]) -> list[tuple[int, NDArray[np.intp]]]:
     return sorted(out, key=lambda b: -b[0] ** 2 * len(b[1]))
 
 
+def level_band(level: int) -> float:
+    """POC band at pyramid ``level`` that keeps the frequencies of the scene that
+    ``poc.DEFAULT_BAND`` keeps at full resolution, at most :data:`MAX_LEVEL_BAND`."""
+    return min(poc.DEFAULT_BAND * 2.0**level, MAX_LEVEL_BAND)
+
+
+#: Highest POC band on a halved plane: ``cv2.pyrDown``'s Gaussian leaves the frequencies
+#: next to the halved plane's Nyquist attenuated and aliased (docs/speed.md).
+MAX_LEVEL_BAND = 1.0
+
+
 def match_grouped(
     ref: NDArray, moving: NDArray, centres: FloatArray, sizes: NDArray[np.int64],
-    offsets: FloatArray, recentre: bool = False,
+    offsets: FloatArray, recentre: bool = False, level: int = 0,
 ) -> tuple[FloatArray, FloatArray]:
     """POC displacements (N, 2) and peaks (N,) of patches batched by size (one call per
     size, or per part of a size on ``workers.threads()`` threads); NaN displacement and zero
-    peak where ``sizes`` is 0."""
+    peak where ``sizes`` is 0.
+
+    ``level`` > 0 correlates on both planes halved ``level`` times (``cv2.pyrDown``): the
+    patches cover the same ground at ``sizes / 2**level`` pixels, on the band that holds
+    the frequencies the full-resolution band holds (:func:`level_band`), at a quarter of the
+    pixels per level. ``centres``, ``sizes``, ``offsets`` and the displacements returned
+    are in the given planes' pixels either way."""
+    if level > 0:
+        factor = 2**level
+        for _ in range(level):
+            ref, moving = cv2.pyrDown(ref), cv2.pyrDown(moving)
+        # cv2.pyrDown's pixel i is the full plane's pixel 2i
+        small = np.where(sizes >= factor * poc.MIN_SIZE, sizes // factor, 0)
+        disp, peaks = _match_batches(ref, moving, centres / factor, small,
+                                     np.asarray(offsets) / factor, recentre, level_band(level))
+        return disp * factor, peaks
+    return _match_batches(ref, moving, centres, sizes, offsets, recentre, poc.DEFAULT_BAND)
+
+
+def _match_batches(
+    ref: NDArray, moving: NDArray, centres: FloatArray, sizes: NDArray[np.int64],
+    offsets: FloatArray, recentre: bool, band: float,
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`match_grouped` at the planes' own resolution, on ``band``."""
     disp = np.full((len(centres), 2), np.nan)
     peaks = np.zeros(len(centres))
 
@@ -41,7 +77,7 @@ def match_grouped(
                                                           FloatArray]:
         s, sel = batch
         d, p = poc.match_patches(ref, moving, centres[sel], s, offsets=np.round(offsets[sel]),
-                                 recentre=recentre)
+                                 recentre=recentre, band=band)
         return sel, d, p
 
     batches = _batches(sizes)

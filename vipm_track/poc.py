@@ -56,7 +56,8 @@ DEFAULT_ITERATIONS = 2
 DEFAULT_WEIGHTING = 0.5
 #: Patches whose band-passed RMS (grey levels) is below this have no texture to correlate.
 MIN_TEXTURE = 1e-3
-_MIN_SIZE = 8
+#: Smallest patch side, pixels.
+MIN_SIZE = 8
 
 
 def _default_workers() -> int:
@@ -427,8 +428,8 @@ def _as_batch(patches: ArrayLike, name: str) -> NDArray[np.float32]:
 
 
 def _check_patch_shape(h: int, w: int, name: str) -> None:
-    if h < _MIN_SIZE or w < _MIN_SIZE:
-        raise ValueError(f"{name} must be at least {_MIN_SIZE}×{_MIN_SIZE} pixels, got "
+    if h < MIN_SIZE or w < MIN_SIZE:
+        raise ValueError(f"{name} must be at least {MIN_SIZE}×{MIN_SIZE} pixels, got "
                          f"{h}×{w}")
 
 
