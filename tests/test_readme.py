@@ -254,23 +254,34 @@ def test_other_status_rows_quote_the_results_files():
         "The filters on them", 1)
     traffic = [r for r in _text_rows(rows_text) if len(r) == 17 and r[0] != "run"]
     filtered = [r for r in _text_rows(filters_text) if len(r) == 17 and r[0] != "run"]
-    renders = [r for r in traffic if "seed" in r[0] and "no --pitch" in r[0]]
-    wrong = [int(r[2]) for r in renders]
-    confident = [int(r[3]) for r in renders]
-    kitti = next(r for r in traffic if r[0] == "KITTI 07 (no --pitch)")
+    def kitti_rows(rows: list[list[str]]) -> list[list[str]]:
+        """KITTI 07's rows without --pitch, one per subset seed (each a draw)."""
+        return [r for r in rows if r[0].startswith("KITTI 07") and "no --pitch" in r[0]]
+
+    def cells(rows: list[list[str]], column: int, fmt: str) -> str:
+        values = [float(r[column]) for r in rows]
+        return _range([int(v) for v in values] if fmt == "d" else values, fmt)
+
+    renders = [r for r in traffic if "seed" in r[0] and "no --pitch" in r[0]
+               and not r[0].startswith("KITTI")]
+    kitti = kitti_rows(traffic)
+    assert len(kitti) >= 3
     tracked = [int(r[1]) for r in filtered]
-    assert (f"| {_range(wrong, 'd')} ({_range(confident, 'd')} > 3σ), {kitti[2]} "
-            f"({kitti[3]}); {_range(tracked, 'd')}; {kitti[5]} / {kitti[6]} |"
+    assert (f"| {cells(renders, 2, 'd')} ({cells(renders, 3, 'd')} > 3σ), "
+            f"{cells(kitti, 2, 'd')} ({cells(kitti, 3, 'd')}); {_range(tracked, 'd')}; "
+            f"{cells(kitti, 5, '.2f')} / {cells(kitti, 6, '.2f')} |"
             in _status("traffic, forward camera"))
-    given = [r for r in filtered if "seed" in r[0]]
-    kitti_given = next(r for r in filtered if r[0] == "KITTI 07 (no --pitch)")
-    assert (f"| {_range([float(r[14]) for r in given], '.2f')} / "
-            f"{_range([float(r[15]) for r in given], '.1f')} %; {kitti_given[14]} / "
-            f"{kitti_given[15]} %; {kitti[11]} / {kitti[12]} % |" in _status("traffic, distance"))
-    smoothed_kitti = next(r for r in filtered if r[0] == "KITTI 07 (no --pitch)")
-    assert (f"| {_range([float(r[9]) for r in given], '.2f')} / "
-            f"{_range([float(r[10]) for r in given], '.2f')}; {smoothed_kitti[9]} / "
-            f"{smoothed_kitti[10]} |" in _status("traffic, filter σ"))
+    given = [r for r in filtered if "seed" in r[0] and not r[0].startswith("KITTI")]
+    kitti_filtered = kitti_rows(filtered)
+    assert (f"| {cells(renders, 11, '.2f')} / {cells(renders, 12, '.1f')} %; "
+            f"{cells(kitti, 11, '.2f')} / {cells(kitti, 12, '.1f')} % |"
+            in _status("traffic, distance"))
+    assert (f"| {cells(given, 14, '.2f')} / {cells(given, 15, '.1f')} %; "
+            f"{cells(kitti_filtered, 14, '.2f')} / {cells(kitti_filtered, 15, '.1f')} % |"
+            in _status("traffic, distance smoothed"))
+    assert (f"| {cells(given, 9, '.2f')} / {cells(given, 10, '.2f')}; "
+            f"{cells(kitti_filtered, 9, '.2f')} / {cells(kitti_filtered, 10, '.2f')} |"
+            in _status("traffic, filter σ"))
     ours = next(r for r in _rows(RESULTS / "bench_realtime.md") if r[0] == "vipm-track (ours)")
     assert f"| {ours[1]}; {ours[3]} |" in _status("speed, real frames")
     fleet = {r[0]: r for r in _rows(RESULTS / "bench_fleet.md") if len(r) == 6}
