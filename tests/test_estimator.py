@@ -828,8 +828,19 @@ def test_resolve_is_the_config_that_runs(preset, level):
     assert resolve(resolved, rig) == resolved  # nothing left to fill
 
 
-def test_refinements_on_halved_planes_keep_a_level_camera_accurate():
-    # --refinement-resolution half: the IPM patches correlated at a quarter of the pixels
+def test_refinements_on_halved_planes_keep_a_level_camera_accurate(monkeypatch):
+    # --refinement-resolution half: the IPM patches correlated at a quarter of the pixels,
+    # centred on the halved grid
+    from vipm_track import refinement
+
+    calls = []
+
+    def spy(ref, moving, centres, sizes, offsets, recentre=False, level=0):
+        calls.append((level, centres))
+        return match_grouped(ref, moving, centres, sizes, offsets, recentre, level)
+
+    match_grouped = refinement.match_grouped
+    monkeypatch.setattr(refinement, "match_grouped", spy)
     traj, imgs, cam = _sequence("car", "gradual", 3)
     est = TwoFrameEstimator(Rig(cam, float(traj.height[1]), 3.0),
                             EstimatorConfig(ipm_poc_level=1))
@@ -840,3 +851,4 @@ def test_refinements_on_halved_planes_keep_a_level_camera_accurate():
         # full resolution on these pairs: pitch 0.011-0.033°, roll 0.025-0.036°, 0.3-1.1 mm
         assert err["pitch"] < 0.05 and err["roll"] < 0.08, err
         assert err["dist_mm"] < 2.0 and err["yaw"] < 0.01, err
+    assert calls and all(level == 1 and np.all(centres % 2 == 0) for level, centres in calls)

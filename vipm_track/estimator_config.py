@@ -114,8 +114,8 @@ class EstimatorConfig:
         halved this many times (``cv2.pyrDown``) and the patches with them
         (``patch_match.match_grouped``). POC's band keeps half the frequencies of a
         full-resolution patch, so level 1 sees the same ones at a quarter of the pixels:
-        a pair 15-20 % faster on KITTI 07, its estimates as accurate within the subsets'
-        spread but for the drive's mount pitch without ``--pitch`` (0.04° further off),
+        a pair 6-21 % faster on KITTI 07, its estimates as accurate within the subsets'
+        spread but for the drive's mount pitch without ``--pitch`` (0.06° further off),
         and a steep camera's less precise (docs/speed.md). 0 (default): full resolution.
     vertical_motion : also estimate the camera's vertical motion within the pair (an eighth
         parameter; the paper neglects it, which costs ~0.25° of pitch per millimetre on a
@@ -220,7 +220,7 @@ class EstimatorConfig:
             "inlier_px_ipm": self.inlier_px_ipm > 0,
             "refine_outlier_px": self.refine_outlier_px > 0,
             "ipm_resolution_scale": self.ipm_resolution_scale > 0,
-            "ipm_poc_level": self.ipm_poc_level in (0, 1),
+            "ipm_poc_level": type(self.ipm_poc_level) is int and self.ipm_poc_level in (0, 1),
             "roi_max_range_h": self.roi_max_range_h is None or self.roi_max_range_h > 0,
             "roi_max_lateral_h": self.roi_max_lateral_h > 0,
             "max_deviation_deg": self.max_deviation_deg > 0,

@@ -39,7 +39,11 @@ def refine(
                            cfg.ipm_resolution_scale, cfg.ipm_max_side)
     ipm_p = ipm.warp(prev, context.k, pose_p, grid)
     # Patch centres: interest points on the previous virtual IPM plane, on whole pixels.
-    q_p = np.round(grid.pixel_from_ground(back_project(context.k, pose_p, context.centres)))
+    # (on the halved planes' grid where the correlation runs there: an odd centre would be
+    # measured a pixel away from where its displacement is used)
+    step = 2**cfg.ipm_poc_level
+    q_p = step * np.round(grid.pixel_from_ground(back_project(context.k, pose_p,
+                                                              context.centres)) / step)
     valid = np.all(np.isfinite(q_p), axis=1)
     q_p = np.where(valid[:, None], q_p, 0.0)
     pixels_prev = apply_homography(image_from_ipm_homography(context.k, pose_p, grid), q_p)
