@@ -69,7 +69,7 @@ def refine(
     # sizes in steps that stay SIZE_STEP on the halved planes (patches batch by size; finer
     # steps made more, smaller batches, and a worse p95 travel error on KITTI 07)
     sizes = ipm.patch_sizes(grid, poly_p, poly_c, q_p, offsets, cfg.patch_ipm,
-                            cfg.min_patch_ipm, ipm.SIZE_STEP * 2**cfg.ipm_poc_level)
+                            cfg.min_patch_ipm, ipm.SIZE_STEP * step)
     sizes[~valid] = 0
     result.timings["warp"] += time.perf_counter() - t0
 
