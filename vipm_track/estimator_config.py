@@ -114,9 +114,8 @@ class EstimatorConfig:
         halved this many times (``cv2.pyrDown``) and the patches with them
         (``patch_match.match_grouped``). POC's band keeps half the frequencies of a
         full-resolution patch, so level 1 sees the same ones at a quarter of the pixels:
-        a pair 6-21 % faster on KITTI 07, its estimates as accurate within the subsets'
-        spread but for the drive's mount pitch without ``--pitch`` (0.06° further off),
-        and a steep camera's less precise (docs/speed.md). 0 (default): full resolution.
+        faster, at a cost in the pitch and the travel measured in docs/speed.md (forward
+        cameras) and a steep camera's precision. 0 (default): full resolution.
     vertical_motion : also estimate the camera's vertical motion within the pair (an eighth
         parameter; the paper neglects it, which costs ~0.25° of pitch per millimetre on a
         bouncing 0.7 m cart camera). Frame k's pose then has height ``height + dh``. None

@@ -85,9 +85,9 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
                        default="full",
                        help="resolution of the virtual-IPM patches' correlation: 'half' "
                        "correlates on the bird's-eye planes halved (the same frequencies of "
-                       "the road, a quarter of the pixels): on KITTI 07 a pair 6-21 %% "
-                       "faster, the drive's mount pitch without --pitch 0.06 deg further off "
-                       "(docs/speed.md); 'full' (default) for the most accurate estimates")
+                       "the road, a quarter of the pixels): faster, a little less accurate (what "
+                       "it costs: docs/speed.md); 'full' (default) for the most accurate "
+                       "estimates")
     group.add_argument("--refinement-weights", choices=tuple(REFINEMENT_WEIGHTS),
                        default="auto",
                        help="virtual-IPM patches in the refinement fit: 'noise' weights each "
