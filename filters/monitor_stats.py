@@ -11,6 +11,7 @@ from collections import deque
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import brentq
+from scipy.stats import norm
 
 from .body_scale import cautious_std
 
@@ -44,6 +45,12 @@ def cusum_threshold(arl: float, drift: float) -> float:
     if arl <= 1.0:
         raise ValueError(f"ARL must exceed one sample, got {arl}")
     target = math.log(arl)
+    if cusum_log_arl(0.0, drift) >= target:
+        # A drift this far below zero (a tolerance of many standard deviations: a 5 cm height
+        # tolerance on millimetre heights) keeps the ARL beyond the target at any threshold:
+        # an alarm then needs one increment beyond it, so the tail of a single sample sets
+        # it, with at least one standard deviation so that a statistic of zero is not at it.
+        return max(float(norm.isf(1.0 / arl)) + drift, 1.0)
     return float(brentq(lambda b: cusum_log_arl(b, drift) - target, 0.0, 1e3 + target))
 
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import cantools
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
 from vipm_track.errors import InputError
@@ -33,7 +34,91 @@ _COMBINE_SCALAR: dict[str, Callable[[list[float]], float]] = {
     "mean": lambda v: sum(v) / len(v),
     "median": statistics.median, "min": min, "max": max,
 }
+#: Frames of one id a log's decoding looks ahead at to judge a time that jumps forward: up to
+#: this many frames in a row stamped after the frames that follow them are outliers; a longer
+#: run is taken as the clock, and what follows it as a step back.
+LOOKAHEAD = 8
 
+
+@dataclass(frozen=True)
+class _TimeSkip:
+    """Frames of one id's stream left out for their time: ``count`` of them from ``index``
+    (indices into the stream), the first at time ``t`` [s], the running time then ``t_run``.
+
+    ``kind``: ``nan`` (not a finite time); ``ahead`` (stamped after the frames that follow
+    it; ``last`` is the first of those, which goes on from ``t_run``); ``behind`` (one frame
+    not after ``t_run``); ``step`` (the time steps back and the frames go on from there, a
+    clock reset; ``last`` is the last of them). ``resumed``: for ``behind`` and ``step``, the
+    frame where the stream passes ``t_run`` again and is kept, or -1 (never).
+    """
+
+    kind: str
+    index: int
+    count: int
+    t: float
+    t_run: float
+    last: int = -1
+    resumed: int = -1
+
+
+def _time_order(t: NDArray[np.float64], t_run: float = -math.inf,
+                lookahead: int = LOOKAHEAD) -> tuple[NDArray[np.bool_], list[_TimeSkip]]:
+    """Which frames of one id's stream to keep (``t`` [s] in file order, after a running time
+    ``t_run`` [s]) so that the kept times strictly increase, and why the others are left out
+    (in stream order).
+
+    A frame is kept if its time is after the running time (the latest kept one) and none of
+    the next ``lookahead`` frames goes on between the running time and its time: a frame
+    stamped ahead of the frames that follow it is the outlier, not the rest of the stream. A
+    frame at or before the running time is left out, alone (out of order) or with the frames
+    that go on from it (a clock step back, left out until the stream passes the running time
+    again: the kept times stay on one clock, the log's first).
+    """
+    n = t.size
+    finite = np.isfinite(t)
+    if n == 0 or (finite.all() and t[0] > t_run and bool(np.all(t[1:] > t[:-1]))):
+        return np.ones(n, dtype=bool), []
+    # earliest of the next `lookahead` times (not finite: +inf): only a frame later than it
+    # can be an outlier, so the look-ahead loop runs only there
+    padded = np.concatenate([np.where(finite, t, np.inf), np.full(lookahead, np.inf)])
+    soonest = sliding_window_view(padded[1:], lookahead).min(axis=1)[:n].tolist()
+    times = t.tolist()
+    keep = np.zeros(n, dtype=bool)
+    skips: list[_TimeSkip] = []
+    behind: list[int] = []  # the open stretch of frames behind: indices going on in time
+
+    def close(resumed: int) -> None:
+        if behind:
+            kind = "behind" if len(behind) == 1 else "step"
+            skips.append(_TimeSkip(kind, behind[0], len(behind), times[behind[0]],
+                                   stretch_run, behind[-1], resumed))
+            behind.clear()
+
+    stretch_run = t_run
+    for i, ti in enumerate(times):
+        if not math.isfinite(ti):
+            skips.append(_TimeSkip("nan", i, 1, ti, t_run))
+        elif ti > t_run:
+            back = None
+            if soonest[i] < ti:
+                back = next((j for j in range(i + 1, min(n, i + 1 + lookahead))
+                             if t_run < times[j] < ti), None)
+            if back is not None:
+                skips.append(_TimeSkip("ahead", i, 1, ti, t_run, back))
+            else:
+                close(i)
+                keep[i] = True
+                t_run = ti
+        elif not behind:
+            behind.append(i)
+            stretch_run = t_run
+        elif ti > times[behind[-1]]:
+            behind.append(i)
+        else:  # behind, and not going on from the stretch either: out of order alone
+            skips.append(_TimeSkip("behind", i, 1, ti, t_run, i, -1))
+    close(-1)
+    skips.sort(key=lambda k: k.index)
+    return keep, skips
 
 
 def _channel_matches(channel: object, want: str) -> bool:

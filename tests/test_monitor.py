@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy.stats import norm
 
 from vipm_track.errors import InputError
 from vipm_track.filters.drive_sim import DriveConfig, MountChange, simulate_drive
@@ -59,6 +60,18 @@ def test_threshold_inverts_siegmund():
     for drift in (-0.2, -0.5, -1.0):
         b = cusum_threshold(1e5, drift)
         assert math.exp(cusum_log_arl(b, drift)) == pytest.approx(1e5, rel=1e-6)
+
+
+def test_threshold_for_a_tolerance_of_many_standard_deviations():
+    """A drift so negative that Siegmund's ARL exceeds the target at any threshold (a 5 cm
+    height tolerance on millimetre heights) gets a positive threshold whose one-sample tail
+    alone keeps the false alarms below the target, not a root-finder's error."""
+    arl = 3.6e5
+    for drift in (-8.0, -12.0, -40.0):
+        assert cusum_log_arl(0.0, drift) > math.log(arl)
+        b = cusum_threshold(arl, drift)
+        assert b >= 1.0
+        assert norm.sf(b - drift) <= 1.0 / arl
 
 
 def test_threshold_gives_the_simulated_run_length():
