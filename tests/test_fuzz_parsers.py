@@ -23,8 +23,8 @@ FUZZ = settings(max_examples=30, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow])
 CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f]")
 #: Values of the wrong type (or out of range) a field may be replaced with.
-WRONG = ["abc", "", "-1", "nan", "inf", "1e400", "[1, 2]", "{a: 1}", "null", "0x", "\x00",
-         "é", "9" * 30, "1.5.2", "true", ";", "#", "'"]
+WRONG = ["abc", "", "-1", "0", "7.5", "nan", "inf", "1e400", "[1, 2]", "{a: 1}", "null", "0x",
+         "\x00", "é", "9" * 30, "1.5.2", "true", ";", "#", "'"]
 TOKEN = re.compile(rb"[^\s,:\[\]{}()]+")
 
 
@@ -143,6 +143,26 @@ def _read_estimates(path: Path):
     assert frames == sorted(set(frames))  # each frame once, in order
     assert all(b.t > a.t for a, b in itertools.pairwise(ms))
     return ms
+
+
+def test_estimates_csv_damaged_cells_named():
+    """A frame number that is no index (7.5 was read as frame 7) and a standard deviation of
+    zero (a singular smoother) are errors that name the row and the column."""
+    from vipm_track.table import read_table
+
+    lines = ESTIMATES.decode().splitlines(keepends=True)
+    header = lines[0].strip().split(",")
+    for column, value, message in (
+            ("frame", "7.5", r"row 4, column 'frame': '7.5' is not a frame index"),
+            ("tz_std_m", "0", r"row 4 \(frame \d+\): tz_std_m = 0.0 is not a standard "
+                              "deviation")):
+        cells = lines[3].rstrip("\n").split(",")
+        cells[header.index(column)] = value
+        path = _tmp("est.csv")
+        path.write_text("".join(lines[:3]) + ",".join(cells) + "\n" + "".join(lines[4:]))
+        with pytest.raises(InputError, match=message):
+            _read_estimates(path)
+    assert read_table(path, quiet=True)["frame"].dtype == np.int64
 
 
 @FUZZ

@@ -597,8 +597,16 @@ def test_estimates_table_keeps_the_full_covariance(tmp_path: Path) -> None:
     rows = [{c: columns[c][i] for c in columns} for i in range(2)]
     rows[0]["corr_pitch__tz"] = 1.5
     write_table(tmp_path / "bad.csv", rows, ESTIMATE_COLUMNS)
-    with pytest.raises(InputError, match=r"row 1 \(frame 1\): corr_pitch__tz = 1.5"):
+    with pytest.raises(InputError, match=r"row 2 \(frame 1\): corr_pitch__tz = 1.5"):
         read_measurements(tmp_path / "bad.csv")
+    # a standard deviation of zero (an exact measurement: a singular smoother) or below
+    for name, value in (("tz_std_m", 0.0), ("pitch_std_deg", -0.5)):
+        rows = [{c: columns[c][i] for c in columns} for i in range(2)]
+        rows[0][name] = value
+        write_table(tmp_path / "bad_std.csv", rows, ESTIMATE_COLUMNS)
+        with pytest.raises(InputError, match=rf"row 2 \(frame 1\): {name} = {value} is not a "
+                           "standard deviation"):
+            read_measurements(tmp_path / "bad_std.csv")
 
 
 class _WatchedSource:

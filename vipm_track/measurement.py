@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import InputError
-from .table import CORRELATION_COLUMNS, read_table
+from .table import CORRELATION_COLUMNS, first_data_row, read_table
 
 PARAMETER_NAMES: tuple[str, ...] = ("pitch_prev", "roll_prev", "pitch", "roll", "tx", "tz", "yaw")
 _ANGLE = np.array([True, True, True, True, False, False, True])
@@ -79,12 +79,21 @@ def measurements_from_table(
     bad = ~np.isfinite(frames) | (frames != np.round(frames)) | (frames < 0)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        raise InputError(f"{source}: row {i + 2}: frame {frames[i]} is not a frame index "
-                         "(an integer >= 0)")
+        raise InputError(f"{source}: row {i + first_data_row(source)}: frame {frames[i]} is "
+                         "not a frame index (an integer >= 0)")
     corr_all = _correlations(columns, n, source)
     status = columns.get("status", np.array(["ok"] * n, dtype=object))
     z_all = _stack_in_radians(columns, _Z_COLUMNS)
     std_all = _stack_in_radians(columns, _STD_COLUMNS)
+    # a standard deviation of zero makes a filter's measurement exact (a singular system in
+    # the smoother); a negative one is no standard deviation
+    bad = std_all <= 0.0
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        name = _STD_COLUMNS[col]
+        raise InputError(f"{source}: row {row + first_data_row(source)} (frame "
+                         f"{int(frames[row])}): {name} = {columns[name][row]} is not a "
+                         "standard deviation (must be > 0)")
     inliers = columns.get("inliers", np.zeros(n))
     out = []
     for i in range(n):
@@ -117,8 +126,9 @@ def _correlations(columns: dict[str, NDArray], n: int, source: str) -> NDArray:
     bad = np.abs(values) > 1.0 + 1e-9
     if bad.any():
         row, col = np.argwhere(bad)[0]
-        raise InputError(f"{source}: row {row + 1} (frame {int(columns['frame'][row])}): "
-                         f"{CORRELATION_COLUMNS[col]} = {values[row, col]} is not in [-1, 1]")
+        raise InputError(f"{source}: row {row + first_data_row(source)} (frame "
+                         f"{int(columns['frame'][row])}): {CORRELATION_COLUMNS[col]} = "
+                         f"{values[row, col]} is not in [-1, 1]")
     values = np.where(np.isfinite(values), values, 0.0)
     corr[:, _UPPER[0], _UPPER[1]] = values
     corr[:, _UPPER[1], _UPPER[0]] = values

@@ -370,9 +370,17 @@ def read_table(path: str | Path, required: Sequence[str] = BASE_COLUMNS[:2], *,
                     f"{path}: row {i + 2}, column '{printable(name, 60)}': not a number: "
                     f"{printable(repr(v), 60)}"
                 ) from None
-        out[name] = (
-            values.astype(np.int64) if name == "frame" and np.all(np.isfinite(values)) else values
-        )
+        if name == "frame":
+            # a frame number is an index: 7.5 is a damaged cell, not frame 7
+            bad = np.isfinite(values) & ((values != np.round(values)) | (values < 0))
+            if bad.any():
+                i = int(np.flatnonzero(bad)[0])
+                raise TableError(f"{path}: row {i + first_data_row(path)}, column 'frame': "
+                                 f"{printable(repr(cells[i]), 60)} is not a frame index (an "
+                                 "integer >= 0)")
+            if np.all(np.isfinite(values)):
+                values = values.astype(np.int64)
+        out[name] = values
     return out
 
 
