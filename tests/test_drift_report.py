@@ -107,6 +107,8 @@ def test_report_window_and_cli(tmp_path: Path, capsys: pytest.CaptureFixture) ->
     assert "(50 rows, frames 10–59)" in text
     cells = calibration_row(text, "pitch")
     assert "(start)" in cells[2] and cells[6] == "no change"
+    # no tolerance, so no probability of being beyond it (it said > 99.9 % for no change)
+    assert cells[4] == "–" and cells[5] == "–"
     assert main(["report", str(DATA / "knock_cart_smoothed.csv"), "--out", str(tmp_path),
                  "--max-frames", "0"]) == 2
     assert "--max-frames" in capsys.readouterr().err

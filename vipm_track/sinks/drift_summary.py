@@ -49,10 +49,11 @@ class AxisDrift:
     the nominal, or the first mount value (``reference_from``); ``change`` = current −
     reference with its 1-σ ``change_std``; ``tolerance`` (NaN without a nominal);
     ``p_beyond``: the probability that the true change exceeds the tolerance (normal
-    interval); ``changed_at_s``: when the mount crossed halfway from its first level to its
-    current one, NaN where the change is within its uncertainty; ``rate``/``rate_std`` over
-    ``rate_span_s`` since that change (NaN with ``rate_note`` saying why where the span is
-    shorter than :data:`MIN_RATE_SPAN_S`); ``true_*`` from ground truth (NaN without)."""
+    interval; NaN without a tolerance); ``changed_at_s``: when the mount crossed halfway
+    from its first level to its current one, NaN where the change is within its
+    uncertainty; ``rate``/``rate_std`` over ``rate_span_s`` since that change (NaN with
+    ``rate_note`` saying why where the span is shorter than :data:`MIN_RATE_SPAN_S`);
+    ``true_*`` from ground truth (NaN without)."""
 
     axis: str
     unit: str
@@ -165,7 +166,9 @@ def _axis(table: Mapping[str, NDArray], t: NDArray, frames: NDArray, spec: tuple
         reference, reference_from, tolerance = start, "start", NAN
         change_std = math.hypot(sigma, start_sigma)
     change = current - reference
-    p_beyond = _p_beyond(change, change_std, tolerance if math.isfinite(tolerance) else 0.0)
+    # without a tolerance there is nothing to be beyond (a tolerance of 0 made it 1)
+    p_beyond = (_p_beyond(change, change_std, tolerance) if math.isfinite(tolerance)
+                else NAN)
     step = current - start
     step_sigma = math.hypot(sigma, start_sigma)
     significant = (abs(step) > Z95 * step_sigma if math.isfinite(step_sigma)
