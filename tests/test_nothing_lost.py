@@ -593,3 +593,29 @@ def test_a_table_of_only_a_header_says_it_has_no_rows(tmp_path, capsys, est, com
     rc, err = _run(capsys, command, "--estimates", empty, "--out", tmp_path / "o.csv")
     assert rc == 2
     assert f"{empty}: no rows" in err and "has no height_m" not in err
+
+
+def test_ctrl_c_before_the_first_row_says_nothing_was_written(tmp_path, capsys, monkeypatch):
+    """An interrupt in the nominal-pose search (no --pitch), before the table is opened, does
+    not claim rows were kept — least of all an earlier run's table at the same path."""
+    from conftest import CAR_CAMERA_YAML
+
+    import vipm_track.nominal_search
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(vipm_track.nominal_search, "search_nominal_pose", interrupted)
+    images = tmp_path / "images"
+    images.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(images / f"{k:06d}.png"), np.zeros((720, 1280), np.uint8))
+    (tmp_path / "cam.yaml").write_text(CAR_CAMERA_YAML)
+    out = tmp_path / "est.csv"
+    out.write_text("frame,t\n")  # an earlier run's
+    os.utime(out, (1e9, 1e9))
+    rc, err = _run(capsys, "estimate", "--images", images, "--camera", tmp_path / "cam.yaml",
+                   "--fps", "10", "--height", "1.5", "--out", out, "--quiet")
+    assert rc == 130
+    assert f"interrupted; it came before anything was written to {out}" in err
+    assert "kept" not in err

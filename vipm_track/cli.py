@@ -7,7 +7,9 @@ import argparse
 import importlib
 import signal
 import sys
+import time
 from collections.abc import Sequence
+from pathlib import Path
 
 from .allocator import keep_freed_memory
 from .commands.common import infer_inputs
@@ -69,12 +71,27 @@ def _terminate(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
+def _kept(out: object, started: float) -> str:
+    """What an interrupted command leaves of its output ``out`` (a table or a folder), by
+    whether this run wrote it (modified since ``started``, epoch seconds): before the first
+    row (a nominal-pose search, say) it wrote nothing."""
+    path = Path(out) if isinstance(out, (str, Path)) else None
+    if path is None:
+        return "what was written before it is complete and kept"
+    if not path.exists() or path.stat().st_mtime < started - 1.0:
+        return f"it came before anything was written to {path}"
+    if path.is_dir():
+        return f"what was written to {path} before it is complete and kept"
+    return f"the rows written to {path} before it are complete and kept"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     keep_freed_memory()
     parser = build_parser(only=_command_in(argv))
     args = parser.parse_args(argv)
     name = f"vipm-track {args.command}"
+    started = time.time()
     previous = signal.getsignal(signal.SIGTERM)
     try:
         signal.signal(signal.SIGTERM, _terminate)
@@ -93,7 +110,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{name}: error: {os_error_line(exc)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
-        print(f"{name}: interrupted; the rows written before it are complete and kept",
+        print(f"{name}: interrupted; {_kept(getattr(args, 'out', None), started)}",
               file=sys.stderr)
         return EXIT_INTERRUPTED
     finally:
