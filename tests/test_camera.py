@@ -76,6 +76,31 @@ def test_kitti_calib():
     assert not cam.has_distortion
 
 
+def test_kitti_calib_takes_the_size_of_the_frames_it_is_used_on(tmp_path, capsys):
+    """A calib.txt beside a folder of frames not named image_0 (or of JPEGs): the size comes
+    from the frames given, not a default (frames of KITTI 07, 1226×370, were refused as not
+    1241×376)."""
+    from vipm_track.cli import EXIT_NOTHING_USABLE, main
+    from vipm_track.sources import first_frame_size
+
+    calib = tmp_path / "calib.txt"
+    calib.write_text("P0: 7.07e+02 0 6.0e+02 0 0 7.07e+02 1.8e+02 0 0 0 1 0\n")
+    assert (load_camera(calib).width, load_camera(calib).height) == (1241, 376)
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    rng = np.random.default_rng(0)
+    for k in range(3):
+        cv2.imwrite(str(frames / f"f{k}.jpg"), rng.integers(0, 255, (370, 1226), np.uint8))
+    assert first_frame_size(frames) == (1226, 370)
+    cam = load_camera(calib, first_frame_size(frames))
+    assert (cam.width, cam.height) == (1226, 370) and np.isclose(cam.fx, 707.0)
+    rc = main(["estimate", "--images", str(frames), "--height", "1.65", "--pitch", "1",
+               "--fps", "10", "--out", str(tmp_path / "e.csv"), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc in (0, EXIT_NOTHING_USABLE), err  # noise frames: nothing usable is fine
+    assert "camera model is" not in err and "too few inliers" in (tmp_path / "e.csv").read_text()
+
+
 @pytest.mark.parametrize(("changes", "field"), [
     ({"image_width": None}, "image_width"),
     ({"image_height": "tall"}, "image_height"),

@@ -173,9 +173,11 @@ class CameraModel:
 # --- readers -------------------------------------------------------------------------------
 
 
-def load_camera(path: str | Path) -> CameraModel:
+def load_camera(path: str | Path, image_size: tuple[int, int] | None = None) -> CameraModel:
     """Read a camera file, choosing the reader by content: ROS camera_info YAML, OpenCV
-    FileStorage YAML/XML, or KITTI calib.txt (P0)."""
+    FileStorage YAML/XML, or KITTI calib.txt (P0). ``image_size`` (width, height; the frames
+    the camera is used on) is the size of a KITTI camera, whose file holds none; the other
+    files state theirs."""
     path = Path(path)
     if not path.is_file():
         raise CameraFileError(path, "file not found")
@@ -183,15 +185,16 @@ def load_camera(path: str | Path) -> CameraModel:
     if text.lstrip().startswith("%YAML") or "opencv-matrix" in text or path.suffix == ".xml":
         return _read_opencv_storage(path)
     if path.suffix == ".txt" or text.lstrip().startswith("P0:"):
-        return read_kitti_calib(path)
+        return read_kitti_calib(path, image_size)
     return _read_ros_yaml(path, text)
 
 
 def read_kitti_calib(path: str | Path, image_size: tuple[int, int] | None = None) -> CameraModel:
     """Camera 0 of a KITTI ``calib.txt`` (rectified, no distortion).
 
-    ``image_size`` is (width, height); KITTI files do not store it, so by default it is taken
-    from the first image in ``image_0/`` beside the file, else 1241×376."""
+    ``image_size`` is (width, height) of the frames (``sources.first_frame_size``); KITTI
+    files do not store it, so by default it is taken from the first image in ``image_0/``
+    beside the file, else 1241×376."""
     path = Path(path)
     rows = {}
     for lineno, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):

@@ -158,6 +158,29 @@ def list_images(folder: str | Path) -> list[Path]:
     return files
 
 
+def first_frame_size(images: str | Path | None = None, video: str | Path | None = None,
+                     ) -> tuple[int, int] | None:
+    """(width, height) of the first readable image of a folder (in the source's order) or
+    of a video's frames; None where there is none (the source then says why)."""
+    try:
+        files = list_images(images) if images else []
+    except SourceError:
+        return None
+    for path in files[:5]:
+        image = read_grey(path)
+        if image is not None:
+            return image.shape[1], image.shape[0]
+    if video and Path(video).is_file():
+        capture = cv2.VideoCapture(str(video))
+        try:
+            size = (int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)),
+                    int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+        finally:
+            capture.release()
+        return size if min(size) > 0 else None
+    return None
+
+
 def find_times_file(folder: str | Path) -> Path | None:
     """``times.txt`` in ``folder`` or its parent (KITTI keeps it beside ``image_0/``)."""
     folder = Path(folder)

@@ -77,7 +77,9 @@ def run(args: argparse.Namespace) -> int:
         camera = (load_camera(args.camera) if args.camera
                   else read_bag_camera(args.bag, args.camera_info_topic))
     else:
-        camera = load_camera(args.camera)
+        from ..sources import first_frame_size
+
+        camera = load_camera(args.camera, first_frame_size(args.images, args.video))
     # bad options are named before the input is read
     config, rig = build_config(args, camera), build_rig(args, camera, height)
     if args.bag:

@@ -280,7 +280,7 @@ def estimate_stream(
     the caller's nominal and is not searched. The options are checked and the source opened
     here, before the first measurement is asked for (so a bad option stops the command
     before it writes anything)."""
-    from ..sources import open_source
+    from ..sources import first_frame_size, open_source
     from .estimator_options import parallel_settings
 
     if not args.camera:
@@ -289,7 +289,8 @@ def estimate_stream(
     parallel = parallel_settings(args)
     search_pose = rig is None and getattr(args, "pitch", None) is None
     if rig is None or config is None:
-        built_rig, built_config = estimator_setup(args, load_camera(args.camera), height)
+        camera = load_camera(args.camera, first_frame_size(args.images, args.video))
+        built_rig, built_config = estimator_setup(args, camera, height)
         rig, config = rig or built_rig, config or built_config
     frame_window([], int, getattr(args, "start", 0), getattr(args, "max_frames", None))
     source = open_source(images=args.images, video=args.video, fps=args.fps,

@@ -80,6 +80,7 @@ def run(args: argparse.Namespace) -> int:
     from vipm_track.filters.nominal import load_nominal
 
     from ..live_run import run_live
+    from ..sources import first_frame_size
     from .monitor import nominal_height
     from .rerun_options import sink_from_args
 
@@ -102,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.nominal}: not a text file (undecodable byte at offset "
                          f"{exc.start}); a nominal calibration is YAML") from None
     height = nominal_height(args.height, nominal.height_m, args.nominal)
-    camera = load_camera(args.camera)
+    camera = load_camera(args.camera, first_frame_size(video=args.video))
     rig, config = estimator_setup(args, camera, height, pitch_deg=nominal.pitch_deg,
                                   roll_deg=nominal.roll_deg)
     if args.clock_offset == "auto":
