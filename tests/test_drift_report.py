@@ -126,6 +126,29 @@ def ramp_table(minutes: float, rate_deg_per_min: float, seed: int = 0) -> dict:
             "mount_pitch_deg": mount, "mount_pitch_std_deg": np.full(t.size, 0.02)}
 
 
+def test_truth_of_another_drive_is_refused(tmp_path: Path, capsys) -> None:
+    """Truth whose frames are at other times than the table's (another drive, another clock)
+    is an error, not a frame-by-frame score of the wrong drive (it printed a pitch bias of
+    42°); truth lacking a column says so instead of leaving it out silently."""
+    from vipm_track.table import read_table, write_table
+
+    table = DATA / "knock_cart_smoothed.csv"
+    gt = read_table(DATA / "knock_cart_gt.csv")
+    other = {**gt, "t": gt["t"] * 0.5}
+    rows = [{c: other[c][i] for c in other} for i in range(len(other["frame"]))]
+    write_table(tmp_path / "other.csv", rows, [c for c in other if c not in ("frame", "t")])
+    assert main(["report", str(table), "--gt", str(tmp_path / "other.csv"), "--out",
+                 str(tmp_path / "r1")]) == 2
+    err = capsys.readouterr().err
+    assert "other.csv: frame 1 is at t = " in err and "not the truth of this drive" in err
+    no_pitch = [c for c in gt if c not in ("frame", "t", "pitch_deg")]
+    rows = [{c: gt[c][i] for c in gt if c != "pitch_deg"} for i in range(len(gt["frame"]))]
+    write_table(tmp_path / "nopitch.csv", rows, no_pitch)
+    assert main(["report", str(table), "--gt", str(tmp_path / "nopitch.csv"), "--out",
+                 str(tmp_path / "r2")]) == 0
+    assert "nopitch.csv: no values in column(s) pitch_deg: not scored" in capsys.readouterr().err
+
+
 def test_drift_rate_only_over_long_spans() -> None:
     """A 0.05°/min creep over 10 min is found within 3σ; over 30 s no rate is given."""
     s = summarize_drift(ramp_table(10.0, 0.05))

@@ -134,6 +134,13 @@ def write_report(
                          + (f" from frame {start}" if start else ""))
     truth = read_truth(gt) if gt is not None else None
     relative = gt is not None and is_kitti_poses(gt)  # only pitch/roll changes are truth
+    if truth is not None:
+        check_same_drive(est, truth, track, Path(gt))
+        lacking = [c for c, *_ in POSE_PANELS + MOTION_PANELS
+                   if c in est and not has_finite(truth, c)
+                   and not (relative and c in RELATIVE_ONLY)]
+        if lacking and notes is not None:
+            notes.append(f"{gt}: no values in column(s) {', '.join(lacking)}: not scored")
     title = title or track.name
     out.mkdir(parents=True, exist_ok=True)
     x, x_label = _time_axis(est)
@@ -186,6 +193,34 @@ def window_rows(table: dict[str, NDArray], start: int = 0,
     if max_frames is not None:
         rows = rows[:max_frames]
     return {name: np.asarray(values)[rows] for name, values in table.items()}
+
+
+def check_same_drive(est: Mapping[str, NDArray], truth: Mapping[str, NDArray], track: Path,
+                     gt: Path) -> None:
+    """InputError where the frames the table and the truth share disagree on their time by
+    more than a quarter of a frame interval (at least 1 ms): another drive's truth, or the
+    same frames on another clock, would be scored frame by frame as if it were this one's."""
+    if "t" not in est or "t" not in truth or "frame" not in truth:
+        return
+    frames_est = np.asarray(est["frame"])
+    t_truth = dict(zip(np.asarray(truth["frame"]).tolist(), np.asarray(truth["t"], float),
+                       strict=True))
+    t_est = np.asarray(est["t"], float)
+    shared = [(i, t_truth[f]) for i, f in enumerate(frames_est.tolist())
+              if f in t_truth and np.isfinite(t_truth[f]) and np.isfinite(t_est[i])]
+    if len(shared) < 2:
+        return
+    rows, t_gt = np.array([i for i, _ in shared]), np.array([t for _, t in shared])
+    steps = np.diff(t_est[rows])
+    tolerance = max(1e-3, 0.25 * float(np.median(steps[steps > 0])) if (steps > 0).any()
+                    else 1e-3)
+    off = np.abs(t_est[rows] - t_gt) > tolerance
+    if off.any():
+        i = int(np.flatnonzero(off)[0])
+        raise InputError(
+            f"{gt}: frame {int(frames_est[rows[i]])} is at t = {t_gt[i]:.3f} s there but at "
+            f"{t_est[rows[i]]:.3f} s in {track} ({int(off.sum())} of {off.size} shared frames "
+            "disagree): not the truth of this drive, or another clock")
 
 
 def read_truth(path: str | Path) -> dict[str, NDArray]:
