@@ -599,6 +599,21 @@ def test_estimates_table_keeps_the_full_covariance(tmp_path: Path) -> None:
     write_table(tmp_path / "bad.csv", rows, ESTIMATE_COLUMNS)
     with pytest.raises(InputError, match=r"row 2 \(frame 1\): corr_pitch__tz = 1.5"):
         read_measurements(tmp_path / "bad.csv")
+    # without a status column a row without numbers is no measurement, not an "ok" row
+    # lacking them (which the reader warns about)
+    from vipm_track.measurement import MISSING_NUMBERS, in_sequence
+
+    rows = [{c: columns[c][i] for c in columns if c != "status"} for i in range(2)]
+    write_table(tmp_path / "no_status.csv", rows, [c for c in ESTIMATE_COLUMNS if c != "status"])
+    lines = (tmp_path / "no_status.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    drop = header.index("status")
+    (tmp_path / "no_status.csv").write_text("\n".join(
+        ",".join(cell for j, cell in enumerate(line.split(",")) if j != drop)
+        for line in lines) + "\n")
+    back = read_measurements(tmp_path / "no_status.csv")
+    assert [m.status for m in back] == ["ok", MISSING_NUMBERS]
+    assert not in_sequence(back)[1].missing
     # a standard deviation of zero (an exact measurement: a singular smoother) or below
     for name, value in (("tz_std_m", 0.0), ("pitch_std_deg", -0.5)):
         rows = [{c: columns[c][i] for c in columns} for i in range(2)]

@@ -82,9 +82,12 @@ def measurements_from_table(
         raise InputError(f"{source}: row {i + first_data_row(source)}: frame {frames[i]} is "
                          "not a frame index (an integer >= 0)")
     corr_all = _correlations(columns, n, source)
-    status = columns.get("status", np.array(["ok"] * n, dtype=object))
     z_all = _stack_in_radians(columns, _Z_COLUMNS)
     std_all = _stack_in_radians(columns, _STD_COLUMNS)
+    # without a status column a row is a measurement where it has all its numbers (a first
+    # frame has none: it is not an "ok" row missing them)
+    complete = np.isfinite(z_all).all(axis=1) & np.isfinite(std_all).all(axis=1)
+    status = columns.get("status", np.where(complete, "ok", MISSING_NUMBERS).astype(object))
     # a standard deviation of zero makes a filter's measurement exact (a singular system in
     # the smoother); a negative one is no standard deviation
     bad = std_all <= 0.0
