@@ -37,6 +37,7 @@ from .static_content import noise_sigma, stands_still
 from .travel_direction import (
     AGREE_DEG,
     MAX_OFF_AXIS_DEG,
+    MIN_AGREEING_SHARE,
     TravelPitch,
     pitch_from_travel,
     travels_over,
@@ -56,6 +57,8 @@ CANDIDATE_PITCHES_DEG: tuple[float, ...] = (75.0, 40.0, 25.0, 12.0, 5.0, 1.0)
 CAMBER_ROLL_DEG = 3.0
 #: a camera found below this pitch is forward-looking: its travel must be in view [deg]
 LEVEL_PITCH_DEG = 15.0
+#: pairs whose directions of travel lie within this of their mean agree on it [deg]
+TRAVEL_AGREE_DEG = 10.0
 #: the ground fit's pitch may differ from the direction of travel's by this [deg]
 GROUND_AGREE_DEG = 2.0
 #: a default cold start that converges more than this from the rig's pitch moves the
@@ -245,9 +248,19 @@ def _from_travel(
 def _contradicts_travel(search: NominalSearch, travel: TravelPitch | None) -> str:
     """Why a level camera found by the ground fit contradicts the direction of travel: a
     forward-looking camera sees its focus of expansion, so travel measured far off its axis
-    means the fit found a second minimum ("" where nothing contradicts it)."""
+    means the fit found a second minimum ("" where nothing contradicts it). Only travel that
+    at least two pairs agree on (``TRAVEL_AGREE_DEG``, and most of those with a direction)
+    is evidence: where the corners cannot be tracked (a car at 2.5 m per frame) the few
+    pairs that fit an essential matrix point anywhere (42° and 80° from the ground normal)."""
     if (travel is None or not search.pitch_deg < LEVEL_PITCH_DEG
-            or not travel.off_axis_deg > MAX_OFF_AXIS_DEG):
+            or not travel.off_axis_deg > MAX_OFF_AXIS_DEG or len(travel.directions) < 2):
+        return ""
+    directions = np.array(travel.directions)
+    mean = directions.sum(axis=0)
+    mean /= np.linalg.norm(mean)
+    apart = np.degrees(np.arccos(np.clip(directions @ mean, -1.0, 1.0)))
+    agreeing = int(np.count_nonzero(apart <= TRAVEL_AGREE_DEG))
+    if agreeing < max(2, MIN_AGREEING_SHARE * len(directions)):
         return ""
     return (f"the ground fit found a forward-looking camera (pitch {search.pitch_deg:.1f}°, "
             f"roll {search.measured_roll_deg:.1f}°) but the direction of travel lies "

@@ -74,6 +74,8 @@ class TravelPitch:
     spread_deg: float
     reason: str = ""
     off_axis_deg: float = math.nan  # median angle of all pairs' directions off the axis
+    #: every pair's direction (camera frame; those off the axis included)
+    directions: tuple[NDArray[np.float64], ...] = ()
 
 
     @property
@@ -173,7 +175,7 @@ def pitch_from_travel(travels: list[PairTravel | None], roll: float = 0.0) -> Tr
     if not forward:
         return TravelPitch(math.nan, 0, 0, math.nan,
                            f"no pair of {len(travels)} gave a forward direction of travel",
-                           median_off)
+                           median_off, tuple(tr.direction for tr in known))
     pitches = np.degrees([travel_pitch(tr.direction, roll) for tr in forward])
     median = float(np.median(pitches))
     agreeing = int(np.count_nonzero(np.abs(pitches - median) <= AGREE_DEG))
@@ -184,7 +186,8 @@ def pitch_from_travel(travels: list[PairTravel | None], roll: float = 0.0) -> Tr
     elif agreeing < MIN_AGREEING_SHARE * len(forward):
         reason = (f"the pairs' directions disagree: {agreeing} of {len(forward)} within "
                   f"{AGREE_DEG:g}° of their median pitch {median:.1f}°")
-    return TravelPitch(median, len(forward), agreeing, spread, reason, median_off)
+    return TravelPitch(median, len(forward), agreeing, spread, reason, median_off,
+                       tuple(tr.direction for tr in known))
 
 
 def _grey_u8(image: NDArray) -> NDArray[np.uint8]:
