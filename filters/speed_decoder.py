@@ -5,6 +5,7 @@ any format python-can reads) or a live bus (``decode_bus``), counting bad data i
 
 from __future__ import annotations
 
+import bisect
 import math
 import re
 import statistics
@@ -34,9 +35,9 @@ _COMBINE_SCALAR: dict[str, Callable[[list[float]], float]] = {
     "mean": lambda v: sum(v) / len(v),
     "median": statistics.median, "min": min, "max": max,
 }
-#: Frames of one id a log's decoding looks ahead at to judge a time that jumps forward: up to
-#: this many frames in a row stamped after the frames that follow them are outliers; a longer
-#: run is taken as the clock, and what follows it as a step back.
+#: Frames of one id a log's decoding looks ahead at to judge a time out of line: up to this
+#: many frames in a row stamped after the frames around them, or behind them, are outliers;
+#: a longer run is taken as the clock, and a step back to it as a clock step.
 LOOKAHEAD = 8
 
 
@@ -46,10 +47,10 @@ class _TimeSkip:
     (indices into the stream), the first at time ``t`` [s], the running time then ``t_run``.
 
     ``kind``: ``nan`` (not a finite time); ``ahead`` (stamped after the frames that follow
-    it; ``last`` is the first of those, which goes on from ``t_run``); ``behind`` (one frame
-    not after ``t_run``); ``step`` (the time steps back and the frames go on from there, a
-    clock reset; ``last`` is the last of them). ``resumed``: for ``behind`` and ``step``, the
-    frame where the stream passes ``t_run`` again and is kept, or -1 (never).
+    it; ``last`` is the first of those, which goes on from ``t_run``); ``behind`` (a frame
+    not after ``t_run``, alone or one of a few); ``step`` (the time steps back and more than
+    :data:`LOOKAHEAD` frames go on from there, a clock reset; ``last`` is the last of them,
+    ``resumed`` the frame where the stream passes ``t_run`` again and is kept, or -1).
     """
 
     kind: str
@@ -61,18 +62,50 @@ class _TimeSkip:
     resumed: int = -1
 
 
+def _longest_rise(values: list[float]) -> int:
+    """Length of the longest strictly increasing subsequence of ``values``."""
+    tails: list[float] = []
+    for v in values:
+        k = bisect.bisect_left(tails, v)
+        tails[k:k + 1] = [v]
+    return len(tails)
+
+
+def _farther(ti: float, window: list[float], t_run: float) -> bool:
+    """Whether a frame at ``ti`` [s] is farther out of line than the first of the following
+    ``window`` times between ``t_run`` and ``ti``: farther from the middle of ``t_run`` and
+    the first time after ``ti`` that follows them (the two frames' neighbours), or, with no
+    such time, farther from ``t_run``. False where ``t_run`` is not finite (nothing before)."""
+    first = next(((k, u) for k, u in enumerate(window) if u < ti), None)
+    if first is None or not math.isfinite(t_run):
+        return False
+    k, u = first
+    after = next((v for v in window[k + 1:] if v > ti), None)
+    if after is None:
+        return u - t_run < ti - t_run
+    middle = 0.5 * (t_run + after)
+    return abs(u - middle) < abs(ti - middle)
+
+
 def _time_order(t: NDArray[np.float64], t_run: float = -math.inf,
                 lookahead: int = LOOKAHEAD) -> tuple[NDArray[np.bool_], list[_TimeSkip]]:
     """Which frames of one id's stream to keep (``t`` [s] in file order, after a running time
     ``t_run`` [s]) so that the kept times strictly increase, and why the others are left out
     (in stream order).
 
-    A frame is kept if its time is after the running time (the latest kept one) and none of
-    the next ``lookahead`` frames goes on between the running time and its time: a frame
-    stamped ahead of the frames that follow it is the outlier, not the rest of the stream. A
-    frame at or before the running time is left out, alone (out of order) or with the frames
-    that go on from it (a clock step back, left out until the stream passes the running time
-    again: the kept times stay on one clock, the log's first).
+    A frame is kept if its time is after the running time (the latest kept one), unless more
+    of the next ``lookahead`` frames keep their order without it than with it (the longest
+    rising run of their times after the running time): a frame stamped ahead of the frames
+    that follow it is the outlier, not the rest of the stream, while a lone frame behind
+    them does not count against it. Where both keep as many (a swapped pair, or the end of
+    the stream), the frame farther from where it belongs is left out (:func:`_farther`).
+
+    A frame at or before the running time is left out. If more than ``lookahead`` frames go
+    on from it, behind the running time, and at most ``lookahead`` kept frames lie above its
+    time, those kept frames were outliers after all: they are left out and the frames after
+    the first of them judged again. Otherwise the time stepped back (a clock reset): its
+    frames are left out until the stream passes the running time again, so the kept times
+    stay on one clock, the log's first.
     """
     n = t.size
     finite = np.isfinite(t)
@@ -84,38 +117,68 @@ def _time_order(t: NDArray[np.float64], t_run: float = -math.inf,
     soonest = sliding_window_view(padded[1:], lookahead).min(axis=1)[:n].tolist()
     times = t.tolist()
     keep = np.zeros(n, dtype=bool)
+    kept: list[int] = []     # indices kept, in order
     skips: list[_TimeSkip] = []
-    behind: list[int] = []  # the open stretch of frames behind: indices going on in time
+    behind: list[int] = []   # the open stretch of frames behind t_run, going on in time
+    stretch_run = t_run      # t_run when the stretch began
+    t_first = t_run
 
     def close(resumed: int) -> None:
-        if behind:
-            kind = "behind" if len(behind) == 1 else "step"
-            skips.append(_TimeSkip(kind, behind[0], len(behind), times[behind[0]],
+        if len(behind) > lookahead:
+            skips.append(_TimeSkip("step", behind[0], len(behind), times[behind[0]],
                                    stretch_run, behind[-1], resumed))
-            behind.clear()
+        else:
+            skips.extend(_TimeSkip("behind", j, 1, times[j], stretch_run) for j in behind)
+        behind.clear()
 
-    stretch_run = t_run
-    for i, ti in enumerate(times):
-        if not math.isfinite(ti):
+    rejected: set[int] = set()  # frames found to be outliers after they were kept
+    i = 0
+    while i < n:
+        ti = times[i]
+        if i in rejected:
+            pass
+        elif not math.isfinite(ti):
             skips.append(_TimeSkip("nan", i, 1, ti, t_run))
         elif ti > t_run:
             back = None
             if soonest[i] < ti:
-                back = next((j for j in range(i + 1, min(n, i + 1 + lookahead))
-                             if t_run < times[j] < ti), None)
+                window = [u for u in times[i + 1:i + 1 + lookahead]
+                          if t_run < u < math.inf]
+                without = _longest_rise(window)
+                with_it = 1 + _longest_rise([u for u in window if u > ti])
+                if without > with_it or (without == with_it and _farther(ti, window, t_run)):
+                    back = next(j for j in range(i + 1, n) if t_run < times[j] < ti)
             if back is not None:
                 skips.append(_TimeSkip("ahead", i, 1, ti, t_run, back))
             else:
                 close(i)
                 keep[i] = True
+                kept.append(i)
                 t_run = ti
-        elif not behind:
+        elif behind and ti <= times[behind[-1]]:  # not going on from the stretch: alone
+            skips.append(_TimeSkip("behind", i, 1, ti, t_run))
+        else:
+            if not behind:
+                stretch_run = t_run
             behind.append(i)
-            stretch_run = t_run
-        elif ti > times[behind[-1]]:
-            behind.append(i)
-        else:  # behind, and not going on from the stretch either: out of order alone
-            skips.append(_TimeSkip("behind", i, 1, ti, t_run, i, -1))
+            if len(behind) == lookahead + 1:
+                start = behind[0]
+                above = [j for j in kept[-lookahead - 1:] if times[j] >= times[start]]
+                if 0 < len(above) <= lookahead:
+                    # the few kept frames above the stretch were outliers: left out, and the
+                    # frames after the first of them judged again
+                    del kept[len(kept) - len(above):]
+                    keep[above] = False
+                    t_run = times[kept[-1]] if kept else t_first
+                    skips = [k for k in skips if k.index < above[0] or k.index in rejected]
+                    rejected.update(above)
+                    back = next(j for j in range(above[0] + 1, i + 1)
+                                if j not in rejected and times[j] > t_run)
+                    skips.extend(_TimeSkip("ahead", j, 1, times[j], t_run, back) for j in above)
+                    behind.clear()
+                    i = above[0] + 1
+                    continue
+        i += 1
     close(-1)
     skips.sort(key=lambda k: k.index)
     return keep, skips
@@ -145,6 +208,11 @@ class _Wanted:
         return self.columns.tolist()
 
 
+def _message_name(wanted: _Wanted) -> str:
+    """``NAME (0xID)`` of a wanted message, as a log line shows its id."""
+    return f"{wanted.decoder.message.name} (0x{wanted.decoder.message.frame_id:X})"
+
+
 class SpeedDecoder:
     """Streaming speed decoder: feed python-can messages, get speed samples.
 
@@ -160,8 +228,17 @@ class SpeedDecoder:
     Signals from several messages are combined with each signal's latest value; a sample is
     produced at each wanted frame once every signal has been seen, and only if its time is
     after every earlier wanted frame's, so the output times strictly increase.
+
+    A frame whose time is not after its id's running time (the latest kept) is skipped. A
+    log's frames are judged with the frames that follow them too (:func:`_time_order`): a
+    frame stamped ahead of the next :data:`LOOKAHEAD` frames of its id, which go on at the
+    old clock, is the outlier and is skipped, not the rest of the log; where the time steps
+    back and goes on from there (a clock reset), the frames before the old clock's time are
+    skipped and the step is named in ``summary.clock_steps``.
+
     ``feed(msg)`` (live buses) and ``feed_many(msgs)`` (logs, vectorised) give identical
-    samples and share state.
+    samples and share state, except where a frame is stamped ahead of the frames after it:
+    ``feed`` cannot look ahead, so it keeps that frame and skips the ones behind it.
     """
 
     def __init__(self, dbc: str | Path | cantools.database.can.Database,
@@ -209,6 +286,49 @@ class SpeedDecoder:
             return f"{self.summary.source}:{position}"
         return f"{self.summary.source}: frame {position}"
 
+    def _at(self, position: int) -> str:
+        """``line N`` or ``frame N`` of ``position``."""
+        return f"{self.position_kind} {position}"
+
+    def _time_note(self, wanted: _Wanted, skip: _TimeSkip, t_after: float = math.nan,
+                   after: str = "") -> str:
+        """Why the frame of ``skip`` (kind ``nan``, ``behind`` or ``ahead``) is left out."""
+        name = _message_name(wanted)
+        if skip.kind == "nan":
+            return f"{name} time {skip.t} is not a finite number: skipped"
+        if skip.kind == "ahead":
+            before = f"{skip.t_run:.6f} s before, " if math.isfinite(skip.t_run) else ""
+            return (f"{name} time {skip.t:.6f} s jumps ahead of its frames around it ({before}"
+                    f"{t_after:.6f} s after, at {after}): an outlier, skipped")
+        return (f"{name} time {skip.t:.6f} s is not after its frames before it "
+                f"({skip.t_run:.6f} s): out of order, skipped")
+
+    def _report_time_skips(self, wanted: _Wanted, skips: list[_TimeSkip],
+                           t: NDArray[np.float64], where: list[int]) -> None:
+        """Count the frames ``skips`` leaves out (``t``, ``where``: times and positions of the
+        stream) and say why: a frame in the examples, a clock step in ``clock_steps``."""
+        s = self.summary
+        name = _message_name(wanted)
+        for skip in skips:
+            s.non_monotonic += skip.count
+            at = self.where(where[skip.index])
+            if skip.kind != "step":
+                after = self._at(where[skip.last]) if skip.kind == "ahead" else ""
+                s.note(at, self._time_note(wanted, skip, float(t[skip.last]), after))
+                continue
+            if len(s.clock_steps) >= MAX_EXAMPLES:
+                continue
+            text = (f"{at}: {name} time steps back {skip.t_run - skip.t:.6f} s (from "
+                    f"{skip.t_run:.6f} to {skip.t:.6f} s) and goes on from there (a clock "
+                    f"reset): its {skip.count} frames up to {self._at(where[skip.last])} are "
+                    "before the time already decoded and skipped")
+            if skip.resumed >= 0:
+                text += (f"; decoding goes on at {self._at(where[skip.resumed])}, where its "
+                         "time passes the old clock again")
+            else:
+                text += ", to the end of its frames; split the log here to decode them"
+            s.clock_steps.append(text)
+
     # -- per-frame screening (shared by feed and feed_many) ---------------------------------
     def _screen(self, msg) -> _Wanted | None:
         s = self.summary
@@ -251,7 +371,8 @@ class SpeedDecoder:
         t = float(msg.timestamp)
         if not (math.isfinite(t) and t > wanted.t_last):
             s.non_monotonic += 1
-            s.note(self.where(), f"time {t} not after the previous frame's {wanted.t_last}")
+            kind = "behind" if math.isfinite(t) else "nan"
+            s.note(self.where(), self._time_note(wanted, _TimeSkip(kind, 0, 1, t, wanted.t_last)))
             return None
         wanted.t_last = t
         values = wanted.decoder.decode_one(bytes(msg.data))
@@ -347,15 +468,10 @@ class SpeedDecoder:
         for m_index, (key, (ts, data, order, where)) in enumerate(batches.items()):
             wanted = by_id[key]
             t = np.asarray(ts, dtype=np.float64)
-            # Accept a frame only if its time is after every earlier frame of its id.
-            prior = np.maximum.accumulate(np.concatenate([[wanted.t_last], t[:-1]]))
-            mono = np.isfinite(t) & (t > prior)
-            self.summary.non_monotonic += int((~mono).sum())
-            for i in np.flatnonzero(~mono)[:MAX_EXAMPLES]:
-                self.summary.note(self.where(where[i]),
-                                  f"time {t[i]} not after the previous frame's {prior[i]}")
+            mono, skips = _time_order(t, wanted.t_last)
+            self._report_time_skips(wanted, skips, t, where)
             if mono.any():
-                wanted.t_last = max(wanted.t_last, float(t[mono].max()))
+                wanted.t_last = float(t[mono][-1])
             payload = np.frombuffer(b"".join(data), dtype=np.uint8).reshape(len(ts), -1)
             values, ok = wanted.decoder.decode(payload[mono])
             self.summary.decode_errors += int((~ok).sum())

@@ -15,7 +15,8 @@ with ``clock_offset`` (seconds added to CAN time to reach camera time);
 
 Bad data is counted in :class:`DecodeSummary`, never used and never fatal: frames of wanted
 ids whose length differs from the DBC's, decode errors and values outside the DBC's stated
-range, time stamps not after the previous frame of the same id, error frames, unreadable
+range, time stamps out of order with the other frames of the same id (a lone stamp far ahead
+or behind; the frames after a clock step back, ``clock_steps``), error frames, unreadable
 log tails. Frames of other ids (``other_ids``) and ids the DBC lacks (``unknown_ids``) are
 counted apart: they are not errors.
 """
@@ -62,10 +63,13 @@ class DecodeSummary:
     error_frames: int = 0      # CAN error frames / remote frames
     length_mismatch: int = 0   # wanted id, payload length != DBC length
     decode_errors: int = 0     # wanted id, undecodable or outside the DBC's [min, max]
-    non_monotonic: int = 0     # wanted id, time not after its previous frame
+    non_monotonic: int = 0     # wanted id, time out of order with its other frames
     bad_rows: int = 0          # CSV rows that are not two finite numbers
     bad_lines: int = 0         # log lines (or records) the reader could not read as a frame
     read_errors: list[str] = field(default_factory=list)
+    #: where a wanted id's time steps back and goes on from there (its frames counted in
+    #: ``non_monotonic``), "FILE:LINE: what was skipped"
+    clock_steps: list[str] = field(default_factory=list)
     #: the first few bad lines / frames, "FILE:LINE: why" or "FILE: frame N: why"
     examples: list[str] = field(default_factory=list)
     interrupted: bool = False  # reading stopped by Ctrl-C / SIGTERM
@@ -83,7 +87,7 @@ class DecodeSummary:
     def note(self, where: str, why: str) -> None:
         """Keep ``where: why`` (made printable) among the first :data:`MAX_EXAMPLES`."""
         if len(self.examples) < MAX_EXAMPLES:
-            self.examples.append(printable(f"{where}: {why}", 200))
+            self.examples.append(printable(f"{where}: {why}", 300))
 
     def lines(self) -> list[str]:
         """Human-readable report, one line per non-zero count."""
@@ -102,7 +106,7 @@ class DecodeSummary:
             ("error_frames", "error/remote frames (skipped)"),
             ("length_mismatch", "wanted frames with a length other than the DBC's (skipped)"),
             ("decode_errors", "wanted frames undecodable or out of the DBC range (skipped)"),
-            ("non_monotonic", "wanted frames with time not after the previous (skipped)"),
+            ("non_monotonic", "wanted frames with a time out of order (skipped)"),
             ("bad_rows", "rows that are not two finite numbers (skipped)"),
             ("bad_lines", "lines the log reader could not read as a CAN frame (skipped)"),
         ]
@@ -116,6 +120,7 @@ class DecodeSummary:
                         ", ..." if len(ids) > 12 else "") + "]"
                 out.append(f"  {n} {label}{extra}")
         out.extend(f"  read error: {printable(e, 300)}" for e in self.read_errors)
+        out.extend(f"  clock step: {printable(e, 400)}" for e in self.clock_steps)
         if self.interrupted:
             out.append(f"  interrupted after {self.frames} frames")
         if self.examples:
