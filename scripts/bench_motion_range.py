@@ -35,6 +35,8 @@ ROWS: tuple[tuple[str, str, float, float], ...] = (
     ("cart", "gradual", 10.0, 3.6),
     ("cart", "gradual", 10.0, 4.8),
     ("cart", "gradual", 10.0, 6.0),
+    ("cart", "gradual", 10.0, 7.0),  # beyond the range: pairs fail, none wrong
+    ("cart", "gradual", 10.0, 8.0),
     ("cart", "shaking", 10.0, 1.2),
     ("cart", "shaking", 10.0, 3.0),
     ("cart", "shaking", 5.0, 1.2),
