@@ -61,6 +61,22 @@ def test_untrackable_travel_does_not_contradict_a_level_camera(tmp_path):
     assert abs(found.pitch_deg - math.degrees(traj.pitch[1])) < 2.0
 
 
+def test_a_pose_one_pair_converges_to_is_not_the_cameras(tmp_path):
+    """A cart at 45° and 5 m/s (0.52 m per frame): the default start fails, its travel cannot
+    be measured (one pair of nine gave a direction), and from the 1° start one pair converged
+    at pitch 4.6° that none of the other five converge from. That was taken as the nominal
+    pose and printed `ok` rows 40° off; a pose that most pairs do not converge from is not
+    determined."""
+    preset = replace(PRESETS["cart"], pitch_deg=45.0)
+    traj = simulate_sequence(preset, 12, tmp_path, seed=1, profile="gradual", speed=5.0)
+    found = search_nominal_pose(open_source(images=tmp_path / "images"),
+                                _rig(preset.camera(), preset), EstimatorConfig())
+    if found is not None and found.determined:
+        assert abs(found.pitch_deg - math.degrees(traj.pitch[1])) < 2.0, found.line()
+    else:
+        assert found is not None and "do not converge" in found.undetermined, found
+
+
 def test_camera_near_the_default_pitch_keeps_it(tmp_path):
     preset, camera, _ = _render(tmp_path, "cart", 3, 58.0)
     assert search_nominal_pose(open_source(images=tmp_path / "images"),

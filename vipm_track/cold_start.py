@@ -32,6 +32,19 @@ COLD_MIN_INLIER_SHARE = 0.4
 #: nominal: 29 % and 46 % long), while the starts that find the truth there have 100 %. Right
 #: pairs of real scenes can have less (KITTI's 28-59 %): those stay failed, as without it
 RETRY_MIN_INLIER_SHARE = 0.6
+#: a steep camera's cold start (either start, and its retries) is kept only where at least
+#: this share of the patches visible in both frames correlate (POC peak at least
+#: ``CORRELATED_PEAK_RATIO`` of its inliers' median) at the pose it converged to: on a ground
+#: texture that repeats, a shift by one period can make 40-64 % of the measured patches
+#: inliers (rendered cart at 0.7-0.8 m per frame: `ok` 0.8 m short), as many as some right
+#: starts have, but the images are aligned only where the texture repeats: the inliers
+#: correlate (median peak 0.47-0.71) and the rest not at all (0.05-0.09), 21-44 % of the
+#: patches in view. In right steep cold starts at least 64 % do, 100 % on weak noisy texture
+#: where no patch correlates well (peaks about 0.1)
+COLD_MIN_CORRELATED_SHARE = 0.5
+#: a patch correlates, for ``COLD_MIN_CORRELATED_SHARE``, where its POC peak is at least this
+#: share of the median peak of the stage's inliers
+CORRELATED_PEAK_RATIO = 0.5
 
 
 def _polygon_mask(size: tuple[int, int], polygon: FloatArray) -> NDArray[np.bool_]:
@@ -196,19 +209,32 @@ def coarse(
 
 def reject_wrong_minimum(result: PairResult, steep: bool, min_peak: float,
                          retry: bool = False) -> None:
-    """Fail a ``steep`` camera's cold-start ``result`` whose last stage has fewer than
-    ``COLD_MIN_INLIER_SHARE`` of its measured patches (visible in both frames, POC peak
-    at least ``min_peak``) as inliers: a wrong minimum. ``retry`` (a start off the
-    nominal pitch, ``cold_pitch_steps_deg``): any camera, and ``RETRY_MIN_INLIER_SHARE``."""
+    """Fail a cold-start ``result`` that converged to a wrong minimum: a ``steep`` camera's
+    whose last stage has fewer than ``COLD_MIN_INLIER_SHARE`` of its measured patches
+    (visible in both frames, POC peak at least ``min_peak``) as inliers, or fewer than
+    ``COLD_MIN_CORRELATED_SHARE`` of its visible patches correlating as its inliers do.
+    ``retry`` (a start off the nominal pitch, ``cold_pitch_steps_deg``): any camera, and
+    ``RETRY_MIN_INLIER_SHARE``."""
     if not (steep or retry) or result.status != STATUS_OK or not result.stages:
         return
     need = RETRY_MIN_INLIER_SHARE if retry else COLD_MIN_INLIER_SHARE
     stage = result.stages[-1]
-    measured = (stage.sizes > 0) & (stage.peaks >= min_peak)
+    visible = stage.sizes > 0
+    measured = visible & (stage.peaks >= min_peak)
     share = float(np.sum(stage.inliers & measured) / max(int(measured.sum()), 1))
     if share < need:
         mark_failed(result, STATUS_FEW_INLIERS,
                     f"cold start converged with {share:.0%} of the measured patches "
                     f"inliers (need {need:.0%}): a wrong minimum")
+        return
+    inlier_peak = float(np.median(stage.peaks[stage.inliers & measured])) if share else 0.0
+    correlated = float(np.sum(visible & (stage.peaks >= CORRELATED_PEAK_RATIO * inlier_peak))
+                       / max(int(visible.sum()), 1))
+    if steep and correlated < COLD_MIN_CORRELATED_SHARE:
+        mark_failed(result, STATUS_FEW_INLIERS,
+                    f"cold start converged where {correlated:.0%} of the patches in view "
+                    f"correlate (POC peak ≥ {CORRELATED_PEAK_RATIO:g} × the inliers' median "
+                    f"{inlier_peak:.2f}; need {COLD_MIN_CORRELATED_SHARE:.0%}): a wrong minimum "
+                    f"on repeating texture")
 
 # --- stages -----------------------------------------------------------------------------
