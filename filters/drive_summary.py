@@ -83,14 +83,15 @@ def _pose_residuals(
     frames: Sequence[SmoothedFrame], measurements: Sequence[PairMeasurement] | None
 ) -> FloatArray | None:
     """(n, 2) measured pitch/roll of each frame's pair minus the frame's smoothed mount
-    (rad; NaN where the pair is not usable), or None without measurements."""
+    (rad; NaN where the pair is not usable or the smoother rejected its pose: one corrupt
+    row 75° off widened the data's interval fifteenfold), or None without measurements."""
     if measurements is None:
         return None
     by_frame = {m.frame: m for m in measurements}
     out = np.full((len(frames), 2), np.nan)
     for i, f in enumerate(frames):
         m = by_frame.get(f.frame)
-        if m is not None and m.ok:
+        if m is not None and m.ok and "pose" not in f.gated:
             out[i] = m.z[2:4] - f.mount[:2]
     return out
 

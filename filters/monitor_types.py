@@ -101,6 +101,10 @@ class MonitorConfig:
             raise InputError("monitor: false_alarms_per_hour must be > 0")
         if not self.fps > 0:
             raise InputError("monitor: fps must be > 0")
+        if not self.false_alarms_per_hour <= 3600.0 * self.fps:
+            raise InputError(
+                f"monitor: false alarms per hour must be at most one per frame (3600 × "
+                f"{self.fps:g} fps = {3600.0 * self.fps:g}), got {self.false_alarms_per_hour:g}")
         if not self.angle_shifts_deg or not self.height_shifts_m:
             raise InputError("monitor: at least one design shift per axis is needed")
         if not (self.road_std_deg >= 0 and self.road_tau_s > 0):

@@ -155,7 +155,12 @@ def test_estimates_csv_damaged_cells_named():
     for column, value, message in (
             ("frame", "7.5", r"row 4, column 'frame': '7.5' is not a frame index"),
             ("tz_std_m", "0", r"row 4 \(frame \d+\): tz_std_m = 0.0 is not a standard "
-                              "deviation")):
+                              "deviation"),
+            # one corrupt number wrecked the smoother's summary (an interval of ±inf)
+            ("pitch_deg", "1e300", r"row 4 \(frame \d+\): pitch_deg = 1e\+300 is not an "
+                                   "angle within ±90°"),
+            ("yaw_deg", "inf", r"yaw_deg = inf is not an angle"),
+            ("height_m", "-0.7", r"height_m = -0.7 is not a height > 0")):
         cells = lines[3].rstrip("\n").split(",")
         cells[header.index(column)] = value
         path = _tmp("est.csv")
@@ -163,6 +168,22 @@ def test_estimates_csv_damaged_cells_named():
         with pytest.raises(InputError, match=message):
             _read_estimates(path)
     assert read_table(path, quiet=True)["frame"].dtype == np.int64
+
+
+@FUZZ
+@given(st.sampled_from(["prev_pitch_deg", "pitch_deg", "prev_roll_deg", "roll_deg", "yaw_deg"]),
+       st.floats(allow_nan=False), st.booleans())
+def test_estimates_csv_angle_beyond_its_range_named(column, value, negative):
+    limit = 90.0 if "pitch" in column else 180.0
+    value = (limit + abs(value) + 1e-6) * (-1 if negative else 1)
+    lines = ESTIMATES.decode().splitlines(keepends=True)
+    header = lines[0].strip().split(",")
+    cells = lines[5].rstrip("\n").split(",")
+    cells[header.index(column)] = repr(value)
+    path = _tmp("est.csv")
+    path.write_text("".join(lines[:5]) + ",".join(cells) + "\n" + "".join(lines[6:]))
+    with pytest.raises(InputError, match=rf"row 6 \(frame \d+\): {column} = .* is not an angle"):
+        _read_estimates(path)
 
 
 @FUZZ

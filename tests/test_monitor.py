@@ -427,6 +427,9 @@ def test_cli_monitor_rows_saying_ok_have_their_numbers(cli_inputs):
         (["--nominal", "missing.yaml"], "missing.yaml"),
         (["--images", "somewhere"], "exactly one of"),
         (["--false-alarms-per-hour", "0"], "false-alarms-per-hour"),
+        # a rate beyond one per frame asked the CUSUM for a run length below one sample
+        # (a ValueError traceback before)
+        (["--false-alarms-per-hour", "1e12"], "at most one per frame"),
         (["--road-std", "-0.5"], "--road-std"),
         (["--road-tau", "0"], "--road-tau"),
     ],

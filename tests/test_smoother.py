@@ -419,6 +419,21 @@ def test_summary_interval_widens_to_slow_errors_the_model_lacks(batch, drive):
     assert p["ci95"][0] < truth < p["ci95"][1]
 
 
+def test_summary_interval_leaves_out_a_pair_the_smoother_rejected(batch, drive):
+    # One pair whose pose is 75° off (a corrupt row): the smoother rejects its pose, and the
+    # data's spread must not take it in (it widened the interval fifteenfold).
+    ms = list(drive.measurements)
+    plain = summarize_mount(batch[0], ms)
+    ms[40] = replace(ms[40], z=ms[40].z + np.radians([0, 0, -75.0, 0, 0, 0, 0]))
+    cfg = SmootherConfig(height_m=H0, noise=drive.config.noise)
+    frames, _ = smooth_batch(ms, speeds_at_frames(ms, drive.speed), cfg)
+    assert "pose" in frames[40].gated
+    s = summarize_mount(frames, ms)
+    for axis in ("pitch", "roll"):
+        width = np.diff(s[axis]["ci95"])[0] / np.diff(plain[axis]["ci95"])[0]
+        assert width < 1.2, (axis, width)
+
+
 # --- command line -----------------------------------------------------------------------------
 
 

@@ -97,6 +97,7 @@ def measurements_from_table(
         raise InputError(f"{source}: row {row + first_data_row(source)} (frame "
                          f"{int(frames[row])}): {name} = {columns[name][row]} is not a "
                          "standard deviation (must be > 0)")
+    _check_ranges(columns, frames, source)
     inliers = columns.get("inliers", np.zeros(n))
     out = []
     for i in range(n):
@@ -113,6 +114,35 @@ def measurements_from_table(
             )
         )
     return out
+
+
+#: largest magnitude an angle column can have [deg]: a pitch beyond ±90° or a roll or yaw
+#: beyond ±180° is no angle of these conventions (a corrupt number: one row's 1e300 wrecked
+#: the smoother's summary; 4500° widened its interval a hundredfold)
+_ANGLE_LIMITS_DEG = {"prev_pitch_deg": 90.0, "pitch_deg": 90.0, "prev_roll_deg": 180.0,
+                     "roll_deg": 180.0, "yaw_deg": 180.0}
+
+
+def _check_ranges(columns: dict[str, NDArray], frames: NDArray, source: str) -> None:
+    """An :class:`InputError` naming row, frame and column for a number no estimate can have:
+    an infinite value, an angle beyond ``_ANGLE_LIMITS_DEG``, a height that is not > 0 (empty
+    cells, NaN, are missing numbers and pass)."""
+    for name in (*_Z_COLUMNS, "height_m"):
+        values = np.asarray(columns[name], dtype=float)
+        with np.errstate(invalid="ignore"):
+            bad = np.isinf(values)
+            if name in _ANGLE_LIMITS_DEG:
+                bad |= np.abs(values) > _ANGLE_LIMITS_DEG[name]
+                rule = f"an angle within ±{_ANGLE_LIMITS_DEG[name]:g}°"
+            elif name == "height_m":
+                bad |= values <= 0.0
+                rule = "a height > 0"
+            else:
+                rule = "a finite distance"
+        if bad.any():
+            row = int(np.flatnonzero(bad)[0])
+            raise InputError(f"{source}: row {row + first_data_row(source)} (frame "
+                             f"{int(frames[row])}): {name} = {columns[name][row]} is not {rule}")
 
 
 def _correlations(columns: dict[str, NDArray], n: int, source: str) -> NDArray:
