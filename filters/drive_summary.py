@@ -76,7 +76,33 @@ def summarize_mount(
             "drift_per_min": slope,
             "max_minus_min": float(np.max(v) - np.min(v)),
         }
+    if measurements is not None:
+        note = _height_scale_note(float(out["height"]["mean"]), measurements)  # type: ignore[index]
+        if note:
+            out["height_scale"] = note
     return out
+
+
+#: a smoothed height further than this factor from the height the pairs were estimated with
+#: is called out: wheel speed scales the pairs' travel, and one from another drive, in other
+#: units or on another clock moves the height with it (a CAN log of another drive: 5.56 m
+#: for a 0.7 m cart, no other warning)
+HEIGHT_SCALE_WARNING = 1.25
+
+
+def _height_scale_note(height_m: float, measurements: Sequence[PairMeasurement]) -> str:
+    """A warning where the smoothed ``height_m`` is beyond ``HEIGHT_SCALE_WARNING`` times (or
+    below its inverse) the median height the usable ``measurements`` assumed ("" if not)."""
+    assumed = [m.height_assumed for m in measurements if m.ok and m.height_assumed > 0]
+    if not assumed or not np.isfinite(height_m):
+        return ""
+    ratio = height_m / float(np.median(assumed))
+    if 1.0 / HEIGHT_SCALE_WARNING <= ratio <= HEIGHT_SCALE_WARNING:
+        return ""
+    return (f"the smoothed height {height_m:.3f} m is {ratio:.2f}× the "
+            f"{float(np.median(assumed)):g} m the pairs were estimated with: the wheel speed "
+            "sets the scale, so it likely belongs to another drive, has another unit or scale "
+            "(--speed-scale), or is offset in time (--clock-offset).")
 
 
 def _pose_residuals(
@@ -116,8 +142,8 @@ def summary_markdown(summary: dict[str, object]) -> str:
             f"{f(d['std'])} | {d.get('interval_from', 'model')} | {f(d['start'])} | "
             f"{f(d['end'])} | {f(d['drift_per_min'])} | {f(d['max_minus_min'])} |"
         )
-    warnings = [w for w in (_rejection_warning(summary), str(summary.get("short_drive", "")))
-                if w]
+    warnings = [w for w in (_rejection_warning(summary), str(summary.get("short_drive", "")),
+                            str(summary.get("height_scale", ""))) if w]
     return "\n".join(lines) + "\n" + "".join(f"\n**Warning:** {w}\n" for w in warnings)
 
 

@@ -16,7 +16,7 @@ from vipm_track.cli import main
 from vipm_track.filters import factors as F
 from vipm_track.filters import model as M
 from vipm_track.filters.drive_sim import DriveConfig, DriveProfile, simulate_drive
-from vipm_track.filters.drive_summary import summarize_mount
+from vipm_track.filters.drive_summary import summarize_mount, summary_markdown
 from vipm_track.filters.ekf import run_filter
 from vipm_track.filters.ekf_state import EkfConfig
 from vipm_track.filters.fixed_lag import FixedLagSmoother, SolveError
@@ -432,6 +432,19 @@ def test_summary_interval_leaves_out_a_pair_the_smoother_rejected(batch, drive):
     for axis in ("pitch", "roll"):
         width = np.diff(s[axis]["ci95"])[0] / np.diff(plain[axis]["ci95"])[0]
         assert width < 1.2, (axis, width)
+
+
+def test_summary_warns_of_a_height_the_wheel_speed_scaled(batch, drive):
+    # A wheel speed 3× the drive's (another drive, km/h read as m/s) moves the height with
+    # it and most pairs still fit: the summary said nothing (a CAN log of another drive gave
+    # a 0.7 m cart 5.56 m).
+    ms = drive.measurements
+    assert "height_scale" not in summarize_mount(batch[0], ms)
+    cfg = SmootherConfig(height_m=H0, noise=drive.config.noise)
+    frames, _ = smooth_batch(ms, 3.0 * speeds_at_frames(ms, drive.speed), cfg)
+    s = summarize_mount(frames, ms)
+    assert s["height"]["mean"] > 1.25 * H0
+    assert "wheel speed" in s["height_scale"] and "Warning" in summary_markdown(s)
 
 
 # --- command line -----------------------------------------------------------------------------
