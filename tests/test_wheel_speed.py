@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import uuid
+from pathlib import Path
 
 import can
 import cantools
@@ -402,3 +403,15 @@ def test_other_python_can_formats(dbc, messages, tmp_path, suffix):
     assert summary.frames == len(part) and summary.bad == 0
     np.testing.assert_allclose(series.speed_mps, want.speed_mps, atol=1e-12)
     np.testing.assert_allclose(np.diff(series.t), np.diff(want.t), atol=2e-4)
+
+
+@pytest.mark.parametrize("command", ["smooth", "track"])
+def test_speed_scale_zero_is_refused(tmp_path, capsys, command):
+    # `--speed-scale 0` was read as no scale (the speed used unscaled, exit 0)
+    from vipm_track.cli import main
+
+    data = Path(__file__).parent / "data"
+    rc = main([command, "--estimates", str(data / "knock_cart_est.csv"), "--vehicle", "cart",
+               "--speed-csv", str(data / "knock_cart_speed.csv"), "--speed-scale", "0",
+               "--out", str(tmp_path / "out.csv")])
+    assert rc == 2 and "--speed-scale 0.0 must be a positive number" in capsys.readouterr().err

@@ -56,7 +56,8 @@ def speed_from_args(args: argparse.Namespace, progress: bool = True,
     report = report or (lambda line: print(line, file=sys.stderr))
     speed_csv, log = getattr(args, "speed_csv", None), getattr(args, "can", None)
     dbc, signals = getattr(args, "dbc", None), getattr(args, "signals", None)
-    scale = float(getattr(args, "speed_scale", 1.0) or 1.0)
+    # `or 1.0` would read --speed-scale 0 as no scale at all
+    scale = float(getattr(args, "speed_scale", 1.0))
     offset = getattr(args, "clock_offset", 0.0) or 0.0
     offset = 0.0 if offset == "auto" else float(offset)
     if speed_csv and log:
