@@ -175,6 +175,17 @@ class SpeedSeries:
         k = np.flatnonzero(np.diff(self.t) > max_gap)
         return np.stack([self.t[k], self.t[k + 1]], axis=1)
 
+    def overlap(self, frame_times: ArrayLike) -> tuple[int, str]:
+        """How many of ``frame_times`` [s, this series' clock] have a speed, and the spans of
+        both (for a message saying they do not meet)."""
+        times = np.asarray(frame_times, dtype=float)
+        if times.size == 0:
+            return 0, ""
+        covered = int(np.isfinite(self.speed_at(times)).sum())
+        return covered, (f"speed {self.t[0]:.3f} .. {self.t[-1]:.3f} s (clock offset "
+                         f"{self.clock_offset:+.3f} s), camera {times.min():.3f} .. "
+                         f"{times.max():.3f} s")
+
     def speed_at(self, times: ArrayLike,
                  max_gap: float | None = DEFAULT_MAX_GAP) -> NDArray[np.float64]:
         """Speed [m/s] linearly interpolated at ``times`` [s, this series' clock]; NaN outside

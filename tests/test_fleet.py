@@ -45,6 +45,12 @@ def drives(tmp_path_factory) -> Path:
     broken = render_small_drive(root / "broken", frames=3, seed=4)
     for png in (broken / "images").glob("*.png"):
         png.write_bytes(b"not a png")
+    # a wheel speed on another clock: `smooth` refuses it, the fleet said "ok, wheel speed"
+    clock = root / "d_clock"
+    shutil.copytree(a, clock)
+    speed = pd.read_csv(a / "speed.csv")
+    speed["t"] += 1000.0
+    speed.to_csv(clock / "speed.csv", index=False)
     (root / "no_nominal").mkdir()
     shutil.copytree(a / "images", root / "no_nominal" / "images")
     shutil.copy(a / "camera.yaml", root / "no_nominal")
@@ -61,13 +67,14 @@ def fleet(drives, cluster, tmp_path_factory):
 
 def test_drives_ok_and_broken_ones_are_rows(fleet):
     out, rows = fleet
-    assert list(rows) == ["a", "b", "broken", "c_bag", "no_nominal"]
+    assert list(rows) == ["a", "b", "broken", "c_bag", "d_clock", "no_nominal"]
     for name in ("a", "b", "c_bag"):
         assert rows[name]["status"] == "ok", rows[name]["status"]
         assert rows[name]["frames"] == 12 and rows[name]["share_ok"] > 0.9
         assert abs(rows[name]["mount_height_m"] - 0.7) < 0.005  # the wheel speed scales it
     assert "no frame has a usable pair estimate" in rows["broken"]["status"]
     assert "no nominal.yaml" in rows["no_nominal"]["status"]
+    assert "no frame has a wheel speed" in rows["d_clock"]["status"]
     assert abs(rows["a"]["mount_pitch_deg"] - 45.0) < 0.05
     assert abs(rows["b"]["mount_pitch_deg"] - 46.0) < 0.05
     lo, hi = rows["a"]["mount_pitch_ci95_low_deg"], rows["a"]["mount_pitch_ci95_high_deg"]

@@ -131,14 +131,9 @@ def check_speed_overlap(speed: SpeedSeries, frame_times: list[float], strict: bo
     """Say when the speed's samples [s, camera clock] cover none of ``frame_times`` (an
     :class:`InputError` if ``strict``, else a warning on stderr: the frames are already
     written), or fewer than half of them (a warning)."""
-    times = np.asarray(frame_times, dtype=float)
-    if times.size == 0:
+    covered, spans = speed.overlap(frame_times)
+    if covered * 2 >= len(frame_times):
         return
-    covered = int(np.isfinite(speed.speed_at(times)).sum())
-    if covered * 2 >= times.size:
-        return
-    spans = (f"speed {speed.t[0]:.3f} .. {speed.t[-1]:.3f} s (clock offset "
-             f"{speed.clock_offset:+.3f} s), camera {times.min():.3f} .. {times.max():.3f} s")
     if covered == 0:
         message = (f"{speed.source or 'wheel speed'}: no frame has a wheel speed: {spans}; set "
                    "--clock-offset to the camera time minus the speed time, or to 'auto'")
@@ -147,7 +142,7 @@ def check_speed_overlap(speed: SpeedSeries, frame_times: list[float], strict: bo
         print(f"vipm-track: warning: {message}", file=sys.stderr)
         return
     print(f"vipm-track: warning: {speed.source or 'wheel speed'}: only {covered} of "
-          f"{times.size} frames have a wheel speed ({spans})", file=sys.stderr)
+          f"{len(frame_times)} frames have a wheel speed ({spans})", file=sys.stderr)
 
 
 def read_estimates(path: str, quiet: bool = False, notes: list[str] | None = None,

@@ -203,6 +203,12 @@ def _process(spec: DriveSpec, folder: Path, settings: FleetSettings) -> dict[str
         counts = Counter(m.status for m in measurements)
         raise NothingUsable(f"{source.description}: no frame has a usable pair estimate ("
                             + ", ".join(f"{n}× {s}" for s, n in counts.most_common()) + ")")
+    if speed is not None:
+        covered, spans = speed.overlap([m.t for m in measurements])
+        if covered == 0:  # as `smooth`: a drive without its speed is no drive with one
+            raise InputError(f"{speed.source or 'wheel speed'}: no frame has a wheel speed: "
+                             f"{spans}; the drive's speed is on another clock or of another "
+                             "drive")
     frames, rows = [], []
     for f, row in smoothed_rows(measurements, speed, smoother_config(height, settings)):
         frames.append(f)
