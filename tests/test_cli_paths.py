@@ -420,3 +420,6 @@ def test_start_and_max_frames_window_every_filter(short_cart: Path, tmp_path: Pa
     assert list(read_table(out)["frame"]) == [2, 3, 4, 5]
     assert main([command, "--estimates", str(est), "--max-frames", "0", "--out", str(out),
                  "--quiet", *extra]) == 2
+    # a start beyond the table said "no frame has a usable pair estimate ()", exit 1
+    assert main([command, "--estimates", str(est), "--start", "1000", "--out", str(out),
+                 "--quiet", *extra]) == 2

@@ -226,6 +226,7 @@ BO_ 170 WHEEL_SPEEDS: 8 X
 
 @pytest.mark.parametrize("argv, message", [
     (["--video", "no/such.avi"], "no such file"),
+    (["--video", "{folder}"], "a folder; live reads a camera"),  # said "no such file"
     (["--video", "0", "--speed-csv", "{speed}"], "is live: a recorded wheel speed"),
     (["--video", "{video}", "--bus", "virtual:x"], "needs --realtime"),
     (["--video", "{video}", "--realtime", "--bus", "virtual:x"], "--bus needs --dbc"),
@@ -241,7 +242,7 @@ def test_bad_input_is_one_line_and_exit_2(knock, tmp_path, capsys, argv, message
     dbc = tmp_path / "wheel.dbc"
     dbc.write_text(DBC)
     fill = {"video": str(knock["video"]), "speed": str(knock["folder"] / "speed.csv"),
-            "nominal": str(knock["nominal"]), "dbc": str(dbc)}
+            "nominal": str(knock["nominal"]), "dbc": str(dbc), "folder": str(knock["folder"])}
     argv = [a.format(**fill) for a in argv]
     rc = main(["live", *argv, "--camera", str(knock["folder"] / "camera.yaml"), "--nominal",
                str(knock["nominal"]), "--out", str(tmp_path / "o.csv")])

@@ -63,6 +63,10 @@ def parse_video(text: str) -> VideoSpec:
     if "://" in text:
         return VideoSpec(url=text)
     path = Path(text)
+    if path.is_dir():
+        raise InputError(f"--video {printable(text, 200)}: a folder; live reads a camera (its "
+                         "index, e.g. 0), a stream (its URL) or a video file, not an image "
+                         "folder (replay one with `vipm-track monitor --images`)")
     if not path.is_file():
         raise InputError(f"--video {printable(text, 200)}: no such file (a camera is given "
                          "by its index, e.g. 0; a stream by its URL, e.g. rtsp://host/path)")

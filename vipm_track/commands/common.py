@@ -115,13 +115,18 @@ def infer_inputs(args: argparse.Namespace) -> None:
                   "estimated with)", file=sys.stderr)
 
 
-def frame_window(items: list, frame_of, start: int, max_frames: int | None) -> list:
+def frame_window(items: list, frame_of, start: int, max_frames: int | None,
+                 source: str = "the input") -> list:
     """The ``items`` whose frame (``frame_of(item)``) is at least ``start``, at most
-    ``max_frames`` of them (``--start`` / ``--max-frames``; InputError for negative values)."""
+    ``max_frames`` of them (``--start`` / ``--max-frames``; InputError for negative values
+    and for a ``start`` beyond every item of ``source``)."""
     if start < 0 or (max_frames is not None and max_frames < 1):
         raise InputError(f"--start must be >= 0 and --max-frames >= 1, got {start} and "
                          f"{max_frames}")
     kept = [item for item in items if frame_of(item) >= start]
+    if items and not kept:
+        raise InputError(f"{source}: no rows from frame {start} (--start); its frames are "
+                         f"{frame_of(items[0])}..{frame_of(items[-1])}")
     return kept if max_frames is None else kept[:max_frames]
 
 

@@ -344,7 +344,8 @@ def measurements_from_args(
         measurements = read_estimates(args.estimates, getattr(args, "quiet", False),
                                       args.input_notes)
         measurements = frame_window(measurements, lambda m: m.frame,
-                                    getattr(args, "start", 0), getattr(args, "max_frames", None))
+                                    getattr(args, "start", 0), getattr(args, "max_frames", None),
+                                    args.estimates)
         require_usable(measurements, args.estimates)
         return measurements
     stream = estimate_stream(args, height, config, sink, rig)

@@ -85,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
         if args.images or args.video:
             raise InputError("give --estimates or --images/--video, not both")
         measurements = frame_window(read_estimates(args.estimates, args.quiet),
-                                    lambda m: m.frame, args.start, args.max_frames)
+                                    lambda m: m.frame, args.start, args.max_frames,
+                                    args.estimates)
         require_usable(measurements, args.estimates)
         speed, _ = speed_on_camera_clock(args, speed, measurements)
         stream = iter(measurements)
