@@ -64,6 +64,8 @@ class DriftMonitor:
         self._history: deque[tuple[int, FloatArray, FloatArray]] = deque(maxlen=n_hist)
         self._state: str | None = None
         self._reported: str | None = None  # the state the last event announced
+        # frames behind the last _estimate, and whether all of them follow the change's start
+        self._estimate_frames, self._since_change = 0, True
         self._hold_event: dict[str, Any] | None = None  # a HOLD not yet long enough to report
         self._change_at: int | None = None
         self._held = 0
@@ -155,8 +157,12 @@ class DriftMonitor:
         core, cfg = self.core, self.config
         hist = [h for h in self._history if start is None or h[0] > start]
         min_n = max(3, round(0.5 * cfg.fps))
-        if len(hist) < min_n:
+        # the frames since the change began, or the last min_n where fewer (a noisy median
+        # otherwise); the reason says which
+        self._since_change = len(hist) >= min_n
+        if not self._since_change:
             hist = list(self._history)[-min_n:]
+        self._estimate_frames = len(hist)
         dev = np.array([h[1] for h in hist])
         var = np.array([h[2] for h in hist])
         est = np.full(3, np.nan)
@@ -203,12 +209,15 @@ class DriftMonitor:
             if interval is not None:
                 lo, hi = interval[j] - core.nominal_values[j]
                 span = f", 95 % {_fmt_dev(j, lo)} … {_fmt_dev(j, hi)}"
-            return (f"{AXES[j]} changed: {_fmt_dev(j, dev)} from nominal (median since the "
-                    f"change{span}), beyond the tolerance {tol}: the test crossed its "
-                    "threshold")
+            over = ("since the change" if estimate is None or self._since_change else
+                    f"of the last {self._estimate_frames} frames, from before the change")
+            return (f"{AXES[j]} changed: {_fmt_dev(j, dev)} from nominal (median {over}"
+                    f"{span}), beyond the tolerance {tol}: the test crossed its threshold")
+        over = ("since it began" if estimate is None or self._since_change else
+                f"over the last {self._estimate_frames} frames, from before it began")
         return (f"{AXES[j]} drifting: the test stands at {stat[j]:.0%} of its threshold "
-                f"(DRIFTING from {self.config.warn_enter:.0%}); median deviation since it "
-                f"began {_fmt_dev(j, dev)}, tolerance {tol}")
+                f"(DRIFTING from {self.config.warn_enter:.0%}); median deviation {over} "
+                f"{_fmt_dev(j, dev)}, tolerance {tol}")
 
     def _event(self, inp: MonitorInput, state: str, reason: str, estimate: FloatArray | None,
                interval: FloatArray | None) -> dict[str, Any]:

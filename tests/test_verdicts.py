@@ -156,6 +156,28 @@ def test_drifting_reason_states_the_statistic_and_the_deviation():
     assert 0.5 <= o.statistic[0] < 1.0
 
 
+def test_drifting_right_after_a_knock_says_its_median_reaches_back_before_it():
+    """A 1° knock raises DRIFTING a frame after it, before half a second of frames has come
+    since the change: the median then covers the last frames, most from before the knock
+    (the demo said "median deviation since it began -0.12°" for a +1° knock). The reason
+    must not call that the deviation since the change."""
+    nominal = NominalCalibration(45.0, 0.0, 0.7, 0.2, 0.2, 0.005)
+    mon = DriftMonitor(nominal, MonitorConfig(fps=10.0, body_window_s=0.0))
+    rng = np.random.default_rng(1)
+    first = None
+    for k in range(200):
+        shift = math.radians(1.0) if k >= 100 else 0.0
+        pose = nominal.values + np.array([shift + rng.normal(scale=math.radians(0.05)), 0, 0])
+        pose[2] = np.nan
+        o = mon.update(MonitorInput(frame=k, t=k / 10.0, pose=pose,
+                                    pose_var=np.array([1e-6, 1e-6, np.nan])))
+        if o.state in ("DRIFTING", "RECALIBRATE") and first is None:
+            first = o
+    assert first is not None and first.frame < 104, first
+    dev = math.degrees(first.estimate[0] - nominal.values[0])
+    assert dev > 0.5 or "from before" in first.reason, (dev, first.reason)
+
+
 def test_a_negated_wheel_speed_is_reported_and_its_magnitude_used():
     """A speed source whose sign is the opposite of ours (the camera sees forward motion):
     the filter's result equals the one with the right sign, and the span is reported."""
