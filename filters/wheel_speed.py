@@ -277,6 +277,11 @@ def align_to_frames(series: SpeedSeries, frame_times: ArrayLike, clock_offset: f
                         n_before=int((ft < t0).sum()), n_after=int((ft > t1).sum()))
 
 
+#: a speed.csv sample beyond this is a corrupt row, not a vehicle's speed [m/s] (360 km/h;
+#: one of 1e9 m/s was taken and interpolated into the frames)
+MAX_SPEED_MPS = 100.0
+
+
 def read_speed_csv(path: str | Path) -> SpeedSeries:
     """Speed series from a CSV with columns ``t`` [s] and ``speed_mps`` [m/s].
 
@@ -309,6 +314,11 @@ def read_speed_csv(path: str | Path) -> SpeedSeries:
             if not (math.isfinite(t) and math.isfinite(v)):
                 summary.bad_rows += 1
                 summary.note(where, "not finite")
+                continue
+            if abs(v) > MAX_SPEED_MPS:
+                summary.bad_rows += 1
+                summary.note(where, f"speed {v:g} m/s is no ground vehicle's (beyond "
+                                    f"{MAX_SPEED_MPS:g})")
                 continue
             if ts and t <= ts[-1]:
                 summary.non_monotonic += 1

@@ -231,6 +231,7 @@ def test_speed_csv(data):
     series = _check(read_speed_csv, _tmp("speed.csv"), data.draw(mutations(seed)))
     if series is not None:
         assert np.all(np.diff(series.t) > 0) and np.all(np.isfinite(series.speed_mps))
+        assert np.all(np.abs(series.speed_mps) <= 100.0)
 
 
 # -- CAN logs, DBC ----------------------------------------------------------------------------

@@ -338,10 +338,12 @@ def test_speed_csv_roundtrip_and_bad_rows(tmp_path):
     back = read_speed_csv(path)
     np.testing.assert_allclose(back.t, series.t)
     np.testing.assert_allclose(back.speed_mps, series.speed_mps)
-    path.write_text("t,speed_mps\n0.1,1\n0.2,oops\n0.3,2\n0.25,5\n0.4,nan\n0.5,3\n")
+    path.write_text("t,speed_mps\n0.1,1\n0.2,oops\n0.3,2\n0.25,5\n0.4,nan\n0.45,1e9\n"
+                    "0.5,3\n")
     back = read_speed_csv(path)
     np.testing.assert_allclose(back.t, [0.1, 0.3, 0.5])
-    assert back.summary.bad_rows == 2 and back.summary.non_monotonic == 1
+    assert back.summary.bad_rows == 3 and back.summary.non_monotonic == 1
+    assert any("1e+09 m/s is no ground vehicle's" in line for line in back.summary.examples)
     (tmp_path / "w.csv").write_text("time,v\n1,2\n")
     with pytest.raises(InputError, match=r"w.csv.*speed_mps"):
         read_speed_csv(tmp_path / "w.csv")
