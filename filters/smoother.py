@@ -44,6 +44,7 @@ from .ekf import ExtrinsicsEKF
 from .ekf_state import EkfConfig
 from .model import NoiseParams
 from .mount_change import across_jump, jump_variance
+from .mount_steps import MountStep, mount_steps, mount_trend
 from .smoother_config import SmoothedFrame, SmootherConfig, chi_norm
 from .smoother_marginals import block_marginals, block_norms, state_covariances, states_of
 
@@ -260,21 +261,54 @@ def mount_jumps(
     ms: Sequence[PairMeasurement], speeds: FloatArray, cfg: SmootherConfig
 ) -> dict[int, FloatArray]:
     """Where the mount stepped (a knocked camera): the EKF's mount-change test
-    (``filters.mount_change``) run over the drive; key index → variance (pitch, roll; rad²)
-    to add to the mount's walk into that frame (``mount_change.jump_variance``) on the axis
-    that stepped."""
-    if not cfg.mount_change.enabled:
-        return {}
-    ekf = ExtrinsicsEKF(EkfConfig(height_m=cfg.height_m, noise=cfg.noise,
-                                  mount_change=cfg.mount_change), widen_pose=False)
-    for m, v in zip(ms, speeds, strict=True):
-        ekf.step(m, m.t, float(v), m.frame)
+    (``filters.mount_change``) run over the drive, and the offline test on the pairs' angles
+    (``filters.mount_steps``) for steps the EKF's body took up before its test saw them; key
+    index → variance (pitch, roll; rad²) to add to the mount's walk into that frame
+    (``mount_change.jump_variance``) on the axis that stepped."""
     t = np.array([m.t for m in ms])
+    changes: list[tuple[float, int, float]] = []
+    if cfg.mount_change.enabled:
+        ekf = ExtrinsicsEKF(EkfConfig(height_m=cfg.height_m, noise=cfg.noise,
+                                      mount_change=cfg.mount_change), widen_pose=False)
+        for m, v in zip(ms, speeds, strict=True):
+            ekf.step(m, m.t, float(v), m.frame)
+        changes = persistent_changes(ekf.mount_changes, cfg.mount_change_persist_s)
+    for axis, found in enumerate(_offline_steps(ms, cfg)):
+        near = [onset for onset, a, _ in changes if a == axis]
+        changes += [(s.onset_s, axis, s.step) for s in found
+                    if all(abs(s.onset_s - o) > cfg.mount_steps.min_segment_s for o in near)]
     out: dict[int, FloatArray] = {}
-    for onset, axis, step in persistent_changes(ekf.mount_changes, cfg.mount_change_persist_s):
+    for onset, axis, step in changes:
         k = max(1, int(np.searchsorted(t, onset)))
         out.setdefault(k, np.zeros(2))[axis] += jump_variance(step)
     return out
+
+
+def mount_creep(ms: Sequence[PairMeasurement], cfg: SmootherConfig) -> FloatArray:
+    """(n, 2) variance (pitch, roll; rad²) to add to the mount's walk into each frame where
+    the pairs' angle drifts (``mount_steps.mount_trend``, within the segments its steps
+    leave): the drift over ``trend_walk_s`` per that time, so that the walk can follow a
+    creeping mount; zero elsewhere."""
+    out = np.zeros((len(ms), 2))
+    t = np.array([m.t for m in ms])
+    usable = np.array([m.ok for m in ms], dtype=bool)
+    for axis, found in enumerate(_offline_steps(ms, cfg)):
+        angles = np.array([m.z[2 + axis] for m in ms if m.ok])
+        slope = mount_trend(t[usable], angles, found, cfg.mount_steps)
+        if slope is not None:
+            out[1:, axis] = slope ** 2 * cfg.mount_steps.trend_walk_s * np.diff(t)
+    return out
+
+
+def _offline_steps(ms: Sequence[PairMeasurement], cfg: SmootherConfig) -> list[list[MountStep]]:
+    """Per axis (pitch, roll) the steps ``mount_steps`` finds in the usable pairs' angle of
+    their current frame (none where the test is off or fewer than 3 pairs are usable)."""
+    usable = [m for m in ms if m.ok]
+    if not cfg.mount_steps.enabled or len(usable) < 3:
+        return [[], []]
+    t = np.array([m.t for m in usable])
+    return [mount_steps(t, np.array([m.z[2 + axis] for m in usable]), cfg.mount_steps)
+            for axis in (0, 1)]
 
 
 def persistent_changes(
@@ -527,8 +561,11 @@ def smooth_batch(
     metric = _metric_frames(t, sp, cfg.speed_timeout_s)
     body_std = BodyTracker(cfg).stds(ms)
     jumps = mount_jumps(ms, sp, cfg)
+    creep = mount_creep(ms, cfg)
+    walks = {k: jumps.get(k, np.zeros(2)) + creep[k] for k in range(len(ms))
+             if k in jumps or creep[k].any()}
     inputs = [(m, float(sp[k]), float(dts[k]), k == 0, bool(metric[k]), body_std[k],
-               jumps.get(k)) for k, m in enumerate(ms)]
+               walks.get(k)) for k, m in enumerate(ms)]
     graph, values, pairs, shared = _batch_graph(inputs, guess, cfg, progress)
     stages = [(graph, cfg)]
     convex = cfg.convex_start()

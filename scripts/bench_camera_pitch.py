@@ -21,6 +21,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -28,6 +29,8 @@ sys.path.insert(0, str(ROOT))
 from vipm_track.cli import main as cli_main  # noqa: E402
 from vipm_track.sim import PRESETS, simulate_sequence  # noqa: E402
 from vipm_track.table import read_table  # noqa: E402
+
+FloatArray = NDArray[np.float64]
 
 PITCHES = {"car": (0.0, 3.0, 6.0, 10.0, 15.0, 20.0, 30.0),
            "cart": (5.0, 15.0, 25.0, 45.0, 60.0, 75.0, 80.0, 88.0)}
@@ -39,10 +42,11 @@ def render(folder: Path, preset_name: str, pitch_deg: float, frames: int):
     return preset, simulate_sequence(preset, frames, folder, seed=5, profile="gradual")
 
 
-def score(folder: Path, preset, traj, extra: list[str], stderr: list[str] | None = None,
-          ) -> tuple[str, str, str, str]:
-    """Run ``estimate`` (``extra`` options); (ok pairs, max pitch error °, max distance
-    error %, nominal pitch found or ''); its stderr lines appended to ``stderr`` if given."""
+def pair_errors(folder: Path, preset, traj, extra: list[str],
+                stderr: list[str] | None = None) -> tuple[int, int, FloatArray, FloatArray, str]:
+    """Run ``estimate`` (``extra`` options) on the sequence in ``folder``: (exit code, pairs,
+    the ok pairs' pitch errors [deg] and distance errors [%], nominal pitch found or ''); its
+    stderr lines appended to ``stderr`` if given."""
     out = folder / "est.csv"
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
@@ -51,19 +55,29 @@ def score(folder: Path, preset, traj, extra: list[str], stderr: list[str] | None
                        "--out", str(out), *extra])
     if stderr is not None:
         stderr.extend(err.getvalue().splitlines())
+    n = len(traj) - 1
     if rc != 0:
-        return f"exit {rc}", "", "", ""
+        return rc, n, np.zeros(0), np.zeros(0), ""
     table = read_table(out)
     ok = np.asarray(table["status"][1:] == "ok")
-    n = ok.size
     found = next((line.split("nominal pose now pitch ")[1].split("°")[0]
                   for line in err.getvalue().splitlines() if "nominal pose now" in line), "")
-    if not ok.any():
-        return f"0/{n}", "—", "—", found
     pitch = np.abs(table["pitch_deg"][1:][ok] - np.degrees(traj.pitch[1:][ok]))
-    truth = np.array([traj.motion(k).distance for k in range(1, n + 1)])[ok]
+    truth = np.array([traj.motion(k).distance for k in range(1, ok.size + 1)])[ok]
     dist = np.abs(np.hypot(table["tx_m"][1:][ok], table["tz_m"][1:][ok]) / truth - 1.0) * 100
-    return f"{ok.sum()}/{n}", f"{pitch.max():.3f}", f"{dist.max():.2f}", found
+    return rc, ok.size, pitch, dist, found
+
+
+def score(folder: Path, preset, traj, extra: list[str], stderr: list[str] | None = None,
+          ) -> tuple[str, str, str, str]:
+    """Run ``estimate`` (``extra`` options); (ok pairs, max pitch error °, max distance
+    error %, nominal pitch found or ''); its stderr lines appended to ``stderr`` if given."""
+    rc, n, pitch, dist, found = pair_errors(folder, preset, traj, extra, stderr)
+    if rc != 0:
+        return f"exit {rc}", "", "", ""
+    if not pitch.size:
+        return f"0/{n}", "—", "—", found
+    return f"{pitch.size}/{n}", f"{pitch.max():.3f}", f"{dist.max():.2f}", found
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -84,6 +84,7 @@ class Case:
     speed: float | None = None
     effects: dict = field(default_factory=dict)
     readout_frac: float = 0.0  # rolling shutter, fraction of the frame interval
+    amplitude: float = 1.0  # of the profile's pose changes (the knock's step: 1° × this)
 
     def frames(self) -> int:
         return round(self.seconds * PRESETS[self.preset].fps)
@@ -125,7 +126,7 @@ def render_and_estimate(case: Case, seed: int, cache: Path) -> float:
     if not (images.is_dir() and len(list(images.glob("*.png"))) == case.frames()):
         effects = Effects(rolling_shutter=case.readout_frac, seed=seed, **case.effects)
         simulate_sequence(case.preset, case.frames(), folder, seed=seed, profile=case.profile,
-                          effects=effects, speed=case.speed)
+                          effects=effects, speed=case.speed, amplitude=case.amplitude)
     est = folder / "est.csv"
     if not est.is_file():
         rig = Rig(load_camera(folder / "camera.yaml"), preset.height_m, preset.pitch_deg,

@@ -162,11 +162,16 @@ def test_front_end_status_quotes_the_results_files():
     total = sum(int(r[3].split("/")[1]) for r in rows)
     worst = max(float(r[4]) for r in rows)
     assert f"| {ok}/{total}, pitch within {worst:.3f}° |" in _status("camera pitch")
-    rows = [r for r in _rows(RESULTS / "bench_motion_range.md") if r[0] in ("car", "cart")]
+    rows = [r for r in _rows(RESULTS / "bench_motion_range.md")
+            if r[0] in ("car", "cart") and len(r) == 16]  # not the wrong-ok-over-seeds table
+    seeds = [r for r in _rows(RESULTS / "bench_motion_range.md") if len(r) == 8
+             and r[0] == "cart"]
+    wrong = sum(int(r[5]) + int(r[7]) for r in seeds)
+    assert f"; {wrong} wrong `ok` over 5 seeds |" in _status("motion per frame")
     # (a row beyond the range may have no ok pair at all: "exit 1")
     most = {p: max(float(r[4]) for r in rows if r[0] == p and "/" in r[6]
                    and r[6].split("/")[0] == r[6].split("/")[1]) for p in ("cart", "car")}
-    assert f"| cart {most['cart']:.2f} m, car {most['car']:.2f} m |" in _status("motion per frame")
+    assert f"| cart {most['cart']:.2f} m, car {most['car']:.2f} m;" in _status("motion per frame")
     rows = [r for r in _rows(RESULTS / "bench_rolling_shutter.md")
             if r[0] in ("car", "cart") and float(r[3]) > 0]
     pitch = max(float(r[9].split("/")[1]) for r in rows)
@@ -230,6 +235,19 @@ def test_monitor_status_quotes_the_results_files():
              for x in r[10].split(" / ")]
     hours = next(r for r in verdicts if len(r) == 5 and r[0].startswith("cart, simulated"))
     assert (f"| {_range(knock, '.1f')} s; {hours[2]} in {hours[1]} h |" in _status("verdicts"))
+
+
+def test_mount_steps_status_quotes_the_results_file():
+    rows = [r for r in _rows(RESULTS / "bench_mount_steps.md") if len(r) == 8
+            and r[0] != "drive"]
+    knocks = [r for r in rows if "knock" in r[0]]
+    found = sum(int(r[1].split("/")[0]) for r in knocks)
+    total = sum(int(r[1].split("/")[1]) for r in knocks)
+    cover = [float(x) for r in knocks + [r for r in rows if "drift" in r[0]]
+             for x in r[5].split(" / ")]
+    false = sum(int(r[2]) for r in rows) + sum(int(r[3]) for r in rows if "drift" not in r[0])
+    assert (f"| {found}/{total}; {_range(cover, '.0f')} %; {false} |"
+            in _status("knocks, creeping mounts"))
 
 
 def test_other_status_rows_quote_the_results_files():

@@ -38,9 +38,9 @@ RETRY_MIN_INLIER_SHARE = 0.6
 #: texture that repeats, a shift by one period can make 40-64 % of the measured patches
 #: inliers (rendered cart at 0.7-0.8 m per frame: `ok` 0.8 m short), as many as some right
 #: starts have, but the images are aligned only where the texture repeats: the inliers
-#: correlate (median peak 0.47-0.71) and the rest not at all (0.05-0.09), 21-44 % of the
-#: patches in view. In right steep cold starts at least 64 % do, 100 % on weak noisy texture
-#: where no patch correlates well (peaks about 0.1)
+#: correlate (median peak 0.47-0.71) and the rest not at all (0.05-0.09): 17-37 % of the
+#: patches in view. In right steep cold starts (bench_camera_pitch, bench_accuracy, weak and
+#: noisy textures) at least 59 % do, 100 % where no patch correlates well (peaks about 0.1)
 COLD_MIN_CORRELATED_SHARE = 0.5
 #: a patch correlates, for ``COLD_MIN_CORRELATED_SHARE``, where its POC peak is at least this
 #: share of the median peak of the stage's inliers
