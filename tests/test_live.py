@@ -237,6 +237,9 @@ BO_ 170 WHEEL_SPEEDS: 8 X
     (["--video", "{video}", "--camera-timeout", "0"], "--camera-timeout must be > 0"),
     (["--video", "{video}", "--speed-csv", "{speed}", "--clock-offset", "auto"],
      "--clock-offset auto"),
+    # a replayed speed on another clock held every frame for the whole video, exit 0
+    (["--video", "{video}", "--speed-csv", "{speed}", "--clock-offset", "1000"],
+     "has a wheel speed"),
 ])
 def test_bad_input_is_one_line_and_exit_2(knock, tmp_path, capsys, argv, message):
     dbc = tmp_path / "wheel.dbc"

@@ -17,6 +17,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import IO, Any
 
+import numpy as np
+
 from vipm_track.filters.nominal import NominalCalibration
 from vipm_track.filters.speed_decoder import SpeedDecoder
 from vipm_track.filters.track import track_row
@@ -35,7 +37,23 @@ from .live_sources import (
     parse_video,
 )
 from .rig import Rig
+from .sources import VideoSource
 from .table import CONCISE, ColumnChoice, TableWriter, choose_columns
+
+
+def _check_replay_overlap(speed: SpeedSeries, video: Path, fps: float | None) -> None:
+    """InputError where a recorded ``speed`` (the video's clock) covers none of the video
+    file's frames, as ``track``/``smooth`` refuse it: the run would hold on every frame (20 s
+    of "no wheel speed", exit 0)."""
+    source = VideoSource(video, fps=fps)
+    rate = fps or source.container_fps
+    if not source.frame_count or not rate > 0:
+        return
+    covered, spans = speed.overlap(np.arange(source.frame_count) / rate)
+    if covered == 0:
+        raise InputError(f"{speed.source or 'wheel speed'}: no frame of {video} has a wheel "
+                         f"speed: {spans}; set --clock-offset to the video's time minus the "
+                         "speed's")
 
 
 def run_live(
@@ -94,6 +112,8 @@ def run_live(
     if bus is not None and not dbc:
         raise InputError("--bus needs --dbc DBC to decode the wheel speed")
     check_opens(spec)
+    if speed is not None and spec.file is not None:
+        _check_replay_overlap(speed, spec.file, fps)
     stdout = stdout or sys.stdout
     stop = threading.Event()
     playback = Playback(realtime, stop)
