@@ -15,11 +15,13 @@ the largest excursion of the centred partial sums against the long-run standard 
 constant mean T is the supremum of a Brownian bridge (P(T > 1.95) ≈ 0.1 %), but real roads
 are not that: a car's body rolls for seconds in a turn, the road's camber changes, and
 KITTI 07's rows reach T = 2.3–2.7 with no change of mount. ``threshold`` (5) is set above
-that; on renders a 0.5° knock of the cart gives T = 12, 1° 32–33, a 2° knock added to
-KITTI 07's rows 5.4 (a 1° knock there, 3.3, is not told from the road's wander;
-``scripts/bench_mount_steps.py``). Splits are searched again within each side (binary
-segmentation), each side at least ``min_segment_s``; a series of fewer than 4 blocks is not
-tested.
+that; on renders a 0.5° knock of the cart gives T = 12, 1° 32–33; a 1° or 2° knock added
+halfway to KITTI 07's rows is not told from the road's wander, 3° is
+(``scripts/bench_mount_steps.py``). Splits are searched again within each side (binary
+segmentation), each side at least ``min_segment_s``; a series of fewer than 8 blocks is not
+tested. A second step inflates the variance about the first split: a knock undone within
+the drive is not found (a variance from differences of block means, with seeded intervals,
+found it but missed single knocks and drifts on the renders).
 
 A mount that creeps (a loosening bracket) is no step: the same long-run variance, measured
 over ever longer blocks, takes a steady drift for wander. So the pairs' angle is also tested
@@ -67,9 +69,10 @@ def long_run_variance(residuals: FloatArray, t: FloatArray, block_s: float,
     """Long-run variance of ``residuals`` (at times ``t`` [s]) per sample: the mean of
     (block mean)² × block count over blocks of at least 3 samples, the largest over block
     lengths ``block_s``·2ʲ that give ``min_blocks`` such blocks (a road's wander over tens of
-    seconds shows only in long blocks). None where even ``block_s`` gives fewer than 4: the
-    plain variance would take correlated errors for independent ones (a 3-s drive's slowly
-    moving body read as a mount drift at t = 11-15)."""
+    seconds shows only in long blocks). None where even ``block_s`` gives fewer: the plain
+    variance would take correlated errors for independent ones (a 3-s drive's slowly moving
+    body read as a mount drift at t = 11-15), and 4-7 blocks are too few to measure it
+    (6-14 % false finds on 4-6 s of correlated noise)."""
     best: float | None = None
     length = block_s
     while True:
@@ -77,7 +80,7 @@ def long_run_variance(residuals: FloatArray, t: FloatArray, block_s: float,
         counts = np.bincount(block)
         sums = np.bincount(block, weights=residuals)
         full = counts >= 3
-        if np.count_nonzero(full) < (4 if best is None else min_blocks):
+        if np.count_nonzero(full) < min_blocks:
             return best
         variance = float(np.mean(sums[full] ** 2 / counts[full]))
         best = variance if best is None else max(best, variance)
@@ -96,11 +99,17 @@ def _best_split(x: FloatArray, t: FloatArray, cfg: StepTestConfig) -> MountStep 
     before, after = x[:k + 1].mean(), x[k + 1:].mean()
     residuals = np.concatenate([x[:k + 1] - before, x[k + 1:] - after])
     variance = long_run_variance(residuals, t, cfg.block_s)
-    if variance is None:
+    if variance is None or not variance > 0:  # unmeasurable, or nothing varies
         return None
-    sigma = np.sqrt(variance * len(x))
-    statistic = float(partial[k] / sigma) if sigma > 0 else np.inf
+    statistic = float(partial[k] / np.sqrt(variance * len(x)))
     return MountStep(float(t[k + 1]), statistic, float(after - before))
+
+
+def _finite(t: FloatArray, x: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``t``, ``x`` as float arrays, the samples where either is not finite left out."""
+    t, x = np.asarray(t, dtype=float), np.asarray(x, dtype=float)
+    keep = np.isfinite(t) & np.isfinite(x)
+    return t[keep], x[keep]
 
 
 def mount_steps(t: FloatArray, x: FloatArray, cfg: StepTestConfig | None = None
@@ -108,8 +117,10 @@ def mount_steps(t: FloatArray, x: FloatArray, cfg: StepTestConfig | None = None
     """Steps of the mean of ``x`` (one angle of the pairs, at times ``t`` [s], increasing),
     in time order: binary segmentation with the CUSUM test of the module doc."""
     cfg = cfg or StepTestConfig()
-    t, x = np.asarray(t, dtype=float), np.asarray(x, dtype=float)
+    t, x = _finite(t, x)
     found: list[MountStep] = []
+    if len(x) < 2:
+        return found
     pending = [(0, len(x))]
     while pending and len(found) < cfg.max_steps:
         lo, hi = pending.pop()
@@ -128,7 +139,9 @@ def mount_trend(t: FloatArray, x: FloatArray, steps: list[MountStep],
     the segments ``steps`` leave, where its statistic (module doc) exceeds
     ``cfg.trend_threshold``; None where it does not."""
     cfg = cfg or StepTestConfig()
-    t, x = np.asarray(t, dtype=float), np.asarray(x, dtype=float)
+    t, x = _finite(t, x)
+    if len(x) < 3:
+        return None
     segment = np.searchsorted([s.onset_s for s in steps], t, side="right")
     tc, xc = t.copy(), x.copy()
     for i in np.unique(segment):
@@ -136,11 +149,11 @@ def mount_trend(t: FloatArray, x: FloatArray, steps: list[MountStep],
         tc[inside] -= tc[inside].mean()
         xc[inside] -= xc[inside].mean()
     spread = float(np.sum(tc ** 2))
-    if len(x) < 3 or spread <= 0:
+    if spread <= 0:
         return None
     slope = float(np.sum(tc * xc) / spread)
     variance = long_run_variance(xc - slope * tc, t, cfg.block_s)
-    if variance is None:
+    if variance is None or not variance > 0:
         return None
     se = np.sqrt(variance / spread)
     return slope if se > 0 and abs(slope) / se > cfg.trend_threshold else None

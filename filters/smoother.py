@@ -290,6 +290,8 @@ def mount_creep(ms: Sequence[PairMeasurement], cfg: SmootherConfig) -> FloatArra
     leave): the drift over ``trend_walk_s`` per that time, so that the walk can follow a
     creeping mount; zero elsewhere."""
     out = np.zeros((len(ms), 2))
+    if not cfg.mount_steps.enabled:
+        return out
     t = np.array([m.t for m in ms])
     usable = np.array([m.ok for m in ms], dtype=bool)
     for axis, found in enumerate(_offline_steps(ms, cfg)):

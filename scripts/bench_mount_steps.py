@@ -152,10 +152,19 @@ def main(argv: list[str] | None = None) -> int:
         lines.append(row)
     kitti_rows = read_measurements(KITTI_ROWS)
     kitti, kitti_drifting = steps_found(kitti_rows, StepTestConfig())
+    knocked = []
+    for size in (1.0, 2.0, 3.0):  # a knock of the pitch added halfway through the drive
+        half = kitti_rows[len(kitti_rows) // 2].t
+        rows = [replace(m, z=m.z + np.radians(size) * np.array(
+            [m.t > half, 0, m.t >= half, 0, 0, 0, 0], dtype=float)) for m in kitti_rows]
+        onsets, _ = steps_found(rows, StepTestConfig())
+        hit = any(abs(o - half) <= AT_KNOCK_S for o in onsets)
+        knocked.append(f"{size:g}°: {'found' if hit else 'not found'}")
     lines += ["", f"KITTI 07's stored rows (`{KITTI_ROWS.relative_to(ROOT)}`, real frames of "
               f"a drive whose mount did not change, {len(kitti_rows)} pairs): {len(kitti)} "
-              f"steps found, {kitti_drifting} axes found drifting. *gradual* renders move the "
-              "body, not the mount, and have no mount truth (—)."]
+              f"steps found, {kitti_drifting} axes found drifting; a knock of the pitch added "
+              f"to them halfway: {', '.join(knocked)}. *gradual* renders move the body, not "
+              "the mount, and have no mount truth (—)."]
     write_report(lines, args.out, t0, "python scripts/bench_mount_steps.py")
     return 0
 

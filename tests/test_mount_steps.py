@@ -26,18 +26,22 @@ def _mount_pitch(frames) -> tuple[np.ndarray, np.ndarray]:
             np.array([math.degrees(f.mount_std[0]) for f in frames]))
 
 
-def _half_knock():
+def _half_knock(undone_at: int | None = None):
     """The rendered cart's 1° knock (``knock_cart_est.csv``, its truth) made a 0.5° one: the
     pitch of every frame after the knock moved back by 0.5° in the rows and the truth (the
-    estimator's own errors kept)."""
+    estimator's own errors kept); from frame ``undone_at`` on, moved back by 1°: knocked back
+    to the nominal."""
     gt = read_table(DATA / "knock_cart_gt.csv")
     after = {int(f) for f, m in zip(gt["frame"], gt["mount_pitch_deg"], strict=True)
              if m > 45.5}
-    back = math.radians(0.5)
-    ms = [replace(m, z=m.z - np.array([back * (m.frame - 1 in after), 0, back * (m.frame in after),
-                                       0, 0, 0, 0]))
+
+    def back(frame: int) -> float:  # degrees
+        return 0.0 if frame not in after else (
+            1.0 if undone_at is not None and frame >= undone_at else 0.5)
+
+    ms = [replace(m, z=m.z - np.radians([back(m.frame - 1), 0, back(m.frame), 0, 0, 0, 0]))
           for m in read_measurements(DATA / "knock_cart_est.csv")]
-    truth = {int(f): m - 0.5 * (int(f) in after)
+    truth = {int(f): m - back(int(f))
              for f, m in zip(gt["frame"], gt["mount_pitch_deg"], strict=True)}
     return ms, np.array([truth[m.frame] for m in ms]), min(after)
 
@@ -59,6 +63,32 @@ def test_a_half_degree_knock_is_followed_by_the_batch(enabled):
         assert np.max(np.abs(pitch - truth)[np.abs(t - t_knock) > 0.5]) < 0.05
     else:  # what the test is for
         assert covered < 0.2, covered
+
+
+@pytest.mark.xfail(strict=True, reason="known limit: a second step in the drive inflates the "
+                   "long-run variance about the first split, and a knock undone within the "
+                   "drive is not found (docs/filters.md); a shift-robust variance and seeded "
+                   "intervals found it but missed single knocks and drifts on the renders")
+def test_a_knock_undone_later_is_followed_both_ways():
+    # The knock back at 14 s inflates the long-run variance about the first split: neither
+    # step is found (0 % coverage).
+    ms, truth, knock = _half_knock(undone_at=140)
+    t = np.array([m.t for m in ms if m.ok])
+    steps = mount_steps(t, np.array([math.degrees(m.z[2]) for m in ms if m.ok]))
+    onsets = [ms[[m.frame for m in ms].index(f)].t for f in (knock, 140)]
+    assert [round(s.step, 1) for s in steps] == [0.5, -0.5], steps
+    assert all(abs(s.onset_s - o) <= 0.1 for s, o in zip(steps, onsets, strict=True)), steps
+    cfg = SmootherConfig(height_m=0.7, noise=NoiseParams.for_preset("cart"))
+    pitch, std = _mount_pitch(smooth(ms, None, cfg))
+    assert np.mean(np.abs(pitch - truth) <= 1.96 * std) > 0.95
+
+
+def test_the_tests_off_leave_the_mount_to_its_walk():
+    ms = read_measurements(DATA / "drift_cart_est.csv")
+    cfg = SmootherConfig(height_m=0.7 / 1.02, noise=NoiseParams.for_preset("cart"),
+                         mount_steps=StepTestConfig(enabled=False))
+    from vipm_track.filters.smoother import mount_creep
+    assert not mount_creep(ms, cfg).any()
 
 
 def test_a_creeping_mount_is_followed_by_the_batch():
@@ -88,6 +118,34 @@ def test_real_frames_of_an_unchanged_mount_show_no_step_and_no_drift():
         assert mount_trend(t, x, []) is None
 
 
+def test_wander_slower_than_a_second_is_not_taken_for_steps():
+    # Five minutes of AR(1) pair errors under a road's wander (Ornstein-Uhlenbeck, τ 30 s, as
+    # large as the noise): one-second blocks alone see the wander as steps; the long-run
+    # variance over the longer blocks does not
+    rng = np.random.default_rng(3)
+    t = np.arange(9000) / 30.0
+    false = 0
+    for _ in range(10):
+        e, w = np.zeros(9000), np.zeros(9000)
+        a = math.exp(-1.0 / (30.0 * 30.0))
+        for k in range(1, 9000):
+            e[k] = 0.9 * e[k - 1] + rng.normal()
+            w[k] = a * w[k - 1] + rng.normal()
+        x = e / e.std() + 0.7 * w / w.std()
+        false += len(mount_steps(t, x)) + (mount_trend(t, x, []) is not None)
+    assert false == 0
+
+
+def test_edge_cases_give_no_step():
+    t = np.arange(300) / 10.0
+    assert mount_steps(t, np.ones(300)) == []  # nothing varies: T was 0/0 = inf
+    assert mount_steps([], []) == [] and mount_trend([], [], []) is None
+    x = np.random.default_rng(0).normal(size=300)
+    x[10] = np.nan
+    assert mount_steps(t, x) == []
+    assert mount_steps(t[:60], x[:60]) == []  # 6 s: fewer than 8 one-second blocks
+
+
 def test_correlated_noise_without_a_change_raises_no_step():
     # AR(1) pair errors (ρ = 0.9 frame to frame, the tracking chain's) over 30 s at 10 Hz
     rng = np.random.default_rng(7)
@@ -99,7 +157,8 @@ def test_correlated_noise_without_a_change_raises_no_step():
             e[k] = 0.9 * e[k - 1] + rng.normal()
         false += len(mount_steps(t, e)) + (mount_trend(t, e, []) is not None)
     assert false == 0
-    # the same noise with a step of 4 of its own standard deviations at 12 s is found there
-    e[120:] += 4.0 * np.std(e)
+    # the same noise with a step of 10 of its own standard deviations at 12 s is found there,
+    # up
+    e[120:] += 10.0 * np.std(e)
     steps = mount_steps(t, e)
-    assert len(steps) == 1 and abs(steps[0].onset_s - 12.0) < 1.0
+    assert len(steps) == 1 and abs(steps[0].onset_s - 12.0) < 1.0 and steps[0].step > 0
