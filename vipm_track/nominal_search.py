@@ -158,7 +158,7 @@ def search_nominal_pose(
     failed = 0
     travel: TravelPitch | None = None
     for i, pair in enumerate(pairs):
-        frames = pair.frames
+        starts: list[tuple[float, PairResult]] = []
         result = estimate_pair(default, pair.before, pair.image, None, pair.interval_s)
         if result.status == STATUS_OK:
             if result.pose_curr is None or abs(math.degrees(result.pose_curr.pitch)
@@ -173,21 +173,23 @@ def search_nominal_pose(
                                     travel, source, max_frames)
             # "no motion" included: the view moved (``moving_pairs``), so the default
             # start's patches sat on what did not (a level camera's sky)
-            found = _best_start(rig, config, pair)
-            if found is None and result.status == STATUS_NO_MOTION:
+            starts = _converging_starts(rig, config, pair)
+            if not starts and result.status == STATUS_NO_MOTION:
                 continue  # nothing moved in any start's view either: traffic past a standing car
             failed += 1
+            found = starts[0] if starts else None
         if found is not None:
-            start, r = found
             settled_on = pairs[i:i + confirm_pairs]
-            pitch, roll, n = _settle(rig, config, settled_on,
-                                     r.pose_curr.pitch, r.pose_curr.roll)
-            search = NominalSearch(round(math.degrees(pitch), 1), round(math.degrees(roll), 1),
-                                   start, rig.pitch_deg, frames, n,
-                                   default_failed=r is not result, travel=travel)
-            return replace(search, undetermined=_implausible_roll(search, rig, config)
-                           or _contradicts_travel(search, travel)
-                           or _few_settled(search, len(settled_on)))
+            search = _settled_search(rig, config, settled_on, found, result, travel)
+            if search.undetermined and found[1] is not result:
+                # a start's minimum that most pairs do not settle from: the others' in turn,
+                # then the starts stepped off their pitch (a right start can fail where a
+                # wrong minimum converged)
+                for other in [*starts[1:], *_converging_starts(rig, config, pair, stepped=True)]:
+                    retry = _settled_search(rig, config, settled_on, other, result, travel)
+                    if not retry.undetermined:
+                        return retry
+            return search
         if failed >= max_failed_pairs:
             break
     return None
@@ -295,39 +297,55 @@ def _implausible_roll(search: NominalSearch, rig: Rig, config: EstimatorConfig) 
             f"{rig.roll_deg:g}° (--max-roll; --roll for a camera mounted rolled)")
 
 
-def _best_start(
-    rig: Rig, config: EstimatorConfig, pair: MovingPair,
-) -> tuple[float, PairResult] | None:
-    """The start of ``CANDIDATE_PITCHES_DEG`` (deg) whose cold start on the pair converges
-    with the smallest residual, with its result; None where none converges.
+def _settled_search(
+    rig: Rig, config: EstimatorConfig, settled_on: list[MovingPair],
+    found: tuple[float, PairResult], default_result: PairResult, travel: TravelPitch | None,
+) -> NominalSearch:
+    """The search's pose settled on ``settled_on`` from the start ``found`` (pitch [deg],
+    its result on the first pair), with why it is not the camera's where it is not."""
+    start, r = found
+    assert r.pose_curr is not None
+    pitch, roll, n = _settle(rig, config, settled_on, r.pose_curr.pitch, r.pose_curr.roll)
+    search = NominalSearch(round(math.degrees(pitch), 1), round(math.degrees(roll), 1),
+                           start, rig.pitch_deg, settled_on[0].frames, n,
+                           default_failed=r is not default_result, travel=travel)
+    return replace(search, undetermined=_implausible_roll(search, rig, config)
+                   or _contradicts_travel(search, travel)
+                   or _few_settled(search, len(settled_on)))
+
+
+def _converging_starts(
+    rig: Rig, config: EstimatorConfig, pair: MovingPair, stepped: bool = False,
+) -> list[tuple[float, PairResult]]:
+    """The starts of ``CANDIDATE_PITCHES_DEG`` (deg) whose cold start on the pair converges,
+    with their results, smallest residual first; ``stepped``: each start also stepped off
+    its pitch (``cold_pitch_steps_deg``: fast motion needs a start within ~5° of the truth),
+    at three times the cost, which without ``stepped`` is paid only where no plain start
+    converges.
 
     The settings that shape the residual itself are the same for every start (seven
     parameters, patches weighted alike, the fixed inlier threshold): with the per-camera
     defaults a steep start had an eighth parameter and a self-tightening threshold, and on
     a real level camera a steep start beat the level ones by that alone, settling far from
-    the truth. The region of interest, the number of refinements and the pose prior still follow
-    each start's camera type."""
+    the truth. The region of interest, the number of refinements and the pose prior still
+    follow each start's camera type."""
     alike = {"vertical_motion": False, **REFINEMENT_WEIGHTING["uniform"]}
-    best: tuple[float, PairResult] | None = None
-    # each start alone first; stepped off its pitch (``cold_pitch_steps_deg``) only where none
-    # converges (fast motion: a start must be within ~5° of the truth), at three times the cost
-    passes = [()] if config.cold_pitch_steps_deg == () else [(), config.cold_pitch_steps_deg]
-    for steps in passes:
-        if best is not None:
-            break
-        for start in CANDIDATE_PITCHES_DEG:
-            if abs(start - rig.pitch_deg) < 1.0:
-                continue
-            try:
-                estimator = TwoFrameEstimator(rig.with_pose(start), config_with(
-                    config, cold_pitch_steps_deg=steps, **alike))
-            except InputError:  # too few interest points from this start
-                continue
-            r = estimate_pair(estimator, pair.before, pair.image, None, pair.interval_s)
-            if r.status == STATUS_OK and r.pose_curr is not None and (
-                    best is None or r.residual_px < best[1].residual_px):
-                best = start, r
-    return best
+    out: list[tuple[float, PairResult]] = []
+    for start in CANDIDATE_PITCHES_DEG:
+        if abs(start - rig.pitch_deg) < 1.0:
+            continue
+        steps = config.cold_pitch_steps_deg if stepped else ()
+        try:
+            estimator = TwoFrameEstimator(rig.with_pose(start), config_with(
+                config, cold_pitch_steps_deg=steps, **alike))
+        except InputError:  # too few interest points from this start
+            continue
+        r = estimate_pair(estimator, pair.before, pair.image, None, pair.interval_s)
+        if r.status == STATUS_OK and r.pose_curr is not None:
+            out.append((start, r))
+    if not out and not stepped and config.cold_pitch_steps_deg:
+        return _converging_starts(rig, config, pair, stepped=True)
+    return sorted(out, key=lambda found: found[1].residual_px)
 
 
 def _settle(
