@@ -91,6 +91,19 @@ def test_a_start_most_pairs_do_not_settle_from_gives_way_to_the_next(tmp_path):
     assert abs(found.pitch_deg - math.degrees(traj.pitch[1])) < 2.0, found.line()
 
 
+def test_starts_are_stepped_where_none_converges(tmp_path):
+    """A cart at 45° and 4.8 m/s: no plain start converges on the first pair, the 40° start
+    stepped off its pitch does. The steps are the camera type's (the config leaves them
+    None), and reading None as "no steps" lost the pose (no search result at all)."""
+    preset = replace(PRESETS["cart"], pitch_deg=45.0)
+    traj = simulate_sequence(preset, 8, tmp_path, seed=0, profile="static", fps=10.0,
+                             speed=4.8)
+    found = search_nominal_pose(open_source(images=tmp_path / "images"),
+                                _rig(preset.camera(), preset), EstimatorConfig())
+    assert found is not None and found.determined, found and found.line()
+    assert abs(found.pitch_deg - math.degrees(traj.pitch[1])) < 1.0, found.line()
+
+
 def test_camera_near_the_default_pitch_keeps_it(tmp_path):
     preset, camera, _ = _render(tmp_path, "cart", 3, 58.0)
     assert search_nominal_pose(open_source(images=tmp_path / "images"),

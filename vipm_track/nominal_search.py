@@ -343,7 +343,8 @@ def _converging_starts(
         r = estimate_pair(estimator, pair.before, pair.image, None, pair.interval_s)
         if r.status == STATUS_OK and r.pose_curr is not None:
             out.append((start, r))
-    if not out and not stepped and config.cold_pitch_steps_deg:
+    # None: the camera type's default steps; () turns stepping off
+    if not out and not stepped and config.cold_pitch_steps_deg != ():
         return _converging_starts(rig, config, pair, stepped=True)
     return sorted(out, key=lambda found: found[1].residual_px)
 
