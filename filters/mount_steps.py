@@ -198,5 +198,4 @@ def mount_trend(t: FloatArray, x: FloatArray, steps: list[MountStep],
     variance = long_run_variance(xc - slope * tc, t, cfg.block_s)
     if variance is None or not variance > 0:
         return None
-    se = np.sqrt(variance / spread)
-    return slope if se > 0 and abs(slope) / se > cfg.trend_threshold else None
+    return slope if abs(slope) / np.sqrt(variance / spread) > cfg.trend_threshold else None

@@ -258,13 +258,15 @@ def pair_factors(
 
 
 def mount_jumps(
-    ms: Sequence[PairMeasurement], speeds: FloatArray, cfg: SmootherConfig
+    ms: Sequence[PairMeasurement], speeds: FloatArray, cfg: SmootherConfig,
+    offline: list[list[MountStep]] | None = None,
 ) -> dict[int, FloatArray]:
     """Where the mount stepped (a knocked camera): the EKF's mount-change test
     (``filters.mount_change``) run over the drive, and the offline test on the pairs' angles
-    (``filters.mount_steps``) for steps the EKF's body took up before its test saw them; key
-    index → variance (pitch, roll; rad²) to add to the mount's walk into that frame
-    (``mount_change.jump_variance``) on the axis that stepped."""
+    (``offline``: :func:`offline_steps`, found here where not given) for steps the EKF's
+    body took up before its test saw them; key index → variance (pitch, roll; rad²) to add
+    to the mount's walk into that frame (``mount_change.jump_variance``) on the axis that
+    stepped."""
     t = np.array([m.t for m in ms])
     changes: list[tuple[float, int, float]] = []
     if cfg.mount_change.enabled:
@@ -273,7 +275,7 @@ def mount_jumps(
         for m, v in zip(ms, speeds, strict=True):
             ekf.step(m, m.t, float(v), m.frame)
         changes = persistent_changes(ekf.mount_changes, cfg.mount_change_persist_s)
-    for axis, found in enumerate(_offline_steps(ms, cfg)):
+    for axis, found in enumerate(offline_steps(ms, cfg) if offline is None else offline):
         near = [onset for onset, a, _ in changes if a == axis]
         changes += [(s.onset_s, axis, s.step) for s in found
                     if all(abs(s.onset_s - o) > cfg.mount_steps.min_segment_s for o in near)]
@@ -284,33 +286,39 @@ def mount_jumps(
     return out
 
 
-def mount_creep(ms: Sequence[PairMeasurement], cfg: SmootherConfig) -> FloatArray:
+def mount_creep(ms: Sequence[PairMeasurement], cfg: SmootherConfig,
+                offline: list[list[MountStep]]) -> FloatArray:
     """(n, 2) variance (pitch, roll; rad²) to add to the mount's walk into each frame where
-    the pairs' angle drifts (``mount_steps.mount_trend``, within the segments its steps
-    leave): the drift over ``trend_walk_s`` per that time, so that the walk can follow a
-    creeping mount; zero elsewhere."""
+    the pairs' angle drifts (``mount_steps.mount_trend``, within the segments the steps
+    ``offline`` found leave): the drift over ``trend_walk_s`` per that time, so that the
+    walk can follow a creeping mount; zero elsewhere."""
     out = np.zeros((len(ms), 2))
     if not cfg.mount_steps.enabled:
         return out
+    t_usable, angles = _usable_angles(ms)
     t = np.array([m.t for m in ms])
-    usable = np.array([m.ok for m in ms], dtype=bool)
-    for axis, found in enumerate(_offline_steps(ms, cfg)):
-        angles = np.array([m.z[2 + axis] for m in ms if m.ok])
-        slope = mount_trend(t[usable], angles, found, cfg.mount_steps)
+    for axis, found in enumerate(offline):
+        slope = mount_trend(t_usable, angles[:, axis], found, cfg.mount_steps)
         if slope is not None:
             out[1:, axis] = slope ** 2 * cfg.mount_steps.trend_walk_s * np.diff(t)
     return out
 
 
-def _offline_steps(ms: Sequence[PairMeasurement], cfg: SmootherConfig) -> list[list[MountStep]]:
+def _usable_angles(ms: Sequence[PairMeasurement]) -> tuple[FloatArray, FloatArray]:
+    """Times [s] and (n, 2) angles of their current frame (pitch, roll; rad) of the usable
+    pairs."""
+    usable = [m for m in ms if m.ok]
+    return (np.array([m.t for m in usable]),
+            np.array([m.z[2:4] for m in usable]).reshape(-1, 2))
+
+
+def offline_steps(ms: Sequence[PairMeasurement], cfg: SmootherConfig) -> list[list[MountStep]]:
     """Per axis (pitch, roll) the steps ``mount_steps`` finds in the usable pairs' angle of
     their current frame (none where the test is off or fewer than 3 pairs are usable)."""
-    usable = [m for m in ms if m.ok]
-    if not cfg.mount_steps.enabled or len(usable) < 3:
+    t, angles = _usable_angles(ms)
+    if not cfg.mount_steps.enabled or len(t) < 3:
         return [[], []]
-    t = np.array([m.t for m in usable])
-    return [mount_steps(t, np.array([m.z[2 + axis] for m in usable]), cfg.mount_steps)
-            for axis in (0, 1)]
+    return [mount_steps(t, angles[:, axis], cfg.mount_steps) for axis in (0, 1)]
 
 
 def persistent_changes(
@@ -562,12 +570,12 @@ def smooth_batch(
     sp = guess.wheel_speed
     metric = _metric_frames(t, sp, cfg.speed_timeout_s)
     body_std = BodyTracker(cfg).stds(ms)
-    jumps = mount_jumps(ms, sp, cfg)
-    creep = mount_creep(ms, cfg)
-    walks = {k: jumps.get(k, np.zeros(2)) + creep[k] for k in range(len(ms))
-             if k in jumps or creep[k].any()}
+    offline = offline_steps(ms, cfg)
+    walk = mount_creep(ms, cfg, offline)
+    for k, jump in mount_jumps(ms, sp, cfg, offline).items():
+        walk[k] += jump
     inputs = [(m, float(sp[k]), float(dts[k]), k == 0, bool(metric[k]), body_std[k],
-               walks.get(k)) for k, m in enumerate(ms)]
+               walk[k] if walk[k].any() else None) for k, m in enumerate(ms)]
     graph, values, pairs, shared = _batch_graph(inputs, guess, cfg, progress)
     stages = [(graph, cfg)]
     convex = cfg.convex_start()

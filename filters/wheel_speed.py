@@ -186,6 +186,11 @@ class SpeedSeries:
                          f"{self.clock_offset:+.3f} s), camera {times.min():.3f} .. "
                          f"{times.max():.3f} s")
 
+    def none_covered(self, spans: str, hint: str) -> str:
+        """What to say where none of the frames has a speed: the source, both spans
+        (:meth:`overlap`) and ``hint`` (what to do about it)."""
+        return f"{self.source or 'wheel speed'}: no frame has a wheel speed: {spans}; {hint}"
+
     def speed_at(self, times: ArrayLike,
                  max_gap: float | None = DEFAULT_MAX_GAP) -> NDArray[np.float64]:
         """Speed [m/s] linearly interpolated at ``times`` [s, this series' clock]; NaN outside

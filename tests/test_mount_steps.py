@@ -105,8 +105,8 @@ def test_the_tests_off_leave_the_mount_to_its_walk():
     ms = read_measurements(DATA / "drift_cart_est.csv")
     cfg = SmootherConfig(height_m=0.7 / 1.02, noise=NoiseParams.for_preset("cart"),
                          mount_steps=StepTestConfig(enabled=False))
-    from vipm_track.filters.smoother import mount_creep
-    assert not mount_creep(ms, cfg).any()
+    from vipm_track.filters.smoother import mount_creep, offline_steps
+    assert not mount_creep(ms, cfg, offline_steps(ms, cfg)).any()
 
 
 def test_a_creeping_mount_is_followed_by_the_batch():

@@ -227,10 +227,13 @@ def reject_wrong_minimum(result: PairResult, steep: bool, min_peak: float,
                     f"cold start converged with {share:.0%} of the measured patches "
                     f"inliers (need {need:.0%}): a wrong minimum")
         return
-    inlier_peak = float(np.median(stage.peaks[stage.inliers & measured])) if share else 0.0
+    if not steep:
+        return
+    # share >= need > 0: the stage has measured inliers
+    inlier_peak = float(np.median(stage.peaks[stage.inliers & measured]))
     correlated = float(np.sum(visible & (stage.peaks >= CORRELATED_PEAK_RATIO * inlier_peak))
                        / max(int(visible.sum()), 1))
-    if steep and correlated < COLD_MIN_CORRELATED_SHARE:
+    if correlated < COLD_MIN_CORRELATED_SHARE:
         mark_failed(result, STATUS_FEW_INLIERS,
                     f"cold start converged where {correlated:.0%} of the patches in view "
                     f"correlate (POC peak ≥ {CORRELATED_PEAK_RATIO:g} × the inliers' median "

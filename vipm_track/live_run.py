@@ -51,9 +51,8 @@ def _check_replay_overlap(speed: SpeedSeries, video: Path, fps: float | None) ->
         return
     covered, spans = speed.overlap(np.arange(source.frame_count) / rate)
     if covered == 0:
-        raise InputError(f"{speed.source or 'wheel speed'}: no frame of {video} has a wheel "
-                         f"speed: {spans}; set --clock-offset to the video's time minus the "
-                         "speed's")
+        raise InputError(speed.none_covered(
+            spans, f"set --clock-offset to the time of {video} minus the speed's"))
 
 
 def run_live(

@@ -159,6 +159,7 @@ def search_nominal_pose(
     travel: TravelPitch | None = None
     for i, pair in enumerate(pairs):
         starts: list[tuple[float, PairResult]] = []
+        stepped = False  # whether ``starts`` are the stepped ones
         result = estimate_pair(default, pair.before, pair.image, None, pair.interval_s)
         if result.status == STATUS_OK:
             if result.pose_curr is None or abs(math.degrees(result.pose_curr.pitch)
@@ -173,7 +174,10 @@ def search_nominal_pose(
                                     travel, source, max_frames)
             # "no motion" included: the view moved (``moving_pairs``), so the default
             # start's patches sat on what did not (a level camera's sky)
+            # each start alone first; stepped off its pitch only where none converges
             starts = _converging_starts(rig, config, pair)
+            if not starts and _can_step(config):
+                starts, stepped = _converging_starts(rig, config, pair, stepped=True), True
             if not starts and result.status == STATUS_NO_MOTION:
                 continue  # nothing moved in any start's view either: traffic past a standing car
             failed += 1
@@ -185,7 +189,9 @@ def search_nominal_pose(
                 # a start's minimum that most pairs do not settle from: the others' in turn,
                 # then the starts stepped off their pitch (a right start can fail where a
                 # wrong minimum converged)
-                for other in [*starts[1:], *_converging_starts(rig, config, pair, stepped=True)]:
+                more = ([] if stepped or not _can_step(config) else
+                        _converging_starts(rig, config, pair, stepped=True))
+                for other in [*starts[1:], *more]:
                     retry = _settled_search(rig, config, settled_on, other, result, travel)
                     if not retry.undetermined:
                         return retry
@@ -320,8 +326,7 @@ def _converging_starts(
     """The starts of ``CANDIDATE_PITCHES_DEG`` (deg) whose cold start on the pair converges,
     with their results, smallest residual first; ``stepped``: each start also stepped off
     its pitch (``cold_pitch_steps_deg``: fast motion needs a start within ~5° of the truth),
-    at three times the cost, which without ``stepped`` is paid only where no plain start
-    converges.
+    at three times the cost.
 
     The settings that shape the residual itself are the same for every start (seven
     parameters, patches weighted alike, the fixed inlier threshold): with the per-camera
@@ -343,10 +348,13 @@ def _converging_starts(
         r = estimate_pair(estimator, pair.before, pair.image, None, pair.interval_s)
         if r.status == STATUS_OK and r.pose_curr is not None:
             out.append((start, r))
-    # None: the camera type's default steps; () turns stepping off
-    if not out and not stepped and config.cold_pitch_steps_deg != ():
-        return _converging_starts(rig, config, pair, stepped=True)
     return sorted(out, key=lambda found: found[1].residual_px)
+
+
+def _can_step(config: EstimatorConfig) -> bool:
+    """Whether ``config`` steps cold starts off their pitch (None: the camera type's default
+    steps; () turns stepping off)."""
+    return config.cold_pitch_steps_deg != ()
 
 
 def _settle(

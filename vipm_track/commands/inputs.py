@@ -135,8 +135,8 @@ def check_speed_overlap(speed: SpeedSeries, frame_times: list[float], strict: bo
     if covered * 2 >= len(frame_times):
         return
     if covered == 0:
-        message = (f"{speed.source or 'wheel speed'}: no frame has a wheel speed: {spans}; set "
-                   "--clock-offset to the camera time minus the speed time, or to 'auto'")
+        message = speed.none_covered(spans, "set --clock-offset to the camera time minus the "
+                                     "speed time, or to 'auto'")
         if strict:
             raise InputError(message)
         print(f"vipm-track: warning: {message}", file=sys.stderr)

@@ -206,9 +206,8 @@ def _process(spec: DriveSpec, folder: Path, settings: FleetSettings) -> dict[str
     if speed is not None:
         covered, spans = speed.overlap([m.t for m in measurements])
         if covered == 0:  # as `smooth`: a drive without its speed is no drive with one
-            raise InputError(f"{speed.source or 'wheel speed'}: no frame has a wheel speed: "
-                             f"{spans}; the drive's speed is on another clock or of another "
-                             "drive")
+            raise InputError(speed.none_covered(
+                spans, "the drive's speed is on another clock or of another drive"))
     frames, rows = [], []
     for f, row in smoothed_rows(measurements, speed, smoother_config(height, settings)):
         frames.append(f)
