@@ -32,7 +32,8 @@ from bench_camera_pitch import write_report  # noqa: E402
 from bench_verdicts import Case, _folder, render_and_estimate  # noqa: E402
 
 from vipm_track.filters.model import NoiseParams  # noqa: E402
-from vipm_track.filters.mount_steps import StepTestConfig, mount_steps, mount_trend  # noqa: E402
+from vipm_track.filters.mount_steps import StepTestConfig  # noqa: E402
+from vipm_track.filters.smoother import mount_creep, offline_steps  # noqa: E402
 from vipm_track.filters.smoother_config import SmootherConfig  # noqa: E402
 from vipm_track.filters.smoothing import smooth  # noqa: E402
 from vipm_track.measurement import read_measurements  # noqa: E402
@@ -54,18 +55,13 @@ KITTI_ROWS = ROOT / "tests" / "data" / "kitti07_estimates.csv"
 AT_KNOCK_S = 1.0
 
 
-def steps_found(ms, cfg: StepTestConfig) -> tuple[list[float], int]:
-    """Onsets [s] of the steps the test finds in the pairs' pitch and roll, and the number
-    of those axes it finds drifting."""
-    ok = [m for m in ms if m.ok]
-    t = np.array([m.t for m in ok])
-    angles = np.array([m.z[2:4] for m in ok])
-    onsets, drifting = [], 0
-    for axis in (0, 1):
-        steps = mount_steps(t, angles[:, axis], cfg)
-        onsets += [s.onset_s for s in steps]
-        drifting += mount_trend(t, angles[:, axis], steps, cfg) is not None
-    return onsets, drifting
+def steps_found(ms, cfg: SmootherConfig) -> tuple[list[float], int]:
+    """Onsets [s] of the steps the batch's offline test finds in the pairs' pitch and roll,
+    and the number of those axes its drift test finds creeping (``smoother.offline_steps``,
+    ``smoother.mount_creep``)."""
+    offline = offline_steps(ms, cfg)
+    drifting = int(np.count_nonzero(mount_creep(ms, cfg, offline).any(axis=0)))
+    return [s.onset_s for steps in offline for s in steps], drifting
 
 
 def score(case: Case, seed: int, cache: Path) -> dict:
@@ -90,7 +86,7 @@ def score(case: Case, seed: int, cache: Path) -> dict:
         err = est - truth
         keep = np.all(np.isfinite(err), axis=1)
         out[label] = (err[keep], np.abs(err[keep]) <= 1.96 * std[keep])
-    onsets, drifting = steps_found(ms, base.mount_steps)
+    onsets, drifting = steps_found(ms, base)
     t_knock = knock_time(gt["t"]) if case.profile == "knock" else np.inf
     at = sum(abs(o - t_knock) <= AT_KNOCK_S for o in onsets)
     out["steps"] = (at, len(onsets) - at, drifting)
@@ -151,13 +147,13 @@ def main(argv: list[str] | None = None) -> int:
         print(row, flush=True)
         lines.append(row)
     kitti_rows = read_measurements(KITTI_ROWS)
-    kitti, kitti_drifting = steps_found(kitti_rows, StepTestConfig())
+    kitti, kitti_drifting = steps_found(kitti_rows, SmootherConfig())
     knocked = []
     for size in (1.0, 2.0, 3.0):  # a knock of the pitch added halfway through the drive
         half = kitti_rows[len(kitti_rows) // 2].t
         rows = [replace(m, z=m.z + np.radians(size) * np.array(
             [m.t > half, 0, m.t >= half, 0, 0, 0, 0], dtype=float)) for m in kitti_rows]
-        onsets, _ = steps_found(rows, StepTestConfig())
+        onsets, _ = steps_found(rows, SmootherConfig())
         hit = any(abs(o - half) <= AT_KNOCK_S for o in onsets)
         knocked.append(f"{size:g}°: {'found' if hit else 'not found'}")
     lines += ["", f"KITTI 07's stored rows (`{KITTI_ROWS.relative_to(ROOT)}`, real frames of "
