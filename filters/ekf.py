@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Protocol
 
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
@@ -47,19 +46,13 @@ from vipm_track.measurement import PairMeasurement
 from . import model as M
 from .body_scale import BodyScale, pair_change, pairs_to_start
 from .ekf_state import EkfConfig, FilterState
+from .heave import HeaveWidening
 from .model import NoiseParams
 from .mount_change import MountChangeDetector
 from .row_correlation import PoseErrorCorrelation
-from .wheel_speed import interpolate_speed
+from .wheel_speed import SpeedSource, interpolate_speed
 
 FloatArray = NDArray[np.float64]
-
-
-class SpeedSource(Protocol):
-    """Anything with sample times ``t`` (s) and ``speed_mps`` arrays."""
-
-    t: FloatArray
-    speed_mps: FloatArray
 
 
 class _ClonedEKF(ExtendedKalmanFilter):
@@ -90,9 +83,14 @@ class _ClonedEKF(ExtendedKalmanFilter):
 class ExtrinsicsEKF:
     """Recursive estimate of mount extrinsics, body shaking and planar motion (module doc)."""
 
-    def __init__(self, config: EkfConfig | None = None, widen_pose: bool = True) -> None:
-        """``widen_pose``: widen each state's pose σ by the pairs' error correlation
-        (:meth:`step`); off where only the mount is read (it costs a sixth of a step)."""
+    def __init__(self, config: EkfConfig | None = None, widen_pose: bool = True,
+                 speed_series: SpeedSource | None = None, clock_offset_s: float = 0.0) -> None:
+        """``widen_pose``: widen each state's pose σ by the pairs' error correlation and its
+        height σ by the body's heave (:meth:`step`); off where only the mount is read (it
+        costs a sixth of a step). ``speed_series`` (camera clock after ``clock_offset_s``):
+        the wheel speed the speeds given to :meth:`step` come from, whose distance between
+        a pair's frames measures the heave (``heave.HeaveWidening``); None: the speeds given
+        with the frames."""
         self._cfg = config or EkfConfig()
         if self._cfg.height_m <= 0:
             raise ValueError(f"nominal height must be > 0, got {self._cfg.height_m}")
@@ -120,6 +118,8 @@ class ExtrinsicsEKF:
         self._body_seen_t = -math.inf
         self._mount_change = MountChangeDetector(cfg.mount_change)
         self._correlation = PoseErrorCorrelation() if widen_pose else None
+        self._heave = (HeaveWidening(self._cfg, speed_series, clock_offset_s) if widen_pose
+                       else None)
         #: mount steps found so far: (onset time s, axis 0 pitch / 1 roll, step rad)
         self.mount_changes: list[tuple[float, int, float]] = []
         h0 = self._cfg.height_m
@@ -142,12 +142,15 @@ class ExtrinsicsEKF:
     ) -> FilterState:
         """Advance to frame time ``t`` (default: the measurement's) and apply the pair
         ``measurement`` (skipped unless ok) and the wheel ``speed`` (m/s; None/NaN: none).
-        The state's pose σ is widened by the pairs' error correlation (``row_correlation``;
-        the filter's own covariance is not) unless the filter was made without."""
+        The state's pose σ is widened by the pairs' error correlation (``row_correlation``)
+        and its height σ by the body's heave (``heave``; the filter's own covariance is not)
+        unless the filter was made without."""
         state = self._step(measurement, t, speed, frame)
-        if self._correlation is None:
+        if self._correlation is None or self._heave is None:
             return state
-        return self._correlation.widened(state, measurement)
+        state = self._correlation.widened(state, measurement)
+        return self._heave.widened(state, measurement,
+                                   math.nan if speed is None else float(speed))
 
     def _step(self, measurement: PairMeasurement | None, t: float | None, speed: float | None,
               frame: int | None) -> FilterState:
@@ -574,7 +577,7 @@ def run_filter(
     ``speed_series`` the wheel speed at each frame time is applied too. Returns one
     ``FilterState`` per measurement. ``ekf``: the filter to run (its ``mount_changes`` are
     then the caller's to read), else one made from ``config``."""
-    ekf = ekf or ExtrinsicsEKF(config)
+    ekf = ekf or ExtrinsicsEKF(config, speed_series=speed_series, clock_offset_s=clock_offset_s)
     times = np.array([m.t for m in measurements], dtype=float)
     speeds = (
         speed_at(speed_series, times, clock_offset_s) if speed_series is not None

@@ -29,6 +29,9 @@ class FilterConfig:
     #: model's std
     body_window_s: float = 6.0
     body_window_min_pairs: int = 10
+    #: the body's heave (std of a frame's height about the mount's) while no wheel speed has
+    #: measured it, as a share of ``height_m`` (``filters.heave``; the monitor's default)
+    heave_std_unknown_frac: float = 0.02
     #: a step of the mount (a knocked camera) found in the pose innovations re-opens the
     #: mount (``filters.mount_change``)
     mount_change: MountChangeConfig = field(default_factory=MountChangeConfig)

@@ -33,20 +33,9 @@ from .ekf_state import EkfConfig
 from .monitor import DriftMonitor
 from .monitor_types import MonitorConfig, MonitorInput, MonitorOutput
 from .nominal import NominalCalibration
-from .wheel_speed import cumulative_distance
+from .pair_height import pair_heights
 
 FloatArray = NDArray[np.float64]
-
-
-def wheel_distance(t_speed: FloatArray, speed_mps: FloatArray, times: FloatArray) -> FloatArray:
-    """Distance travelled (m) from the first speed sample to each of ``times`` (camera clock),
-    by trapezoidal integration of the samples; NaN outside the samples."""
-    t_speed = np.asarray(t_speed, dtype=float)
-    cum = cumulative_distance(t_speed, speed_mps)
-    times = np.asarray(times, dtype=float)
-    out = np.interp(times, t_speed, cum)
-    out[(times < t_speed[0]) | (times > t_speed[-1])] = np.nan
-    return out
 
 
 @dataclass(frozen=True)
@@ -102,30 +91,11 @@ def input_arrays(
     height = np.full(n, np.nan)
     height_var = np.full(n, np.nan)
     if speed is not None:
-        ts = np.asarray(speed.t, dtype=float) + clock_offset_s
-        vs = np.asarray(speed.speed_mps, dtype=float)
-        dist = wheel_distance(ts, vs, t)
-        # a speed gap longer than the frame interval brackets one of the interval's ends
-        j = np.clip(np.searchsorted(ts, t), 1, max(1, len(ts) - 1))
-        spacing = ts[j] - ts[j - 1] if len(ts) > 1 else np.full(n, np.inf)
-        dist[spacing > max_speed_gap_s] = np.nan
-        # magnitudes: a source that signs its speed says < 0 when reversing
-        v_now = np.abs(np.interp(t, ts, vs, left=np.nan, right=np.nan))
-        d_wheel = np.full(n, np.nan)
-        d_wheel[1:] = np.where(consecutive[1:], np.abs(dist[1:] - dist[:-1]), np.nan)
-        rate = (len(ts) - 1) / (ts[-1] - ts[0]) if len(ts) > 1 and ts[-1] > ts[0] else 1.0
-        n_samples = np.maximum(1.0, np.nan_to_num(dt) * rate)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            v_mean = d_wheel / dt
-            sample_var = (speed_std_rel * v_mean) ** 2 + speed_std_abs_mps**2
-            dist_var = dt**2 * sample_var / n_samples
-            travel_var = (z[:, 4] ** 2 * cov[:, 4, 4] + z[:, 5] ** 2 * cov[:, 5, 5]
-                          + 2 * z[:, 4] * z[:, 5] * cov[:, 4, 5]) / travel**2
-            height = h0 * d_wheel / travel
-            height_var = height**2 * (travel_var / travel**2 + dist_var / d_wheel**2)
-            moving = (v_mean > min_speed_mps) & (d_wheel > min_travel_frac * h0)
-        height = np.where(moving, height, np.nan)
-        height_var = np.where(moving, height_var, np.nan)
+        height, height_var, v_now = pair_heights(
+            t, dt, z, cov, h0, np.asarray(speed.t, dtype=float) + clock_offset_s,
+            np.asarray(speed.speed_mps, dtype=float), min_speed_mps=min_speed_mps,
+            min_travel_frac=min_travel_frac, speed_std_rel=speed_std_rel,
+            speed_std_abs_mps=speed_std_abs_mps, max_speed_gap_s=max_speed_gap_s)
     else:
         v_now = np.full(n, np.nan)
     # standstill: from the wheel speed where it covers the frame, else from the pair's travel

@@ -111,6 +111,11 @@ class HeaveScale:
         while self._seen and self._seen[0][0] < t - self._window_s:
             self._seen.popleft()
 
+    @property
+    def count(self) -> int:
+        """Heights in the window."""
+        return len(self._seen)
+
     def std(self) -> float:
         n = len(self._seen)
         std = 0.0

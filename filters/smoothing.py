@@ -12,6 +12,7 @@ from vipm_track.measurement import PairMeasurement
 
 from .ekf import SpeedSource, speed_at
 from .fixed_lag import FixedLagSmoother
+from .heave import HeaveWidening
 from .row_correlation import PoseErrorCorrelation, widened_drive
 from .smoother import smooth_batch
 from .smoother_config import SmoothedFrame, SmootherConfig
@@ -56,14 +57,17 @@ def smoothed_frames(
     cfg = config or SmootherConfig()
     speeds = speeds_at_frames(measurements, speed_series, clock_offset_s)
     by_frame = {m.frame: m for m in measurements}
-    # the pose σ widened by the pairs' error correlation (row_correlation): the batch's by
-    # the whole drive's, the fixed lag's by the residuals up to each frame
+    heave = HeaveWidening(cfg, speed_series, clock_offset_s)
+    # the pose σ widened by the pairs' error correlation (row_correlation) and the height σ
+    # by the body's heave (heave): the batch's by the whole drive's correlation and the heave
+    # about each frame, the fixed lag's by the pairs up to each frame
     if cfg.lag_s == 0:
-        yield from widened_drive(smooth_batch(measurements, speeds, cfg, progress)[0], by_frame)
+        frames = widened_drive(smooth_batch(measurements, speeds, cfg, progress)[0], by_frame)
+        yield from heave.widened_drive(frames, by_frame)
         return
     correlation = PoseErrorCorrelation()
     for f in _fixed_lag_frames(measurements, cfg, speeds, progress):
-        yield correlation.widened(f, by_frame.get(f.frame))
+        yield heave.widened(correlation.widened(f, by_frame.get(f.frame)), by_frame.get(f.frame))
 
 
 def _fixed_lag_frames(measurements: Sequence[PairMeasurement], cfg: SmootherConfig,

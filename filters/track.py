@@ -110,7 +110,7 @@ def track(
 ) -> Iterator[tuple[FilterState, PairMeasurement, float | None]]:
     """Filter a stream of measurements (one per frame), yielding (state, measurement, speed
     applied) per frame; speeds are taken from ``speed_series`` (camera clock) at frame times."""
-    ekf = ExtrinsicsEKF(config)
+    ekf = ExtrinsicsEKF(config, speed_series=speed_series)
     for m in measurements:
         v = None
         if speed_series is not None:

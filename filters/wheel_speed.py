@@ -30,6 +30,7 @@ from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -129,6 +130,13 @@ class DecodeSummary:
 
     def __str__(self) -> str:
         return "\n".join(self.lines())
+
+
+class SpeedSource(Protocol):
+    """Anything with sample times ``t`` (s) and ``speed_mps`` arrays."""
+
+    t: NDArray[np.float64]
+    speed_mps: NDArray[np.float64]
 
 
 @dataclass(frozen=True)

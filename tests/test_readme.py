@@ -250,6 +250,17 @@ def test_mount_steps_status_quotes_the_results_file():
             in _status("knocks, creeping mounts"))
 
 
+def test_heave_status_quotes_the_results_file():
+    rows = [r for r in _rows(RESULTS / "bench_heave.md") if len(r) == 5 and r[0] != "drive"]
+
+    def shares(profile: str, col: int) -> list[float]:
+        return [float(r[col].split(" / ")[1]) for r in rows if profile in r[0]]
+
+    now = f"{_range(shares('shaking', 3), '.0f')} % / {_range(shares('height', 3), '.0f')} %"
+    before = f"{_range(shares('shaking', 4), '.0f')} % / {_range(shares('height', 4), '.0f')} %"
+    assert f"| {now} ({before}) |" in _status("frame height σ")
+
+
 def test_other_status_rows_quote_the_results_files():
     can = {r[0]: r[1] for r in _rows(RESULTS / "bench_can.md")}
     decode = can["decode 100 k WHEEL_SPEEDS frames (4 signals), batch (numpy bit decode)"]
