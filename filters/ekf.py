@@ -307,7 +307,7 @@ class ExtrinsicsEKF:
         r[:4, 4:] = 0.0
         r[4:, :4] = 0.0
         y = m.z - zp
-        y[6] = _wrap(y[6])
+        y[6] = M.wrap_angle(y[6])
         s = h @ kf.P @ h.T + r
         step = self._mount_change.update(m.t, y[2:4], np.diag(s)[2:4])
         if np.isfinite(step).any():
@@ -534,14 +534,10 @@ def _spread(values: FloatArray, floor: float, cap: float) -> float:
     return float(np.clip(1.4826 * mad, floor, cap))
 
 
-def _wrap(a: float) -> float:
-    return float((a + np.pi) % (2 * np.pi) - np.pi)
-
-
 def _pair_residual(z: FloatArray, zp: FloatArray) -> FloatArray:
     """z - zp with the yaw (always the last row when present) wrapped to (-π, π]."""
     y = np.asarray(z, dtype=float) - zp
-    y[-1] = _wrap(y[-1])
+    y[-1] = M.wrap_angle(y[-1])
     return y
 
 

@@ -8,7 +8,8 @@ to centimetres, far beyond that σ (rendered shaking cart: z RMS 8 of the frames
 (``pair_height``); over a trailing window, the robust spread of those heights about the
 filter's own estimate of that frame beyond their stated variance
 (``monitor_stats.HeaveScale``, the monitor's heave estimate) is the heave, added to each
-frame's height variance; without wheel speed, the 'unknown' heave
+frame's height variance (and the share it moves the pair's metric translation by to the
+translation's); without wheel speed, the 'unknown' heave
 (``FilterConfig.heave_std_unknown_frac``). Where the pairs' travel is noisier than they say
 (a car in dense traffic), the spread takes that noise for heave: the σ is then wider than it
 needs to be. The estimates, the mount and the filter's own covariance are unchanged.
@@ -71,7 +72,7 @@ class HeaveWidening:
         ``speed`` at its time, m/s, NaN where none) with its height σ widened by the heave
         measured up to it."""
         self.observe(estimate, m, speed)
-        return widen(estimate, self.std())
+        return widen(estimate, self.std(), m)
 
     def observe(self, estimate: FrameEstimate, m: PairMeasurement | None,
                 speed: float = math.nan) -> None:
@@ -112,7 +113,8 @@ class HeaveWidening:
                 first_known = i
         if first_known is not None:
             stds[:first_known] = stds[first_known]
-        return [widen(e, float(s)) for e, s in zip(estimates, stds, strict=True)]
+        return [widen(e, float(s), measurements.get(e.frame))
+                for e, s in zip(estimates, stds, strict=True)]
 
     def _pair_height(self, m: PairMeasurement, t_before: float, t: float,
                      speeds: tuple[float, float]) -> tuple[float, float]:
@@ -147,10 +149,27 @@ class HeaveWidening:
         return std if self.known else max(std, self._unknown)
 
 
-def widen(estimate: Estimate, heave_std_m: float) -> Estimate:
-    """``estimate`` with ``heave_std_m``² added to its height variance."""
-    if estimate.pose is None or heave_std_m <= 0.0:
+def widen(estimate: Estimate, heave_std_m: float, m: PairMeasurement | None = None) -> Estimate:
+    """``estimate`` with ``heave_std_m``² added to its height variance, and to its metric
+    translation's the share of the heave the filter took from the pair ``m``: a pair measures
+    the translation in units of its first frame's height, which the filters scale by the
+    mount's (an error t · δh / h), and weigh it against the wheel speed — the filter's travel
+    variance over the pair's is the weight its travel gave the pair's (a car's wheel speed
+    outweighs its pairs' travel, a cart's pairs the wheel speed); without a pair, all of it."""
+    pose = estimate.pose
+    if pose is None or heave_std_m <= 0.0:
         return estimate
     pose_cov = estimate.pose_cov.copy()
     pose_cov[2, 2] += heave_std_m**2
-    return replace(estimate, pose_cov=pose_cov)
+    changes: dict[str, FloatArray] = {"pose_cov": pose_cov}
+    t = None if estimate.motion is None else estimate.motion[:2]
+    if t is not None and np.all(np.isfinite(t)) and pose[2] > 0:
+        weight = 1.0
+        if m is not None and m.ok:
+            pair_var = m.covariance[5, 5] * (pose[2] / m.height_assumed) ** 2
+            if pair_var > 0:
+                weight = float(np.clip(estimate.motion_cov[1, 1] / pair_var, 0.0, 1.0))
+        motion_cov = estimate.motion_cov.copy()
+        motion_cov[:2, :2] += (weight * heave_std_m / pose[2]) ** 2 * np.outer(t, t)
+        changes["motion_cov"] = motion_cov
+    return replace(estimate, **changes)

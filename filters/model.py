@@ -498,7 +498,15 @@ def metric_motion(state: FloatArray) -> tuple[FloatArray, FloatArray]:
     z, h = pair_measurement(s, s[..., MOUNT_HEIGHT])
     jac = h[..., 4:7, :].copy()
     jac[..., MOUNT_HEIGHT] = 0.0  # h0 = h_m cancels
-    return z[..., 4:7], jac
+    motion = z[..., 4:7].copy()
+    # a heading kept in (-π, π] (the smoothers' Pose2) turns by 2π where it crosses ±π
+    motion[..., 2] = wrap_angle(motion[..., 2])
+    return motion, jac
+
+
+def wrap_angle(a: FloatArray | float) -> FloatArray:
+    """Angles (rad) wrapped to [-π, π)."""
+    return (np.asarray(a, dtype=float) + np.pi) % (2 * np.pi) - np.pi
 
 
 #: Jacobian of the frame pose (pitch, roll, h) = mount + body w.r.t. the state

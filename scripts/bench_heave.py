@@ -7,7 +7,8 @@ the preset's camera, `estimate` with the true nominal pitch and height), filters
 rendered wheel speed (``speed.csv``: 50 Hz, 0.5 % noise, 0.01 km/h steps) and the CLI's
 defaults for the preset, and scores every frame after the first ``SETTLE_S`` seconds against
 the rendered camera height of that frame: the RMS error, the RMS of the error over its σ
-(z) and the share of frames whose 95 % interval holds the truth. Without wheel speed the
+(z) and the share of frames whose 95 % interval holds the truth; the same for the frame's
+metric forward travel. Without wheel speed the
 height is the assumed one at its prior's 5 %, which no heave here reaches.
 
     python scripts/bench_heave.py [--seeds 3] [--jobs 2] [--out FILE.md]
@@ -31,6 +32,7 @@ sys.path.insert(0, str(ROOT / "scripts"))
 from bench_camera_pitch import write_report  # noqa: E402
 from bench_verdicts import Case, _folder, render_and_estimate  # noqa: E402
 
+from vipm_track.filters import heave  # noqa: E402
 from vipm_track.filters.ekf import run_filter  # noqa: E402
 from vipm_track.filters.ekf_state import EkfConfig  # noqa: E402
 from vipm_track.filters.model import NoiseParams  # noqa: E402
@@ -51,38 +53,54 @@ FILTERS = ("EKF", "fixed lag 2 s", "batch")
 SETTLE_S = 2.0
 
 
+def _filtered(ms, speed, preset: str) -> dict[str, list]:
+    """The three filters' frames of one drive, as `track` / `smooth` make them."""
+    h = PRESETS[preset].height_m
+    noise = NoiseParams.for_preset(preset)
+    return {
+        "EKF": run_filter(ms, speed, EkfConfig(height_m=h, noise=noise)),
+        "fixed lag 2 s": smooth(ms, speed, SmootherConfig(height_m=h, noise=noise, lag_s=2.0)),
+        "batch": smooth(ms, speed, SmootherConfig(height_m=h, noise=noise)),
+    }
+
+
 def score(case: Case, seed: int, cache: Path) -> dict[str, tuple[np.ndarray, ...]]:
-    """One drive: per filter, the frames' height errors [m] and their σ with and without
-    the heave term [m]."""
+    """One drive: per filter, the frames' height and forward travel errors [m] and their σ
+    with and without the heave term [m] (without: the same filters with ``heave.widen``
+    leaving each frame as it is)."""
     render_and_estimate(case, seed, cache)
     folder = _folder(case, seed, cache)
     gt = read_table(folder / "gt.csv")
     ms = read_measurements(folder / "est.csv")
     speed = read_speed_csv(folder / "speed.csv")
-    preset = PRESETS[case.preset]
-    noise = NoiseParams.for_preset(case.preset)
-    runs = {
-        "EKF": run_filter(ms, speed, EkfConfig(height_m=preset.height_m, noise=noise)),
-        "fixed lag 2 s": smooth(ms, speed, SmootherConfig(height_m=preset.height_m,
-                                                          noise=noise, lag_s=2.0)),
-        "batch": smooth(ms, speed, SmootherConfig(height_m=preset.height_m, noise=noise)),
-    }
+    runs = _filtered(ms, speed, case.preset)
+    widen = heave.widen
+    heave.widen = lambda estimate, *_: estimate
+    try:
+        before = _filtered(ms, speed, case.preset)
+    finally:
+        heave.widen = widen
     out = {}
     for name, frames in runs.items():
-        rows = [(f.pose[2] - gt["height_m"][f.frame], np.sqrt(f.pose_cov[2, 2]),
-                 np.sqrt(f.mount_cov[2, 2])) for f in frames
-                if f.pose is not None and f.t >= SETTLE_S and np.isfinite(f.pose[2])]
-        err, std, mount_std = (np.array(c) for c in zip(*rows, strict=True))
-        out[name] = (err, std, mount_std)
+        rows = []
+        for f, b in zip(frames, before[name], strict=True):
+            if f.pose is None or f.t < SETTLE_S or not np.all(np.isfinite(f.motion[:2])):
+                continue
+            rows.append((f.pose[2] - gt["height_m"][f.frame], np.sqrt(f.pose_cov[2, 2]),
+                         np.sqrt(b.pose_cov[2, 2]), f.motion[1] - gt["tz_m"][f.frame],
+                         np.sqrt(f.motion_cov[1, 1]), np.sqrt(b.motion_cov[1, 1])))
+        out[name] = tuple(np.array(c) for c in zip(*rows, strict=True))
     return out
 
 
 def _cells(scores: list[dict], name: str) -> list[str]:
-    err, std, mount_std = (np.concatenate([s[name][i] for s in scores]) for i in range(3))
-    cells = [f"{1000 * np.sqrt(np.mean(err**2)):.1f}"]
-    for sigma in (std, mount_std):
-        z = err / sigma
-        cells.append(f"{np.sqrt(np.mean(z**2)):.2f} / {100 * np.mean(np.abs(z) <= 1.96):.0f}")
+    cols = [np.concatenate([s[name][i] for s in scores]) for i in range(6)]
+    cells = []
+    for err, std, before in (cols[:3], cols[3:]):
+        cells.append(f"{1000 * np.sqrt(np.mean(err**2)):.1f}")
+        for sigma in (std, before):
+            z = err / sigma
+            cells.append(f"{np.sqrt(np.mean(z**2)):.2f} / {100 * np.mean(np.abs(z) <= 1.96):.0f}")
     return cells
 
 
@@ -97,9 +115,10 @@ def main(argv: list[str] | None = None) -> int:
     cache = Path(args.cache)
     cache.mkdir(parents=True, exist_ok=True)
     header = ("| drive | filter | height error RMS mm | z RMS / 95 % coverage %, with the heave "
-              "| without it (the mount's σ) |")
+              "| without it (the mount's σ) | forward travel error RMS mm | z RMS / coverage "
+              "%, with | without |")
     lines = [
-        "# The frames' height intervals on heaving bodies",
+        "# The frames' height and travel intervals on heaving bodies",
         "",
         f"Rendered drives (seeds 0–{args.seeds - 1} per row; cart 12 s at 10 fps, car 8 s at "
         "20 fps; `shaking`: three 1–3 Hz heaves of 0.5 % of the height each with the pitch "
@@ -108,11 +127,13 @@ def main(argv: list[str] | None = None) -> int:
         f"defaults; every frame after {SETTLE_S:g} s against the rendered height of that "
         "frame: RMS error, RMS of error / σ (z) and the share of frames whose 95 % interval "
         "holds the truth, with the frames' height σ as the filters now state it (the mount's "
-        "and the heave measured from the pairs' heights, `filters/heave.py`) and with the "
-        "mount's σ alone (before). Renders and estimates are cached (`--cache`); the wall "
-        "time below is this run's.",
+        "and the heave measured from the pairs' heights, `filters/heave.py`) and as the same "
+        "filters state it without the heave term (the mount's σ alone, before); the same for "
+        "the frame's metric forward travel (`tz_m`), which a pair measures in units of its "
+        "first frame's height. Renders and estimates are cached "
+        "(`--cache`); the wall time below is this run's.",
         "",
-        header, "|" + " --- |" * 5,
+        header, "|" + " --- |" * 8,
     ]
     print(header)
     jobs = [(case, seed) for case in CASES for seed in range(args.seeds)]

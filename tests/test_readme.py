@@ -251,7 +251,7 @@ def test_mount_steps_status_quotes_the_results_file():
 
 
 def test_heave_status_quotes_the_results_file():
-    rows = [r for r in _rows(RESULTS / "bench_heave.md") if len(r) == 5 and r[0] != "drive"]
+    rows = [r for r in _rows(RESULTS / "bench_heave.md") if len(r) == 8 and r[0] != "drive"]
 
     def shares(profile: str, col: int) -> list[float]:
         return [float(r[col].split(" / ")[1]) for r in rows if profile in r[0]]

@@ -688,9 +688,14 @@ def test_fixed_lag_longer_than_the_drive_is_the_batch(start):
     # that this stops it 2e-5 rad/s short in yaw rate)
     cfg = SmootherConfig(height_m=run.config.h0, noise=run.config.noise, tolerance_chi2=0.0,
                          tolerance=1e-12, max_iterations=60)
-    batch, _ = smooth_batch(run.measurements, speeds_at_frames(run.measurements, run.speed), cfg)
+    speeds = speeds_at_frames(run.measurements, run.speed)
+    batch, _ = smooth_batch(run.measurements, speeds, cfg)
     tight = replace(cfg, lag_s=100.0, lag_tolerance_chi2=1e-10, lag_max_iterations=30)
-    window = smooth(run.measurements, run.speed, tight)
+    # the smoothers themselves: `smooth` widens the pose and travel σ of each by windows of
+    # its own (row_correlation, heave)
+    sm = FixedLagSmoother(tight)
+    window = [f for m, v in zip(run.measurements, speeds, strict=True)
+              for f in sm.step(m, float(v))] + list(sm.finish())
     # the first frame's 3°-wide mount prior is centred on the median of the pairs each has at
     # its start (batch: all, window: the first 10, enough to measure the body's shaking):
     # 1.2e-6 rad (0.00007°) on the moving drive, more with only 30 pairs standing
@@ -908,3 +913,19 @@ def test_a_drive_too_short_for_the_mount_change_test_says_so():
     assert short_drive_note(6.5) == ""
     text = summary_markdown({"frames": 80, "status_counts": {"ok": 80}, "short_drive": note})
     assert "**Warning:** the drive spans 4.0 s" in text
+
+
+@pytest.mark.parametrize("lag_s", [0.0, 2.0])
+def test_yaw_of_a_frame_whose_heading_crosses_half_a_turn_is_the_turn(lag_s):
+    """A drive round a full circle: the smoothers' heading (gtsam's Pose2) wraps at ±180°,
+    and each frame's yaw is still its small turn, not that turn − 360°."""
+    circle = DriveProfile((0.0, 40.0), (8.0, 8.0), (0.03, 0.03))  # 0.24 rad/s: 1.5 turns
+    run = simulate_drive(DriveConfig.preset("car", duration_s=40.0, height_m=H_TRUE,
+                                            height_assumed_m=H0), 4, profile=circle)
+    cfg = SmootherConfig(height_m=H0, noise=run.config.noise, lag_s=lag_s)
+    frames = smooth(run.measurements, run.speed, cfg)
+    yaw = np.array([f.motion[2] for f in frames if f.motion is not None])
+    yaw = yaw[np.isfinite(yaw)]
+    assert len(yaw) > 0.9 * len(frames)
+    rate = 8.0 * 0.03 / run.config.fps
+    assert np.all(np.abs(yaw - rate) < 0.01), np.abs(yaw - rate).max()
