@@ -3,13 +3,13 @@
 The filters' model moves the camera's height with the mount only (``filters.model``:
 h_k = h_m), so a frame's height σ is the mount's. A body heaving on its suspension (a cart
 on cobbles, a car on a rough road) moves each frame's height about the mount by millimetres
-to centimetres, far beyond that σ (rendered shaking cart: z RMS 8 of the frames' height;
-±10 % heave: 76). Each pair with a wheel speed measures the height of its first frame
-(``pair_height``); over a trailing window, the robust spread of those heights about the
-filter's own estimate of that frame beyond their stated variance
-(``monitor_stats.HeaveScale``, the monitor's heave estimate) is the heave, added to each
-frame's height variance (and the share it moves the pair's metric translation by to the
-translation's); without wheel speed, the 'unknown' heave
+to centimetres, far beyond that σ (rendered shaking drives: z RMS 2.7–6.9 of the frames'
+height; ±10 % swings: 20–84; ``scripts/bench_heave.py``). Each pair with a wheel speed
+measures the height of its first frame (``pair_height``); over a window, the robust spread
+about zero of those heights less the filter's own estimate of that frame, beyond their
+stated variance (``monitor_stats.HeaveScale``, the monitor's heave estimate), is the heave,
+added to each frame's height variance (and the share it moves the pair's metric translation
+by to the translation's); without wheel speed, the 'unknown' heave
 (``FilterConfig.heave_std_unknown_frac``). Where the pairs' travel is noisier than they say
 (a car in dense traffic), the spread takes that noise for heave: the σ is then wider than it
 needs to be. The estimates, the mount and the filter's own covariance are unchanged.
@@ -62,7 +62,8 @@ class HeaveWidening:
         self._window_s = config.body_window_s
         self._unknown = config.heave_std_unknown_frac * config.height_m
         self._scale = HeaveScale(config.body_window_s, config.body_window_min_pairs,
-                                 self._unknown)
+                                 self._unknown, about_zero=True)
+        self._last_known = math.nan  # the heave when the window last held enough heights
         #: the frame before: time s, wheel speed m/s, estimated height m
         self._last = (math.nan, math.nan, math.nan)
 
@@ -86,7 +87,7 @@ class HeaveWidening:
         before — against that frame's estimate, which had not seen ``m`` (a filter's
         estimate after ``m`` has moved towards it); NaN without one. Frames in order."""
         t_before, v_before, h_before = self._last
-        v = abs(speed) if speed is not None and math.isfinite(speed) else math.nan
+        v = float(speed) if speed is not None and math.isfinite(speed) else math.nan
         pose = estimate.pose
         self._last = (estimate.t, v, float(pose[2]) if pose is not None else math.nan)
         residual, var = math.nan, math.nan
@@ -142,11 +143,15 @@ class HeaveWidening:
         return self._scale.count >= self._min_pairs
 
     def std(self) -> float:
-        """The heave's std [m] now: until the window holds enough heights, at least the
-        'unknown' one (a filter's first estimates sit on the first heights it measured, so
-        their spread about it says little yet)."""
+        """The heave's std [m] now. While the window holds too few heights: the heave it
+        last measured (a stop or a gap in the speed measures nothing, and a standing body
+        does not heave more), else at least the 'unknown' one (a filter's first estimates sit
+        on the first heights it measured, so their spread about them says little yet)."""
         std = self._scale.std()
-        return std if self.known else max(std, self._unknown)
+        if self.known:
+            self._last_known = std
+            return std
+        return self._last_known if math.isfinite(self._last_known) else max(std, self._unknown)
 
 
 def widen(estimate: Estimate, heave_std_m: float, m: PairMeasurement | None = None) -> Estimate:

@@ -99,10 +99,13 @@ class HeaveScale:
     """Trailing-window robust spread (m) of the measured heights beyond their reported
     variance, for the monitor's height test (``MonitorConfig.heave_std_unknown_frac``); the
     same start rule as ``body_scale.BodyScale``: ``unknown`` below three heights, then the
-    spread's upper 95 % bound until ``min_pairs``."""
+    spread's upper 95 % bound until ``min_pairs``. ``about_zero``: the spread of the values
+    about 0 rather than about their median (residuals, whose steady offset is error too)."""
 
-    def __init__(self, window_s: float, min_pairs: int, unknown: float) -> None:
+    def __init__(self, window_s: float, min_pairs: int, unknown: float,
+                 about_zero: bool = False) -> None:
         self._window_s, self._min_pairs, self._unknown = window_s, min_pairs, unknown
+        self._about_zero = about_zero
         self._seen: deque[tuple[float, float, float]] = deque()
 
     def add(self, t: float, height: float, var: float) -> None:
@@ -121,7 +124,7 @@ class HeaveScale:
         std = 0.0
         if n:
             h = np.array([x[1] for x in self._seen])
-            mad = float(np.median(np.abs(h - np.median(h))))
+            mad = float(np.median(np.abs(h if self._about_zero else h - np.median(h))))
             var = (1.4826 * mad) ** 2 - float(np.median([x[2] for x in self._seen]))
             std = math.sqrt(max(0.0, var))
         return float(cautious_std(std, n, self._min_pairs, self._unknown))
