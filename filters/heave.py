@@ -28,17 +28,11 @@ from vipm_track.measurement import PairMeasurement
 
 from .filter_common import FilterConfig, FrameEstimate
 from .monitor_stats import HeaveScale
-from .pair_height import pair_heights, point_speed_height
+from .pair_height import MIN_SPEED_MPS, MIN_TRAVEL_FRAC, pair_heights, point_speed_height
 from .wheel_speed import DEFAULT_MAX_GAP, SpeedSource
 
 FloatArray = NDArray[np.float64]
 Estimate = TypeVar("Estimate", bound=FrameEstimate)
-
-#: a pair measures the height only while the vehicle moves at least this fast [m/s] and
-#: this far [share of the height] (the monitor's defaults: below them the wheel distance is
-#: mostly its quantisation)
-MIN_SPEED_MPS = 0.05
-MIN_TRAVEL_FRAC = 0.005
 
 
 class HeaveWidening:
@@ -58,8 +52,6 @@ class HeaveWidening:
         self._thresholds = dict(min_speed_mps=MIN_SPEED_MPS, min_travel_frac=MIN_TRAVEL_FRAC,
                                 speed_std_rel=noise.speed_meas_std_rel,
                                 speed_std_abs_mps=noise.speed_meas_std_abs_mps)
-        self._min_pairs = config.body_window_min_pairs
-        self._window_s = config.body_window_s
         self._unknown = config.heave_std_unknown_frac * config.height_m
         self._scale = HeaveScale(config.body_window_s, config.body_window_min_pairs,
                                  self._unknown, about_zero=True)
@@ -106,7 +98,7 @@ class HeaveWidening:
         stds = np.empty(len(estimates))
         first_known, j = None, 0
         for i, e in enumerate(estimates):
-            while j < len(seen) and seen[j][0] <= e.t + 0.5 * self._window_s:
+            while j < len(seen) and seen[j][0] <= e.t + 0.5 * self._scale.window_s:
                 self._scale.add(*seen[j])
                 j += 1
             stds[i] = self.std()
@@ -140,7 +132,7 @@ class HeaveWidening:
     @property
     def known(self) -> bool:
         """The window holds enough heights to take their spread as measured."""
-        return self._scale.count >= self._min_pairs
+        return self._scale.known
 
     def std(self) -> float:
         """The heave's std [m] now. While the window holds too few heights: the heave it

@@ -33,7 +33,7 @@ from .ekf_state import EkfConfig
 from .monitor import DriftMonitor
 from .monitor_types import MonitorConfig, MonitorInput, MonitorOutput
 from .nominal import NominalCalibration
-from .pair_height import pair_heights
+from .pair_height import MIN_SPEED_MPS, MIN_TRAVEL_FRAC, pair_heights
 
 FloatArray = NDArray[np.float64]
 
@@ -65,8 +65,8 @@ def input_arrays(
     speed: Any | None = None,
     *,
     clock_offset_s: float = 0.0,
-    min_speed_mps: float = 0.05,
-    min_travel_frac: float = 0.005,
+    min_speed_mps: float = MIN_SPEED_MPS,
+    min_travel_frac: float = MIN_TRAVEL_FRAC,
     min_inliers: int = 0,
     speed_std_rel: float = 0.005,
     speed_std_abs_mps: float = 0.002,

@@ -115,9 +115,14 @@ class HeaveScale:
             self._seen.popleft()
 
     @property
-    def count(self) -> int:
-        """Heights in the window."""
-        return len(self._seen)
+    def window_s(self) -> float:
+        """The window's length [s]."""
+        return self._window_s
+
+    @property
+    def known(self) -> bool:
+        """The window holds ``min_pairs`` heights: their spread is taken as measured."""
+        return len(self._seen) >= self._min_pairs
 
     def std(self) -> float:
         n = len(self._seen)

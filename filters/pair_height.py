@@ -18,6 +18,11 @@ from .wheel_speed import cumulative_distance
 
 FloatArray = NDArray[np.float64]
 
+#: a pair measures the height only while the vehicle moves at least this fast [m/s] and
+#: this far [share of the height]: below them the wheel distance is mostly its quantisation
+MIN_SPEED_MPS = 0.05
+MIN_TRAVEL_FRAC = 0.005
+
 
 def wheel_distance(t_speed: FloatArray, speed_mps: FloatArray, times: FloatArray) -> FloatArray:
     """Distance travelled (m) from the first speed sample to each of ``times`` (camera clock),

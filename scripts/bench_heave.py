@@ -20,7 +20,6 @@ import argparse
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +29,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
 from bench_camera_pitch import write_report  # noqa: E402
-from bench_verdicts import Case, _folder, render_and_estimate  # noqa: E402
+from bench_verdicts import Case, _folder, render_and_estimate, scores_by_case  # noqa: E402
 
 from vipm_track.filters import heave  # noqa: E402
 from vipm_track.filters.ekf import run_filter  # noqa: E402
@@ -136,11 +135,8 @@ def main(argv: list[str] | None = None) -> int:
         header, "|" + " --- |" * 8,
     ]
     print(header)
-    jobs = [(case, seed) for case in CASES for seed in range(args.seeds)]
-    with ProcessPoolExecutor(args.jobs) as pool:
-        results = list(pool.map(score, *zip(*jobs, strict=True), [cache] * len(jobs)))
-    for i, case in enumerate(CASES):
-        scores = results[i * args.seeds:(i + 1) * args.seeds]
+    for case, scores in zip(CASES, scores_by_case(score, CASES, args.seeds, args.jobs, cache),
+                            strict=True):
         for name in FILTERS:
             row = f"| {case.name} | {name} | " + " | ".join(_cells(scores, name)) + " |"
             print(row, flush=True)

@@ -18,7 +18,6 @@ import argparse
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -29,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
 from bench_camera_pitch import write_report  # noqa: E402
-from bench_verdicts import Case, _folder, render_and_estimate  # noqa: E402
+from bench_verdicts import Case, _folder, render_and_estimate, scores_by_case  # noqa: E402
 
 from vipm_track.filters.model import NoiseParams  # noqa: E402
 from vipm_track.filters.mount_steps import StepTestConfig  # noqa: E402
@@ -132,12 +131,8 @@ def main(argv: list[str] | None = None) -> int:
         header, "|" + " --- |" * 8,
     ]
     print(header)
-    jobs = [(case, seed) for case in CASES for seed in range(args.seeds)]
-    with ProcessPoolExecutor(args.jobs) as pool:
-        results = list(pool.map(score, *zip(*jobs, strict=True),
-                                [cache] * len(jobs)))
-    for i, case in enumerate(CASES):
-        scores = results[i * args.seeds:(i + 1) * args.seeds]
+    for case, scores in zip(CASES, scores_by_case(score, CASES, args.seeds, args.jobs, cache),
+                            strict=True):
         at = sum(s["steps"][0] for s in scores)
         false = sum(s["steps"][1] for s in scores)
         drifting = sum(s["steps"][2] for s in scores)

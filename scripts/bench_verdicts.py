@@ -138,6 +138,15 @@ def render_and_estimate(case: Case, seed: int, cache: Path) -> float:
     return time.perf_counter() - t0
 
 
+def scores_by_case(score, cases, seeds: int, jobs: int, cache: Path) -> list[list]:
+    """``score(case, seed, cache)`` of every case and seed 0..``seeds``-1 in ``jobs``
+    processes: one list over the seeds per case, in ``cases``' order."""
+    pairs = [(case, seed) for case in cases for seed in range(seeds)]
+    with ProcessPoolExecutor(jobs) as pool:
+        results = list(pool.map(score, *zip(*pairs, strict=True), [cache] * len(pairs)))
+    return [results[i * seeds:(i + 1) * seeds] for i in range(len(cases))]
+
+
 @dataclass
 class DriveScore:
     """What one drive (one seed, with or without wheel speed) says."""
