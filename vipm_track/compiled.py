@@ -3,7 +3,11 @@ and the phase correlation's inner loops."""
 
 from __future__ import annotations
 
+import atexit
+import os
 import sys
+import tempfile
+import uuid
 from collections.abc import Callable
 from typing import TypeVar
 
@@ -39,18 +43,59 @@ def _compile(fn: _F, fastmath: bool | set[str]) -> _F:
         return njit(nogil=True, fastmath=fastmath)(fn)  # type: ignore[return-value]
 
 
-class _FirstCompileNotice(event.Listener):
-    """Says once per process, on stderr, when one of the project's kernels is compiled rather
-    than loaded from the cache: the first run on a machine (or after an upgrade) spends
-    10–20 s compiling before its first result, which would otherwise look like a hang."""
+#: names the marker file that makes the notice once per run, not once per process: the
+#: run's first process sets it, the worker processes it starts inherit it
+_NOTICE_MARKER_ENV = "VIPM_TRACK_COMPILE_NOTICE_MARKER"
 
-    said = False
+
+def _notice_marker() -> str:
+    """The run's marker path; the first process of a run chooses it and removes the file
+    at exit."""
+    marker = os.environ.get(_NOTICE_MARKER_ENV)
+    if marker is None:
+        marker = os.path.join(tempfile.gettempdir(),
+                              f"vipm-track-compile-{os.getpid()}-{uuid.uuid4().hex}")
+        os.environ[_NOTICE_MARKER_ENV] = marker
+        atexit.register(_remove, marker)
+    return marker
+
+
+def _remove(path: str) -> None:
+    try:
+        os.unlink(path)
+    except OSError:
+        pass
+
+
+def _claim_notice(marker: str) -> bool:
+    """True in the one process of a run that creates ``marker`` first (and where it cannot
+    be written: better said twice than a silent wait)."""
+    try:
+        os.close(os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
+    except FileExistsError:
+        return False
+    except OSError:
+        return True
+    return True
+
+
+class _FirstCompileNotice(event.Listener):
+    """Says once per run (this process and the worker processes it starts), on stderr, when
+    one of the project's kernels is compiled rather than loaded from the cache: the first
+    run on a machine (or after an upgrade) spends 10–20 s compiling before its first
+    result, which would otherwise look like a hang."""
+
+    def __init__(self) -> None:
+        self.said = False
+        self.marker = _notice_marker()
 
     def on_start(self, ev: event.Event) -> None:
         dispatcher = (ev.data or {}).get("dispatcher")
         module = getattr(getattr(dispatcher, "py_func", None), "__module__", "") or ""
-        if not self.said and module.startswith("vipm_track"):
-            type(self).said = True
+        if self.said or not module.startswith("vipm_track"):
+            return
+        self.said = True
+        if _claim_notice(self.marker):
             print("vipm-track: compiling numerical kernels for this machine (10–20 s; cached "
                   "for later runs)", file=sys.stderr, flush=True)
 
@@ -58,4 +103,5 @@ class _FirstCompileNotice(event.Listener):
         pass
 
 
-event.register("numba:compile", _FirstCompileNotice())
+_NOTICE = _FirstCompileNotice()
+event.register("numba:compile", _NOTICE)
