@@ -227,8 +227,8 @@ class DriftMonitor:
             k: [v0, v1] for (k, v0), (_, v1) in zip(
                 _pose_dict(interval[:, 0]).items(), _pose_dict(interval[:, 1]).items(), strict=True)
         }
-        if inp.mount is not None:
-            ev["filter_mount"] = _pose_dict(np.asarray(inp.mount, dtype=float))
+        ev["filter_mount"] = (None if inp.mount is None
+                              else _pose_dict(np.asarray(inp.mount, dtype=float)))
         ev["reason"] = reason
         return ev
 

@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from vipm_track.errors import InputError, printable
-from vipm_track.table import LINE_END, read_text
+from vipm_track.table import read_text, write_columns_csv
 
 #: Rules combining several speed signals into one speed (rows: samples, columns: signals).
 COMBINE_RULES: dict[str, Callable[..., NDArray[np.float64]]] = {
@@ -349,20 +349,9 @@ def read_speed_csv(path: str | Path) -> SpeedSeries:
 
 
 def write_speed_csv(series: SpeedSeries, path: str | Path) -> Path:
-    """Write ``t,speed_mps`` (µs and 0.01 mm/s resolution); the path written."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    # written beside it, then renamed: an interrupted write never leaves half a table
-    partial = path.with_name(path.name + ".partial")
-    try:
-        with partial.open("w", newline="") as fh:
-            fh.write("t,speed_mps" + LINE_END)
-            np.savetxt(fh, np.column_stack([series.t, series.speed_mps]), fmt=["%.6f", "%.5f"],
-                       delimiter=",", newline=LINE_END)
-        partial.replace(path)
-    finally:
-        partial.unlink(missing_ok=True)
-    return path
+    """Write ``t,speed_mps`` (see :func:`vipm_track.table.write_columns_csv`); the path
+    written."""
+    return write_columns_csv(path, {"t": series.t, "speed_mps": series.speed_mps})
 
 
 def fit_speed_scale(series: SpeedSeries, ref_times: ArrayLike, ref_speed_mps: ArrayLike,

@@ -333,11 +333,15 @@ def test_no_rear_wheels_in_dbc_needs_signals(tmp_path):
 
 
 def test_speed_csv_roundtrip_and_bad_rows(tmp_path):
-    series = SpeedSeries(np.array([0.5, 1.0, 1.5]), np.array([1.0, 2.5, 3.25]))
+    # written at 15 significant digits like every table (6 decimals lost a Unix time's µs
+    # remainder and a slow speed's fourth digit)
+    series = SpeedSeries(np.array([1.7e9 + 0.1234567, 1.7e9 + 1.0, 1.7e9 + 1.5]),
+                         np.array([0.012345678901, 2.5, 3.25]))
     path = write_speed_csv(series, tmp_path / "s.csv")
     back = read_speed_csv(path)
-    np.testing.assert_allclose(back.t, series.t)
-    np.testing.assert_allclose(back.speed_mps, series.speed_mps)
+    np.testing.assert_allclose(back.t, series.t, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(back.speed_mps, series.speed_mps, rtol=1e-14)
+    assert not list(tmp_path.glob("*.partial"))
     path.write_text("t,speed_mps\n0.1,1\n0.2,oops\n0.3,2\n0.25,5\n0.4,nan\n0.45,1e9\n"
                     "0.5,3\n")
     back = read_speed_csv(path)

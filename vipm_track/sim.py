@@ -49,7 +49,7 @@ from .geometry import (
 )
 from .progress import progress_bar
 from .render import Effects, ExposureBand, ExposurePose, render_frame, world_pose_motion
-from .table import TableWriter
+from .table import TableWriter, write_columns_csv
 from .texture import TEXTURES, GroundTexture, load_texture
 from .traffic import TRAFFIC_COLUMNS, Vehicle, draw_traffic, make_traffic, traffic_rows
 
@@ -444,12 +444,7 @@ def write_wheel_speed_csv(
     """Write :func:`wheel_speed_samples` of ``traj`` as a ``t,speed_mps`` CSV (the format of
     ``--speed-csv``); ``sensor``: its rate/noise/quantum keywords. Returns the path."""
     t, v = wheel_speed_samples(traj, seed=seed, **sensor)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as fh:
-        fh.write("t,speed_mps\n")
-        np.savetxt(fh, np.column_stack([t, v]), fmt=["%.6f", "%.6f"], delimiter=",")
-    return path
+    return write_columns_csv(path, {"t": t, "speed_mps": v})
 
 
 #: Names of the images :func:`simulate_sequence` writes into ``OUT/images``.

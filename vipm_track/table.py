@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from .errors import InputError, printable
 
@@ -262,6 +262,25 @@ def write_table(
     with TableWriter(path, extra_columns, columns=columns) as writer:
         for row in rows:
             writer.write(row)
+
+
+def write_columns_csv(path: str | Path, columns: Mapping[str, ArrayLike]) -> Path:
+    """Write equal-length numeric ``columns`` (name → values) as a CSV at
+    :func:`format_float`'s precision, through a ``.partial`` file renamed when complete (an
+    interrupted write never leaves half a table); the path written."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    values = [np.asarray(v, np.float64) for v in columns.values()]
+    partial = path.with_name(path.name + ".partial")
+    try:
+        with partial.open("w", newline="") as fh:
+            fh.write(",".join(columns) + LINE_END)
+            fh.writelines(",".join(map(format_float, row)) + LINE_END
+                          for row in zip(*(v.tolist() for v in values), strict=True))
+        partial.replace(path)
+    finally:
+        partial.unlink(missing_ok=True)
+    return path
 
 
 def _written_columns(extra_columns: Sequence[str], columns: Sequence[str] | None) -> list[str]:

@@ -72,7 +72,7 @@ def add_monitor_test_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--road-std", type=float, default=0.0, metavar="DEG",
                         help="slow road-relative tilt that is not a calibration change (road "
                         "camber and slope, load): its std on pitch and roll (default 0: flat "
-                        "ground; ~0.5 on public roads, see README)")
+                        "ground; ~0.5 on public roads, see docs/usage.md)")
     parser.add_argument("--road-tau", type=float, default=2.0, metavar="S",
                         help="time constant of that tilt (default 2)")
 
