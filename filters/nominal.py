@@ -13,8 +13,8 @@ import yaml
 from numpy.typing import NDArray
 
 from vipm_track.camera import CameraModel
-from vipm_track.errors import InputError
-from vipm_track.rig import Rig
+from vipm_track.errors import InputError, yaml_error_line
+from vipm_track.rig import MAX_ANGLE_DEG, Rig, plausible_angle
 
 FloatArray = NDArray[np.float64]
 
@@ -42,6 +42,10 @@ class NominalCalibration:
                      "height_tol_m", "max_angle_dev_deg", "max_height_dev_frac"):
             if not math.isfinite(getattr(self, name)):
                 raise InputError(f"nominal calibration: {name} must be a finite number")
+        for name in ("pitch_deg", "roll_deg"):
+            if not plausible_angle(getattr(self, name)):
+                raise InputError(f"nominal calibration: {name} must be within "
+                                 f"±{MAX_ANGLE_DEG:g}°, got {getattr(self, name)}")
         if self.height_m <= 0:
             raise InputError(f"nominal calibration: height_m must be > 0, got {self.height_m}")
         if min(self.pitch_tol_deg, self.roll_tol_deg, self.height_tol_m) < 0:
@@ -88,7 +92,7 @@ def load_nominal(path: str | Path) -> NominalCalibration:
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: not a text file (byte {exc.start}: {exc.reason})") from exc
     except yaml.YAMLError as exc:
-        raise InputError(f"{path}: not valid YAML: {exc}") from exc
+        raise InputError(f"{path}: {yaml_error_line(exc)}") from None
     if not isinstance(doc, dict):
         raise InputError(f"{path}: expected a mapping with pitch_deg, roll_deg, height_m")
     known = ("pitch_deg", "roll_deg", "height_m", "tolerances", "limits")

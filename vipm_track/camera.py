@@ -18,7 +18,7 @@ import numpy as np
 import yaml
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import InputError, printable
+from .errors import InputError, printable, yaml_error_line
 
 PINHOLE_MODELS = ("plumb_bob", "rational_polynomial", "none")
 FISHEYE_MODELS = ("equidistant", "fisheye")
@@ -232,10 +232,7 @@ def _read_ros_yaml(path: Path, text: str) -> CameraModel:
     try:
         doc = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise CameraFileError(path, f"{where}not valid YAML ({printable(problem)})") from None
+        raise CameraFileError(path, yaml_error_line(exc)) from None
     except (ValueError, TypeError, OverflowError) as exc:  # e.g. a date YAML cannot build
         raise CameraFileError(path, f"not valid YAML ({printable(exc)})") from None
     if not isinstance(doc, dict):

@@ -33,3 +33,12 @@ def os_error_line(exc: OSError, what: str = "") -> str:
     reason = exc.strerror or type(exc).__name__
     extra = f" -> {exc.filename2}" if getattr(exc, "filename2", None) else ""
     return printable(f"{path}{extra}: {reason}" if path else reason)
+
+
+def yaml_error_line(exc: Exception) -> str:
+    """One line for a YAML parse error: ``line L, column C: not valid YAML (problem)``
+    (PyYAML's own text spans several lines and names ``<unicode string>``)."""
+    mark = getattr(exc, "problem_mark", None)
+    where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+    problem = getattr(exc, "problem", None) or (str(exc).splitlines() or [type(exc).__name__])[0]
+    return f"{where}not valid YAML ({printable(problem)})"

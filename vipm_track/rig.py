@@ -24,6 +24,16 @@ from .geometry import GroundPose
 DEFAULT_PITCH_DEG = 60.0
 
 
+#: the largest pitch or roll of a camera against the ground [deg]: straight down, or on its
+#: side (a pitch of 450° is a typing error, not a camera)
+MAX_ANGLE_DEG = 90.0
+
+
+def plausible_angle(deg: float) -> bool:
+    """A finite pitch or roll within ±:data:`MAX_ANGLE_DEG`."""
+    return _finite(deg) and abs(deg) <= MAX_ANGLE_DEG
+
+
 @dataclass(frozen=True)
 class Rig:
     """A camera and its nominal mounting.
@@ -50,8 +60,10 @@ class Rig:
         checks = (
             ("height_m", _finite(self.height_m) and self.height_m > 0,
              "must be a positive number of metres"),
-            ("pitch_deg", _finite(self.pitch_deg), "must be a finite number of degrees"),
-            ("roll_deg", _finite(self.roll_deg), "must be a finite number of degrees"),
+            ("pitch_deg", plausible_angle(self.pitch_deg),
+             f"must be a number of degrees within ±{MAX_ANGLE_DEG:g}"),
+            ("roll_deg", plausible_angle(self.roll_deg),
+             f"must be a number of degrees within ±{MAX_ANGLE_DEG:g}"),
             ("readout_s", _finite(self.readout_s) and self.readout_s >= 0,
              "must be a number of seconds >= 0"),
         )

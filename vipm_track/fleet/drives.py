@@ -20,7 +20,7 @@ from pathlib import Path
 import yaml
 
 from ..bag_source import BAG_SUFFIXES, is_bag
-from ..errors import InputError, printable
+from ..errors import InputError, printable, yaml_error_line
 from ..sources import IMAGE_SUFFIXES
 
 VIDEO_SUFFIXES: frozenset[str] = frozenset({".mp4", ".avi", ".mkv", ".mov", ".webm", ".m4v"})
@@ -128,8 +128,10 @@ def _drive_yaml(path: Path) -> dict:
         return {}
     try:
         doc = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: not valid YAML: {printable(exc, 200)}") from None
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not a text file (byte {exc.start}: {exc.reason})") from None
+    except yaml.YAMLError as exc:
+        raise InputError(f"{path}: {yaml_error_line(exc)}") from None
     if not isinstance(doc, dict) or set(doc) - {"vehicle", "started"}:
         raise InputError(f"{path}: expected a mapping with 'vehicle' and/or 'started'")
     return doc
