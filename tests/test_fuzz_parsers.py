@@ -138,7 +138,7 @@ ESTIMATES = b"".join((ROOT / "tests" / "data" / "kitti07_estimates.csv")
 def _read_estimates(path: Path):
     from vipm_track.commands.inputs import read_estimates
 
-    ms = read_estimates(str(path), quiet=True)
+    ms = read_estimates(str(path))
     frames = [m.frame for m in ms]
     assert frames == sorted(set(frames))  # each frame once, in order
     assert all(b.t > a.t for a, b in itertools.pairwise(ms))

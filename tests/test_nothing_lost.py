@@ -619,3 +619,74 @@ def test_ctrl_c_before_the_first_row_says_nothing_was_written(tmp_path, capsys, 
     assert rc == 130
     assert f"interrupted; it came before anything was written to {out}" in err
     assert "kept" not in err
+
+
+# -- interrupts at awkward moments ------------------------------------------------------------
+
+def test_ctrl_c_while_a_command_starts_is_an_interruption_not_a_traceback(capsys, monkeypatch):
+    """A command's parser imports gtsam or cantools: a Ctrl-C in that second printed a
+    KeyboardInterrupt traceback."""
+    import vipm_track.cli
+
+    def importing(only=None):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(vipm_track.cli, "build_parser", importing)
+    rc, err = _run(capsys, "smooth", "--estimates", "x.csv", "--out", "y.csv")
+    assert rc == 130 and err == "vipm-track smooth: interrupted while starting; nothing was done\n"
+
+
+def _interrupted_stream(statuses: list[str], inside_kernel: bool):
+    """An estimate stream whose pairs carry ``statuses``, then a Ctrl-C (as a compiled kernel
+    returns it with ``inside_kernel``: a SystemError whose context is the interrupt)."""
+    from vipm_track.measurement import PairMeasurement
+
+    def stream(*args, **kwargs):
+        for k, status in enumerate(statuses):
+            yield PairMeasurement(k, 0.1 * k, np.full(8, np.nan), np.full((8, 8), np.nan), 1.5,
+                                  status)
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            if inside_kernel:
+                raise SystemError("CPUDispatcher(<function pair_lm>) returned a result with "
+                                  "an exception set") from None
+            raise
+
+    return stream
+
+
+@pytest.mark.parametrize("inside_kernel", [False, True])
+def test_ctrl_c_before_a_usable_pair_is_an_interruption_not_nothing_usable(
+        tmp_path, capsys, monkeypatch, inside_kernel):
+    """`smooth --images` interrupted in its first frames said "nothing usable ... give
+    --pitch" (exit 1); inside a compiled kernel the interrupt came as a SystemError
+    traceback."""
+    from conftest import CAR_CAMERA_YAML
+
+    import vipm_track.commands.inputs
+
+    monkeypatch.setattr(vipm_track.commands.inputs, "estimate_stream",
+                        _interrupted_stream(["first frame", "no motion"], inside_kernel))
+    images = tmp_path / "images"
+    images.mkdir()
+    for k in range(3):
+        (images / f"{k:06d}.png").write_bytes(b"")
+    (images / "camera.yaml").write_text(CAR_CAMERA_YAML)
+    out = tmp_path / "s.csv"
+    rc, err = _run(capsys, "smooth", "--images", images, "--height", "1.5", "--fps", "10",
+                   "--pitch", "3", "--out", out, "--quiet")
+    assert rc == 130 and "interrupted" in err and "nothing usable" not in err
+    assert "Traceback" not in err
+
+
+def test_quiet_still_names_the_rows_left_out(tmp_path, capsys, est):
+    """--quiet silences progress and summaries; it hid the warnings about rows left out."""
+    lines = est.read_text().splitlines()
+    dup = tmp_path / "dup.csv"
+    dup.write_text("\n".join([*lines[:9], lines[8], *lines[9:]]) + "\n")  # frame 7 twice
+    for command in ("track", "smooth"):
+        rc, err = _run(capsys, command, "--estimates", dup, "--height", "1.65", "--quiet",
+                       "--out", tmp_path / f"{command}.csv")
+        assert rc == 0 and "row 10 frame 7 (first row 9)" in err
+        assert "frames (ok" not in err  # the summary line stays quiet

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from .allocator import keep_freed_memory
 from .commands.common import infer_inputs
-from .errors import InputError, NothingUsable, os_error_line, printable
+from .errors import InputError, NothingUsable, interrupted_in, os_error_line, printable
 
 #: Subcommands: name → (module under ``vipm_track.commands``, the line ``--help`` lists), in
 #: the order ``--help`` lists them. The line is the module's own ``help`` (a test holds them
@@ -88,18 +88,35 @@ def _kept(out: object, started: float) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     keep_freed_memory()
-    parser = build_parser(only=_command_in(argv))
-    args = parser.parse_args(argv)
-    name = f"vipm-track {args.command}"
-    started = time.time()
     previous = signal.getsignal(signal.SIGTERM)
     try:
         signal.signal(signal.SIGTERM, _terminate)
     except ValueError:  # not the main thread (an embedding program): leave SIGTERM alone
         previous = None
     try:
+        return _run(argv)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _run(argv: list[str]) -> int:
+    started = time.time()
+    command = _command_in(argv)
+    try:  # a command's parser imports its modules (gtsam, cantools: a second or two)
+        args = build_parser(only=command).parse_args(argv)
+    except KeyboardInterrupt:
+        print(f"vipm-track{' ' + command if command else ''}: interrupted while starting; "
+              "nothing was done", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    name = f"vipm-track {args.command}"
+    try:
         infer_inputs(args)
         return int(args.handler(args) or 0)
+    except SystemError as exc:
+        if not interrupted_in(exc):
+            raise
+        return _interrupted(name, args, started)
     except InputError as exc:
         print(f"{name}: error: {printable(exc, 2000)}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -110,12 +127,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{name}: error: {os_error_line(exc)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
-        print(f"{name}: interrupted; {_kept(getattr(args, 'out', None), started)}",
-              file=sys.stderr)
-        return EXIT_INTERRUPTED
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        return _interrupted(name, args, started)
+
+
+def _interrupted(name: str, args: argparse.Namespace, started: float) -> int:
+    print(f"{name}: interrupted; {_kept(getattr(args, 'out', None), started)}", file=sys.stderr)
+    return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -42,3 +42,16 @@ def yaml_error_line(exc: Exception) -> str:
     where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
     problem = getattr(exc, "problem", None) or (str(exc).splitlines() or [type(exc).__name__])[0]
     return f"{where}not valid YAML ({printable(problem)})"
+
+
+def interrupted_in(exc: BaseException) -> bool:
+    """Whether ``exc`` carries a Ctrl-C / SIGTERM: a KeyboardInterrupt that arrived inside a
+    compiled kernel comes back as a ``SystemError`` whose cause or context it is."""
+    seen: set[int] = set()
+    cause: BaseException | None = exc
+    while cause is not None and id(cause) not in seen:
+        if isinstance(cause, KeyboardInterrupt):
+            return True
+        seen.add(id(cause))
+        cause = cause.__cause__ or cause.__context__
+    return False

@@ -19,7 +19,7 @@ from vipm_track.filters.speed_decoder import decode_can_log
 from vipm_track.filters.wheel_speed import SpeedSeries, read_speed_csv
 
 from ..camera import CameraModel, load_camera
-from ..errors import InputError, NothingUsable
+from ..errors import InputError, NothingUsable, interrupted_in
 from ..measurement import PairMeasurement, in_sequence, read_measurements
 from ..table import first_data_row
 from .common import frame_window
@@ -34,15 +34,20 @@ if TYPE_CHECKING:
 
 def load_speed(args: argparse.Namespace) -> SpeedSeries | None:
     """Wheel speed [t on the camera clock in s, m/s] from ``--speed-csv`` or ``--can``
-    (:func:`speed_from_args`); None when neither is given."""
+    (:func:`speed_from_args`); None when neither is given. Its decode summary goes to
+    stderr, under ``--quiet`` only where rows or frames were skipped."""
+    quiet = getattr(args, "quiet", False)
+    held: list[str] = []
     try:
-        quiet = getattr(args, "quiet", False)
-        return speed_from_args(args, progress=not quiet,
-                               report=(lambda _line: None) if quiet else None)
+        series = speed_from_args(args, progress=not quiet, report=held.append if quiet else None)
     except ValueError as exc:  # InputError is a ValueError; anything else becomes one
         if isinstance(exc, InputError):
             raise
         raise InputError(str(exc)) from exc
+    if series is not None and series.summary is not None and series.summary.bad:
+        for line in held:  # --quiet keeps the decode summary, not what was skipped
+            print(line, file=sys.stderr)
+    return series
 
 
 def speed_from_args(args: argparse.Namespace, progress: bool = True,
@@ -145,12 +150,11 @@ def check_speed_overlap(speed: SpeedSeries, frame_times: list[float], strict: bo
           f"{len(frame_times)} frames have a wheel speed ({spans})", file=sys.stderr)
 
 
-def read_estimates(path: str, quiet: bool = False, notes: list[str] | None = None,
-                   ) -> list[PairMeasurement]:
+def read_estimates(path: str, notes: list[str] | None = None) -> list[PairMeasurement]:
     """The pair measurements of an estimates table (``vipm-track estimate``) that form a
     sequence (``measurement.in_sequence``: a repeated frame, a frame or time going backwards
     is left out; a row saying ok without its numbers is read as no estimate), what was left
-    out said on stderr with its row numbers unless ``quiet`` (and appended to ``notes``).
+    out said on stderr with its row numbers, ``--quiet`` or not (and appended to ``notes``).
     InputError naming the file when it is missing, empty or lacks a column."""
     try:
         measurements = read_measurements(path)
@@ -164,9 +168,8 @@ def read_estimates(path: str, quiet: bool = False, notes: list[str] | None = Non
     lines = issues.lines(str(path)) if issues else []
     if notes is not None:
         notes.extend(lines)
-    if not quiet:
-        for line in lines:
-            print(f"vipm-track: warning: {line}", file=sys.stderr)
+    for line in lines:
+        print(f"vipm-track: warning: {line}", file=sys.stderr)
     return measurements
 
 
@@ -341,8 +344,7 @@ def measurements_from_args(
                          + (f" (got --{' --'.join(given)})" if given else ""))
     if args.estimates:
         args.input_notes = []
-        measurements = read_estimates(args.estimates, getattr(args, "quiet", False),
-                                      args.input_notes)
+        measurements = read_estimates(args.estimates, args.input_notes)
         measurements = frame_window(measurements, lambda m: m.frame,
                                     getattr(args, "start", 0), getattr(args, "max_frames", None),
                                     args.estimates)
@@ -354,9 +356,9 @@ def measurements_from_args(
 
         stream = progress_bar(stream, desc="estimate", unit="frame", total=frame_total(args))
     out = collect_until_interrupt(stream)
+    if out.interrupted and not any(m.ok for m in out.items):
+        raise KeyboardInterrupt  # an interrupted run, not an unusable input
     if not out.items:
-        if out.interrupted:
-            raise KeyboardInterrupt
         raise InputError(f"{args.images or args.video}: no frames")
     require_usable(out.items, str(args.images or args.video))
     if out.interrupted:
@@ -382,6 +384,10 @@ def collect_until_interrupt(stream: Iterable[Any]) -> Collected:
         for item in stream:
             out.items.append(item)
     except KeyboardInterrupt:
+        out.interrupted = True
+    except SystemError as exc:
+        if not interrupted_in(exc):
+            raise
         out.interrupted = True
     return out
 

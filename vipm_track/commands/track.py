@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
     elif args.estimates:
         if args.images or args.video:
             raise InputError("give --estimates or --images/--video, not both")
-        measurements = frame_window(read_estimates(args.estimates, args.quiet),
+        measurements = frame_window(read_estimates(args.estimates),
                                     lambda m: m.frame, args.start, args.max_frames,
                                     args.estimates)
         require_usable(measurements, args.estimates)
