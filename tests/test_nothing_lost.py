@@ -690,3 +690,30 @@ def test_quiet_still_names_the_rows_left_out(tmp_path, capsys, est):
                        "--out", tmp_path / f"{command}.csv")
         assert rc == 0 and "row 10 frame 7 (first row 9)" in err
         assert "frames (ok" not in err  # the summary line stays quiet
+
+
+@pytest.mark.parametrize("command", ["track", "smooth", "monitor"])
+def test_an_output_that_is_the_input_is_refused_before_any_work(tmp_path, capsys, est, nominal,
+                                                                command):
+    """`smooth --estimates x.csv --out x.csv` replaced the table it read by its output."""
+    table = tmp_path / "same.csv"
+    table.write_bytes(est.read_bytes())
+    extra = ["--nominal", nominal] if command == "monitor" else ["--height", "1.65"]
+    rc, err = _run(capsys, command, "--estimates", table, "--out", table, *extra)
+    assert rc == 2 and f"--out {table}: is the input --estimates {table}" in err
+    assert table.read_bytes() == est.read_bytes()
+
+
+def test_an_output_over_a_frame_of_the_images_is_refused(tmp_path, capsys):
+    from conftest import CAR_CAMERA_YAML
+
+    images = tmp_path / "images"
+    images.mkdir()
+    frame = images / "000001.png"
+    cv2.imwrite(str(frame), np.zeros((8, 8), np.uint8))
+    before = frame.read_bytes()
+    (images / "camera.yaml").write_text(CAR_CAMERA_YAML)
+    rc, err = _run(capsys, "estimate", "--images", images, "--height", "1.5", "--fps", "10",
+                   "--out", frame)
+    assert rc == 2 and f"--out {frame}: is a file of the input --images {images}" in err
+    assert frame.read_bytes() == before

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from .allocator import keep_freed_memory
-from .commands.common import infer_inputs
+from .commands.common import check_outputs_apart, infer_inputs
 from .errors import InputError, NothingUsable, interrupted_in, os_error_line, printable
 
 #: Subcommands: name → (module under ``vipm_track.commands``, the line ``--help`` lists), in
@@ -111,6 +111,7 @@ def _run(argv: list[str]) -> int:
         return EXIT_INTERRUPTED
     name = f"vipm-track {args.command}"
     try:
+        check_outputs_apart(args)
         infer_inputs(args)
         return int(args.handler(args) or 0)
     except SystemError as exc:

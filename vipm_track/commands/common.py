@@ -115,6 +115,39 @@ def infer_inputs(args: argparse.Namespace) -> None:
                   "estimated with)", file=sys.stderr)
 
 
+#: options naming what a command reads, and what it writes (``--parquet``: beside ``--out``)
+_INPUT_OPTIONS = ("estimates", "images", "video", "bag", "camera", "can", "dbc", "gt",
+                  "nominal", "speed_csv", "frame_times", "roi", "log", "table", "drives")
+_OUTPUT_OPTIONS = ("out", "events", "rerun")
+
+
+def _option(name: str) -> str:
+    return f"--{name.replace('_', '-')}" if name not in ("log", "table", "drives") else name.upper()
+
+
+def check_outputs_apart(args: argparse.Namespace) -> None:
+    """InputError where an output would overwrite an input: the same file (``smooth
+    --estimates x.csv --out x.csv`` replaced the table it read) or a file of an input folder
+    (a frame of ``--images``)."""
+    inputs = [(name, Path(value)) for name in _INPUT_OPTIONS
+              if isinstance(value := getattr(args, name, None), (str, Path)) and value
+              and Path(value).exists()]
+    outputs = [(name, Path(value)) for name in _OUTPUT_OPTIONS
+               if isinstance(value := getattr(args, name, None), (str, Path)) and value]
+    if getattr(args, "parquet", None) is True and getattr(args, "out", None):
+        outputs.append(("parquet", Path(args.out).with_suffix(".parquet")))
+    for out_name, out in outputs:
+        if not out.exists():
+            continue
+        for in_name, given in inputs:
+            same = out.samefile(given)
+            if same or (given.is_dir() and not out.is_dir()
+                        and given.resolve() in out.resolve().parents):
+                what = "is" if same else "is a file of"
+                raise InputError(f"{_option(out_name)} {out}: {what} the input {_option(in_name)} "
+                                 f"{given}; writing it would destroy the input, give another path")
+
+
 def frame_window(items: list, frame_of, start: int, max_frames: int | None,
                  source: str = "the input") -> list:
     """The ``items`` whose frame (``frame_of(item)``) is at least ``start``, at most
