@@ -22,6 +22,7 @@ from ..camera import load_camera
 from ..errors import InputError
 from .common import add_rerun_options, check_output_dir, check_rerun_output
 from .estimator_options import add_estimator_options, build_config, build_rig
+from .option_types import whole_number
 
 MAX_FRAMES = 2000
 
@@ -44,7 +45,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="frames to render (default: "
                         + ", ".join(f"{k} {v:g} s" for k, v in SECONDS.items())
                         + " at the preset's frame rate)")
-    parser.add_argument("--seed", type=int, default=SEED, help="random seed of the scene")
+    parser.add_argument("--seed", type=whole_number(0), default=SEED,
+                        help="random seed of the scene, >= 0")
     parser.add_argument("--profile", default=PROFILE,
                         choices=("knock", "static", "shaking", "drift", "turn", "gradual",
                                  "height"),
@@ -68,6 +70,7 @@ def run(args: argparse.Namespace) -> int:
     from .inputs import with_searched_readout
     from .rerun_options import sink_from_args
 
+    _check_rerun_images(args)
     out = check_output_dir(args.out)
     frames = default_frames(args.preset) if args.frames is None else args.frames
     if not 2 <= frames <= MAX_FRAMES:
@@ -104,3 +107,13 @@ def run(args: argparse.Namespace) -> int:
     print(f"Done in {time.perf_counter() - start:.1f} s.")
     return 0
 
+
+def _check_rerun_images(args: argparse.Namespace) -> None:
+    """InputError for ``--rerun-image-every`` < 0 or ``--rerun-jpeg-quality`` outside 1..100,
+    before the drive is rendered (the sink that would say so opens after it)."""
+    every = args.rerun_image_every
+    if every is not None and every < 0:
+        raise InputError(f"--rerun-image-every must be >= 0, got {every}")
+    if not 1 <= args.rerun_jpeg_quality <= 100:
+        raise InputError(f"--rerun-jpeg-quality must be in 1..100, got "
+                         f"{args.rerun_jpeg_quality}")

@@ -5,12 +5,16 @@ from __future__ import annotations
 import argparse
 import sys
 
+import numpy as np
+
 from ..errors import InputError
 from ..render import Effects
-from ..sim import PRESETS, PROFILES, clear_earlier_run, simulate_sequence
+from ..rig import MAX_ANGLE_DEG
+from ..sim import PRESETS, PROFILES, clear_earlier_run, make_trajectory, simulate_sequence
 from ..texture import TEXTURES
 from ..traffic import LEVELS
 from .common import check_output_dir
+from .option_types import number, whole_number
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -27,14 +31,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    "h 1.5 m, pitch 3°, 20 fps)")
     p.add_argument("--frames", type=int, required=True, metavar="N", help="number of frames")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    p.add_argument("--seed", type=int, default=0, help="random seed (texture, pose, noise)")
+    p.add_argument("--seed", type=whole_number(0), default=0,
+                   help="random seed (texture, pose, noise), >= 0")
     p.add_argument("--profile", choices=PROFILES, default="static", help="pose/motion profile")
     p.add_argument("--texture", choices=sorted(TEXTURES), default=None,
                    help="ground texture (default: the preset's); corridor = weak texture")
-    p.add_argument("--fps", type=float, default=None, help="frame rate [Hz] (default: preset)")
-    p.add_argument("--speed", type=float, default=None, help="speed [m/s] (default: preset)")
-    p.add_argument("--amplitude", type=float, default=1.0,
-                   help="scale of the profile's pose changes / turn rate (default 1)")
+    p.add_argument("--fps", type=number(0, above=True), default=None,
+                   help="frame rate [Hz] (default: preset)")
+    p.add_argument("--speed", type=number(0), default=None,
+                   help="speed [m/s], >= 0 (default: preset)")
+    p.add_argument("--amplitude", type=number(0), default=1.0,
+                   help="scale of the profile's pose changes / turn rate, >= 0 (default 1)")
     p.add_argument("--traffic", choices=LEVELS, nargs="?", const="mix", default=None,
                    metavar="LEVEL", help="drive among box-shaped vehicles on a straight road "
                    "along the start's heading: one ahead in our lane, others beside, oncoming "
@@ -42,40 +49,38 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    "pair with a low --speed); writes OUT/traffic.csv (vehicles' world "
                    "positions per frame); gt.csv is unchanged")
     fx = p.add_argument_group("photometric effects")
-    fx.add_argument("--noise", type=float, default=0.0, metavar="SIGMA",
+    fx.add_argument("--noise", type=number(0), default=0.0, metavar="SIGMA",
                     help="Gaussian sensor noise, grey levels")
-    fx.add_argument("--exposure-drift", type=float, nargs="?", const=0.15, default=0.0,
-                    metavar="AMP", help="relative gain drift amplitude (default 0.15 if given)")
-    fx.add_argument("--vignetting", type=float, nargs="?", const=0.8, default=0.0,
+    # a drift of 1 or more would drive the gain to zero or below: black frames
+    fx.add_argument("--exposure-drift", type=number(0, 1, below=True), nargs="?", const=0.15,
+                    default=0.0, metavar="AMP",
+                    help="relative gain drift amplitude, below 1 (default 0.15 if given)")
+    fx.add_argument("--vignetting", type=number(0, 1), nargs="?", const=0.8, default=0.0,
                     metavar="STRENGTH", help="cos⁴ vignetting strength 0..1 (0.8 if given)")
-    fx.add_argument("--highlights", type=int, nargs="?", const=3, default=0, metavar="N",
-                    help="specular blobs fixed in the image (3 if given)")
-    fx.add_argument("--motion-blur", type=float, nargs="?", const=0.3, default=0.0,
-                    metavar="EXPOSURE", help="exposure as a fraction of the frame interval "
-                    "(0.3 if given)")
-    fx.add_argument("--readout-time", type=float, default=0.0, metavar="SECONDS",
+    fx.add_argument("--highlights", type=whole_number(0), nargs="?", const=3, default=0,
+                    metavar="N", help="specular blobs fixed in the image (3 if given)")
+    fx.add_argument("--motion-blur", type=number(0, 1), nargs="?", const=0.3, default=0.0,
+                    metavar="EXPOSURE", help="exposure as a fraction of the frame interval, "
+                    "0..1 (0.3 if given)")
+    fx.add_argument("--readout-time", type=number(0, what="number of seconds"), default=0.0,
+                    metavar="SECONDS",
                     help="rolling shutter: time from the first row's exposure to the last's, "
-                    "seconds (row 0 at the frame's time; default 0: global shutter); "
-                    "estimate with the same --readout-time")
+                    "seconds, at most the frame interval (row 0 at the frame's time; default "
+                    "0: global shutter); estimate with the same --readout-time")
     fx.add_argument("--obstacle", action="store_true",
                     help="a non-ground region (wall) fixed in the image's lower right")
     p.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    check_output_dir(args.out)
     if args.frames < 1:
         raise InputError(f"--frames must be ≥ 1, got {args.frames}")
-    for name in ("fps", "speed"):
-        value = getattr(args, name)
-        if value is not None and value <= 0 and not (name == "speed" and value == 0):
-            raise InputError(f"--{name} must be > 0, got {value}")
-    if args.noise < 0 or not 0 <= args.vignetting <= 1 or args.motion_blur < 0:
-        raise InputError("--noise and --motion-blur must be ≥ 0 and --vignetting in [0, 1]")
     fps = args.fps or PRESETS[args.preset].fps
-    if not 0 <= args.readout_time * fps <= 1:
+    if args.readout_time * fps > 1:
         raise InputError(f"--readout-time must be in [0, 1/fps] = [0, {1 / fps:g}] s, got "
                          f"{args.readout_time}")
+    _check_pose_range(args)
+    check_output_dir(args.out)
     effects = Effects(
         noise_sigma=args.noise, exposure_drift=args.exposure_drift, vignetting=args.vignetting,
         highlights=args.highlights, motion_blur=args.motion_blur,
@@ -94,3 +99,22 @@ def run(args: argparse.Namespace) -> int:
           f"(images/, camera.yaml, gt.csv, times.txt, speed.csv"
           f"{', traffic.csv' if args.traffic else ''})", file=sys.stderr)
     return 0
+
+
+def _check_pose_range(args: argparse.Namespace) -> None:
+    """InputError where ``--amplitude`` swings the profile's pose off what a camera can be:
+    at or below the ground, or pitched or rolled beyond ±``MAX_ANGLE_DEG`` (the truth is
+    computed here, before any frame is rendered; it is cheap)."""
+    traj = make_trajectory(args.profile, args.frames, args.fps, args.preset, args.seed,
+                           args.speed, args.amplitude)
+    what = f"--amplitude {args.amplitude:g} with --profile {args.profile}"
+    low = int(np.argmin(traj.height))
+    if not traj.height[low] > 0:
+        raise InputError(f"{what} puts the camera at height {traj.height[low]:.3g} m at frame "
+                         f"{low}, at or below the ground; give a smaller --amplitude")
+    for name, angles in (("pitch", traj.pitch), ("roll", traj.roll)):
+        worst = int(np.argmax(np.abs(angles)))
+        if abs(np.degrees(angles[worst])) > MAX_ANGLE_DEG:
+            raise InputError(f"{what} turns the camera to {name} "
+                             f"{np.degrees(angles[worst]):.4g}° at frame {worst}, beyond "
+                             f"±{MAX_ANGLE_DEG:g}°; give a smaller --amplitude")
