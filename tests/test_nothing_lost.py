@@ -717,3 +717,20 @@ def test_an_output_over_a_frame_of_the_images_is_refused(tmp_path, capsys):
                    "--out", frame)
     assert rc == 2 and f"--out {frame}: is a file of the input --images {images}" in err
     assert frame.read_bytes() == before
+
+
+def test_a_byte_order_mark_is_read_past(tmp_path, capsys, est):
+    """Excel's "CSV UTF-8" starts the file with a BOM: the header read '\\ufeffframe' and the
+    table was refused for a missing column 'frame' (times.txt and calib files alike)."""
+    from vipm_track.sources import read_times
+    from vipm_track.text_files import read_text
+
+    bom = tmp_path / "bom.csv"
+    bom.write_bytes(b"\xef\xbb\xbf" + est.read_bytes())
+    rc, err = _run(capsys, "track", "--estimates", bom, "--height", "1.65", "--quiet",
+                   "--out", tmp_path / "t.csv")
+    assert rc == 0, err
+    assert read_text(bom) == est.read_text()
+    times = tmp_path / "times.txt"
+    times.write_bytes(b"\xef\xbb\xbf0.0\n0.1\n")
+    np.testing.assert_array_equal(read_times(times), [0.0, 0.1])

@@ -5,15 +5,17 @@ the project's reader)."""
 from __future__ import annotations
 
 import csv
+import errno
 import tempfile
 from pathlib import Path
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vipm_track.measurement import PairMeasurement, measurement_row, read_measurements
-from vipm_track.table import BASE_COLUMNS, ESTIMATE_COLUMNS, write_table
+from vipm_track.table import BASE_COLUMNS, ESTIMATE_COLUMNS, TableWriter, write_table
 
 _ANGLE = np.array([True, True, True, True, False, False, True])
 _Z_COLUMNS = ("prev_pitch_deg", "prev_roll_deg", "pitch_deg", "roll_deg", "tx_m", "tz_m",
@@ -66,3 +68,36 @@ def test_measurements_survive_the_table_exactly(seeds: list[int], failed: list[b
         np.testing.assert_allclose(text_z, np.where(_ANGLE, np.degrees(m.z), m.z), rtol=1e-14)
         np.testing.assert_allclose(text_std, np.where(_ANGLE, np.degrees(m.std), m.std),
                                    rtol=1e-14)
+
+
+class _DiskFillsUp:
+    """A raw file that takes ``room`` more bytes, then fails as a full disk does: the write
+    that reaches the limit stores part of its bytes and the next raises ENOSPC."""
+
+    def __init__(self, raw, room: int) -> None:
+        self.raw, self.room = raw, room
+
+    def write(self, data) -> int:
+        if self.room <= 0:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        n = self.raw.write(bytes(data[: self.room]))
+        self.room -= n
+        return n
+
+    def __getattr__(self, name):
+        return getattr(self.raw, name)
+
+
+def test_a_disk_that_fills_up_mid_row_leaves_only_complete_rows(tmp_path):
+    """A full disk left the table cut in the middle of a row."""
+    path = tmp_path / "t.csv"
+    writer = TableWriter(path, ["pitch_deg"])
+    writer.write({"frame": 0, "t": 0.0, "pitch_deg": 1.5})
+    writer._file = _DiskFillsUp(writer._file, room=7)
+    with pytest.raises(OSError, match="No space left") as info:
+        writer.write({"frame": 1, "t": 0.1, "pitch_deg": 2.25})
+    assert info.value.filename == str(path)
+    writer._file = writer._file.raw
+    writer.close()
+    header, row, *rest = path.read_text().split("\n")
+    assert header.startswith("frame,t,") and row.startswith("0,0.0,") and rest == [""]

@@ -19,6 +19,7 @@ import yaml
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import InputError, printable, yaml_error_line
+from .text_files import read_text
 
 PINHOLE_MODELS = ("plumb_bob", "rational_polynomial", "none")
 FISHEYE_MODELS = ("equidistant", "fisheye")
@@ -181,7 +182,7 @@ def load_camera(path: str | Path, image_size: tuple[int, int] | None = None) -> 
     path = Path(path)
     if not path.is_file():
         raise CameraFileError(path, "file not found")
-    text = path.read_text(errors="replace")
+    text = read_text(path)
     if text.lstrip().startswith("%YAML") or "opencv-matrix" in text or path.suffix == ".xml":
         return _read_opencv_storage(path)
     if path.suffix == ".txt" or text.lstrip().startswith("P0:"):
@@ -197,7 +198,7 @@ def read_kitti_calib(path: str | Path, image_size: tuple[int, int] | None = None
     beside the file, else 1241×376."""
     path = Path(path)
     rows = {}
-    for lineno, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
+    for lineno, line in enumerate(read_text(path).splitlines(), start=1):
         if ":" in line:
             key, values = line.split(":", 1)
             rows[key.strip()] = values.split()

@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 
 from .errors import InputError
 from .geometry import pose_from_rotation, rot_y, rotation_ground_from_camera
+from .text_files import read_text
 
 
 @dataclass(frozen=True)
@@ -57,7 +58,7 @@ def read_poses(path: str | Path) -> NDArray[np.float64]:
     if not path.is_file():
         raise InputError(f"{path}: KITTI poses file not found")
     rows = []
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+    for lineno, line in enumerate(read_text(path).splitlines(), start=1):
         if not line.strip():
             continue
         try:

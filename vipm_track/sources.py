@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import InputError, printable
+from .text_files import read_text
 
 IMAGE_SUFFIXES: frozenset[str] = frozenset(
     {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".pnm", ".webp"}
@@ -197,7 +198,7 @@ def read_times(path: str | Path, expected: int | None = None) -> NDArray[np.floa
     not increase, or (with ``expected``) a count different from the number of images."""
     path = Path(path)
     values: list[float] = []
-    for lineno, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
+    for lineno, line in enumerate(read_text(path).splitlines(), start=1):
         text = line.split("#", 1)[0].strip()
         if not text:
             continue

@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import os
 import sys
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -22,6 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import InputError, printable
+from .text_files import read_text
 
 BASE_COLUMNS: tuple[str, ...] = (
     "frame",
@@ -200,28 +202,41 @@ class TableWriter:
         if self.parquet_path is not None:
             _require_pyarrow()
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._file = self.path.open("w", newline="")
-        self._writer = csv.writer(self._file, lineterminator=LINE_END)
-        with self._named_os_errors():
-            self._writer.writerow(self.columns)
-            self._file.flush()
+        # unbuffered: each line goes to the file in the call that writes it, so that a write
+        # that fails part-way (disk full) can be cut back to the last complete row
+        self._file = self.path.open("wb", buffering=0)
+        self._written = 0
         self._rows: list[dict[str, Any]] = []
         self._line = io.StringIO()
         self._line_writer = csv.writer(self._line, lineterminator=LINE_END)
+        self._write_line(self.columns)
 
     def write(self, row: Mapping[str, Any]) -> None:
         unknown = set(row) - self._known
         if unknown:
             raise KeyError(f"{self.path}: row has columns not in the table: {sorted(unknown)}")
-        # one write of the whole line, then flush: the file never ends in half a row
-        self._line.seek(0)
-        self._line.truncate()
-        self._line_writer.writerow([format_value(row.get(c)) for c in self.columns])
-        with self._named_os_errors():
-            self._file.write(self._line.getvalue())
-            self._file.flush()
+        self._write_line([format_value(row.get(c)) for c in self.columns])
         if self.parquet_path is not None:
             self._rows.append({c: row.get(c) for c in self.columns})
+
+    def _write_line(self, cells: Sequence[str]) -> None:
+        """One CSV line, all of it on disk when this returns; where the write fails the file
+        is cut back to the rows before it (it never ends in half a row) and the error raised."""
+        self._line.seek(0)
+        self._line.truncate()
+        self._line_writer.writerow(cells)
+        data = memoryview(self._line.getvalue().encode("utf-8"))
+        with self._named_os_errors():
+            try:
+                while data:
+                    data = data[self._file.write(data) or 0:]
+            except OSError:
+                try:
+                    os.ftruncate(self._file.fileno(), self._written)
+                except OSError:
+                    pass  # (a device such as /dev/full cannot be cut)
+                raise
+            self._written = self._file.tell()
 
     @contextmanager
     def _named_os_errors(self) -> Iterator[None]:
@@ -422,12 +437,6 @@ def _cut_last_row(text: str, reader: Any, row: list[str], header: list[str]) -> 
     short: fewer cells than the header and no line end after it."""
     return (len(row) < len(header) and not text.endswith(("\n", "\r"))
             and next(reader, None) is None)
-
-
-def read_text(path: Path) -> str:
-    """Text of a file: undecodable bytes and NULs become U+FFFD (so a damaged line fails
-    where it is, with its number, rather than the whole file failing to decode)."""
-    return path.read_bytes().decode("utf-8", errors="replace").replace("\x00", "\ufffd")
 
 
 def _to_float(v: Any) -> float:

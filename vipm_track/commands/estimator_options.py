@@ -17,6 +17,7 @@ from ..camera import CameraModel
 from ..errors import InputError
 from ..estimator_config import REFINEMENT_WEIGHTING
 from ..rig import DEFAULT_PITCH_DEG, Rig
+from ..text_files import read_text
 from .common import seconds_or_auto
 
 #: ``--refinement-weights`` → EstimatorConfig fields ("auto": the estimator's per-camera
@@ -264,7 +265,7 @@ def parse_roi(text: str, camera: CameraModel) -> NDArray[np.bool_]:
 
 def _polygon_mask(path: Path, shape: tuple[int, int]) -> NDArray[np.bool_]:
     vertices = []
-    for lineno, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
+    for lineno, line in enumerate(read_text(path).splitlines(), start=1):
         text = line.split("#", 1)[0].replace(",", " ").split()
         if not text:
             continue
