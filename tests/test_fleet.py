@@ -1,11 +1,15 @@
 """``vipm-track fleet`` on a Dask LocalCluster of 2 workers: rendered drives (one whose camera
 sits 1° steeper than its nominal, one from an MCAP, broken ones), per-drive results equal to
-``smooth`` run alone, resume, partitioned Parquet read by pandas, pyarrow and dask."""
+``smooth`` run alone, resume, partitioned Parquet read by pandas, pyarrow and dask; bad
+``--scheduler`` addresses and servers that are no scheduler refused on one line."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import shutil
+import socket
+import threading
 from pathlib import Path
 
 import pandas as pd
@@ -17,6 +21,7 @@ from hypothesis import strategies as st
 
 from vipm_track.cli import main
 from vipm_track.errors import InputError
+from vipm_track.fleet import cluster as fleet_cluster
 from vipm_track.fleet.cluster import fleet_dataset, run_fleet
 from vipm_track.fleet.drive_run import FleetSettings
 from vipm_track.fleet.drives import find_drives, read_manifest
@@ -54,6 +59,10 @@ def drives(tmp_path_factory) -> Path:
     (root / "no_nominal").mkdir()
     shutil.copytree(a / "images", root / "no_nominal" / "images")
     shutil.copy(a / "camera.yaml", root / "no_nominal")
+    # a complete drive but for its drive.yaml: its own failed row, not the whole fleet's end
+    bad_yaml = root / "bad_yaml"
+    shutil.copytree(a, bad_yaml)
+    (bad_yaml / "drive.yaml").write_text("vehicle: [\n")
     return root
 
 
@@ -65,9 +74,9 @@ def fleet(drives, cluster, tmp_path_factory):
     return out, {r["drive"]: r for r in rows}
 
 
-def test_drives_ok_and_broken_ones_are_rows(fleet):
+def test_drives_ok_and_broken_ones_are_rows(fleet, drives):
     out, rows = fleet
-    assert list(rows) == ["a", "b", "broken", "c_bag", "d_clock", "no_nominal"]
+    assert list(rows) == ["a", "b", "bad_yaml", "broken", "c_bag", "d_clock", "no_nominal"]
     for name in ("a", "b", "c_bag"):
         assert rows[name]["status"] == "ok", rows[name]["status"]
         assert rows[name]["frames"] == 12 and rows[name]["share_ok"] > 0.9
@@ -75,6 +84,9 @@ def test_drives_ok_and_broken_ones_are_rows(fleet):
     assert "no frame has a usable pair estimate" in rows["broken"]["status"]
     assert "no nominal.yaml" in rows["no_nominal"]["status"]
     assert "no frame has a wheel speed" in rows["d_clock"]["status"]
+    assert rows["bad_yaml"]["status"] == (
+        f"error: {drives / 'bad_yaml' / 'drive.yaml'}: line 2, column 1: not valid YAML "
+        "(expected the node content, but found '<stream end>')")
     assert abs(rows["a"]["mount_pitch_deg"] - 45.0) < 0.05
     assert abs(rows["b"]["mount_pitch_deg"] - 46.0) < 0.05
     lo, hi = rows["a"]["mount_pitch_ci95_low_deg"], rows["a"]["mount_pitch_ci95_high_deg"]
@@ -164,6 +176,122 @@ def test_cli(drives, cluster, tmp_path, capsys):
                  cluster.scheduler_address, "--quiet"]) == 1
     assert "no drive ok" in capsys.readouterr().err
     assert (out / "fleet_summary.csv").is_file() and (out / "fleet_report.md").is_file()
+
+
+@pytest.mark.parametrize(("content", "why"), [
+    (b"vehicle: [\n", "line 2, column 1: not valid YAML"),
+    (b"- van1\n", "expected a mapping with 'vehicle' and/or 'started'"),
+    (b"vehicle: van1\ncolour: red\n", "expected a mapping with 'vehicle' and/or 'started'"),
+    (b"vehicle: \xff\n", "not a text file (byte 9"),
+])
+def test_a_bad_drive_yaml_is_that_drives_problem(tmp_path, content, why):
+    """A drive.yaml that cannot be read makes its drive a failed row; the other drives and
+    the rest of the bad drive's files are found as before."""
+    for name in ("bad", "good"):
+        (tmp_path / name / "images").mkdir(parents=True)
+        (tmp_path / name / "images" / "000000.png").write_bytes(b"")
+        (tmp_path / name / "camera.yaml").write_text("")
+        (tmp_path / name / "nominal.yaml").write_text("")
+    (tmp_path / "good" / "drive.yaml").write_text("vehicle: van1\n")
+    (tmp_path / "bad" / "drive.yaml").write_bytes(content)
+    bad, good = find_drives(tmp_path)
+    assert bad.problem.startswith(f"{tmp_path / 'bad' / 'drive.yaml'}: {why}"), bad.problem
+    assert "\n" not in bad.problem
+    assert bad.images == tmp_path / "bad" / "images" and bad.vehicle == ""
+    assert good.problem == "" and good.vehicle == "van1"
+
+
+@pytest.fixture
+def one_drive(tmp_path) -> Path:
+    """A folder of one (empty) drive: enough for the fleet to get to its cluster."""
+    (tmp_path / "drives" / "x").mkdir(parents=True)
+    return tmp_path / "drives"
+
+
+@pytest.mark.parametrize(("address", "why"), [
+    ("127.0.0.1", "missing port number"),
+    ("nonsense", "missing port number"),
+    ("tcp://:8786", "no host"),
+    ("tcp://head:99999", "port 99999 is not in 1-65535"),
+    ("udp://head:8786", "unknown address scheme 'udp'"),
+])
+def test_a_malformed_scheduler_address_is_refused_first(one_drive, tmp_path, capsys,
+                                                        address, why):
+    out = tmp_path / "o"
+    assert main(["fleet", str(one_drive), "--out", str(out), "--scheduler", address,
+                 "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"vipm-track fleet: error: --scheduler {address}: not a scheduler "
+                          f"address ({why}")
+    assert err.count("\n") == 1 and not out.exists()  # refused before any work
+
+
+@pytest.fixture
+def short_connect(monkeypatch):
+    """Connecting gives up after 1 s instead of 10."""
+    monkeypatch.setattr(fleet_cluster, "CONNECT_TIMEOUT_S", 1.0)
+
+
+@pytest.fixture
+def closed_port():
+    """A local port bound but not listening: connecting to it is refused."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        yield sock.getsockname()[1]
+
+
+@pytest.fixture
+def silent_port():
+    """A local port that accepts connections (the kernel's backlog) and never answers, as a
+    web server waits for the end of a request line Dask never sends."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        sock.listen(8)
+        yield sock.getsockname()[1]
+
+
+@pytest.fixture
+def http_port():
+    """A local port that answers every connection as a web server does, with an HTTP error."""
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(8)
+
+    def answer() -> None:
+        while True:
+            try:
+                conn, _ = server.accept()
+            except OSError:  # closed: the test is over
+                return
+            with conn, contextlib.suppress(OSError):  # the client may have closed first
+                conn.sendall(b"HTTP/1.0 400 Bad request\r\nContent-Length: 0\r\n\r\n")
+                while conn.recv(4096):
+                    pass
+
+    thread = threading.Thread(target=answer, daemon=True)
+    thread.start()
+    yield server.getsockname()[1]
+    server.shutdown(socket.SHUT_RDWR)
+    server.close()
+    thread.join(5)
+
+
+@pytest.mark.parametrize(("port", "why"), [
+    ("closed_port", "Connection refused"),
+    ("silent_port", "no Dask scheduler answered within 1 s"),
+    ("http_port", "what answers there is not a Dask scheduler"),
+])
+def test_no_scheduler_there_is_one_line(one_drive, tmp_path, capsys, short_connect,
+                                        request, port, why):
+    """Nothing listening, a server that never answers and one whose reply Dask misreads:
+    exit 2 within the connect timeout, the address and the reason on one line."""
+    address = f"tcp://127.0.0.1:{request.getfixturevalue(port)}"
+    assert main(["fleet", str(one_drive), "--out", str(tmp_path / "o"), "--scheduler",
+                 address, "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"vipm-track fleet: error: --scheduler {address}: cannot connect "
+                          f"({why}"), err
+    assert err.count("\n") == 1
 
 
 def test_manifest(drives, tmp_path):

@@ -54,7 +54,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..fleet.cluster import run_fleet
+    from ..fleet.cluster import run_fleet, scheduler_address
     from ..fleet.drive_run import FleetSettings
     from ..fleet.drives import find_drives
     from ..sinks.fleet_report import write_fleet_report
@@ -62,6 +62,8 @@ def run(args: argparse.Namespace) -> int:
     if args.workers < 1 or args.retries < 0:
         raise InputError(f"--workers must be >= 1 and --retries >= 0, got {args.workers} and "
                          f"{args.retries}")
+    if args.scheduler is not None:
+        scheduler_address(args.scheduler)
     out = check_output_dir(args.out)
     specs = find_drives(args.drives)
     settings = FleetSettings(vehicle=args.vehicle, lag_s=args.lag,

@@ -12,12 +12,16 @@ stopped resumes where it stopped.
 
 from __future__ import annotations
 
+import asyncio
 import csv
 import os
+import re
 import signal
+import socket
 import sys
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -25,8 +29,11 @@ import dask
 import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
-from distributed import Client, LocalCluster, WorkerPlugin, as_completed
+from distributed import Client, LocalCluster, Security, WorkerPlugin, as_completed
+from distributed import comm as dask_comm
+from distributed.comm.registry import get_backend
 
+from ..errors import InputError, printable
 from ..progress import progress_bar
 from ..table import format_value
 from ..workers import THREADS_ENV
@@ -44,6 +51,11 @@ def worker_environ(workers: int) -> dict[str, int]:
     threads = max(1, (os.cpu_count() or 1) // max(workers, 1))
     return {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1,
             THREADS_ENV: threads}
+
+#: seconds a running scheduler (``--scheduler``) has to answer before the fleet gives up
+CONNECT_TIMEOUT_S = 10.0
+#: Dask's address schemes that are a TCP connection to HOST:PORT underneath
+_TCP_SCHEMES = frozenset({"tcp", "tls", "ws", "wss"})
 
 #: fleet_summary columns, in order (see docs/fleet.md)
 SUMMARY_COLUMNS: tuple[str, ...] = (
@@ -73,21 +85,27 @@ def run_fleet(
     retries: int = 2,
     progress: bool = True,
     on_row: Callable[[dict[str, Any]], None] | None = None,
+    connect_timeout_s: float | None = None,
 ) -> list[dict[str, Any]]:
     """Run every drive of ``specs`` as a Dask task and write ``OUT/fleet_summary.csv`` and
     ``.parquet`` (one row per drive, in ``specs``' order; rewritten as each drive ends, so an
     interrupt keeps the finished ones). ``scheduler``: the address of a running Dask
-    scheduler; else a ``LocalCluster`` of ``workers`` single-threaded workers (processes,
-    or threads of this process where ``processes`` is false). ``on_row`` is called with each
-    drive's row as it ends. Returns the rows."""
+    scheduler (:func:`connect_scheduler`, within ``connect_timeout_s`` seconds; None:
+    :data:`CONNECT_TIMEOUT_S`); else a ``LocalCluster`` of ``workers`` single-threaded
+    workers (processes, or threads of this process where ``processes`` is false).
+    ``on_row`` is called with each drive's row as it ends. Returns the rows. InputError
+    where ``scheduler`` is no address or nothing there answers as a Dask scheduler."""
     settings = settings or FleetSettings()
+    if scheduler:
+        scheduler_address(scheduler)
+    timeout_s = CONNECT_TIMEOUT_S if connect_timeout_s is None else connect_timeout_s
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rows: dict[str, dict[str, Any]] = {}
     start = time.perf_counter()
     try:
-        _run_all(specs, out, settings, workers, scheduler, processes, retries, progress,
-                 on_row, rows)
+        _run_all(specs, out, settings, workers, scheduler, timeout_s, processes, retries,
+                 progress, on_row, rows)
     except KeyboardInterrupt:
         # the cluster is closed by now: a drive that finished as the interrupt came has its
         # done.json; every other unfinished drive is a row saying so (run again to resume)
@@ -124,12 +142,12 @@ def _finished_row(spec: DriveSpec, out: Path, settings: FleetSettings) -> dict[s
 
 
 def _run_all(specs: Sequence[DriveSpec], out: Path, settings: FleetSettings, workers: int,
-             scheduler: str | None, processes: bool, retries: int, progress: bool,
-             on_row: Callable[[dict[str, Any]], None] | None,
+             scheduler: str | None, timeout_s: float, processes: bool, retries: int,
+             progress: bool, on_row: Callable[[dict[str, Any]], None] | None,
              rows: dict[str, dict[str, Any]]) -> None:
     with dask.config.set({"distributed.scheduler.allowed-failures": retries,
                           "distributed.nanny.pre-spawn-environ": worker_environ(workers)}), \
-            _client(workers, scheduler, processes) as client:
+            _client(workers, scheduler, timeout_s, processes) as client:
         futures = {client.submit(run_drive, spec, str(out), settings, key=f"drive-{spec.drive}",
                                  pure=False, retries=retries): spec for spec in specs}
         bar = progress_bar(total=len(futures), desc="fleet", unit="drive", disable=not progress)
@@ -154,16 +172,105 @@ def _run_all(specs: Sequence[DriveSpec], out: Path, settings: FleetSettings, wor
                 future.cancel()
 
 
-def _client(workers: int, scheduler: str | None, processes: bool) -> Any:
+def _client(workers: int, scheduler: str | None, timeout_s: float, processes: bool) -> Any:
     """A context giving the client: of ``scheduler``, or of a new local cluster."""
     if scheduler:
-        return Client(scheduler)
+        return connect_scheduler(scheduler, timeout_s)
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=processes,
                            dashboard_address=None)
     client = Client(cluster)
     if processes:
         client.register_plugin(_IgnoreSigint(), name="vipm-track-ignore-sigint")
     return _ClosingClient(client, cluster)
+
+
+def scheduler_address(address: str) -> str:
+    """``address`` with its scheme (``tcp://`` where it names none), parsed as Dask parses
+    it. InputError naming it where Dask could not connect to it: an unknown scheme, no
+    host, no port or one out of range (``inproc://`` addresses, of a scheduler in this
+    process, have neither)."""
+    try:
+        scheme, location = dask_comm.parse_address(address)
+        try:
+            host, port = get_backend(scheme).get_address_host_port(location)
+        except NotImplementedError:  # inproc: no host and port to check
+            host, port = "inproc", 1
+        if not host:
+            raise ValueError("no host")
+        if not 0 < port < 65536:
+            raise ValueError(f"port {port} is not in 1-65535")
+    except ValueError as exc:
+        raise InputError(f"--scheduler {printable(address, 200)}: not a scheduler address "
+                         f"({printable(exc, 200)}); expected tcp://HOST:PORT") from None
+    return dask_comm.unparse_address(scheme, location)
+
+
+def connect_scheduler(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> Client:
+    """A client of the Dask scheduler running at ``address`` (:func:`scheduler_address`),
+    connected within about ``timeout_s`` seconds. InputError ``--scheduler ADDRESS: cannot
+    connect (why)`` where nothing listens there, its host is unknown or unreachable, or
+    what answers there is not a Dask scheduler (``not a scheduler address`` where it is not
+    one)."""
+    full = scheduler_address(address)
+    where = f"--scheduler {printable(address, 200)}: cannot connect"
+    scheme, location = dask_comm.parse_address(full)
+    if scheme in _TCP_SCHEMES:
+        _reach(get_backend(scheme).get_address_host_port(location), timeout_s, where)
+        _handshake(full, timeout_s, where)
+    try:
+        return Client(full, timeout=timeout_s)
+    except Exception as exc:  # anything that ends the connection, said on one line
+        raise InputError(f"{where} ({_connect_error(exc, timeout_s)})") from None
+
+
+def _reach(host_port: tuple[str, int], timeout_s: float, where: str) -> None:
+    """A TCP connection to ``host_port``, closed again; InputError ``WHERE (why)`` with the
+    OS's reason where none is made (Dask's connect retries a refused one until its timeout
+    and then may name the timeout alone)."""
+    try:
+        socket.create_connection(host_port, timeout=timeout_s).close()
+    except TimeoutError:
+        raise InputError(f"{where} ({printable(host_port[0], 200)} did not answer within "
+                         f"{timeout_s:g} s)") from None
+    except OSError as exc:
+        raise InputError(f"{where} ({printable(exc.strerror or type(exc).__name__, 200)})") \
+            from None
+
+
+def _handshake(address: str, timeout_s: float, where: str) -> None:
+    """Dask's handshake with ``address``, bounded by ``timeout_s`` + 1 s in all: Dask's own
+    timeout bounds reaching the host, not the reply, and a server that is not a Dask
+    scheduler (a web server) may never send one, or send bytes Dask misreads as frame
+    lengths of exabytes. InputError ``WHERE (why)`` where it fails."""
+    async def handshake() -> None:
+        security = Security().get_connection_args("client")
+        comm = await asyncio.wait_for(
+            dask_comm.connect(address, timeout=timeout_s, **security), timeout_s + 1.0)
+        await comm.close()
+
+    # its own thread and event loop: the caller may be running one (a notebook)
+    with ThreadPoolExecutor(1, thread_name_prefix="vipm-track-handshake") as pool:
+        try:
+            pool.submit(asyncio.run, handshake()).result()
+        except OSError as exc:  # TimeoutError among them
+            raise InputError(f"{where} ({_connect_error(exc, timeout_s)})") from None
+        except Exception as exc:  # its reply is no Dask message
+            raise InputError(f"{where} (what answers there is not a Dask scheduler: "
+                             f"{type(exc).__name__} reading its reply)") from None
+
+
+def _connect_error(exc: BaseException, timeout_s: float) -> str:
+    """Why a connection failed, in words: the OS's reason (``Connection refused``, ``Name or
+    service not known``), or that nothing answered in time."""
+    root = exc
+    while root.__cause__ is not None and not isinstance(root, TimeoutError):
+        root = root.__cause__
+    if isinstance(root, TimeoutError):
+        return f"no Dask scheduler answered within {timeout_s:g} s"
+    if isinstance(root, OSError) and root.strerror:
+        return printable(root.strerror, 200)
+    text = re.sub(r"^in <[^>]*>: ", "", str(root))  # Dask names its connector object first
+    return printable(f"{type(root).__name__}: {text}" if text else type(root).__name__, 300)
 
 
 class _IgnoreSigint(WorkerPlugin):
@@ -238,4 +345,5 @@ def fleet_dataset(out: str | Path, table: str = "smoothed") -> ds.Dataset:
                       partition_base_dir=str(out))
 
 
-__all__ = ["SUMMARY_COLUMNS", "fleet_dataset", "run_fleet", "write_summary"]
+__all__ = ["CONNECT_TIMEOUT_S", "SUMMARY_COLUMNS", "connect_scheduler", "fleet_dataset",
+           "run_fleet", "scheduler_address", "write_summary"]

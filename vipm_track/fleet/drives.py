@@ -20,7 +20,7 @@ from pathlib import Path
 import yaml
 
 from ..bag_source import BAG_SUFFIXES, is_bag
-from ..errors import InputError, printable, yaml_error_line
+from ..errors import InputError, os_error_line, printable, yaml_error_line
 from ..sources import IMAGE_SUFFIXES
 
 VIDEO_SUFFIXES: frozenset[str] = frozenset({".mp4", ".avi", ".mkv", ".mov", ".webm", ".m4v"})
@@ -100,14 +100,18 @@ def find_drives(drives: str | Path) -> list[DriveSpec]:
 
 
 def drive_in_folder(folder: Path) -> DriveSpec:
-    """The drive of one folder (see the module doc); its ``problem`` says what is missing."""
+    """The drive of one folder (see the module doc); its ``problem`` says what is missing,
+    or why its ``drive.yaml`` cannot be read."""
     files = sorted(p for p in folder.iterdir() if not p.name.startswith("."))
 
     def first(suffixes: frozenset[str] | tuple[str, ...], *names: str) -> Path | None:
         return next((p for p in files if p.is_file() and (p.suffix.lower() in suffixes
                                                            or p.name in names)), None)
 
-    info = _drive_yaml(folder / "drive.yaml")
+    try:
+        info, bad_info = _drive_yaml(folder / "drive.yaml"), ""
+    except InputError as exc:  # this drive's problem: the other drives go on
+        info, bad_info = {}, str(exc)
     images = folder / "images" if (folder / "images").is_dir() else None
     bag = folder if is_bag(folder) else next((p for p in files if is_bag(p)), None)
     video = first(VIDEO_SUFFIXES)
@@ -120,14 +124,18 @@ def drive_in_folder(folder: Path) -> DriveSpec:
         can=can, dbc=first(frozenset({".dbc"})) if can else None,
         vehicle=str(info.get("vehicle", "")), started=str(info.get("started", "")),
     )
-    return _checked(spec, str(folder))
+    return _with_problem(spec, bad_info) if bad_info else _checked(spec, str(folder))
 
 
 def _drive_yaml(path: Path) -> dict:
+    """``vehicle`` and ``started`` of a drive.yaml ({} where there is none); InputError
+    naming the file (and line and column) where it cannot be read or holds anything else."""
     if not path.is_file():
         return {}
     try:
         doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise InputError(os_error_line(exc, str(path))) from None
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: not a text file (byte {exc.start}: {exc.reason})") from None
     except yaml.YAMLError as exc:
