@@ -11,6 +11,7 @@ from numpy.typing import NDArray
 
 from vipm_track.measurement import PairMeasurement
 
+from .forward_slow import slow_drive_note
 from .long_run import batch_means
 from .mount_change import short_drive_note
 from .smoother_config import SmoothedFrame
@@ -80,6 +81,9 @@ def summarize_mount(
         note = _height_scale_note(float(out["height"]["mean"]), measurements)  # type: ignore[index]
         if note:
             out["height_scale"] = note
+        note = slow_drive_note(measurements)
+        if note:
+            out["slow_forward"] = note
     return out
 
 
@@ -143,7 +147,8 @@ def summary_markdown(summary: dict[str, object]) -> str:
             f"{f(d['end'])} | {f(d['drift_per_min'])} | {f(d['max_minus_min'])} |"
         )
     warnings = [w for w in (_rejection_warning(summary), str(summary.get("short_drive", "")),
-                            str(summary.get("height_scale", ""))) if w]
+                            str(summary.get("height_scale", "")),
+                            str(summary.get("slow_forward", ""))) if w]
     return "\n".join(lines) + "\n" + "".join(f"\n**Warning:** {w}\n" for w in warnings)
 
 

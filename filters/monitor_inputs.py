@@ -12,7 +12,10 @@ pair measurements the filter is fed, wheel speed, and the filter's states.
   ``min_inliers``; ``standstill`` where the wheel speed is at most ``min_speed_mps`` (a
   stop, as the filters' zero-velocity update), or without wheel speed where the pair's
   travel is below ``min_travel_frac`` of the camera height (the scale of the ground's image
-  motion: the same rule for a 0.2 m/s robot and a 40 m/s car);
+  motion: the same rule for a 0.2 m/s robot and a 40 m/s car); ``slow for a forward
+  camera`` where a level camera's pair travels less than ``min_travel_frac_forward`` of its
+  height (:func:`forward_camera_options`): its pitch reads low and its travel long, pair
+  after pair (docs/kitti.md, "Slow driving"), which the test would take for a changed mount;
 - mount / covariance / gated: from the filter's per-frame states where given.
 """
 
@@ -30,12 +33,21 @@ from vipm_track.measurement import PairMeasurement
 from .body_scale import pair_change
 from .ekf import ExtrinsicsEKF, speed_at
 from .ekf_state import EkfConfig
+from .forward_slow import MIN_TRAVEL_FRAC_FORWARD, SLOW_FORWARD, is_level, slow_pairs
 from .monitor import DriftMonitor
 from .monitor_types import MonitorConfig, MonitorInput, MonitorOutput
 from .nominal import NominalCalibration
 from .pair_height import MIN_SPEED_MPS, MIN_TRAVEL_FRAC, pair_heights
 
 FloatArray = NDArray[np.float64]
+
+
+def forward_camera_options(nominal: NominalCalibration) -> dict[str, float]:
+    """The input options for a camera at ``nominal``: a level camera is not judged on slow
+    pairs (``forward_slow``)."""
+    if is_level(nominal.pitch_deg):
+        return {"min_travel_frac_forward": MIN_TRAVEL_FRAC_FORWARD}
+    return {}
 
 
 @dataclass(frozen=True)
@@ -72,6 +84,7 @@ def input_arrays(
     speed_std_abs_mps: float = 0.002,
     consistency_gate: float = 5.0,
     max_speed_gap_s: float = 0.5,
+    min_travel_frac_forward: float = 0.0,
 ) -> InputArrays:
     """Vectorised core of ``inputs_from_measurements`` on the measurement arrays: ``z`` (n, 7)
     and ``cov`` (n, 7, 7) in the order of ``vipm_track.measurement``, ``status`` per frame."""
@@ -110,6 +123,7 @@ def input_arrays(
         inl = np.asarray(inliers)
         reason[(inl > 0) & (inl < min_inliers)] = "too few inliers"
     reason[still & (reason == "")] = "standstill"
+    reason[slow_pairs(z, h0, min_travel_frac_forward) & (reason == "")] = SLOW_FORWARD
     failed = ~ok
     reason[failed] = np.where(status[failed] == "ok", "no estimate", status[failed])
     pose = np.stack([z[:, 2], z[:, 3], height], axis=1)
@@ -246,7 +260,8 @@ def monitor_frames(
         config = MonitorConfig.from_noise(ekf_config.noise, fps=frame_rate(measurements))
     ekf = ExtrinsicsEKF(ekf_config)
     mon = DriftMonitor(nominal, config)
-    inputs = inputs_from_measurements(measurements, speed, **options)
+    inputs = inputs_from_measurements(measurements, speed,
+                                      **(forward_camera_options(nominal) | options))
     times = np.array([m.t for m in measurements], dtype=float)
     speeds = speed_at(speed, times) if speed is not None else np.full(len(times), np.nan)
     it: Any = zip(measurements, speeds, inputs, strict=True)

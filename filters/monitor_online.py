@@ -36,7 +36,7 @@ from vipm_track.measurement import PairMeasurement
 from .ekf import ExtrinsicsEKF
 from .ekf_state import EkfConfig, FilterState
 from .monitor import DriftMonitor
-from .monitor_inputs import inputs_from_measurements, mount_from_state
+from .monitor_inputs import forward_camera_options, inputs_from_measurements, mount_from_state
 from .monitor_types import MonitorConfig, MonitorInput, MonitorOutput
 from .nominal import NominalCalibration
 from .wheel_speed import SpeedSeries, interpolate_speed
@@ -139,7 +139,8 @@ class OnlineMonitor:
         before = prev if adjacent else PairMeasurement(
             m.frame - 1, t_prev, np.full(7, np.nan), np.full((7, 7), np.nan),
             m.height_assumed, NOT_PROCESSED)
-        inp = inputs_from_measurements([before, m], speed)[-1]
+        inp = inputs_from_measurements([before, m], speed,
+                                       **forward_camera_options(self.nominal))[-1]
         mount, mount_cov, gated = mount_from_state(state)
         inp = replace(inp, mount=mount, mount_cov=mount_cov, gated=gated)
         if hold_reason and inp.usable:

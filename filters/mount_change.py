@@ -30,6 +30,7 @@ caught later, a road's wander not taken for one.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -63,7 +64,8 @@ def short_drive_note(seconds: float, cfg: MountChangeConfig | None = None) -> st
     armed_s = (cfg.min_blocks + cfg.holdout) * cfg.block_s
     if not cfg.enabled or not seconds < armed_s:
         return ""
-    return (f"the drive spans {seconds:.1f} s, less than the {armed_s:g} s the mount-change "
+    spans = math.floor(seconds * 10) / 10  # (5.95 s is not "6.0 s, less than 6 s")
+    return (f"the drive spans {spans:.1f} s, less than the {armed_s:g} s the mount-change "
             "test needs to be fully sensitive: a mount change within it is caught late or not "
             "at all, and the mount intervals assume none (docs/filters.md)")
 

@@ -3,8 +3,10 @@ HOLD / INVALID / hysteresis, events, and batched vs streaming agreement."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
+from collections import Counter
 
 import numpy as np
 import pytest
@@ -12,11 +14,13 @@ from scipy.stats import norm
 
 from vipm_track.errors import InputError
 from vipm_track.filters.drive_sim import DriveConfig, MountChange, simulate_drive
+from vipm_track.filters.forward_slow import SLOW_FORWARD
 from vipm_track.filters.monitor import DriftMonitor, run_monitor, write_events
 from vipm_track.filters.monitor_core import MonitorCore
 from vipm_track.filters.monitor_inputs import (
     input_arrays,
     inputs_from_measurements,
+    monitor_measurements,
     mount_from_state,
 )
 from vipm_track.filters.monitor_stats import cusum_log_arl, cusum_threshold
@@ -477,3 +481,61 @@ def test_height_needs_speed_without_gaps():
     good = ok & ((t < 9.9) | (t > 12.2)) & (t > 0.2) & (t < 29.8)
     assert np.all(np.isfinite(arr.pose[good, 2]))
     assert np.nanmedian(np.abs(arr.pose[good, 2] - 1.5)) < 0.01
+
+
+# --- forward cameras driving slowly -----------------------------------------------------------
+
+
+def _read_slow(run, pitch_bias_deg: float, travel_gain: float):
+    """``run``'s pairs as a level camera's front end reads them at crawling speed: the pitch
+    low and the travel long, pair after pair (docs/kitti.md, "Slow driving": −0.6° and +3 %
+    on car renders at 4 m/s)."""
+    out = []
+    for m in run.measurements:
+        z = m.z.copy()
+        z[[0, 2]] += math.radians(pitch_bias_deg)
+        z[4:6] *= travel_gain
+        out.append(dataclasses.replace(m, z=z))
+    return out
+
+
+def test_a_forward_camera_is_not_judged_on_slow_pairs():
+    """A car at 3 m/s whose pairs read −0.6° and +3 % (what the renders show at that speed)
+    with its camera where it belongs: the monitor called RECALIBRATE ("height −4 cm") within
+    half a second. Its slow pairs are now held; the same pairs at 12 m/s are judged."""
+    slow = drive(60.0, seed=5, speed_min_mps=3.0, speed_max_mps=3.0, stop_probability=0.0)
+    biased = _read_slow(slow, -0.6, 1.03)
+    _, outs = monitor_measurements(biased, NOMINAL, slow.speed)
+    states = Counter(o.state for o in outs)
+    assert states["HOLD"] >= len(outs) - 2, states
+    assert Counter(o.reason for o in outs).most_common(1)[0][0] == SLOW_FORWARD
+    # without the rule the same pairs call the camera knocked
+    _, ungated = monitor_measurements(biased, NOMINAL, slow.speed, min_travel_frac_forward=0.0)
+    assert {"DRIFTING", "RECALIBRATE"} & {o.state for o in ungated}
+    # fast pairs are judged: the same bias at 12 m/s is found
+    fast = drive(60.0, seed=5, speed_min_mps=12.0, speed_max_mps=12.0, stop_probability=0.0)
+    _, outs = monitor_measurements(_read_slow(fast, -0.6, 1.0), NOMINAL, fast.speed)
+    assert "RECALIBRATE" in {o.state for o in outs}
+    assert SLOW_FORWARD not in {o.reason for o in outs}
+
+
+def test_a_steep_camera_is_judged_at_any_speed():
+    steep = NominalCalibration(pitch_deg=45.0, roll_deg=0.0, height_m=0.7)
+    run = simulate_drive(DriveConfig.preset("cart", duration_s=30.0, mount_random_walk=False,
+                                            stop_probability=0.0), seed=3)
+    _, outs = monitor_measurements(run.measurements, steep, run.speed)
+    assert SLOW_FORWARD not in {o.reason for o in outs}
+    assert Counter(o.state for o in outs)["CALIBRATED"] > len(outs) / 2
+
+
+def test_the_drive_summary_says_when_a_forward_camera_drove_slowly():
+    from vipm_track.filters.forward_slow import slow_drive_note
+
+    slow = drive(20.0, seed=6, speed_min_mps=3.0, speed_max_mps=3.0, stop_probability=0.0)
+    note = slow_drive_note(slow.measurements)
+    assert note.startswith(f"{sum(m.ok for m in slow.measurements)} of the ") and "(100%)" in note
+    fast = drive(20.0, seed=6, speed_min_mps=12.0, speed_max_mps=12.0, stop_probability=0.0)
+    assert slow_drive_note(fast.measurements) == ""
+    cart = simulate_drive(DriveConfig.preset("cart", duration_s=20.0, stop_probability=0.0),
+                          seed=6)
+    assert slow_drive_note(cart.measurements) == ""  # a steep camera: no such error

@@ -7,6 +7,9 @@ import argparse
 import math
 import sys
 from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
 
 from ..errors import InputError, NothingUsable
 from ..measurement import PairMeasurement
@@ -58,6 +61,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from vipm_track.filters.ekf_state import EkfConfig
+    from vipm_track.filters.forward_slow import slow_share_note
     from vipm_track.filters.model import NoiseParams
     from vipm_track.filters.mount_change import short_drive_note
     from vipm_track.filters.track import TRACK_TABLE, track, write_track
@@ -97,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("give --images DIR, --video FILE or --estimates EST.csv")
 
     frame_times: list[float] = []
-    usable = [0]
+    usable = _Usable()
     stream = _noting_times(stream, frame_times, usable)
     steps = log_track_steps(sink, track(stream, speed, config))
     if not args.quiet:
@@ -111,21 +115,35 @@ def run(args: argparse.Namespace) -> int:
         summary = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
         print(f"vipm-track track: {sum(counts.values())} frames ({summary}) → {args.out}",
               file=sys.stderr)
-        times = [t for t in frame_times if math.isfinite(t)]
-        note = short_drive_note(times[-1] - times[0]) if len(times) > 1 else ""
-        if note:
+    times = [t for t in frame_times if math.isfinite(t)]
+    for note in (short_drive_note(times[-1] - times[0]) if len(times) > 1 else "",
+                 slow_share_note(np.array(usable.pitch_deg), np.array(usable.slow))):
+        if note:  # said under --quiet too: the mount intervals do not cover it
             print(f"vipm-track track: warning: {note}", file=sys.stderr)
-    if usable[0] == 0:
+    if not usable.pitch_deg:
         raise NothingUsable(f"{args.images or args.video}: no frame has a usable pair "
                             f"estimate; {args.out} holds the filter's priors only")
     return 0
 
 
-def _noting_times(stream: Iterator[PairMeasurement], times: list[float], usable: list[int],
+@dataclass
+class _Usable:
+    """The usable pairs seen: each one's pitch [deg] and whether it was slow
+    (``forward_slow``)."""
+
+    pitch_deg: list[float] = field(default_factory=list)
+    slow: list[bool] = field(default_factory=list)
+
+
+def _noting_times(stream: Iterator[PairMeasurement], times: list[float], usable: _Usable,
                   ) -> Iterator[PairMeasurement]:
-    """``stream`` unchanged, each measurement's time appended to ``times`` and ``usable[0]``
-    counting the usable ones as they pass."""
+    """``stream`` unchanged, each measurement's time appended to ``times`` and the usable
+    ones noted in ``usable`` as they pass."""
+    from vipm_track.filters.forward_slow import slow_pairs
+
     for m in stream:
         times.append(m.t)
-        usable[0] += m.ok
+        if m.ok:
+            usable.pitch_deg.append(math.degrees(m.z[2]))
+            usable.slow.append(bool(slow_pairs(m.z[None, :], np.array([m.height_assumed]))[0]))
         yield m

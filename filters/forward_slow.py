@@ -1,0 +1,72 @@
+"""Forward cameras driving slowly: a level camera's pitch reads low and its travel long, pair
+after pair, where the far field moves under a pixel per frame (docs/kitti.md, "Slow
+driving"). Car renders at 20 and 30 fps, h 1.5 m, median over the pairs of two seeds:
+
+| travel per frame / height | 0.10 | 0.17 | 0.20 | 0.24 | 0.27–0.31 |
+| --- | --- | --- | --- | --- | --- |
+| pitch error | −0.43 … −0.60° | −0.33 … −0.40° | −0.12 … −0.20° | −0.07 … +0.01° | ≤ 0.02° |
+
+It is one way over a whole slow stretch, so averaging pairs does not remove it and their
+standard deviations do not cover it: the monitor does not judge such pairs, and the drive
+summary says how many of them it rests on.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from vipm_track.estimator_config import LEVEL_MAX_PITCH_DEG
+from vipm_track.measurement import PairMeasurement
+
+#: a level camera's pair is judged from this travel per frame on [share of the height]
+MIN_TRAVEL_FRAC_FORWARD = 0.25
+#: the HOLD reason of such a pair in the monitor
+SLOW_FORWARD = "slow for a forward camera"
+#: share of a drive's usable pairs beyond which the summary calls the slow ones out
+SLOW_SHARE_WARNING = 0.1
+
+
+def is_level(pitch_deg: float) -> bool:
+    """A forward-looking camera near the horizontal (the estimator's level defaults)."""
+    return bool(pitch_deg < LEVEL_MAX_PITCH_DEG)
+
+
+def slow_pairs(z: NDArray[np.float64], height_assumed: NDArray[np.float64],
+               min_travel_frac: float = MIN_TRAVEL_FRAC_FORWARD) -> NDArray[np.bool_]:
+    """(n,) pairs ``z`` (n, 7) whose travel is below ``min_travel_frac`` of the height they
+    assumed (the scale cancels: the travel is in units of that height); NaN travel is not
+    slow."""
+    travel = np.hypot(z[:, 4], z[:, 5])
+    with np.errstate(invalid="ignore"):
+        return travel < min_travel_frac * np.asarray(height_assumed, dtype=float)
+
+
+def slow_drive_note(measurements: Sequence[PairMeasurement]) -> str:
+    """A warning where a level camera's usable pairs are slow in more than
+    ``SLOW_SHARE_WARNING`` of the drive ("" otherwise; :func:`slow_share_note`)."""
+    ok = [m for m in measurements if m.ok]
+    if not ok:
+        return ""
+    z = np.array([m.z for m in ok])
+    return slow_share_note(np.degrees(z[:, 2]),
+                           slow_pairs(z, np.array([m.height_assumed for m in ok])))
+
+
+def slow_share_note(pitch_deg: NDArray[np.float64], slow: NDArray[np.bool_]) -> str:
+    """The warning for usable pairs of measured pitches ``pitch_deg`` [deg] of which ``slow``
+    are slow: where their median pitch is a level camera's and the slow share exceeds
+    ``SLOW_SHARE_WARNING``; "" otherwise."""
+    slow = np.asarray(slow, dtype=bool)
+    if slow.size == 0 or not is_level(float(np.median(pitch_deg))):
+        return ""
+    share = float(np.mean(slow))
+    if share <= SLOW_SHARE_WARNING:
+        return ""
+    return (f"{int(slow.sum())} of the {slow.size} usable pairs ({share:.0%}) travel less than "
+            f"{MIN_TRAVEL_FRAC_FORWARD:g} camera heights per frame: a forward camera's pitch "
+            "reads low there (up to ~0.6°) and its travel long (the height with wheel speed "
+            "low), one way for the whole stretch, which the mount intervals do not include; "
+            "judge the mount from faster driving (docs/kitti.md, \"Slow driving\")")
