@@ -303,6 +303,8 @@ def test_manifest(drives, tmp_path):
     x, y = find_drives(manifest)
     assert x.problem == "" and x.vehicle == "van1" and x.speed_csv == drives / "a" / "speed.csv"
     assert "line 3: not found: images" in y.problem
+    manifest.write_bytes(b"\xef\xbb\xbf" + manifest.read_bytes())  # saved as Excel's CSV UTF-8
+    assert [s.drive for s in find_drives(manifest)] == ["x", "y"]
     manifest.write_text("drive,colour\nx,red\n")
     with pytest.raises(InputError, match=r"m.csv: line 1: unknown column\(s\) \['colour'\]"):
         find_drives(manifest)

@@ -177,7 +177,7 @@ def read_manifest(path: Path) -> list[DriveSpec]:
     empty cells for what a drive lacks; paths relative to the manifest). InputError naming
     the file, line and column for an unknown column, a missing drive name or a bad fps."""
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # (a BOM: a spreadsheet's CSV)
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: not a text file (byte {exc.start}); a manifest is CSV") \
             from None
