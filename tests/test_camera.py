@@ -110,6 +110,8 @@ def test_kitti_calib_takes_the_size_of_the_frames_it_is_used_on(tmp_path, capsys
     ({"camera_matrix": {"data": [729.0, 0, 400, 0, "x", 300, 0, 0, 1]}}, "camera_matrix"),
     ({"camera_matrix": {"data": [0.0, 0, 400, 0, 729, 300, 0, 0, 1]}}, "camera_matrix"),
     ({"camera_matrix": {"data": [729.0, 0, 400, 0, -729, 300, 0, 0, 1]}}, "camera_matrix"),
+    ({"camera_matrix": {"data": [729.0, 0, 5000.5, 0, 729, 300, 0, 0, 1]}}, "camera_matrix"),
+    ({"camera_matrix": {"data": [729.0, 0, 400, 0, 729, -3, 0, 0, 1]}}, "camera_matrix"),
     ({"image_width": 0}, "image_width"),
     ({"distortion_model": "fancy"}, "distortion_model"),
     ({"distortion_coefficients": {"data": [0.1, 0.2, 0.3]}}, "distortion_coefficients"),

@@ -185,19 +185,23 @@ def test_smoothed_summary_interval_is_honest_on_the_real_drive():
 
 
 def test_monitor_on_the_real_drive_needs_the_road_model(tmp_path: Path):
-    # KITTI's camera did not move, so any RECALIBRATE is a false alarm. The flat-ground
-    # monitor (the default) raises one within seconds: the road's slow camber/slope
-    # excursions look like a moved camera to it. With the road-tilt model it stays quiet.
+    # KITTI's camera did not move, so any DRIFTING or RECALIBRATE is a false alarm. The
+    # flat-ground monitor (the default) raises one: the road's slow camber/slope excursions
+    # look like a moved camera to it. With the road-tilt model it stays quiet. The slow start
+    # (under 0.25 heights per frame) is held, not judged (it called RECALIBRATE at 2.9 s).
     nominal = tmp_path / "nominal.yaml"
     nominal.write_text("pitch_deg: 1.0\nroll_deg: 0.0\nheight_m: 1.65\n"
                        "tolerances: {pitch_deg: 0.1, roll_deg: 0.1, height_m: 0.005}\n")
-    first = {}
+    states = {}
     for name, extra in (("flat", []), ("road", ["--road-std", "0.5", "--road-tau", "2"])):
         out = tmp_path / f"{name}.csv"
         assert main(["monitor", "--estimates", str(KITTI_ESTIMATES), "--height", "1.65",
                      "--nominal", str(nominal), "--out", str(out), "--quiet", *extra]) == 0
         table = read_table(out)
-        flagged = np.asarray(table["monitor_state"], dtype=object) == "RECALIBRATE"
-        first[name] = float(np.asarray(table["t"])[flagged][0]) if flagged.any() else None
-    assert first["flat"] is not None and first["flat"] < 5.0
-    assert first["road"] is None
+        states[name] = np.asarray(table["monitor_state"], dtype=object)
+        reasons = np.asarray(table["reason"], dtype=object)
+        slow = reasons == "slow for a forward camera"
+        t = np.asarray(table["t"])
+        assert slow.sum() > 30 and t[slow].max() < 6.0  # the slow start, not the rest
+    assert {"DRIFTING", "RECALIBRATE"} & set(states["flat"])
+    assert not {"DRIFTING", "RECALIBRATE"} & set(states["road"])

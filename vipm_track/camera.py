@@ -355,6 +355,13 @@ def _build(
         raise CameraFileError(
             path, f"image size must be positive, got {width}×{height}", "image_width"
         )
+    if not (0 <= k[0, 2] <= width and 0 <= k[1, 2] <= height):
+        # a typing error (a crop's camera may have it outside, a calibration file not): the
+        # region of interest then held no interest point, said without the file or field
+        raise CameraFileError(
+            path, f"principal point cx={k[0, 2]:g}, cy={k[1, 2]:g} lies outside the "
+            f"{width}×{height} image", k_field
+        )
     model = {"equidistant": "equidistant", "fisheye": "equidistant", "": "plumb_bob"}.get(
         model, model
     )
