@@ -242,6 +242,7 @@ def test_streamed_monitor_judges_as_the_whole_sequence_does(est, nominal):
     from vipm_track.filters.ekf_state import EkfConfig
     from vipm_track.filters.monitor import DriftMonitor
     from vipm_track.filters.monitor_inputs import (
+        forward_camera_options,
         frame_rate,
         inputs_from_measurements,
         monitor_frames,
@@ -253,7 +254,8 @@ def test_streamed_monitor_judges_as_the_whole_sequence_does(est, nominal):
     def monitor_measurements(ms, nom, sp, cfg, ekf):
         states = run_filter(ms, sp, ekf)
         mon = DriftMonitor(nom, cfg)
-        return states, [mon.update(i) for i in inputs_from_measurements(ms, sp, states)]
+        inputs = inputs_from_measurements(ms, sp, states, **forward_camera_options(nom))
+        return states, [mon.update(i) for i in inputs]
 
     ms = read_estimates(str(est))
     nom = load_nominal(nominal)
