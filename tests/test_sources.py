@@ -95,6 +95,17 @@ def test_bad_options_fail_fast(kwargs: dict, message: str) -> None:
         open_source(**kwargs)
 
 
+def test_a_folder_or_an_image_given_as_a_video_is_named_so(tmp_path: Path) -> None:
+    """--video on a folder said "video file not found"; on a PNG OpenCV played it as a
+    5-frame video that ended in "0/5 frames ok"."""
+    with pytest.raises(SourceError, match=r"a folder, not a video; .*--images"):
+        open_source(video=tmp_path)
+    image = tmp_path / "000000.png"
+    cv2.imwrite(str(image), np.zeros((8, 8), np.uint8))
+    with pytest.raises(SourceError, match=r"an image, not a video; .*--images"):
+        open_source(video=image)
+
+
 def test_folder_problems(tmp_path: Path) -> None:
     with pytest.raises(SourceError, match="no images in the folder"):
         open_source(images=tmp_path, fps=10.0)

@@ -101,3 +101,11 @@ def test_a_disk_that_fills_up_mid_row_leaves_only_complete_rows(tmp_path):
     writer.close()
     header, row, *rest = path.read_text().split("\n")
     assert header.startswith("frame,t,") and row.startswith("0,0.0,") and rest == [""]
+
+
+def test_a_folder_given_as_a_table_is_named_so(tmp_path):
+    """`report FOLDER` said "file not found" for a folder that is there."""
+    from vipm_track.table import TableError, read_table
+
+    with pytest.raises(TableError, match="a folder, not a table"):
+        read_table(tmp_path)

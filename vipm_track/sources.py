@@ -312,8 +312,15 @@ class VideoSource(FrameSource):
         max_frames: int | None = None,
     ) -> None:
         self.path = Path(path)
+        if self.path.is_dir():
+            raise SourceError(f"{self.path}: a folder, not a video; for a folder of images "
+                              "give --images")
         if not self.path.is_file():
             raise SourceError(f"{self.path}: video file not found")
+        if self.path.suffix.lower() in IMAGE_SUFFIXES:
+            # (OpenCV opens a PNG as a one-image "video": 0 of 5 frames ok, exit 1)
+            raise SourceError(f"{self.path}: an image, not a video; give the folder of the "
+                              "images with --images")
         capture = self._open()
         try:
             self.container_fps = float(capture.get(cv2.CAP_PROP_FPS) or 0.0)

@@ -342,6 +342,8 @@ def read_table(path: str | Path, required: Sequence[str] = BASE_COLUMNS[:2], *,
     ``quiet``: a cut last row is left out without a warning (for a reading whose caller
     reads the table again, which names it)."""
     path = Path(path)
+    if path.is_dir():
+        raise TableError(f"{path}: a folder, not a table; give a CSV or Parquet file")
     if not path.is_file():
         raise TableError(f"{path}: file not found")
     if path.suffix == ".parquet":
