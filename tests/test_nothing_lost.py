@@ -538,7 +538,7 @@ def test_wrong_image_size_names_both_sizes(tmp_path):
     cv2.imwrite(str(images / "000001.png"), np.zeros((24, 32), np.uint8))
     steps = list(run_sequence(open_source(images=images, fps=10), rig,
                               estimator=object()))
-    assert steps[1].status == "wrong image size 32×24 (camera 40×30)"
+    assert steps[1].status == "wrong image size 32×24 (camera 40×30): 000001.png"
 
 
 def test_simulate_into_an_earlier_run_leaves_no_stale_images(tmp_path, capsys):

@@ -108,7 +108,7 @@ def test_wrong_size_first_frame_fails_fast_later_frames_get_a_row(tmp_path: Path
     steps = list(run_sequence(open_source(images=folder), RIG, tracking=False,
                               estimator=_FakeEstimator()))
     assert [s.status for s in steps] == [
-        FIRST_FRAME, f"{WRONG_SIZE} 41×30 (camera 40×30)", NO_PREVIOUS]
+        FIRST_FRAME, f"{WRONG_SIZE} 41×30 (camera 40×30): 000001.png", NO_PREVIOUS]
 
 
 def test_bad_rig_is_an_input_error() -> None:

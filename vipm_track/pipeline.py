@@ -125,8 +125,9 @@ def run_sequence(
                 raise InputError(f"{source.description}: {exc}") from exc
             prev_image, previous_ok = None, None
             h, w = frame.image.shape[:2]
-            yield SequenceStep(frame.index, frame.t, None,
-                               f"{WRONG_SIZE} {w}×{h} (camera {camera.width}×{camera.height})")
+            named = f": {frame.name}" if frame.name else ""  # (as an unreadable frame is)
+            yield SequenceStep(frame.index, frame.t, None, f"{WRONG_SIZE} {w}×{h} (camera "
+                               f"{camera.width}×{camera.height}){named}")
             continue
         checked_size = True
         if prev_image is None:
