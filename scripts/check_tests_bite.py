@@ -130,8 +130,8 @@ MUTANTS: tuple[Mutant, ...] = (
     # --- smoother ----------------------------------------------------------------------------
     Mutant("smoother-pairs-weightless", "smoother",
            "dropped term: pair factors carry no information (covariance × 10⁶)",
-           "filters/smoother.py", "cov = nz.pair_covariance(m.covariance, m.z[6])\n",
-           "cov = 1e6 * nz.pair_covariance(m.covariance, m.z[6])\n", SMOOTHER_TESTS),
+           "filters/smoother.py", "cov = cfg.noise.pair_covariance(m.covariance, m.z[6])\n",
+           "cov = 1e6 * cfg.noise.pair_covariance(m.covariance, m.z[6])\n", SMOOTHER_TESTS),
     Mutant("smoother-no-speed", "smoother", "dropped term: no wheel-speed factor",
            "filters/smoother.py", "    if math.isfinite(speed):\n        out.append(F.speed_factor",
            "    if False:\n        out.append(F.speed_factor", SMOOTHER_TESTS),
