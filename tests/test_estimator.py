@@ -872,3 +872,23 @@ def test_refinements_on_halved_planes_keep_a_level_camera_accurate(monkeypatch):
         assert err["pitch"] < 0.05 and err["roll"] < 0.08, err
         assert err["dist_mm"] < 2.0 and err["yaw"] < 0.01, err
     assert calls and all(level == 1 and np.all(centres % 2 == 0) for level, centres in calls)
+
+
+@pytest.mark.parametrize(("inlier_share", "retry", "fails"), [
+    (0.2, False, True), (0.5, False, False), (0.5, True, True), (0.7, True, False)])
+def test_a_cold_start_with_too_few_inliers_is_a_wrong_minimum(inlier_share, retry, fails):
+    """The inlier-share guard on its own: every patch correlates as well as the inliers do
+    (so the correlated-share guard passes them), and only the share of inliers among the
+    measured patches says the fit is a wrong minimum (40 % cold, 60 % on a retry)."""
+    from vipm_track.cold_start import reject_wrong_minimum
+    from vipm_track.pair_result import STATUS_OK, PatchField
+
+    n = 100
+    inliers = np.arange(n) < round(inlier_share * n)
+    stage = PatchField("ipm", np.zeros((n, 2)), np.zeros((n, 2)), np.full(n, 0.5), inliers,
+                       np.full(n, 128))
+    result = PairResult(STATUS_OK, stages=[stage])
+    reject_wrong_minimum(result, steep=True, min_peak=0.1, retry=retry)
+    assert (result.status == STATUS_FEW_INLIERS) == fails, result.reason
+    if fails:
+        assert "a wrong minimum" in result.reason
