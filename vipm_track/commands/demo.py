@@ -109,11 +109,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _check_rerun_images(args: argparse.Namespace) -> None:
-    """InputError for ``--rerun-image-every`` < 0 or ``--rerun-jpeg-quality`` outside 1..100,
-    before the drive is rendered (the sink that would say so opens after it)."""
-    every = args.rerun_image_every
-    if every is not None and every < 0:
-        raise InputError(f"--rerun-image-every must be >= 0, got {every}")
-    if not 1 <= args.rerun_jpeg_quality <= 100:
-        raise InputError(f"--rerun-jpeg-quality must be in 1..100, got "
-                         f"{args.rerun_jpeg_quality}")
+    """The rerun image options checked before the drive is rendered (the sink that checks
+    them opens after it)."""
+    from ..sinks.rerun_sink import check_image_options
+
+    check_image_options(args.rerun_image_every, args.rerun_jpeg_quality)

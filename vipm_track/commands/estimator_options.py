@@ -19,6 +19,7 @@ from ..estimator_config import REFINEMENT_WEIGHTING
 from ..rig import DEFAULT_PITCH_DEG, Rig
 from ..text_files import read_text
 from .common import seconds_or_auto
+from .option_types import whole_number
 
 #: ``--refinement-weights`` → EstimatorConfig fields ("auto": the estimator's per-camera
 #: default)
@@ -109,23 +110,11 @@ def add_parallel_options(parser: argparse.ArgumentParser) -> None:
                        help="frames per chunk (default with --workers > 1: 500; given with "
                        "--workers 1, the same chunks run one after another); each chunk's "
                        "first pair starts cold, as after a failed pair")
-    group.add_argument("--threads", type=_thread_count, default=None, metavar="T",
+    group.add_argument("--threads", type=whole_number(1), default=None, metavar="T",
                        help="threads of one pair's work: its patches' correlation and its "
                        "random subsets' LM, and with T > 1 the next frame read ahead (default: "
                        "2, or the machine's cores if fewer); with --workers > 1 each process "
                        "uses one and T has no effect; the estimates do not depend on it")
-
-
-def _thread_count(text: str) -> int:
-    """``--threads``: a whole number >= 1 (checked as the options are read, whether or not
-    the command estimates)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
-    return value
 
 
 def parallel_settings(args: argparse.Namespace) -> dict[str, Any]:

@@ -98,6 +98,15 @@ MONITOR_LEVELS = {"RECALIBRATE": "ERROR", "INVALID": "ERROR", "DRIFTING": "WARN"
 #: seconds ``RerunSink.finish`` waits for the recording to reach its sinks
 FLUSH_TIMEOUT_S = 5.0
 
+def check_image_options(image_every: int | None, jpeg_quality: int) -> None:
+    """InputError for ``--rerun-image-every`` < 0 or ``--rerun-jpeg-quality`` outside
+    1..100."""
+    if image_every is not None and image_every < 0:
+        raise InputError(f"--rerun-image-every must be >= 0, got {image_every}")
+    if not 1 <= jpeg_quality <= 100:
+        raise InputError(f"--rerun-jpeg-quality must be in 1..100, got {jpeg_quality}")
+
+
 class RerunSink:
     """Log a run to a rerun recording (see the module doc for the entities).
 
@@ -128,10 +137,7 @@ class RerunSink:
         image_period_s: float = IMAGE_PERIOD_S,
         layout: str = "estimate",
     ) -> None:
-        if image_every is not None and image_every < 0:
-            raise InputError(f"--rerun-image-every must be >= 0, got {image_every}")
-        if not 1 <= jpeg_quality <= 100:
-            raise InputError(f"--rerun-jpeg-quality must be in 1..100, got {jpeg_quality}")
+        check_image_options(image_every, jpeg_quality)
         if max_image_side < 16:
             raise InputError(f"rerun max image side must be >= 16 px, got {max_image_side}")
         self.rec = recording
