@@ -77,7 +77,7 @@ def run_row(profile: str, texture: str | None, effects: Effects | None, pairs: i
     cam = preset.camera()
     cfg = EstimatorConfig(refinements=2)
     cfg_paper = EstimatorConfig(refinements=1, vertical_motion=False, moved_ipm=False,
-                                **REFINEMENT_WEIGHTING["uniform"])
+                                blur_invariant_ipm=False, **REFINEMENT_WEIGHTING["uniform"])
     errs = Errors()
     times = []
     prev = render_trajectory_frame(tex, cam, traj, 0, effects)

@@ -240,3 +240,48 @@ def test_large_grey_levels_do_not_overflow_the_cross_power(weighting: float) -> 
     assert unit[1] > 0.9
     np.testing.assert_allclose(scaled[0], unit[0], atol=1e-3)
     assert abs(scaled[1] - unit[1]) < 1e-3
+
+
+def _box_blurred(patches: np.ndarray, rows: int) -> np.ndarray:
+    """``patches`` smeared along the columns by a box ``rows`` pixels long (centred: a
+    pitch rate during the exposure), mirrored at the edges."""
+    kernel = np.ones((rows, 1)) / rows
+    return np.array([cv2.filter2D(p, -1, kernel, borderType=cv2.BORDER_REFLECT)
+                     for p in patches])
+
+
+@pytest.mark.parametrize("name", ["gravel", "grass", "brick"])
+def test_blur_invariant_poc_is_not_pulled_off_by_a_blur_only_one_patch_has(name: str) -> None:
+    ref, mov, true = _shifted_pairs(name, 16, 128, 2.5, seed=4)
+    blurred = _box_blurred(mov, 9)
+    plain, _ = correlate_spectra(patch_spectra(ref), patch_spectra(blurred))
+    invariant, peak = correlate_spectra(patch_spectra(ref), patch_spectra(blurred),
+                                        blur_invariant=True)
+    # the box's negative lobe turns the phase of the band's upper vertical frequencies by π:
+    # the plain peak splits and moves along the smear by pixels
+    assert _rmse(plain, true) > 0.5
+    assert _rmse(invariant, true) < 0.15 and _rmse(invariant, true) < _rmse(plain, true) / 5
+    assert (peak > 0.3).all()
+
+
+def test_blur_invariant_poc_equals_the_plain_one_on_sharp_patches() -> None:
+    ref, mov, true = _shifted_pairs("gravel", 16, 128, 2.5, seed=5)
+    plain, plain_peak = correlate_spectra(patch_spectra(ref), patch_spectra(mov))
+    invariant, peak = correlate_spectra(patch_spectra(ref), patch_spectra(mov),
+                                        blur_invariant=True)
+    np.testing.assert_allclose(invariant, plain, atol=0.01)
+    assert _rmse(invariant, true) < 0.03
+    assert (peak > 0.5).all() and (peak <= plain_peak + 1e-6).all()
+
+
+@pytest.mark.parametrize("true", [(36.3, -3.2), (-2.6, -37.1), (-35.5, 4.4)])
+def test_blur_invariant_poc_takes_the_right_one_of_the_two_halved_shifts(
+        true: tuple[float, float]) -> None:
+    """Twice the shift is known modulo the patch: a shift beyond a quarter of it doubles to
+    the same peak as one half a patch away, and the plain POC function tells them apart."""
+    tex = _texture("gravel")
+    moved = _fourier_shift(tex, true)
+    centres = np.array([[200.0, 260.0], [260.0, 300.0], [300.0, 220.0]])
+    shift, peak = match_patches(tex, moved, centres, 128, blur_invariant=True)
+    assert (peak > 0.1).all()
+    np.testing.assert_allclose(shift, np.tile(true, (3, 1)), atol=0.2)

@@ -153,6 +153,13 @@ class EstimatorConfig:
         (default): on for steep cameras (a turning cart's pose error falls tenfold), off for
         forward-looking ones (more pairs ok in sharp turns, but less accurate travel on
         the pairs ok either way; docs/kitti.md).
+    blur_invariant_ipm : refinements correlate the IPM patches' phases modulo π
+        (``poc.correlate_spectra``): a body that pitches faster during one frame's exposure
+        than during the other's blurs the two differently, which biased a steep camera's
+        pitch by degrees with a standard deviation that did not show it. None (default): on
+        for steep cameras, off for forward-looking ones (whose far-field IPM patches, stretched
+        many times, carry too little above the noise: fewer pairs ok and a worse travel on
+        KITTI 07; docs/blur.md).
     seed : seed of the subset sampler (runs are deterministic).
     keep_images : keep the last refinement's IPM images in the result.
     """
@@ -199,6 +206,7 @@ class EstimatorConfig:
     recentre_windows: bool | None = None
     inlier_median_factor: float | None = None
     moved_ipm: bool | None = None
+    blur_invariant_ipm: bool | None = None
     seed: int = 0
     keep_images: bool = False
 
@@ -250,6 +258,7 @@ def with_camera_defaults(config: EstimatorConfig, level: bool) -> EstimatorConfi
         "stage_median": level,
         "pose_prior_deg": 2.0 if level else 0.0,
         "moved_ipm": not level,
+        "blur_invariant_ipm": not level,
         "cold_pitch_steps_deg": COLD_PITCH_STEPS_DEG["level" if level else "steep"],
         **REFINEMENT_WEIGHTING["uniform" if level else "noise"],
     }

@@ -44,11 +44,11 @@ MAX_LEVEL_BAND = 1.0
 
 def match_grouped(
     ref: NDArray, moving: NDArray, centres: FloatArray, sizes: NDArray[np.int64],
-    offsets: FloatArray, recentre: bool = False, level: int = 0,
+    offsets: FloatArray, recentre: bool = False, level: int = 0, blur_invariant: bool = False,
 ) -> tuple[FloatArray, FloatArray]:
     """POC displacements (N, 2) and peaks (N,) of patches batched by size (one call per
     size, or per part of a size on ``workers.threads()`` threads); NaN displacement and zero
-    peak where ``sizes`` is 0.
+    peak where ``sizes`` is 0; ``blur_invariant``: phases modulo π (``poc.correlate_spectra``).
 
     ``level`` > 0 correlates on both planes halved ``level`` times (``cv2.pyrDown``): the
     patches cover the same ground at ``sizes / 2**level`` pixels, on the band that holds
@@ -64,14 +64,16 @@ def match_grouped(
         # cv2.pyrDown's pixel i is the full plane's pixel 2i
         small = np.where(sizes >= factor * poc.MIN_SIZE, sizes // factor, 0)
         disp, peaks = _match_batches(ref, moving, centres / factor, small,
-                                     np.asarray(offsets) / factor, recentre, level_band(level))
+                                     np.asarray(offsets) / factor, recentre, level_band(level),
+                                     blur_invariant)
         return disp * factor, peaks
-    return _match_batches(ref, moving, centres, sizes, offsets, recentre, poc.DEFAULT_BAND)
+    return _match_batches(ref, moving, centres, sizes, offsets, recentre, poc.DEFAULT_BAND,
+                          blur_invariant)
 
 
 def _match_batches(
     ref: NDArray, moving: NDArray, centres: FloatArray, sizes: NDArray[np.int64],
-    offsets: FloatArray, recentre: bool, band: float,
+    offsets: FloatArray, recentre: bool, band: float, blur_invariant: bool,
 ) -> tuple[FloatArray, FloatArray]:
     """:func:`match_grouped` at the planes' own resolution, on ``band``."""
     disp = np.full((len(centres), 2), np.nan)
@@ -81,7 +83,8 @@ def _match_batches(
                                                           FloatArray]:
         s, sel = batch
         d, p = poc.match_patches(ref, moving, centres[sel], s, offsets=np.round(offsets[sel]),
-                                 recentre=recentre, band=band)
+                                 recentre=recentre, band=band,
+                                 blur_invariant=blur_invariant)
         return sel, d, p
 
     batches = _batches(sizes)

@@ -20,7 +20,16 @@ for a whole batch of patch pairs at once:
    peak (two, the default, suffice from the parabola start). With ``w = 1`` this is the peak that
    Takita's peak-model fit approximates; the default weights ``w = |F_mov F_ref|^0.5``
    (partial whitening) trust the strong, less noisy frequencies more and halve the error
-   on weakly textured patches.
+   on weakly textured patches;
+5. optionally (``blur_invariant``), blur-invariant phase correlation (Ojansivu & Heikkilä
+   2007): a centrally symmetric blur (a box along the image motion during the exposure)
+   multiplies a spectrum by a real transfer function whose negative lobes turn those
+   frequencies' phases by π. Where the two patches are blurred differently (a body that
+   pitches faster in one frame than in the other), those frequencies pull the plain peak
+   off the shift (steps 3–4). Squaring each phasor of R doubles its phase and removes the π:
+   the same steps on R² find twice the shift, modulo the patch; of the two shifts per
+   axis that double to it, the one where the plain POC function is largest in magnitude
+   is taken.
 
 Sign convention (as ``CONVENTIONS.md``'s image coordinates: x right, y down, pixels):
 ``shift = (dx, dy)`` is the displacement of the content from ``ref`` to ``moving``,
@@ -136,7 +145,8 @@ def patch_spectra(patches: ArrayLike, *, band: float = DEFAULT_BAND, window: boo
 
 def correlate_spectra(ref: PatchSpectra, moving: PatchSpectra, *,
                       iterations: int = DEFAULT_ITERATIONS, weighting: float = DEFAULT_WEIGHTING,
-                      workers: int | None = None) -> tuple[FloatArray, FloatArray]:
+                      blur_invariant: bool = False, workers: int | None = None,
+                      ) -> tuple[FloatArray, FloatArray]:
     """Return the sub-pixel shifts and POC peak heights between two batches of spectra.
 
     Parameters
@@ -150,6 +160,10 @@ def correlate_spectra(ref: PatchSpectra, moving: PatchSpectra, *,
         0 is pure POC (every frequency counts the same); larger values trust the strong
         frequencies, whose phase is less noisy, more (beyond 1 the window's leakage at the
         lowest frequencies starts to dominate and biases the shift).
+    blur_invariant : bool
+        Correlate the phases modulo π (module doc, step 5): the shift of content blurred
+        differently in the two patches, by any centrally symmetric blur, is not biased; the
+        peak is then that of the blur-invariant POC function.
     workers : int, optional
         Threads of ``scipy.fft``.
 
@@ -182,9 +196,15 @@ def correlate_spectra(ref: PatchSpectra, moving: PatchSpectra, *,
     r, rw, small = poc_kernels.cross_power(
         _interleaved(ref), _interleaved(moving), ok, layout.hermitian,
         layout.small_rows, layout.grid, float(weighting))
+    if blur_invariant:
+        plain = r
+        r, rw, small = poc_kernels.squared_phasors(r, rw, layout.hermitian, layout.small_rows,
+                                                   layout.grid)
     surface = scipy.fft.irfft2(small, s=layout.grid, workers=workers or _default_workers())
     d, value = poc_kernels.subpixel_peaks(surface, r, rw, layout.uy, layout.ux, (h, w),
                                           int(iterations))
+    if blur_invariant:
+        d = poc_kernels.halved_shifts(d, plain, layout.uy, layout.ux, (h, w))
     value /= layout.n_frequencies
     usable = (value > 0) & (np.abs(d) < [w / 2, h / 2]).all(axis=1)
     shift[ok[usable]] = d[usable]
@@ -293,7 +313,7 @@ def match_patches(img_ref: ArrayLike, img_moving: ArrayLike, centres_ref: ArrayL
                   size: int | tuple[int, int], offsets: ArrayLike | None = None, *,
                   band: float = DEFAULT_BAND, iterations: int = DEFAULT_ITERATIONS,
                   weighting: float = DEFAULT_WEIGHTING, recentre: bool = False,
-                  workers: int | None = None,
+                  blur_invariant: bool = False, workers: int | None = None,
                   ) -> tuple[FloatArray, FloatArray]:
     """Return the displacement of each patch from ``img_ref`` to ``img_moving``.
 
@@ -318,6 +338,8 @@ def match_patches(img_ref: ArrayLike, img_moving: ArrayLike, centres_ref: ArrayL
         biases it least. Costs a second correlation.
     band, iterations, weighting, workers
         As :func:`phase_correlate`.
+    blur_invariant : bool
+        As :func:`correlate_spectra`.
 
     Returns
     -------
@@ -341,7 +363,8 @@ def match_patches(img_ref: ArrayLike, img_moving: ArrayLike, centres_ref: ArrayL
     ref_spec = _cropped_spectra(img_ref, centres, size, band, workers)
     mov_spec = _cropped_spectra(img_moving, centres + offset, size, band, workers)
     residual, peak = correlate_spectra(ref_spec, mov_spec, iterations=iterations,
-                                       weighting=weighting, workers=workers)
+                                       weighting=weighting, blur_invariant=blur_invariant,
+                                       workers=workers)
     shift = offset + residual
     if recentre:
         # only patches whose rounded displacement moved are cropped anew: the others' second
@@ -352,7 +375,9 @@ def match_patches(img_ref: ArrayLike, img_moving: ArrayLike, centres_ref: ArrayL
             again = _cropped_spectra(img_moving, centres[moved] + at, size, band, workers)
             residual, peak[moved] = correlate_spectra(ref_spec[moved], again,
                                                       iterations=iterations,
-                                                      weighting=weighting, workers=workers)
+                                                      weighting=weighting,
+                                                      blur_invariant=blur_invariant,
+                                                      workers=workers)
             shift[moved] = at + residual
     return shift, peak
 

@@ -243,3 +243,99 @@ def subpixel_peaks(surface: Float32Array, r: Float32Array, rw: Float32Array,
         d[k, 0], d[k, 1] = dx, dy
         value[k] = _moments(r[k], uy, ux, dx, dy)[0]
     return d, value
+
+
+@reduction_kernel
+def squared_phasors(r: Float32Array, rw: Float32Array, hermitian: Float32Array,
+                    small_rows: NDArray[np.intp], grid: tuple[int, int],
+                    ) -> tuple[Float32Array, Float32Array, NDArray[np.complex64]]:
+    """The blur-invariant counterparts of :func:`cross_power`'s outputs ``r`` and ``rw``:
+    each unit phasor ``R`` squared (its phase doubled, so a frequency whose phase a centrally
+    symmetric blur turned by π counts as one it left alone; Ojansivu & Heikkilä 2007),
+    times the Hermitian weights and, for the fit, the same weights ``|F_mov F_ref|^α``;
+    and ``R²`` on the small grid. Their POC function peaks at twice the shift."""
+    m, ky, kx2 = r.shape
+    kx = kx2 // 2
+    r2 = np.empty_like(r)
+    rw2 = np.empty_like(rw)
+    small = np.zeros((m, grid[0], grid[1] // 2 + 1), np.complex64)
+    for k in range(m):
+        for j in range(ky):
+            a, b, herm = r[k, j], rw[k, j], hermitian[j]
+            o, ow = r2[k, j], rw2[k, j]
+            dst = small[k, small_rows[j]]
+            for i in range(kx):
+                re, im, weight_h = a[2 * i], a[2 * i + 1], herm[i]
+                mag = np.sqrt(re * re + im * im)
+                if weight_h > 0 and mag > 0:
+                    # r = h·R, so h·R² = r²/h; the fit's weight is |rw| / |r|
+                    sr, si = (re * re - im * im) / weight_h, 2 * re * im / weight_h
+                    weight = np.sqrt(b[2 * i] * b[2 * i] + b[2 * i + 1] * b[2 * i + 1]) / mag
+                else:
+                    sr, si, weight = np.float32(0.0), np.float32(0.0), np.float32(0.0)
+                o[2 * i], o[2 * i + 1] = sr, si
+                ow[2 * i], ow[2 * i + 1] = sr * weight, si * weight
+                dst[i] = complex(sr, si)
+    return r2, rw2, small
+
+
+@kernel
+def _wrapped(value: float, period: float) -> float:
+    """``value`` moved by whole periods into [−period/2, period/2]."""
+    return value - period * math.floor(value / period + 0.5)
+
+
+@reduction_kernel
+def halved_shifts(doubled: NDArray[np.float64], r: Float32Array, uy: NDArray[np.float64],
+                  ux: NDArray[np.float64], patch: tuple[int, int]) -> NDArray[np.float64]:
+    """Shifts (M, 2) as (dx, dy) px from the peaks ``doubled`` of the blur-invariant POC
+    function, which sit at twice the shift modulo the patch: per axis, two shifts double to
+    the same peak, half a patch apart; the one taken is where the plain POC function
+    (``r``, as :func:`cross_power` gives it) is largest in magnitude (a blurred frequency
+    turned by π lowers, or even turns negative, the true shift's value, but half a patch
+    away the content does not correlate). The four candidates' values come from one pass:
+    half a patch multiplies a frequency's term by (−1) to the power of its index."""
+    m = doubled.shape[0]
+    h, w = patch
+    ky_n, kx2 = r.shape[1], r.shape[2]
+    kx_n = kx2 // 2
+    two_pi = 2.0 * math.pi
+    out = np.empty((m, 2))
+    for k in range(m):
+        dx, dy = 0.5 * _wrapped(doubled[k, 0], w), 0.5 * _wrapped(doubled[k, 1], h)
+        exr, exi = np.empty(kx_n), np.empty(kx_n)
+        for i in range(kx_n):
+            exr[i], exi[i] = math.cos(two_pi * dx * ux[i]), math.sin(two_pi * dx * ux[i])
+        # sums[py, px]: Re(r e^{2πi u·d}) over the frequencies of index parities (py, px)
+        s00 = s01 = s10 = s11 = 0.0
+        for j in range(ky_n):
+            row = r[k, j]
+            even = odd = 0.0
+            eyr, eyi = math.cos(two_pi * dy * uy[j]), math.sin(two_pi * dy * uy[j])
+            for i in range(kx_n):
+                a, b = row[2 * i], row[2 * i + 1]
+                cr = a * exr[i] - b * exi[i]
+                ci = a * exi[i] + b * exr[i]
+                term = eyr * cr - eyi * ci
+                if i % 2 == 0:
+                    even += term
+                else:
+                    odd += term
+            if abs(round(uy[j] * h)) % 2 == 0:
+                s00 += even
+                s01 += odd
+            else:
+                s10 += even
+                s11 += odd
+        values = (s00 + s01 + s10 + s11, s00 - s01 + s10 - s11,
+                  s00 + s01 - s10 - s11, s00 - s01 - s10 + s11)
+        best = 0
+        for c in range(1, 4):
+            if abs(values[c]) > abs(values[best]):
+                best = c
+        if best == 1 or best == 3:
+            dx += -0.5 * w if dx >= 0 else 0.5 * w
+        if best == 2 or best == 3:
+            dy += -0.5 * h if dy >= 0 else 0.5 * h
+        out[k, 0], out[k, 1] = dx, dy
+    return out

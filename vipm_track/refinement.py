@@ -78,7 +78,8 @@ def refine(
     # moved from the window offset, which pulls the POC estimate towards that offset
     # (about 2 % of the gap, i.e. of the previous estimate's error)
     disp, peaks = match_grouped(ipm_p, ipm_c, q_p, sizes, offsets,
-                                recentre=cfg.recentre_windows, level=cfg.ipm_poc_level)
+                                recentre=cfg.recentre_windows, level=cfg.ipm_poc_level,
+                                blur_invariant=cfg.blur_invariant_ipm)
     if cfg.moved_ipm:
         disp = apply_homography(moved, q_p + disp) - q_p
     result.timings["poc"] += time.perf_counter() - t0
