@@ -321,11 +321,13 @@ def test_a_blur_invariant_fit_on_a_few_of_its_patches_is_not_taken() -> None:
         -0.000188598911743533, 0.123269360713467, np.radians(0.00218852907697663)))
     result = TwoFrameEstimator(Rig(camera, 0.7, DEFAULT_PITCH_DEG)).estimate(
         prev, curr, guess, 0.1)
+    # the rule fired (the reason says so) and what was taken instead is not the wrong pose
+    assert "blur-invariant" in result.reason, result.reason
     if result.ok:
         assert _errors(traj, 74, result.pose_prev, result.pose_curr, result.motion)[
             "pitch"] < 1.5
     else:
-        assert result.status == STATUS_FEW_INLIERS and "blur-invariant" in result.reason
+        assert result.status == STATUS_FEW_INLIERS
 
 
 def test_turning_pair_is_as_accurate_as_a_straight_one():

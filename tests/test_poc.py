@@ -274,14 +274,16 @@ def test_blur_invariant_poc_equals_the_plain_one_on_sharp_patches() -> None:
     assert (peak > 0.5).all() and (peak <= plain_peak + 1e-6).all()
 
 
-@pytest.mark.parametrize("true", [(36.3, -3.2), (-2.6, -37.1), (-35.5, 4.4)])
+@pytest.mark.parametrize("true", [(36.3, -3.2), (-2.6, -37.1), (-35.5, 4.4), (33.2, 33.9)])
 def test_blur_invariant_poc_takes_the_right_one_of_the_two_halved_shifts(
         true: tuple[float, float]) -> None:
     """Twice the shift is known modulo the patch: a shift beyond a quarter of it doubles to
-    the same peak as one half a patch away, and the plain POC function tells them apart."""
+    the same peak as one half a patch away, and the plain POC function tells them apart
+    (beyond a quarter on both axes the windows share so little that the invariant peak is
+    near the noise: the estimator's refinements place their windows on the predicted shift)."""
     tex = _texture("gravel")
     moved = _fourier_shift(tex, true)
     centres = np.array([[200.0, 260.0], [260.0, 300.0], [300.0, 220.0]])
     shift, peak = match_patches(tex, moved, centres, 128, blur_invariant=True)
-    assert (peak > 0.1).all()
-    np.testing.assert_allclose(shift, np.tile(true, (3, 1)), atol=0.2)
+    assert (peak > 0.08).all()
+    np.testing.assert_allclose(shift, np.tile(true, (3, 1)), atol=0.25)
