@@ -177,6 +177,13 @@ def test_front_end_status_quotes_the_results_files():
     pitch = max(float(r[9].split("/")[1]) for r in rows)
     dist = max(float(r[10].split("/")[1]) for r in rows)
     assert f"| ≤ {pitch:.3f}° / ≤ {dist:.2f} % |" in _status("rolling shutter")
+    blurred = [r for r in _rows(RESULTS / "bench_blur.md") if len(r) == 9 and r[1] == "0.3"]
+    ours = [r for r in blurred if r[2] != "plain"]
+    plain = [r for r in blurred if r[2] == "plain"]
+    flagged = [sum(r[8] != "never" for r in rows) for rows in (ours, plain)]
+    assert (f"| {sum(int(r[5]) for r in ours)} ({_range([int(r[5]) for r in plain], 'd')}); "
+            f"{flagged[0]} of {len(ours)} ({flagged[1]} of {len(plain)}) |"
+            in _status("motion blur"))
     par = {(r[0], r[1]): r for r in _rows(RESULTS / "bench_parallel.md")}
     two = [par[p, "chunks of 60, 2 processes"][4] for p in ("cart", "car")]
     assert f"| {two[0]} cart, {two[1]} car |" in _status("long recordings")
