@@ -63,11 +63,11 @@ def run(seed: int, blur: bool, cache: Path) -> list[tuple[str, dict]]:
     folder = drive(seed, blur, cache)
     preset = PRESETS["cart"]
     truth = read_table(folder / "gt.csv")
+    rig = Rig(load_camera(folder / "camera.yaml"), preset.height_m, preset.pitch_deg)
     out = []
     for mode, invariant in MODES.items():
         slug = "plain" if invariant is False else "default"
         est, mon = folder / f"est_{slug}.csv", folder / f"monitor_{slug}.csv"
-        rig = Rig(load_camera(folder / "camera.yaml"), preset.height_m, preset.pitch_deg)
         estimate_sequence(open_source(images=folder / "images"), rig, est,
                           EstimatorConfig(blur_invariant_ipm=invariant), progress=False)
         cli_main(["monitor", "--estimates", str(est), "--nominal", str(NOMINAL),

@@ -26,10 +26,10 @@ from .static_content import on_static
 FloatArray = NDArray[np.float64]
 
 #: A blur-invariant refinement whose fit keeps fewer than this share of the patches it
-#: measured fails the pair: the invariant shifts double the phases' noise, and where the
-#: start was degrees off or the blur heavy, 12–19 of some 60 patches agreed on a pose 3–11°
-#: off (shaking carts at --motion-blur 0.3: fits keeping under 30 %, 9 of 16 pairs beyond
-#: 1.5°; from 30 % on, 1 of 308; docs/blur.md).
+#: measured fails (the estimator's next start, if any, takes over): the invariant shifts
+#: double the phases' noise, and where the start was degrees off or the blur heavy, 12–19 of
+#: some 60 patches agreed on a pose 3–11° off (shaking carts at --motion-blur 0.3: fits
+#: keeping under 30 %, 9 of 16 pairs beyond 1.5°; from 30 % on, 1 of 308; docs/blur.md).
 BLUR_INVARIANT_MIN_INLIER_SHARE = 0.3
 
 

@@ -98,6 +98,7 @@ MONITOR_LEVELS = {"RECALIBRATE": "ERROR", "INVALID": "ERROR", "DRIFTING": "WARN"
 #: seconds ``RerunSink.finish`` waits for the recording to reach its sinks
 FLUSH_TIMEOUT_S = 5.0
 
+
 def check_image_options(image_every: int | None, jpeg_quality: int) -> None:
     """InputError for ``--rerun-image-every`` < 0 or ``--rerun-jpeg-quality`` outside
     1..100."""
