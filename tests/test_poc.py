@@ -297,3 +297,18 @@ def test_blur_invariant_sub_pixel_fit_trusts_the_strong_frequencies_too(name: st
     rmse = {w: _rmse(correlate_spectra(patch_spectra(ref), patch_spectra(mov), weighting=w,
                                        blur_invariant=True)[0], true) for w in (0.0, 0.5)}
     assert rmse[0.5] < 0.85 * rmse[0.0], rmse
+
+
+@pytest.mark.parametrize("true", [(36.3, -3.2), (-2.6, -37.1)])
+def test_blur_invariant_poc_takes_the_halved_shift_where_the_plain_peak_is_negative(
+        true: tuple[float, float]) -> None:
+    """A blur whose transfer function is negative where the texture's energy lies turns the
+    plain POC function's peak at the true shift negative; the alias is chosen by its
+    magnitude, not its sign. Here the extreme case: the moved image's contrast inverted (a
+    point spread function of −δ, transfer −1 at every frequency)."""
+    tex = _texture("gravel")
+    moved = 255.0 - _fourier_shift(tex, true)
+    centres = np.array([[200.0, 260.0], [260.0, 300.0], [300.0, 220.0]])
+    shift, peak = match_patches(tex, moved, centres, 128, blur_invariant=True)
+    assert (peak > 0.08).all()
+    np.testing.assert_allclose(shift, np.tile(true, (3, 1)), atol=0.25)
