@@ -14,13 +14,15 @@ from vipm_track.measurement import PairMeasurement
 from .forward_slow import slow_drive_note
 from .long_run import batch_means
 from .mount_change import short_drive_note
+from .mount_steps import StepTestConfig, untested_drive_note
 from .smoother_config import SmoothedFrame
 
 FloatArray = NDArray[np.float64]
 
 
 def summarize_mount(
-    frames: Sequence[SmoothedFrame], measurements: Sequence[PairMeasurement] | None = None
+    frames: Sequence[SmoothedFrame], measurements: Sequence[PairMeasurement] | None = None,
+    step_test: StepTestConfig | None = None,
 ) -> dict[str, object]:
     """The drive's extrinsics in brief (degrees, metres, minutes): for mount pitch, roll and
     height the mean with a 95 % interval, its 1-σ, the start and end values, the drift
@@ -33,7 +35,8 @@ def summarize_mount(
     frame pose minus the smoothed mount, i.e. of what the model calls body shaking and
     noise. Where slow errors the model lacks (road camber, load, the front end's tracking
     correlation) make that wider, the interval is the data's (``interval_from``: ``data``);
-    ``std_model`` / ``std_data`` give both."""
+    ``std_model`` / ``std_data`` give both. ``step_test``: the batch's step and drift tests'
+    design where they ran (a drive too short for them is then warned of)."""
     good = [f for f in frames if f.initialised and np.all(np.isfinite(f.mount))]
     counts: dict[str, int] = {}
     for f in frames:
@@ -43,7 +46,8 @@ def summarize_mount(
         out["note"] = "no frame has an estimate"
         return out
     t = np.array([f.t for f in good])
-    note = short_drive_note(float(t[-1] - t[0]))
+    note = short_drive_note(float(t[-1] - t[0])) or (
+        "" if step_test is None else untested_drive_note(float(t[-1] - t[0]), step_test))
     if note:
         out["short_drive"] = note
     mount = np.array([f.mount for f in good])

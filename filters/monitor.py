@@ -70,8 +70,8 @@ class DriftMonitor:
         self._change_at: int | None = None
         self._held = 0
         cfg = self.config
-        self._body = BodyScale(cfg.body_noise(), cfg.body_window_s, cfg.body_window_min_pairs)
-        self._heave = HeaveScale(cfg.body_window_s, cfg.body_window_min_pairs,
+        self._body = BodyScale(cfg.body_noise(), cfg.body_window_s, cfg.body_min_pairs)
+        self._heave = HeaveScale(cfg.body_window_s, cfg.body_min_pairs,
                                   cfg.heave_std_unknown_frac * nominal.height_m)
 
     @property

@@ -65,6 +65,10 @@ class MonitorConfig:
     #: shaking beyond the model would otherwise read as a mount far off nominal
     body_window_s: float = 6.0
     body_window_min_pairs: int = 10
+    #: and over at least this many seconds of frames: 10 pairs of a 20-fps camera are half a
+    #: period of a 1-Hz sway, whose calm half taken for the shaking made its other half a
+    #: mount change (a correct car camera RECALIBRATE 0.8 s into its drive)
+    body_window_min_s: float = 1.0
     body_std_unknown_deg: float = 1.5
     #: the measured heights (wheel speed) scatter with the body's heave and the pairs' scale
     #: errors beyond their reported variance: the robust spread of the window's heights less
@@ -113,6 +117,8 @@ class MonitorConfig:
             raise InputError("monitor: min_hold_event_s must be >= 0")
         if min(*self.angle_shifts_deg, *self.height_shifts_m) <= 0:
             raise InputError("monitor: design shifts must be > 0")
+        if not self.body_window_min_s >= 0:
+            raise InputError("monitor: body_window_min_s must be >= 0")
         if not 0 < self.warn_exit <= self.warn_enter < 1:
             raise InputError("monitor: need 0 < warn_exit <= warn_enter < 1")
 
@@ -121,6 +127,12 @@ class MonitorConfig:
         """Config whose body model is that of a ``filters.model.NoiseParams``."""
         return cls(body_tau_s=noise.body_tau_s, body_std_deg=noise.body_std_deg,
                    body_std_unknown_deg=noise.body_std_unknown_deg, **overrides)
+
+    @property
+    def body_min_pairs(self) -> int:
+        """Pairs the adaptive body std needs before it is taken as measured: at least
+        ``body_window_min_pairs``, and ``body_window_min_s`` of frames."""
+        return max(self.body_window_min_pairs, math.ceil(self.body_window_min_s * self.fps))
 
     def body_noise(self) -> NoiseParams:
         """The body part of ``filters.model.NoiseParams`` this config describes (what the

@@ -36,6 +36,7 @@ KITTI 07's rows up to 4.5 (a turn's body roll), knocks 5–6 before their step i
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -76,8 +77,26 @@ class MountStep:
     step: float
 
 
+#: blocks of ``StepTestConfig.block_s`` a series needs for its long-run variance
+MIN_BLOCKS = 8
+
+
+def untested_drive_note(seconds: float, cfg: StepTestConfig | None = None) -> str:
+    """A warning for a drive of ``seconds`` too short for the step and drift tests
+    (:data:`MIN_BLOCKS` blocks): a knock or a creeping mount there is not looked for, and
+    the batch's mount intervals assume none. Empty for longer drives."""
+    cfg = cfg or StepTestConfig()
+    need_s = MIN_BLOCKS * cfg.block_s
+    if not cfg.enabled or not seconds < need_s:
+        return ""
+    spans = math.floor(seconds * 10) / 10  # (7.95 s is not "8.0 s, less than 8 s")
+    return (f"the drive spans {spans:.1f} s, less than the {need_s:g} s the batch's step and "
+            "drift tests need: a knock or a creeping mount within it is not looked for, and the "
+            "mount intervals assume none (docs/filters.md)")
+
+
 def long_run_variance(residuals: FloatArray, t: FloatArray, block_s: float,
-                      min_blocks: int = 8) -> float | None:
+                      min_blocks: int = MIN_BLOCKS) -> float | None:
     """Long-run variance of ``residuals`` (at times ``t`` [s]) per sample: the mean of
     (block mean)² × block count over blocks of at least 3 samples, the largest over block
     lengths ``block_s``·2ʲ that give ``min_blocks`` such blocks (a road's wander over tens of

@@ -4,6 +4,7 @@ formed from the model's own residuals and Jacobian, and the batched LM on exact 
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -233,3 +234,42 @@ def test_a_refit_on_fewer_residuals_than_parameters_is_refused(readout):
     model, x = _cart_model(rng, readout_frames=readout, image_rows=600)
     with pytest.raises(ValueError, match="residuals"):
         bundle.fit_lm(model, x, np.arange(3))
+
+
+@pytest.mark.parametrize("offsets", [(0.01, 0.0), (-0.008, 0.0), (0.0, 0.006)])
+def test_shutter_rate_covariance_is_what_frame_ks_unmodelled_rate_moves_the_fit_by(offsets):
+    """Displacements made with frame k turning during its readout at a rate off the pair's by
+    ``offsets`` (pitch, roll; rad per frame interval), fitted with the pair's rate: the fit's
+    pitch and roll move by the omitted parameter's bias, which the covariance's standard
+    deviations (at σ = |offset|) state within 10 %; two angles' variances add."""
+    rng = np.random.default_rng(6)
+    model, x = _cart_model(rng, readout_frames=0.4, image_rows=600)
+    x = np.append(x, 0.0)  # with the vertical motion: a steep camera's fit
+    turning = np.zeros(12)
+    turning[:8], turning[10:12] = x, offsets
+    model = dataclasses.replace(model, targets=model.predict(turning))
+    idx = np.arange(model.n_points)
+    fit, *_ = bundle.fit_lm(model, x, idx)
+    moved = np.abs(fit - x)
+    assert max(moved[2], moved[3]) > 1e-3  # 0.06°: the shutter's rate matters
+    sigma = np.abs(offsets)
+    cov = bundle.shutter_rate_covariance(model, x, idx, sigma)
+    for angle in (2, 3):  # frame k's pitch, roll
+        assert math.sqrt(cov[angle, angle]) == pytest.approx(moved[angle], rel=0.1, abs=1e-5)
+    both = bundle.shutter_rate_covariance(model, x, idx, sigma + 0.004)
+    np.testing.assert_allclose(both, bundle.shutter_rate_covariance(
+        model, x, idx, (sigma[0] + 0.004, 0.0)) + bundle.shutter_rate_covariance(
+        model, x, idx, (0.0, sigma[1] + 0.004)), rtol=1e-9, atol=1e-15)
+    global_shutter = dataclasses.replace(model, readout_frames=0.0)
+    assert not np.any(bundle.shutter_rate_covariance(global_shutter, x, idx, sigma))
+    assert not np.any(bundle.shutter_rate_covariance(model, x, idx, np.zeros(2)))
+
+
+def test_frame_rate_offsets_of_zero_leave_the_rolling_shutter_prediction_unchanged():
+    rng = np.random.default_rng(7)
+    model, x = _cart_model(rng, readout_frames=0.4, image_rows=600)
+    extended = np.zeros(12)
+    extended[:7] = x
+    np.testing.assert_array_equal(model.predict(extended), model.predict(x))
+    extended[8] = 0.01  # frame k-1's pitch rate: moves its ground points, not frame k's pose
+    assert np.abs(model.predict(extended) - model.predict(x)).max() > 0.05

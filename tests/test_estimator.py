@@ -25,6 +25,7 @@ from vipm_track.pair_result import (
     PairGuess,
     PairResult,
 )
+from vipm_track.pipeline import predict_guess
 from vipm_track.render import OBSTACLE_POLYGON, Effects, render_frame
 from vipm_track.rig import DEFAULT_PITCH_DEG, Rig
 from vipm_track.sim import (
@@ -761,7 +762,15 @@ def test_guess_from_previous_result():
     result, _, _ = _estimate()
     g = PairGuess.from_previous(result)
     assert g.pose_prev == result.pose_curr and g.motion == result.motion
+    # the pair's turning, for a rolling shutter's angular acceleration in the next pair
+    assert g.angular_rate == pytest.approx(
+        (result.pose_curr.pitch - result.pose_prev.pitch,
+         result.pose_curr.roll - result.pose_prev.roll))
+    assert g.angular_accel_ms is None  # a global shutter keeps no running mean square
     assert PairGuess.from_previous(PairResult(status="no motion")) is None
+    twice = predict_guess(dataclasses.replace(result, angular_accel_ms=(1e-4, 4e-6)), 0.1, 0.2)
+    assert twice.angular_rate == pytest.approx(2 * np.array(g.angular_rate))
+    assert twice.angular_accel_ms == pytest.approx((16e-4, 64e-6))  # rate changes per 2 Δt
 
 
 # --- helpers ------------------------------------------------------------------------------

@@ -248,6 +248,32 @@ def heave_covariance(
     return heave_std_m**2 * np.outer(b, b) if np.all(np.isfinite(b)) else np.zeros((n, n))
 
 
+def shutter_rate_covariance(
+    model: DisplacementModel, x: FloatArray, idx: NDArray[np.intp], rate_std: FloatArray,
+) -> FloatArray:
+    """The covariance a fit at ``x`` (7 or 8 parameters) on the points ``idx`` misses under a
+    rolling shutter by taking frame k's pitch and roll to change at the pair's own rate
+    during its readout, when the true rates differ from it by ``rate_std`` (2,) [rad per
+    frame interval]: the omitted parameters' bias ``B = −(JᵀJ)⁻¹ Jᵀ J_ω``, covariance
+    ``B diag(σ²) Bᵀ``. Frame k's rate during its readout lies beyond the pair (it is the
+    next interval's): a body shaking at 1–3 Hz, filmed at 10 fps, turns at a rate the pair
+    cannot know, and a steep camera's pose takes the rows' turning for a pose."""
+    n = len(x)
+    if (not model.readout_frames or n not in (N_PARAMS, N_PARAMS + 1) or idx.size < 2 * n
+            or not np.any(np.asarray(rate_std) > 0)):
+        return np.zeros((n, n))
+    extended = np.zeros(N_PARAMS + 5)  # heave, then frame k-1's and frame k's rate offsets
+    extended[:n] = x
+    jac = model.jacobian(extended, idx)
+    try:
+        b = -np.linalg.solve(jac[:, :n].T @ jac[:, :n], jac[:, :n].T @ jac[:, -2:])
+    except np.linalg.LinAlgError:
+        return np.zeros((n, n))
+    if not np.all(np.isfinite(b)):
+        return np.zeros((n, n))
+    return (b * np.asarray(rate_std, dtype=float) ** 2) @ b.T
+
+
 def robust_fit(
     model: DisplacementModel,
     x0: FloatArray,

@@ -196,7 +196,7 @@ class DisplacementModel:
         """Homogeneous frame-k pixels (B, n, 3) of the ground seen at ``pixels_prev`` in frame
         k-1, each row exposed at its own time, and their row times (B, n) (module doc;
         ``shutter.moved_pixels``)."""
-        params = np.zeros((len(xs), N_PARAMS + 1))
+        params = np.zeros((len(xs), max(N_PARAMS + 1, xs.shape[1])))
         params[:, :xs.shape[1]] = xs
         motion = xs[:, 4:7]
         change = (np.zeros_like(motion) if self.previous_motion is None

@@ -214,6 +214,10 @@ class TwoFrameEstimator:
             heave_std_m=self.config.heave_rate_mps * (
                 frame_interval_s if frame_interval_s and frame_interval_s > 0 else 0.1),
             previous_motion=previous_motion, prior_mean=prior_mean, prior_sigma=prior_sigma,
+            previous_angular_rate=None if guess is None or guess.angular_rate is None
+            else np.array(guess.angular_rate),
+            previous_angular_accel_ms=None if guess is None or guess.angular_accel_ms is None
+            else np.array(guess.angular_accel_ms),
         )
 
     def _estimate_starts(

@@ -103,6 +103,10 @@ class EstimatorConfig:
         [m/s] (a car on an ordinary road: a few cm/s); without ``vertical_motion`` the
         covariance includes what a heave of this speed over the pair's interval moves the
         fit by (``bundle.heave_covariance``; 0: off).
+    shutter_rate_covariance : under a rolling shutter, the covariance includes what frame k
+        turning during its readout at a rate off the pair's moves the fit by
+        (``bundle.shutter_rate_covariance``, at the running RMS of the rate's change from
+        pair to pair: docs/shutter.md).
     nominal_undetermined : why the nominal pose could not be found on the drive (empty: it
         was given or found); every pair then has status "no nominal pose" — without a
         nominal pose the cold start has nothing to rest on, and its estimates would be the
@@ -193,6 +197,7 @@ class EstimatorConfig:
     nominal_undetermined: str = ""
     jackknife_covariance: bool = True
     heave_rate_mps: float = 0.05
+    shutter_rate_covariance: bool = True
     cold_start_ipm: bool = True
     cold_pitch_steps_deg: tuple[float, ...] | None = None
     ipm_resolution_scale: float = 1.0

@@ -31,6 +31,11 @@ class PairGuess:
     pose_prev: GroundPose
     pose_curr: GroundPose
     motion: PlanarMotion
+    #: the interval before's (pitch, roll) change, radians per this pair's frame interval
+    #: (None: unknown), and the running mean square of its change from pair to pair
+    #: (``PairResult.angular_accel_ms``): a rolling shutter's angular acceleration
+    angular_rate: tuple[float, float] | None = None
+    angular_accel_ms: tuple[float, float] | None = None
 
     @classmethod
     def from_previous(cls, result: PairResult) -> PairGuess | None:
@@ -38,7 +43,14 @@ class PairGuess:
         (None otherwise, which means a cold start)."""
         if result is None or result.status != STATUS_OK:
             return None
-        return cls(result.pose_curr, result.pose_curr, result.motion)
+        return cls(result.pose_curr, result.pose_curr, result.motion, angular_change(result),
+                   result.angular_accel_ms)
+
+
+def angular_change(result: PairResult, scale: float = 1.0) -> tuple[float, float]:
+    """(pitch, roll) change over ``result``'s pair [rad], times ``scale``."""
+    return (scale * (result.pose_curr.pitch - result.pose_prev.pitch),
+            scale * (result.pose_curr.roll - result.pose_prev.roll))
 
 
 @dataclass(frozen=True)
@@ -81,6 +93,8 @@ class PairResult:
     tracking fell back to the guess); ``stage_estimates`` the estimate of each accepted stage.
     ``height`` is the assumed height of frame k-1 [m]; ``height_change`` the estimated
     vertical motion within the pair [m] (0 unless ``config.vertical_motion``).
+    ``angular_accel_ms`` is the running mean square of the (pitch, roll) rate's change from
+    pair to pair [rad² per interval²] (tracking under a rolling shutter; None otherwise).
     """
 
     status: str
@@ -97,6 +111,7 @@ class PairResult:
     residual_px: float = float("nan")
     height: float = float("nan")
     height_change: float = 0.0
+    angular_accel_ms: tuple[float, float] | None = None
 
     @property
     def ok(self) -> bool:

@@ -34,7 +34,7 @@ from .camera import CameraModel
 from .errors import InputError
 from .estimator import PreparedFrame, PreparedPair, TwoFrameEstimator
 from .geometry import PlanarMotion
-from .pair_result import PairGuess
+from .pair_result import PairGuess, angular_change
 from .rig import Rig
 from .sources import Frame, FrameSource
 from .workers import threads
@@ -85,7 +85,10 @@ def predict_guess(previous: PairResult, dt_prev: float, dt: float) -> PairGuess:
     ratio = float(np.clip(ratio, *_DT_RATIO_RANGE))
     m = previous.motion
     motion = PlanarMotion(m.tx * ratio, m.tz * ratio, m.yaw * ratio)
-    return PairGuess(pose_prev=previous.pose_curr, pose_curr=previous.pose_curr, motion=motion)
+    return PairGuess(pose_prev=previous.pose_curr, pose_curr=previous.pose_curr, motion=motion,
+                     angular_rate=angular_change(previous, ratio),
+                     angular_accel_ms=None if previous.angular_accel_ms is None
+                     else tuple(ratio**4 * np.asarray(previous.angular_accel_ms)))
 
 
 def run_sequence(

@@ -55,6 +55,8 @@ def moved_pixels(k: FloatArray, params: FloatArray, height: float, pixels_prev: 
     ``params`` (B, 8): pitch and roll of frames k-1 and k (at their row 0), tx, tz, yaw over
     the frame interval and the height change dh [m] (frame k-1 at ``height``); the poses
     change at the pair's own rate within a frame (constant angular and vertical velocity),
+    or (B, 12) with four more: frame k-1's and frame k's pitch and roll rate off the pair's,
+    radians per frame interval (``bundle.shutter_rate_covariance``'s omitted parameters);
     the travel at a constant acceleration (``change`` (B, 3): the motion's change from the
     interval before; zeros: constant velocity). Times in frame intervals; ``per_row``:
     frame intervals per row; ``readout``: first row to last. The row time b of each point
@@ -67,12 +69,19 @@ def moved_pixels(k: FloatArray, params: FloatArray, height: float, pixels_prev: 
     ``active`` (B, n): the points solved; the others stay NaN (a subset's unused points).
     Returns the pixels and the row times b (B, n) they were solved at (NaN where none)."""
     n_b, n_p = params.shape[0], pixels_prev.shape[0]
+    n_rate = params.shape[1] - 8
     kinv = np.linalg.inv(k)
     out = np.full((n_b, n_p, 3), np.nan)
     times = np.full((n_b, n_p), np.nan)
     for i in range(n_b):
         p = params[i]
         rate = np.array([p[2] - p[0], p[3] - p[1], p[7]])
+        rate_p, rate_c = rate.copy(), rate.copy()
+        if n_rate > 0:  # each frame's angular rate off the pair's by an omitted parameter
+            rate_p[0] += p[8]
+            rate_p[1] += p[9]
+            rate_c[0] += p[10]
+            rate_c[1] += p[11]
         pose_c = np.array([p[2], p[3], height + p[7]])
         for j in range(n_p):
             if not active[i, j]:
@@ -84,8 +93,8 @@ def moved_pixels(k: FloatArray, params: FloatArray, height: float, pixels_prev: 
             qx = kinv[0, 0] * mu + kinv[0, 1] * mv + kinv[0, 2]
             qy = kinv[1, 0] * mu + kinv[1, 1] * mv + kinv[1, 2]
             qz = kinv[2, 0] * mu + kinv[2, 1] * mv + kinv[2, 2]
-            cp, sp = math.cos(p[0] + a * rate[0]), math.sin(p[0] + a * rate[0])
-            cr, sr = math.cos(p[1] + a * rate[1]), math.sin(p[1] + a * rate[1])
+            cp, sp = math.cos(p[0] + a * rate_p[0]), math.sin(p[0] + a * rate_p[0])
+            cr, sr = math.cos(p[1] + a * rate_p[1]), math.sin(p[1] + a * rate_p[1])
             rx = cr * qx - sr * qy
             ry = cp * sr * qx + cp * cr * qy + sp * qz
             rz = -sp * sr * qx - sp * cr * qy + cp * qz
@@ -95,14 +104,14 @@ def moved_pixels(k: FloatArray, params: FloatArray, height: float, pixels_prev: 
             x, z = h_a * rx / ry, h_a * rz / ry
             low, high = a - 2.0 * readout, a + 2.0 * readout
             b_old = a if math.isnan(start[i, j]) else min(max(start[i, j], low), high)
-            f_old, u, v, w = _row_time_excess(k, pose_c, rate, x, z, p[4:7], change[i], a,
+            f_old, u, v, w = _row_time_excess(k, pose_c, rate_c, x, z, p[4:7], change[i], a,
                                               b_old, per_row)
             if not math.isfinite(f_old):
                 continue
             b = min(max(b_old + f_old, low), high)  # a fixed-point step, then secant steps
             f, b_f = f_old, b_old  # b_f: the row time that (f, u, v, w) belong to
             for _ in range(MAX_STEPS):
-                f, u, v, w = _row_time_excess(k, pose_c, rate, x, z, p[4:7], change[i], a, b,
+                f, u, v, w = _row_time_excess(k, pose_c, rate_c, x, z, p[4:7], change[i], a, b,
                                               per_row)
                 b_f = b
                 if not math.isfinite(f) or f == f_old:
@@ -111,7 +120,7 @@ def moved_pixels(k: FloatArray, params: FloatArray, height: float, pixels_prev: 
                 b_old, f_old = b, f
                 b = min(max(b + step, low), high)
                 if abs(b - b_old) < TOLERANCE:
-                    f, u, v, w = _row_time_excess(k, pose_c, rate, x, z, p[4:7], change[i], a,
+                    f, u, v, w = _row_time_excess(k, pose_c, rate_c, x, z, p[4:7], change[i], a,
                                                   b, per_row)
                     b_f = b
                     break

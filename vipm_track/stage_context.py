@@ -9,7 +9,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from .bundle import FitResult, at_least, covariance_from_jacobian, heave_covariance, robust_fit
+from .bundle import (
+    FitResult,
+    at_least,
+    covariance_from_jacobian,
+    heave_covariance,
+    robust_fit,
+    shutter_rate_covariance,
+)
 from .camera import CameraModel
 from .displacement_model import DisplacementModel, pack, unpack
 from .estimator_config import EstimatorConfig
@@ -25,6 +32,10 @@ from .pair_result import (
 )
 
 FloatArray = NDArray[np.float64]
+
+#: Weight of a pair's own rate change in the running mean square of
+#: :meth:`StageContext.angular_accel_ms` (about the last 3 pairs count).
+ANGULAR_ACCEL_WEIGHT = 0.3
 
 
 def pose_prior(
@@ -65,6 +76,10 @@ class StageContext:
     heave_std_m : vertical motion this pair may hide [m] (``bundle.heave_covariance``).
     previous_motion : (tx, tz, yaw) of the interval before (tracking), for the rolling
         shutter's acceleration; None cold.
+    previous_angular_rate : (pitch, roll) change over the interval before (tracking), rad
+        per this pair's interval, for the rolling shutter's angular acceleration; None cold.
+    previous_angular_accel_ms : the running mean square of that rate's change up to the pair
+        before (``PairResult.angular_accel_ms``); None where not yet known.
     prior_mean, prior_sigma : the pose prior (4,) of every fit, radians (:func:`pose_prior`).
     """
 
@@ -80,6 +95,8 @@ class StageContext:
     readout_frames: float = 0.0
     heave_std_m: float = 0.0
     previous_motion: FloatArray | None = None
+    previous_angular_rate: FloatArray | None = None
+    previous_angular_accel_ms: FloatArray | None = None
     prior_mean: FloatArray | None = None
     prior_sigma: FloatArray = field(default_factory=lambda: np.zeros(4))
 
@@ -156,8 +173,30 @@ class StageContext:
         if not self.config.vertical_motion:
             fit = replace(fit, covariance=fit.covariance + heave_covariance(
                 model, fit.x, inliers, self.heave_std_m))
+        if self.readout_frames and self.config.shutter_rate_covariance:
+            fit = replace(fit, covariance=fit.covariance + shutter_rate_covariance(
+                model, fit.x, inliers, self.shutter_rate_std(fit.x)))
         result.timings["lm"] += time.perf_counter() - t0
         return fit
+
+    def angular_accel_ms(self, x: FloatArray) -> FloatArray | None:
+        """The running mean square of the (pitch, roll) rate's change from pair to pair, this
+        pair's (``x``'s) included [rad² per interval²]; None cold."""
+        if self.previous_angular_rate is None:
+            return None
+        change = np.asarray(x[2:4] - x[0:2], dtype=float) - self.previous_angular_rate
+        if self.previous_angular_accel_ms is None:
+            return change**2
+        return ((1 - ANGULAR_ACCEL_WEIGHT) * self.previous_angular_accel_ms
+                + ANGULAR_ACCEL_WEIGHT * change**2)
+
+    def shutter_rate_std(self, x: FloatArray) -> FloatArray:
+        """How far frame k's (pitch, roll) rate during its readout may differ from the pair's
+        (``x``'s change), rad per frame interval: the RMS of the rate's change from pair to
+        pair (tracking; a single change swings with the shaking's phase), or the pair's own
+        rate (cold)."""
+        ms = self.angular_accel_ms(x)
+        return np.abs(x[2:4] - x[0:2]) if ms is None else np.sqrt(ms)
 
     def accept(self, fit: FitResult, result: PairResult, stage: str) -> None:
         """Check a stage's fit and make it the result's current estimate."""
@@ -194,6 +233,9 @@ class StageContext:
         result.pose_prev, result.pose_curr, result.motion = pose_p, pose_c, motion
         result.covariance = cov[:7, :7]
         result.height_change = float(fit.x[7]) if len(fit.x) > 7 else 0.0
+        accel_ms = self.angular_accel_ms(fit.x) if self.readout_frames else None
+        result.angular_accel_ms = None if accel_ms is None else (float(accel_ms[0]),
+                                                                 float(accel_ms[1]))
         result.n_inliers = n_in
         result.residual_px = fit.rms
         result.stage_estimates.append(StageEstimate(pose_p, pose_c, motion))

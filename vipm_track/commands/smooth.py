@@ -213,7 +213,9 @@ def run(args: argparse.Namespace) -> int:
     if sink is not None:
         log_filter_run(sink, measurements, rows, "smoothed")
         sink.finish()
-    summary = summarize_mount(frames, measurements[: len(frames)]) if frames else {}
+    summary = summarize_mount(
+        frames, measurements[: len(frames)],
+        config.mount_steps if config.lag_s == 0 else None) if frames else {}
     summary["status"] = interrupted or "complete"
     summary["input_notes"] = getattr(args, "input_notes", [])
     summary["smoother"] = {
