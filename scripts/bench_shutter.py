@@ -118,6 +118,10 @@ def score(est: dict, truth: dict, monitor: dict) -> dict:
         early = any(float(monitor["t"][i]) < t_knock for i in recal)
         verdict = ("false RECALIBRATE before the knock" if early
                    else f"RECALIBRATE {late[0]:.1f} s after the knock" if late else "missed")
+    elif not np.isfinite(mount).any():
+        # the pose wanders by degrees over seconds (`gradual`): no mount to judge by
+        verdict = (f"RECALIBRATE at {float(monitor['t'][recal[0]]):.1f} s (no fixed mount)"
+                   if recal.size else "never RECALIBRATE (no fixed mount)")
     else:
         verdict = (f"false RECALIBRATE at {float(monitor['t'][recal[0]]):.1f} s"
                    if recal.size else "never RECALIBRATE")

@@ -184,6 +184,17 @@ def test_front_end_status_quotes_the_results_files():
     assert (f"| {sum(int(r[5]) for r in ours)} ({_range([int(r[5]) for r in plain], 'd')}); "
             f"{flagged[0]} of {len(ours)} ({flagged[1]} of {len(plain)}) |"
             in _status("motion blur"))
+    shutter = [r for r in _rows(RESULTS / "bench_shutter.md") if len(r) == 10]
+    shaking = [r for r in shutter if r[0].startswith("cart shaking")]
+    z = {m: [float(r[8].split("/")[0]) for r in shaking if (r[3] == "without") == (m == "without")]
+         for m in ("with", "without")}
+    knock = [r[9].split()[1] for r in shutter
+             if r[0].startswith("cart knock") and r[3] != "without"]
+    missed = all(r[9] == "missed" for r in shutter
+                 if r[0].startswith("cart knock") and r[3] == "without")
+    assert (f"| {_range(z['with'], '.2f')} ({_range(z['without'], '.1f')}); "
+            f"{_range([float(k) for k in knock], '.1f')} s ({'missed' if missed else '?'}) |"
+            in _status("shutter + shaking"))
     par = {(r[0], r[1]): r for r in _rows(RESULTS / "bench_parallel.md")}
     two = [par[p, "chunks of 60, 2 processes"][4] for p in ("cart", "car")]
     assert f"| {two[0]} cart, {two[1]} car |" in _status("long recordings")
