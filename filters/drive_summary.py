@@ -47,7 +47,7 @@ def summarize_mount(
         return out
     t = np.array([f.t for f in good])
     note = short_drive_note(float(t[-1] - t[0])) or (
-        "" if step_test is None else untested_drive_note(float(t[-1] - t[0]), step_test))
+        "" if step_test is None else untested_drive_note(t, step_test))
     if note:
         out["short_drive"] = note
     mount = np.array([f.mount for f in good])

@@ -36,7 +36,6 @@ KITTI 07's rows up to 4.5 (a turn's body roll), knocks 5–6 before their step i
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -81,18 +80,27 @@ class MountStep:
 MIN_BLOCKS = 8
 
 
-def untested_drive_note(seconds: float, cfg: StepTestConfig | None = None) -> str:
-    """A warning for a drive of ``seconds`` too short for the step and drift tests
-    (:data:`MIN_BLOCKS` blocks): a knock or a creeping mount there is not looked for, and
-    the batch's mount intervals assume none. Empty for longer drives."""
+def untested_drive_note(t: FloatArray, cfg: StepTestConfig | None = None) -> str:
+    """A warning for a drive whose frames at times ``t`` [s] fill too few blocks for the step
+    and drift tests (:data:`MIN_BLOCKS` of ``block_s`` with 3 frames or more: the long-run
+    variance they rest on): a knock or a creeping mount there is not looked for, and the
+    batch's mount intervals assume none. Empty where the tests run."""
     cfg = cfg or StepTestConfig()
-    need_s = MIN_BLOCKS * cfg.block_s
-    if not cfg.enabled or not seconds < need_s:
+    t = np.asarray(t, dtype=float)
+    t = t[np.isfinite(t)]
+    if not cfg.enabled or t.size == 0:
         return ""
-    spans = math.floor(seconds * 10) / 10  # (7.95 s is not "8.0 s, less than 8 s")
-    return (f"the drive spans {spans:.1f} s, less than the {need_s:g} s the batch's step and "
-            "drift tests need: a knock or a creeping mount within it is not looked for, and the "
-            "mount intervals assume none (docs/filters.md)")
+    filled = int(np.count_nonzero(_block_counts(t, cfg.block_s) >= 3))
+    if filled >= MIN_BLOCKS:
+        return ""
+    return (f"the drive's frames fill {filled} of the {MIN_BLOCKS} blocks of {cfg.block_s:g} s "
+            "the batch's step and drift tests need: a knock or a creeping mount within it is "
+            "not looked for, and the mount intervals assume none (docs/filters.md)")
+
+
+def _block_counts(t: FloatArray, length: float) -> NDArray[np.int64]:
+    """Frames in each block of ``length`` seconds from the first of ``t``."""
+    return np.bincount(np.floor((t - t[0]) / length).astype(int))
 
 
 def long_run_variance(residuals: FloatArray, t: FloatArray, block_s: float,
@@ -108,7 +116,7 @@ def long_run_variance(residuals: FloatArray, t: FloatArray, block_s: float,
     length = block_s
     while True:
         block = np.floor((t - t[0]) / length).astype(int)
-        counts = np.bincount(block)
+        counts = _block_counts(t, length)
         sums = np.bincount(block, weights=residuals)
         full = counts >= 3
         if np.count_nonzero(full) < min_blocks:

@@ -236,14 +236,18 @@ def test_a_refit_on_fewer_residuals_than_parameters_is_refused(readout):
         bundle.fit_lm(model, x, np.arange(3))
 
 
+@pytest.mark.parametrize("prior", [False, True])
 @pytest.mark.parametrize("offsets", [(0.01, 0.0), (-0.008, 0.0), (0.0, 0.006)])
-def test_shutter_rate_covariance_is_what_frame_ks_unmodelled_rate_moves_the_fit_by(offsets):
+def test_shutter_rate_covariance_is_what_frame_ks_unmodelled_rate_moves_the_fit_by(offsets,
+                                                                                  prior):
     """Displacements made with frame k turning during its readout at a rate off the pair's by
     ``offsets`` (pitch, roll; rad per frame interval), fitted with the pair's rate: the fit's
     pitch and roll move by the omitted parameter's bias, which the covariance's standard
     deviations (at σ = |offset|) state within 10 %; two angles' variances add."""
     rng = np.random.default_rng(6)
     model, x = _cart_model(rng, readout_frames=0.4, image_rows=600)
+    if prior:  # a pose prior at the truth (tracking): its rows are in the fit and in J
+        model = dataclasses.replace(model, prior_mean=x[:4].copy(), prior_scale=30.0)
     x = np.append(x, 0.0)  # with the vertical motion: a steep camera's fit
     turning = np.zeros(12)
     turning[:8], turning[10:12] = x, offsets
@@ -273,3 +277,11 @@ def test_frame_rate_offsets_of_zero_leave_the_rolling_shutter_prediction_unchang
     np.testing.assert_array_equal(model.predict(extended), model.predict(x))
     extended[8] = 0.01  # frame k-1's pitch rate: moves its ground points, not frame k's pose
     assert np.abs(model.predict(extended) - model.predict(x)).max() > 0.05
+    # columns 8–9 are frame k-1's (its row 0 is seen at the pose itself), 10–11 frame k's
+    top = dataclasses.replace(model, pixels_prev=np.column_stack(
+        [np.linspace(50, 750, 6), np.zeros(6)]), targets=np.zeros((6, 2)))
+    for column, moves in ((8, False), (9, False), (10, True), (11, True)):
+        extended = np.zeros(12)
+        extended[:7], extended[column] = x, 0.01
+        moved = np.abs(top.predict(extended) - top.predict(x)).max()
+        assert (moved > 1e-2) if moves else (moved < 1e-9), (column, moved)

@@ -485,6 +485,55 @@ def test_rolling_shutter_of_an_accelerating_vehicle_takes_the_previous_motion():
     assert tracked["pitch"] < 0.1 and tracked["dist_mm"] < 0.005 * distance, tracked
 
 
+def test_rolling_shutter_rows_of_a_shaking_body_carry_frame_ks_unknown_turning():
+    """A shaking cart under a readout of 0.3 of the frame interval: frame k turns during its
+    readout at a rate the pair cannot know (docs/shutter.md). The estimates are the same with
+    and without the term; with it every tracked pair's σ is wider, by what the running RMS of
+    the pair-to-pair change of the (pitch, roll) rate says (weight ``ANGULAR_ACCEL_WEIGHT``,
+    this pair's own change included; a cold pair: its own rate)."""
+    from vipm_track.stage_context import ANGULAR_ACCEL_WEIGHT
+
+    p = PRESETS["cart"]
+    n, dt = 5, 1.0 / p.fps
+    traj = make_trajectory("shaking", n, preset=p, seed=201)
+    tex, cam = preset_texture(p), p.camera()
+    imgs = [render_trajectory_frame(tex, cam, traj, k, Effects(rolling_shutter=0.3))
+            for k in range(n)]
+    rig = Rig(cam, p.height_m, p.pitch_deg, readout_s=0.3 * dt)
+    runs = {}
+    for term in (False, True):
+        est = TwoFrameEstimator(rig, EstimatorConfig(shutter_rate_covariance=term))
+        results = [est.estimate(imgs[0], imgs[1], None, dt)]
+        for k in range(2, n):
+            results.append(est.estimate(imgs[k - 1], imgs[k],
+                                        PairGuess.from_previous(results[-1]), dt))
+        assert all(r.ok for r in results), [r.reason for r in results]
+        runs[term] = results
+    rate = [np.array([r.pose_curr.pitch - r.pose_prev.pitch, r.pose_curr.roll - r.pose_prev.roll])
+            for r in runs[True]]
+    ms = None
+    for k, (off, on) in enumerate(zip(runs[False], runs[True], strict=True)):
+        assert on.pose_curr == off.pose_curr and on.motion == off.motion
+        if k == 0:
+            assert on.angular_accel_ms is None  # cold: no change of rate known
+            continue
+        change = (rate[k] - rate[k - 1]) ** 2
+        w = ANGULAR_ACCEL_WEIGHT
+        ms = change if ms is None else (1 - w) * ms + w * change
+        np.testing.assert_allclose(on.angular_accel_ms, ms, rtol=1e-9)
+        assert on.covariance[2, 2] > 1.5**2 * off.covariance[2, 2]
+    # what each pair's term is computed from
+    est = TwoFrameEstimator(rig)
+    prev, curr = est.prepare(imgs[3], "3"), est.prepare(imgs[4], "4")
+    x = dm.pack(runs[True][-1].pose_prev, runs[True][-1].pose_curr, runs[True][-1].motion)
+    cold = est.stage_context(prev, curr, None, dt)
+    np.testing.assert_allclose(cold.shutter_rate_std(x), np.abs(rate[-1]), rtol=1e-9)
+    tracked = est.stage_context(prev, curr, PairGuess.from_previous(runs[True][-2]), dt)
+    expected = ((1 - ANGULAR_ACCEL_WEIGHT) * np.asarray(runs[True][-2].angular_accel_ms)
+                + ANGULAR_ACCEL_WEIGHT * (rate[-1] - rate[-2]) ** 2)
+    np.testing.assert_allclose(tracked.shutter_rate_std(x), np.sqrt(expected), rtol=1e-9)
+
+
 def test_fast_cart_cold_start_reports_no_wrong_minimum():
     # The cart at 6 m/s and 10 fps from the default 60° start: the frames are half a view
     # apart, and the image-plane cold start of this pair had converged to a wrong minimum

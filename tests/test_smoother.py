@@ -915,24 +915,32 @@ def test_a_drive_too_short_for_the_mount_change_test_says_so():
     assert "**Warning:** the drive spans 4.0 s" in text
 
 
-def test_a_drive_too_short_for_the_step_test_says_so():
-    """Between the 6 s of the mount-change test and the 8 s of the batch's step and drift
-    tests, a drive's batch summary warns that a knock goes unlooked for (a rendered car's 1°
-    knock 3.2 s into a 7.95-s drive: the batch's mount 3.20° / 3.85° around it, truth 3° /
-    4°, no frame's interval holding it, and no word); the fixed lag's summary does not say
-    so (it has no such test), and a drive of 8 s or more is not warned of."""
+def test_a_drive_too_short_for_the_step_test_says_so(tmp_path):
+    """A drive whose frames fill fewer than the 8 one-second blocks the batch's step and drift
+    tests need (6.5 s: 7) is warned of in the batch's summary, from the command line too; the
+    fixed lag's summary does not say so (it has no such test), and a drive of 7.95 s (8 full
+    blocks: the test runs) is not warned of."""
+    from conftest import write_drive_inputs
+
+    from vipm_track.cli import main
     from vipm_track.filters.drive_summary import summarize_mount
     from vipm_track.filters.mount_steps import StepTestConfig, untested_drive_note
 
-    assert "7.9 s" in untested_drive_note(7.95) and "not looked for" in untested_drive_note(7.95)
-    assert untested_drive_note(8.0) == "" and untested_drive_note(3.0, StepTestConfig(False)) == ""
-    run = simulate_drive(DriveConfig.preset("car", duration_s=7.95, height_m=H_TRUE,
+    assert "fill 7 of the 8 blocks" in untested_drive_note(np.arange(0.0, 6.5, 0.05))
+    assert untested_drive_note(np.arange(0.0, 7.95, 0.05)) == ""
+    assert untested_drive_note(np.arange(0.0, 3.0, 0.05), StepTestConfig(False)) == ""
+    run = simulate_drive(DriveConfig.preset("car", duration_s=6.5, height_m=H_TRUE,
                                             height_assumed_m=H0), 5)
     frames = smooth(run.measurements, run.speed,
                     SmootherConfig(height_m=H0, noise=run.config.noise))
     batch = summarize_mount(frames, run.measurements, StepTestConfig())
     assert "step and drift tests" in str(batch.get("short_drive"))
     assert "short_drive" not in summarize_mount(frames, run.measurements)
+    write_drive_inputs(run, tmp_path)
+    assert main(["smooth", "--estimates", str(tmp_path / "est.csv"), "--height", str(H0),
+                 "--out", str(tmp_path / "smoothed.csv"), "--quiet"]) == 0
+    summary = json.loads((tmp_path / "smoothed.summary.json").read_text())
+    assert "step and drift tests" in summary["short_drive"]
 
 
 @pytest.mark.parametrize("lag_s", [0.0, 2.0])

@@ -209,11 +209,13 @@ def _process(spec: DriveSpec, folder: Path, settings: FleetSettings) -> dict[str
             raise InputError(speed.none_covered(
                 spans, "the drive's speed is on another clock or of another drive"))
     frames, rows = [], []
-    for f, row in smoothed_rows(measurements, speed, smoother_config(height, settings)):
+    config = smoother_config(height, settings)
+    for f, row in smoothed_rows(measurements, speed, config):
         frames.append(f)
         rows.append(row)
     _table_atomic(folder / "smoothed.parquet", rows, settings)
-    summary = summarize_mount(frames, measurements)
+    summary = summarize_mount(frames, measurements,
+                              config.mount_steps if config.lag_s == 0 else None)
     ekf_config = EkfConfig(height_m=height)
     monitor_config = MonitorConfig.from_noise(ekf_config.noise, fps=frame_rate(measurements))
     monitor_rows, states = [], []
