@@ -76,21 +76,35 @@ def run(seed: int, blur: bool, cache: Path) -> list[tuple[str, dict]]:
     return out
 
 
-def score(est: dict, truth: dict, monitor: dict) -> dict:
-    """The run's numbers (module doc)."""
+def ok_rows(est: dict, truth: dict) -> dict:
+    """The `ok` rows of an estimates table against the render's truth: their count (of the
+    pairs), pitch and roll errors [°], z (error over the stated σ), how many are more than
+    ``WRONG_DEG`` off in pitch or roll and how many beyond 3σ in either."""
     index = {int(f): i for i, f in enumerate(truth["frame"])}
     ok = np.flatnonzero(np.asarray(est["status"], object) == "ok")
     t = np.array([index[int(est["frame"][i])] for i in ok], int)
     errors = {a: est[f"{a}_deg"][ok] - truth[f"{a}_deg"][t] for a in ("pitch", "roll")}
     z = {a: errors[a] / est[f"{a}_std_deg"][ok] for a in errors}
-    recal = np.asarray(monitor["monitor_state"], object) == "RECALIBRATE"
     return {
         "ok": f"{len(ok)}/{len(est['frame']) - 1}",
-        "pitch_rms": float(np.sqrt(np.mean(errors["pitch"] ** 2))),
+        "errors": errors,
+        "z": z,
         "wrong": int(np.sum((np.abs(errors["pitch"]) > WRONG_DEG)
                             | (np.abs(errors["roll"]) > WRONG_DEG))),
         "beyond_3sigma": int(np.sum((np.abs(z["pitch"]) > 3) | (np.abs(z["roll"]) > 3))),
-        "z_pitch": float(np.sqrt(np.mean(z["pitch"] ** 2))),
+    }
+
+
+def score(est: dict, truth: dict, monitor: dict) -> dict:
+    """The run's numbers (module doc)."""
+    rows = ok_rows(est, truth)
+    recal = np.asarray(monitor["monitor_state"], object) == "RECALIBRATE"
+    return {
+        "ok": rows["ok"],
+        "pitch_rms": float(np.sqrt(np.mean(rows["errors"]["pitch"] ** 2))),
+        "wrong": rows["wrong"],
+        "beyond_3sigma": rows["beyond_3sigma"],
+        "z_pitch": float(np.sqrt(np.mean(rows["z"]["pitch"] ** 2))),
         "first_recalibrate_s": (f"{float(monitor['t'][np.flatnonzero(recal)[0]]):.1f}"
                                 if recal.any() else "never"),
     }

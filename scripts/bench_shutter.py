@@ -30,6 +30,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench_blur import ok_rows  # noqa: E402
+
 from vipm_track.camera import load_camera  # noqa: E402
 from vipm_track.cli import main as cli_main  # noqa: E402
 from vipm_track.estimator_config import EstimatorConfig  # noqa: E402
@@ -39,8 +41,6 @@ from vipm_track.runs import estimate_sequence  # noqa: E402
 from vipm_track.sim import PRESETS, simulate_sequence  # noqa: E402
 from vipm_track.sources import open_source  # noqa: E402
 from vipm_track.table import read_table  # noqa: E402
-
-WRONG_DEG = 1.5
 
 
 @dataclass(frozen=True)
@@ -103,11 +103,7 @@ def run(case: Case, cache: Path) -> list[tuple[str, dict]]:
 
 def score(est: dict, truth: dict, monitor: dict) -> dict:
     """The run's numbers (module doc)."""
-    index = {int(f): i for i, f in enumerate(truth["frame"])}
-    ok = np.flatnonzero(np.asarray(est["status"], object) == "ok")
-    t = np.array([index[int(est["frame"][i])] for i in ok], int)
-    errors = {a: est[f"{a}_deg"][ok] - truth[f"{a}_deg"][t] for a in ("pitch", "roll")}
-    z = {a: errors[a] / est[f"{a}_std_deg"][ok] for a in errors}
+    rows = ok_rows(est, truth)
     recal = np.flatnonzero(np.asarray(monitor["monitor_state"], object) == "RECALIBRATE")
     mount = np.asarray(truth["mount_pitch_deg"], float)
     knock = np.flatnonzero(np.abs(np.diff(mount)) > 0.5)
@@ -126,12 +122,11 @@ def score(est: dict, truth: dict, monitor: dict) -> dict:
         verdict = (f"false RECALIBRATE at {float(monitor['t'][recal[0]]):.1f} s"
                    if recal.size else "never RECALIBRATE")
     return {
-        "ok": f"{len(ok)}/{len(est['frame']) - 1}",
-        "rms": {a: float(np.sqrt(np.mean(e**2))) for a, e in errors.items()},
-        "wrong": int(np.sum((np.abs(errors["pitch"]) > WRONG_DEG)
-                            | (np.abs(errors["roll"]) > WRONG_DEG))),
-        "beyond_3sigma": int(np.sum((np.abs(z["pitch"]) > 3) | (np.abs(z["roll"]) > 3))),
-        "z": {a: float(np.sqrt(np.mean(v**2))) for a, v in z.items()},
+        "ok": rows["ok"],
+        "rms": {a: float(np.sqrt(np.mean(e**2))) for a, e in rows["errors"].items()},
+        "wrong": rows["wrong"],
+        "beyond_3sigma": rows["beyond_3sigma"],
+        "z": {a: float(np.sqrt(np.mean(v**2))) for a, v in rows["z"].items()},
         "verdict": verdict,
     }
 
