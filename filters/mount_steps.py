@@ -90,7 +90,7 @@ def untested_drive_note(t: FloatArray, cfg: StepTestConfig | None = None) -> str
     t = t[np.isfinite(t)]
     if not cfg.enabled or t.size == 0:
         return ""
-    filled = int(np.count_nonzero(_block_counts(t, cfg.block_s) >= 3))
+    filled = int(np.count_nonzero(np.bincount(_blocks(t, cfg.block_s)) >= 3))
     if filled >= MIN_BLOCKS:
         return ""
     return (f"the drive's frames fill {filled} of the {MIN_BLOCKS} blocks of {cfg.block_s:g} s "
@@ -98,9 +98,9 @@ def untested_drive_note(t: FloatArray, cfg: StepTestConfig | None = None) -> str
             "not looked for, and the mount intervals assume none (docs/filters.md)")
 
 
-def _block_counts(t: FloatArray, length: float) -> NDArray[np.int64]:
-    """Frames in each block of ``length`` seconds from the first of ``t``."""
-    return np.bincount(np.floor((t - t[0]) / length).astype(int))
+def _blocks(t: FloatArray, length: float) -> NDArray[np.int64]:
+    """The block of ``length`` seconds, from the first of ``t``, each time falls in."""
+    return np.floor((t - t[0]) / length).astype(int)
 
 
 def long_run_variance(residuals: FloatArray, t: FloatArray, block_s: float,
@@ -115,8 +115,8 @@ def long_run_variance(residuals: FloatArray, t: FloatArray, block_s: float,
     best: float | None = None
     length = block_s
     while True:
-        block = np.floor((t - t[0]) / length).astype(int)
-        counts = _block_counts(t, length)
+        block = _blocks(t, length)
+        counts = np.bincount(block)
         sums = np.bincount(block, weights=residuals)
         full = counts >= 3
         if np.count_nonzero(full) < min_blocks:

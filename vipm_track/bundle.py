@@ -239,13 +239,21 @@ def heave_covariance(
     n = len(x)
     if heave_std_m <= 0 or n != N_PARAMS or idx.size < 2 * n:
         return np.zeros((n, n))
-    jac8 = model.jacobian(np.append(x, 0.0), idx)
-    jac, j_heave = jac8[:, :n], jac8[:, n]
+    b = omitted_bias(model.jacobian(np.append(x, 0.0), idx), n, n)
+    return np.zeros((n, n)) if b is None else heave_std_m**2 * np.outer(b, b)
+
+
+def omitted_bias(jac: FloatArray, n: int, omitted: int | list[int]) -> FloatArray | None:
+    """How a fit of the first ``n`` columns of ``jac`` (residuals × parameters) moves per unit
+    of the ``omitted`` parameter(s) it leaves out (column indices): ``B = −(JᵀJ)⁻¹ Jᵀ J_o``,
+    (n,) for one index, (n, len(omitted)) for a list. None where JᵀJ is singular or B not
+    finite."""
+    fitted, left_out = jac[:, :n], jac[:, omitted]
     try:
-        b = -np.linalg.solve(jac.T @ jac, jac.T @ j_heave)
+        b = -np.linalg.solve(fitted.T @ fitted, fitted.T @ left_out)
     except np.linalg.LinAlgError:
-        return np.zeros((n, n))
-    return heave_std_m**2 * np.outer(b, b) if np.all(np.isfinite(b)) else np.zeros((n, n))
+        return None
+    return b if np.all(np.isfinite(b)) else None
 
 
 def shutter_rate_covariance(
@@ -264,12 +272,8 @@ def shutter_rate_covariance(
         return np.zeros((n, n))
     extended = np.zeros(N_PARAMS + 5)  # heave, then frame k-1's and frame k's rate offsets
     extended[:n] = x
-    jac = model.jacobian(extended, idx)
-    try:
-        b = -np.linalg.solve(jac[:, :n].T @ jac[:, :n], jac[:, :n].T @ jac[:, -2:])
-    except np.linalg.LinAlgError:
-        return np.zeros((n, n))
-    if not np.all(np.isfinite(b)):
+    b = omitted_bias(model.jacobian(extended, idx), n, [N_PARAMS + 3, N_PARAMS + 4])
+    if b is None:
         return np.zeros((n, n))
     return (b * np.asarray(rate_std, dtype=float) ** 2) @ b.T
 

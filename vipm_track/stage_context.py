@@ -38,6 +38,11 @@ FloatArray = NDArray[np.float64]
 ANGULAR_ACCEL_WEIGHT = 0.3
 
 
+def pose_change(x: FloatArray) -> FloatArray:
+    """(pitch, roll) of frame k less frame k-1's in a parameter vector [rad]."""
+    return np.asarray(x[2:4] - x[0:2], dtype=float)
+
+
 def pose_prior(
     config: EstimatorConfig, nominal: GroundPose, guess: PairGuess | None,
 ) -> tuple[FloatArray | None, FloatArray]:
@@ -184,7 +189,7 @@ class StageContext:
         pair's (``x``'s) included [rad² per interval²]; None cold."""
         if self.previous_angular_rate is None:
             return None
-        change = np.asarray(x[2:4] - x[0:2], dtype=float) - self.previous_angular_rate
+        change = pose_change(x) - self.previous_angular_rate
         if self.previous_angular_accel_ms is None:
             return change**2
         return ((1 - ANGULAR_ACCEL_WEIGHT) * self.previous_angular_accel_ms
@@ -196,7 +201,7 @@ class StageContext:
         pair (tracking; a single change swings with the shaking's phase), or the pair's own
         rate (cold)."""
         ms = self.angular_accel_ms(x)
-        return np.abs(x[2:4] - x[0:2]) if ms is None else np.sqrt(ms)
+        return np.abs(pose_change(x)) if ms is None else np.sqrt(ms)
 
     def accept(self, fit: FitResult, result: PairResult, stage: str) -> None:
         """Check a stage's fit and make it the result's current estimate."""
