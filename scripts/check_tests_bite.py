@@ -48,6 +48,7 @@ TABLE_TESTS = (
     "tests/test_kitti.py::test_stored_kitti_estimates_score_as_stated",
 )
 RENDER_TESTS = ("tests/test_render_independent.py",)
+CHAIN_TESTS = ("tests/test_pair_chain.py", "tests/test_pipeline.py")
 
 
 @dataclass(frozen=True)
@@ -83,13 +84,22 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("guess-off-by-one-frame", "estimator",
            "off-by-one: tracking seeds the next pair with frame k−1's pose",
            "vipm_track/pair_result.py",
-           "return cls(result.pose_curr, result.pose_curr, result.motion, angular_change",
-           "return cls(result.pose_prev, result.pose_prev, result.motion, angular_change",
+           "return cls(result.pose_curr, result.pose_curr,",
+           "return cls(result.pose_prev, result.pose_prev,",
            ESTIMATOR_TESTS),
     Mutant("motion-yaw-sign", "estimator", "sign flip: the unpacked yaw",
            "vipm_track/displacement_model.py",
            "PlanarMotion(float(x[4]), float(x[5]), float(x[6])),",
            "PlanarMotion(float(x[4]), float(x[5]), -float(x[6])),", ESTIMATOR_TESTS),
+    Mutant("motion-bound-unconfirmed", "estimator",
+           "dropped rule: a pair that agreed with nothing before it rejects the next",
+           "vipm_track/pair_chain.py", "if conflict is not None and before.confirmed:",
+           "if conflict is not None:", CHAIN_TESTS),
+    Mutant("motion-bound-speed-only", "estimator",
+           "simplified: the bound compares speeds, not velocities (a sideways lock passes)",
+           "vipm_track/pair_chain.py", "change = now.velocity - before.velocity",
+           "change = np.array([0.0, np.hypot(*now.velocity) - np.hypot(*before.velocity)])",
+           CHAIN_TESTS),
     Mutant("wrong-minimum-guard-off", "estimator",
            "threshold: a cold start's inlier share needs 0 % (the wrong-minimum guard off)",
            "vipm_track/cold_start.py", "need = RETRY_MIN_INLIER_SHARE if retry else "

@@ -18,6 +18,7 @@ from vipm_track.errors import InputError
 from vipm_track.estimator import TwoFrameEstimator
 from vipm_track.estimator_config import EstimatorConfig
 from vipm_track.measurement import PairMeasurement
+from vipm_track.pair_chain import predict_guess
 from vipm_track.pair_result import (
     STATUS_FEW_INLIERS,
     STATUS_NO_MOTION,
@@ -25,7 +26,6 @@ from vipm_track.pair_result import (
     PairGuess,
     PairResult,
 )
-from vipm_track.pipeline import predict_guess
 from vipm_track.render import OBSTACLE_POLYGON, Effects, render_frame
 from vipm_track.rig import DEFAULT_PITCH_DEG, Rig
 from vipm_track.sim import (

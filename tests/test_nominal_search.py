@@ -176,8 +176,9 @@ def _level_wide_rig():
 
 def test_default_start_calling_a_moving_view_still_is_a_failed_start(tmp_path):
     from vipm_track.estimator import TwoFrameEstimator
+    from vipm_track.pair_chain import estimate_pair
     from vipm_track.pair_result import STATUS_NO_MOTION
-    from vipm_track.pipeline import estimate_pair, prepare_image
+    from vipm_track.pipeline import prepare_image
 
     preset = _level_wide_rig()
     traj = simulate_sequence(preset, 3, tmp_path, seed=13, profile="gradual")

@@ -195,6 +195,12 @@ def test_front_end_status_quotes_the_results_files():
     assert (f"| {_range(z['with'], '.2f')} ({_range(z['without'], '.1f')}); "
             f"{_range([float(k) for k in knock], '.1f')} s ({'missed' if missed else '?'}) |"
             in _status("shutter + shaking"))
+    bound = {r[2]: r for r in _rows(RESULTS / "bench_motion_bound.md") if r[0] == "**all**"}
+    rejected, wrong_rejected = re.fullmatch(r"(\d+) \((\d+) wrong\)",
+                                            bound["default (10 m/s²)"][6]).groups()
+    assert (f"| {bound['default (10 m/s²)'][4]} ({bound['--max-acceleration inf'][4]} without "
+            f"the bound); {int(rejected) - int(wrong_rejected)} |"
+            in _status("motion between pairs"))
     par = {(r[0], r[1]): r for r in _rows(RESULTS / "bench_parallel.md")}
     two = [par[p, "chunks of 60, 2 processes"][4] for p in ("cart", "car")]
     assert f"| {two[0]} cart, {two[1]} car |" in _status("long recordings")

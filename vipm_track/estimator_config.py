@@ -164,6 +164,11 @@ class EstimatorConfig:
         for steep cameras, off for forward-looking ones (whose far-field IPM patches, stretched
         many times, carry too little above the noise: fewer pairs ok and a worse travel on
         KITTI 07; docs/blur.md).
+    max_acceleration_mps2 : the vehicle's largest acceleration [m/s²] (default 10, about
+        what tyres on a dry road can give, braking or turning): in a sequence
+        (``pair_chain.PairChain``) an ``ok`` pair whose mean velocity differs from the last
+        ``ok`` pair's by more than it allows, plus three standard deviations, is marked
+        "implausible motion" (inf: off).
     seed : seed of the subset sampler (runs are deterministic).
     keep_images : keep the last refinement's IPM images in the result.
     """
@@ -212,6 +217,7 @@ class EstimatorConfig:
     inlier_median_factor: float | None = None
     moved_ipm: bool | None = None
     blur_invariant_ipm: bool | None = None
+    max_acceleration_mps2: float = 10.0
     seed: int = 0
     keep_images: bool = False
 
@@ -237,6 +243,7 @@ class EstimatorConfig:
             "roi_max_lateral_h": self.roi_max_lateral_h > 0,
             "max_deviation_deg": self.max_deviation_deg > 0,
             "max_roll_deg": 0 < self.max_roll_deg <= 90,
+            "max_acceleration_mps2": self.max_acceleration_mps2 > 0,
             "cold_pitch_steps_deg": self.cold_pitch_steps_deg is None or all(
                 np.isfinite(step) and abs(step) < self.max_deviation_deg
                 for step in self.cold_pitch_steps_deg),

@@ -41,7 +41,8 @@ from vipm_track.filters.nominal import NominalCalibration
 from .estimator import TwoFrameEstimator
 from .estimator_config import EstimatorConfig
 from .measurement import PairMeasurement
-from .pipeline import WRONG_SIZE, estimate_pair, predict_guess, prepare_image
+from .pair_chain import PairChain
+from .pipeline import WRONG_SIZE, prepare_image
 from .rig import Rig
 from .sources import Frame, _to_grey
 from .table import TableColumns
@@ -178,6 +179,8 @@ class LiveMonitor:
             raise ValueError("the watchdog's timeouts must be > 0 s")
         self.camera, self.nominal = rig.camera, nominal
         self.estimator = TwoFrameEstimator(rig, config)
+        # frames may be dropped between pairs: a result seeds one ending within 1 s of it
+        self._chain = PairChain(self.estimator, track_within_s=_TRACK_WITHIN_S)
         self.speed = SpeedBuffer()
         self.online = OnlineMonitor(nominal, EkfConfig(height_m=nominal.height_m),
                                     dict(monitor_options or {}), fps=fps, speed=self.speed)
@@ -193,7 +196,6 @@ class LiveMonitor:
         self._fresh = False
         self._next_index = 0
         self._last_pair_end: int | None = None
-        self._last_ok: tuple[Any, float, float] | None = None  # result, its dt, its t
         self._waiting: dict[int, tuple[_Arrived, _Arrived, Any, int]] = {}
         self._holds: dict[str, str] = {}
         self._reported: str | None = None
@@ -344,14 +346,8 @@ class LiveMonitor:
             status = f"{WRONG_SIZE} {w}×{h} (camera {self.camera.width}×{self.camera.height})"
             stats.rejected += 1
         else:
-            guess = None
-            if self._last_ok is not None and b.t - self._last_ok[2] <= _TRACK_WITHIN_S:
-                guess = predict_guess(self._last_ok[0], self._last_ok[1], dt)
-            result = estimate_pair(self.estimator, prev, curr, guess, dt)
-            if guess is not None and result.status != "ok":
-                result = estimate_pair(self.estimator, prev, curr, None, dt)
+            result, _ = self._chain.estimate(prev, curr, b.t, dt)
             status = result.status
-            self._last_ok = (result, dt, b.t) if status == "ok" else None
         m = result.to_measurement(b.index, b.t) if status == "ok" else None
         if m is None:
             m = PairMeasurement(b.index, b.t, np.full(7, np.nan), np.full((7, 7), np.nan),

@@ -31,8 +31,9 @@ import numpy as np
 from .errors import InputError
 from .estimator import TwoFrameEstimator
 from .estimator_config import REFINEMENT_WEIGHTING
+from .pair_chain import estimate_pair
 from .pair_result import STATUS_NO_MOTION, STATUS_OK
-from .pipeline import config_with, estimate_pair, prepare_image
+from .pipeline import config_with, prepare_image
 from .static_content import noise_sigma, stands_still
 from .travel_direction import (
     AGREE_DEG,

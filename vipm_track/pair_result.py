@@ -38,13 +38,19 @@ class PairGuess:
     angular_accel_ms: tuple[float, float] | None = None
 
     @classmethod
-    def from_previous(cls, result: PairResult) -> PairGuess | None:
+    def from_previous(cls, result: PairResult, ratio: float = 1.0) -> PairGuess | None:
         """Constant-pose, constant-velocity guess for the next pair from an ``ok`` result
-        (None otherwise, which means a cold start)."""
+        (None otherwise, which means a cold start): frame k's pose for both frames, the
+        motion and the angular rate scaled by ``ratio`` (the next frame interval over the
+        result's), the angular acceleration's mean square by ``ratio``⁴."""
         if result is None or result.status != STATUS_OK:
             return None
-        return cls(result.pose_curr, result.pose_curr, result.motion, angular_change(result),
-                   result.angular_accel_ms)
+        m = result.motion
+        return cls(result.pose_curr, result.pose_curr,
+                   PlanarMotion(m.tx * ratio, m.tz * ratio, m.yaw * ratio),
+                   angular_change(result, ratio),
+                   None if result.angular_accel_ms is None
+                   else tuple(ratio**4 * np.asarray(result.angular_accel_ms)))
 
 
 def angular_change(result: PairResult, scale: float = 1.0) -> tuple[float, float]:

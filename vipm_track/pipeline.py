@@ -7,8 +7,9 @@ Tracking mode (the default) seeds each pair from the previous result: the previo
 pose for the virtual IPM and the previous motion (scaled by the ratio of frame intervals) to
 predict displacements and offset the patch windows, which is what lets fast motion and
 forward-looking cameras work. The first pair, and the pair after any failure, start cold
-from the rig's nominal pose; a tracked pair that fails is tried
-once more cold before it is given up.
+from the rig's nominal pose; a tracked pair that fails is tried once more cold before it is
+given up, and an ``ok`` pair whose motion no vehicle could reach from the last one's is marked
+``implausible motion`` (``pair_chain.PairChain``).
 
 With more than one thread (``workers.threads``), the next frame is read and its pair
 prepared (``TwoFrameEstimator.prepare_pair``: the grey image, its noise, the
@@ -24,7 +25,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -33,8 +34,7 @@ from numpy.typing import NDArray
 from .camera import CameraModel
 from .errors import InputError
 from .estimator import PreparedFrame, PreparedPair, TwoFrameEstimator
-from .geometry import PlanarMotion
-from .pair_result import PairGuess, angular_change
+from .pair_chain import PairChain
 from .rig import Rig
 from .sources import Frame, FrameSource
 from .workers import threads
@@ -47,9 +47,6 @@ FIRST_FRAME = "first frame"
 NO_PREVIOUS = "no previous frame"
 UNREADABLE = "unreadable frame"
 WRONG_SIZE = "wrong image size"
-
-#: Bounds on the frame-interval ratio used to scale the previous motion into a prediction.
-_DT_RATIO_RANGE = (0.25, 4.0)
 
 
 @dataclass(frozen=True)
@@ -78,19 +75,6 @@ def prepare_image(frame: Frame, camera: CameraModel) -> NDArray[np.uint8]:
     return frame.image
 
 
-def predict_guess(previous: PairResult, dt_prev: float, dt: float) -> PairGuess:
-    """Seed for the next pair from an ok result: its current pose for both frames and its
-    motion scaled by ``dt / dt_prev`` (clipped to [0.25, 4])."""
-    ratio = dt / dt_prev if dt_prev > 0 and dt > 0 else 1.0
-    ratio = float(np.clip(ratio, *_DT_RATIO_RANGE))
-    m = previous.motion
-    motion = PlanarMotion(m.tx * ratio, m.tz * ratio, m.yaw * ratio)
-    return PairGuess(pose_prev=previous.pose_curr, pose_curr=previous.pose_curr, motion=motion,
-                     angular_rate=angular_change(previous, ratio),
-                     angular_accel_ms=None if previous.angular_accel_ms is None
-                     else tuple(ratio**4 * np.asarray(previous.angular_accel_ms)))
-
-
 def run_sequence(
     source: FrameSource,
     rig: Rig,
@@ -112,13 +96,13 @@ def run_sequence(
         estimator = TwoFrameEstimator(rig, config)
     camera = rig.camera
     prev_image: NDArray | None = None
-    prev_t = prev_dt = float("nan")
-    previous_ok: PairResult | None = None
+    prev_t = float("nan")
+    chain = PairChain(estimator, tracking, retry_cold)
     checked_size = continuation
     frames = _prepared_frames(source, estimator, camera)
     for frame, prepared in (_read_ahead(frames) if threads() > 1 else frames):
         if frame.image is None:
-            prev_image, previous_ok = None, None
+            prev_image = None
             yield SequenceStep(frame.index, frame.t, None, frame.error or UNREADABLE)
             continue
         try:
@@ -126,7 +110,7 @@ def run_sequence(
         except ValueError as exc:
             if not checked_size:
                 raise InputError(f"{source.description}: {exc}") from exc
-            prev_image, previous_ok = None, None
+            prev_image = None
             h, w = frame.image.shape[:2]
             named = f": {frame.name}" if frame.name else ""  # (as an unreadable frame is)
             yield SequenceStep(frame.index, frame.t, None, f"{WRONG_SIZE} {w}×{h} (camera "
@@ -135,22 +119,16 @@ def run_sequence(
         checked_size = True
         if prev_image is None:
             status = FIRST_FRAME if np.isnan(prev_t) and not continuation else NO_PREVIOUS
-            prev_image, prev_t, prev_dt, previous_ok = image, frame.t, float("nan"), None
+            prev_image, prev_t = image, frame.t
+            chain.break_tracking()
             yield SequenceStep(frame.index, frame.t, None, status)
             continue
         dt = frame.t - prev_t
-        guess = None
-        if tracking and previous_ok is not None:
-            guess = predict_guess(previous_ok, prev_dt, dt)
         start = time.perf_counter()
-        result = estimate_pair(estimator, prev_image, image, guess, dt, prepared)
-        if guess is not None and result.status != "ok" and retry_cold:
-            result = estimate_pair(estimator, prev_image, image, None, dt, prepared)
-            guess = None
+        result, tracked = chain.estimate(prev_image, image, frame.t, dt, prepared)
         seconds = time.perf_counter() - start
-        previous_ok = result if result.status == "ok" else None
-        prev_image, prev_t, prev_dt = image, frame.t, dt
-        yield SequenceStep(frame.index, frame.t, result, result.status, guess is not None, seconds)
+        prev_image, prev_t = image, frame.t
+        yield SequenceStep(frame.index, frame.t, result, result.status, tracked, seconds)
 
 
 def _prepared_frames(source: FrameSource, estimator: TwoFrameEstimator, camera: CameraModel,
@@ -188,33 +166,6 @@ def _read_ahead(items: Iterator) -> Iterator:
         while (item := pending.result()) is not _END:
             pending = pool.submit(next, items, _END)
             yield item
-
-
-def estimate_pair(
-    estimator: TwoFrameEstimator, prev: NDArray, curr: NDArray, guess: PairGuess | None,
-    frame_interval_s: float | None = None, prepared: PreparedPair | None = None,
-) -> PairResult:
-    """One pair ``frame_interval_s`` seconds apart (``prepared``: its
-    :meth:`TwoFrameEstimator.prepare_pair`, where made ahead); an exception inside the
-    estimator becomes a failed result, not a dead run."""
-    try:
-        if prepared is not None:
-            return estimator.estimate(prev, curr, guess, frame_interval_s, prepared=prepared)
-        return estimator.estimate(prev, curr, guess, frame_interval_s)
-    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
-        return _FailedResult(f"estimator error: {type(exc).__name__}: {exc}"[:200])
-
-
-@dataclass
-class _FailedResult:
-    """Stand-in for a ``PairResult`` when the estimator raised (only ``status`` is read)."""
-
-    status: str
-    reason: str = ""
-    timings: dict[str, float] = field(default_factory=dict)
-
-    def to_measurement(self, frame: int, t: float) -> Any:
-        return None
 
 
 def config_with(config: EstimatorConfig, **changes: Any) -> EstimatorConfig:

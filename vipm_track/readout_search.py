@@ -30,8 +30,8 @@ from numpy.typing import NDArray
 
 from .estimator import TwoFrameEstimator
 from .nominal_search import moving_pairs
+from .pair_chain import estimate_pair
 from .pair_result import STATUS_OK
-from .pipeline import estimate_pair
 
 if TYPE_CHECKING:
     from .estimator_config import EstimatorConfig

@@ -56,6 +56,11 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
                        help="plausible roll of the camera about --roll (or level), degrees: "
                        "pairs and nominal-pose searches that fit a roll beyond it are "
                        "rejected (default 10)")
+    group.add_argument("--max-acceleration", type=float, default=None, metavar="M/S²",
+                       help="the vehicle's largest acceleration, m/s²: an ok pair whose velocity "
+                       "on the ground differs from the last ok pair's (within 1 s) by more than "
+                       "it allows, plus three standard deviations, gets status 'implausible "
+                       "motion' (default 10, about 1 g; 'inf' turns it off)")
     group.add_argument("--pose-prior-deg", type=float, default=None, metavar="DEG",
                        help="standard deviation of a prior on pitch and roll around "
                        "--pitch/--roll inside the fit, degrees; resolves the pitch/travel "
@@ -153,6 +158,9 @@ def build_config(args: argparse.Namespace, camera: CameraModel):
     prior = getattr(args, "pose_prior_deg", None)
     if prior is not None and not (math.isfinite(prior) and 0 <= prior <= 45):
         raise InputError(f"--pose-prior-deg must be in [0, 45] degrees, got {prior}")
+    max_accel = getattr(args, "max_acceleration", None)
+    if max_accel is not None and not max_accel > 0:  # (NaN too)
+        raise InputError(f"--max-acceleration must be > 0 m/s², got {max_accel}")
     roi = parse_roi(args.roi, camera) if args.roi else None
     seed = getattr(args, "subset_seed", None)
     if seed is not None and seed < 0:
@@ -163,6 +171,7 @@ def build_config(args: argparse.Namespace, camera: CameraModel):
         refinements=args.refinements,
         patch_image=args.patch_size,
         max_roll_deg=max_roll,
+        max_acceleration_mps2=max_accel,
         roi=roi,
         vertical_motion=args.vertical_motion,
         pose_prior_deg=prior,

@@ -1,0 +1,206 @@
+"""The chain of consecutive pairs (``vipm_track.pair_chain``): tracking seeds, the cold retry
+and the speed bound, on the stored rows of real runs and on made-up speeds."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vipm_track.cli import main
+from vipm_track.displacement_model import unpack
+from vipm_track.estimator_config import EstimatorConfig
+from vipm_track.measurement import read_measurements
+from vipm_track.pair_chain import (
+    MOTION_HORIZON_S,
+    STATUS_IMPLAUSIBLE_MOTION,
+    PairChain,
+    PairVelocity,
+    motion_conflict,
+    pair_velocity,
+)
+from vipm_track.pair_result import PairResult
+
+DATA = Path(__file__).parent / "data"
+
+
+class _Replay:
+    """Stands in for the estimator: returns stored results in turn (whatever the guess)."""
+
+    def __init__(self, results: list[PairResult], config: EstimatorConfig) -> None:
+        self.results = iter(results)
+        self.config = config
+        self.guesses: list = []
+
+    def estimate(self, prev, curr, guess=None, frame_interval_s=None):
+        self.guesses.append(guess)
+        return next(self.results)
+
+
+def _result(z, cov=None, height=1.5, status="ok") -> PairResult:
+    if status != "ok":
+        return PairResult(status=status)
+    prev, curr, motion = unpack(np.asarray(z, float), height)
+    return PairResult(status, pose_prev=prev, pose_curr=curr, motion=motion,
+                      covariance=np.eye(7) * 1e-8 if cov is None else cov, height=height)
+
+
+def _stored(path: Path) -> tuple[list[PairResult], np.ndarray]:
+    """The pair results of a stored estimate table (frame 0 is the first frame) and the times."""
+    ms = read_measurements(path)
+    results = [_result(m.z, m.covariance, m.height_assumed, "ok" if m.ok else m.status)
+               for m in ms[1:]]
+    return results, np.array([m.t for m in ms])
+
+
+def _chain_statuses(results, t, config=None, retry_cold=False) -> list[str]:
+    estimator = _Replay(results, config or EstimatorConfig())
+    chain = PairChain(estimator, retry_cold=retry_cold)
+    return [chain.estimate(None, None, t[i + 1], t[i + 1] - t[i])[0].status
+            for i in range(len(results))]
+
+
+def test_fast_shaking_car_loses_exactly_its_wrong_ok_rows():
+    # the stored rows of a run that printed two `ok` rows with a tenth of the travel (a
+    # rendered car shaking at 2.5 m per frame, 10 fps, beyond the motion range: cold pairs
+    # after failed ones), one with tz z = -36
+    results, t = _stored(DATA / "fast_shaking_est.csv")
+    truth = np.genfromtxt(DATA / "fast_shaking_gt.csv", delimiter=",", names=True)
+    stored = [r.status for r in results]
+    travel_error = [abs(math.hypot(r.motion.tx, r.motion.tz)
+                        - math.hypot(truth["tx_m"][i + 1], truth["tz_m"][i + 1]))
+                    / truth["tz_m"][i + 1] for i, r in enumerate(results) if r.ok]
+    wrong = [i + 1 for i, r in enumerate(results)
+             if r.ok and abs(math.hypot(r.motion.tx, r.motion.tz)
+                             - truth["tz_m"][i + 1]) > 0.1 * truth["tz_m"][i + 1]]
+    statuses = _chain_statuses(results, t)  # (marks the rejected results failed)
+    rejected = [i + 1 for i, s in enumerate(statuses) if s == STATUS_IMPLAUSIBLE_MOTION]
+    assert wrong == [37, 56] and rejected == wrong
+    assert sorted(travel_error)[-3] < 0.02  # every other ok row within 2 %
+    # every other row keeps its status
+    assert [s for i, s in enumerate(statuses) if i + 1 not in rejected] == [
+        s for i, s in enumerate(stored) if i + 1 not in rejected]
+    # the bound off: the rows as stored
+    off = _chain_statuses(*_stored(DATA / "fast_shaking_est.csv"),
+                          EstimatorConfig(max_acceleration_mps2=math.inf))
+    assert off == stored
+
+
+def test_real_kitti_drive_keeps_every_ok_row():
+    # KITTI 07's stored rows: a real car accelerating, braking and turning at 10 fps
+    results, t = _stored(DATA / "kitti07_estimates.csv")
+    stored = [r.status for r in results]
+    assert stored.count("ok") > 100
+    assert _chain_statuses(results, t) == stored
+
+
+def _speeds(speeds_mps, dt=0.1, std_m=0.01) -> tuple[list[PairResult], np.ndarray]:
+    cov = np.diag([1e-8] * 4 + [std_m**2] * 2 + [1e-8])
+    results = [_result([0.05, 0, 0.05, 0, 0.0, v * dt, 0], cov) if v is not None
+               else _result(None, status="too few inliers") for v in speeds_mps]
+    return results, dt * np.arange(len(speeds_mps) + 1)
+
+
+def test_braking_at_one_g_passes_beyond_it_fails():
+    # 9 m/s² of braking: 0.9 m/s less per 0.1-s pair
+    results, t = _speeds([20 - 0.9 * k for k in range(10)])
+    assert set(_chain_statuses(results, t)) == {"ok"}
+    # a drop of 2.5 m/s in 0.1 s (25 m/s²) with 0.1 m/s of noise per speed: beyond
+    # 1 m/s + 3 × 0.14 m/s
+    results, t = _speeds([20, 20, 20, 17.5, 19.5])
+    assert _chain_statuses(results, t) == ["ok", "ok", "ok", STATUS_IMPLAUSIBLE_MOTION, "ok"]
+    # with 1 m/s of noise per speed the same drop is within 3σ
+    results, t = _speeds([20, 20, 20, 17.5, 17.5], std_m=0.1)
+    assert set(_chain_statuses(results, t)) == {"ok"}
+    # a larger bound lets it through
+    results, t = _speeds([20, 20, 20, 17.5, 17.5])
+    assert set(_chain_statuses(results, t, EstimatorConfig(max_acceleration_mps2=30))) == {"ok"}
+
+
+def test_a_wrong_first_pair_cannot_hold_the_truth_off():
+    # the first ok pair is locked at a tenth of the speed: it agreed with nothing before it,
+    # so the truth after it is kept, confirmed by the next, and then holds a later lock off
+    results, t = _speeds([2.5, 25, 25, 25, 2.5, 25])
+    assert _chain_statuses(results, t) == [
+        "ok", "ok", "ok", "ok", STATUS_IMPLAUSIBLE_MOTION, "ok"]
+
+
+def test_the_bound_reaches_across_failures_but_not_beyond_the_horizon():
+    gap = round(MOTION_HORIZON_S / 0.1)
+    # three failed pairs: 0.4 s between the middles, 4 m/s allowed
+    results, t = _speeds([25, 25, None, None, None, 2.5])
+    assert _chain_statuses(results, t)[-1] == STATUS_IMPLAUSIBLE_MOTION
+    results, t = _speeds([25, 25, None, None, None, 21.5])
+    assert _chain_statuses(results, t)[-1] == "ok"
+    # beyond the horizon nothing is held against it
+    results, t = _speeds([25, 25, *[None] * gap, 2.5, 2.5])
+    assert _chain_statuses(results, t)[-2:] == ["ok", "ok"]
+
+
+def test_a_rejected_pair_is_no_seed_and_no_reference():
+    results, t = _speeds([25, 25, 2.5, 25, 25])
+    estimator = _Replay(results, EstimatorConfig())
+    chain = PairChain(estimator, retry_cold=False)
+    out = [chain.estimate(None, None, t[i + 1], 0.1) for i in range(len(results))]
+    assert [r.status for r, _ in out] == ["ok", "ok", STATUS_IMPLAUSIBLE_MOTION, "ok", "ok"]
+    assert [tracked for _, tracked in out] == [False, True, True, False, True]
+    assert estimator.guesses[3] is None  # the pair after the rejected one starts cold
+    assert estimator.guesses[1].motion.tz == pytest.approx(2.5)
+
+
+def test_pair_velocity_and_its_covariance():
+    cov = np.zeros((7, 7))
+    cov[4:6, 4:6] = [[0.04, 0.012], [0.012, 0.01]]  # tx σ 0.2, tz σ 0.1, correlation 0.6
+    result = _result([0, 0, 0, 0, 0.6, 0.8, 0], cov)
+    v = pair_velocity(result, t=1.0, dt=0.1)
+    np.testing.assert_allclose(v.velocity, [6.0, 8.0])
+    np.testing.assert_allclose(v.covariance, cov[4:6, 4:6] / 0.01)
+    assert (v.t_mid, v.half_dt) == pytest.approx((0.95, 0.05))
+
+
+def _velocity(x, z, t_mid, half_dt, var=0.0):
+    return PairVelocity(np.array([x, z], float), np.eye(2) * var, t_mid, half_dt)
+
+
+def test_motion_conflict_counts_unequal_intervals_and_the_direction():
+    # a 0.2-s pair after a 0.1-s one: means over intervals whose middles are 0.15 s apart
+    # and whose lengths differ by 0.1 s may differ by up to 2 m/s at 10 m/s²
+    before = _velocity(0, 20, 0.05, 0.05)
+    assert motion_conflict(_velocity(0, 18.01, 0.2, 0.1), before, 10.0) is None
+    why = motion_conflict(_velocity(0, 17.9, 0.2, 0.1), before, 10.0)
+    assert why is not None and "by 2.1 ± 0.0 m/s" in why and "--max-acceleration" in why
+    # the same speed in another direction: a car cannot turn its travel 10° in 0.1 s at
+    # 20 m/s (3.5 m/s of change), nor go sideways
+    before = _velocity(0, 20, 0.05, 0.05)
+    turned = 20 * np.array([np.sin(np.radians(10)), np.cos(np.radians(10))])
+    assert motion_conflict(_velocity(*turned, 0.15, 0.05), before, 10.0) is not None
+    assert motion_conflict(_velocity(*turned, 0.15, 0.05, var=1.0), before, 10.0) is None
+    assert motion_conflict(_velocity(-20, 0, 0.15, 0.05), before, 10.0) is not None
+    # the standard deviation counts along the change only: a large one across it does not
+    # excuse it
+    wide_across = PairVelocity(np.array([0.0, 17.0]), np.diag([100.0, 0.0]), 0.15, 0.05)
+    assert motion_conflict(wide_across, before, 10.0) is not None
+
+
+def test_a_sideways_lock_is_rejected():
+    # the same length of travel, turned 140° (a cold start locked on a wrong minimum)
+    results, t = _speeds([25, 25, 25, 25])
+    locked = _result([0.05, 0, 0.05, 0, 2.5 * np.sin(2.44), 2.5 * np.cos(2.44), 0],
+                     np.diag([1e-8] * 4 + [1e-4] * 2 + [1e-8]))
+    results[2] = locked
+    assert _chain_statuses(results, t) == ["ok", "ok", STATUS_IMPLAUSIBLE_MOTION, "ok"]
+
+
+@pytest.mark.parametrize("value", ["0", "-3", "nan"])
+def test_max_acceleration_is_checked(tmp_path: Path, capsys, value):
+    from vipm_track.camera import write_ros_yaml
+    from vipm_track.sim import PRESETS
+
+    camera = tmp_path / "camera.yaml"
+    write_ros_yaml(PRESETS["car"].camera(), camera)
+    code = main(["estimate", "--images", str(tmp_path), "--camera", str(camera), "--height",
+                 "1", "--out", str(tmp_path / "o.csv"), "--max-acceleration", value])
+    assert code == 2
+    assert "--max-acceleration must be > 0" in capsys.readouterr().err

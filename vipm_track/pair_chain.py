@@ -1,0 +1,187 @@
+"""Consecutive pairs of one camera, each estimated in the light of the pairs before it.
+
+:class:`PairChain` is what the sequence runner (``pipeline.run_sequence``) and the live
+monitor share: it seeds a pair from the last ``ok`` one (tracking: :func:`predict_guess`),
+tries a tracked pair that fails once more cold, and holds every ``ok`` pair to the
+vehicle's physics: its mean velocity on the ground may differ from the last ``ok`` pair's
+(within :data:`MOTION_HORIZON_S`) by no more than ``EstimatorConfig.max_acceleration_mps2``
+allows over the time between them, plus three standard deviations of the change. A pair
+beyond it gets status :data:`STATUS_IMPLAUSIBLE_MOTION`.
+
+Why: a cold start, which knows nothing of the pairs before it, can lock onto a patch
+field's second minimum. Beyond the motion range (a car at 2.5 m per frame) cold pairs after
+failed ones came out ``ok`` with a tenth of the travel, or with the car going sideways and
+back, and standard deviations that did not show it (docs/usage.md). Only a pair that itself
+agreed with the ``ok`` pair before it can reject a later one, so one wrong pair cannot hold
+the truth off after it."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .estimator import PreparedPair, TwoFrameEstimator
+from .pair_result import FloatArray, PairGuess, mark_failed
+
+if TYPE_CHECKING:
+    from .pair_result import PairResult
+
+STATUS_IMPLAUSIBLE_MOTION = "implausible motion"
+
+#: Bounds on the frame-interval ratio used to scale the previous motion into a prediction.
+_DT_RATIO_RANGE = (0.25, 4.0)
+#: an ``ok`` pair is held to the velocity of the last ``ok`` one only this close in time [s]:
+#: beyond it the bound (10 m/s at 1 g) no longer tells a locked cold start from a real one
+MOTION_HORIZON_S = 1.0
+#: standard deviations of the velocity's change added to the physical bound
+_SIGMAS = 3.0
+#: indices of tx and tz in ``PairResult.covariance`` (``measurement`` order)
+_TRAVEL = slice(4, 6)
+
+
+def predict_guess(previous: PairResult, dt_prev: float, dt: float) -> PairGuess:
+    """Seed for the next pair, ``dt`` [s] long, from an ok result ``dt_prev`` [s] long
+    (``PairGuess.from_previous``, the interval ratio clipped to [0.25, 4])."""
+    ratio = dt / dt_prev if dt_prev > 0 and dt > 0 else 1.0
+    return PairGuess.from_previous(previous, float(np.clip(ratio, *_DT_RATIO_RANGE)))
+
+
+def estimate_pair(
+    estimator: TwoFrameEstimator, prev: NDArray, curr: NDArray, guess: PairGuess | None,
+    frame_interval_s: float | None = None, prepared: PreparedPair | None = None,
+) -> PairResult:
+    """One pair ``frame_interval_s`` seconds apart (``prepared``: its
+    :meth:`TwoFrameEstimator.prepare_pair`, where made ahead); an exception inside the
+    estimator becomes a failed result, not a dead run."""
+    try:
+        if prepared is not None:
+            return estimator.estimate(prev, curr, guess, frame_interval_s, prepared=prepared)
+        return estimator.estimate(prev, curr, guess, frame_interval_s)
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        return _FailedResult(f"estimator error: {type(exc).__name__}: {exc}"[:200])
+
+
+@dataclass
+class _FailedResult:
+    """Stand-in for a ``PairResult`` when the estimator raised (only ``status`` is read)."""
+
+    status: str
+    reason: str = ""
+    timings: dict[str, float] = field(default_factory=dict)
+
+    def to_measurement(self, frame: int, t: float) -> Any:
+        return None
+
+
+@dataclass(frozen=True)
+class PairVelocity:
+    """A pair's mean velocity over its interval on the ground, in its first frame's ground
+    frame G: ``velocity`` (x, z) [m/s] and its 2×2 ``covariance`` [m²/s²], the interval's
+    middle ``t_mid`` and half its length ``half_dt`` [s]; ``confirmed`` when it agreed with
+    the ``ok`` pair before it. (A vehicle's velocity keeps its direction in its own frame
+    through a turn, so two pairs' velocities compare in their own frames.)"""
+
+    velocity: FloatArray
+    covariance: FloatArray
+    t_mid: float
+    half_dt: float
+    confirmed: bool = False
+
+
+def pair_velocity(result: PairResult, t: float, dt: float) -> PairVelocity:
+    """The mean velocity of an ``ok`` pair ending at ``t`` [s], ``dt`` [s] long, with its
+    covariance from the travel's."""
+    travel = np.array([result.motion.tx, result.motion.tz])
+    cov = np.asarray(result.covariance)[_TRAVEL, _TRAVEL]
+    cov = cov if np.all(np.isfinite(cov)) else np.zeros((2, 2))
+    return PairVelocity(travel / dt, cov / dt**2, t - dt / 2, dt / 2)
+
+
+def motion_conflict(now: PairVelocity, before: PairVelocity, max_accel: float) -> str | None:
+    """Why ``now`` cannot follow ``before`` at accelerations up to ``max_accel`` [m/s²]
+    (None where it can): the change of mean velocity between two intervals is at most
+    ``max_accel`` times the time between their middles, plus half their lengths' difference,
+    and three standard deviations of the change (along it)."""
+    elapsed = now.t_mid - before.t_mid + abs(now.half_dt - before.half_dt)
+    change = now.velocity - before.velocity
+    size = float(np.hypot(*change))
+    if size <= max_accel * elapsed:
+        return None
+    along = change / size
+    std = math.sqrt(max(float(along @ (now.covariance + before.covariance) @ along), 0.0))
+    if size <= max_accel * elapsed + _SIGMAS * std:
+        return None
+    speeds = [float(np.hypot(*v.velocity)) for v in (now, before)]
+    return (f"velocity changed by {size:.1f} ± {std:.1f} m/s (speed {speeds[0]:.2f} m/s, "
+            f"{speeds[1]:.2f} m/s {now.t_mid - before.t_mid:.2f} s before): more than the "
+            f"{max_accel:g} m/s² of --max-acceleration allow")
+
+
+class PairChain:
+    """Estimates a camera's consecutive pairs (module doc).
+
+    ``tracking``: seed a pair from the last ``ok`` one ending where it starts (or, with
+    ``track_within_s``, ending at most that long before its end: frames may be dropped).
+    ``retry_cold``: try a tracked pair that fails once more cold.
+    """
+
+    def __init__(self, estimator: Any, tracking: bool = True,
+                 retry_cold: bool = True, track_within_s: float | None = None) -> None:
+        self.estimator = estimator
+        self.tracking = tracking
+        self.retry_cold = retry_cold
+        self.track_within_s = track_within_s
+        config = getattr(estimator, "config", None)  # (stand-ins for tests have none)
+        self.max_accel = getattr(config, "max_acceleration_mps2", math.inf)
+        self._last_ok: tuple[PairResult, float, float] | None = None  # result, its dt, its t
+        self._last_velocity: PairVelocity | None = None
+
+    def break_tracking(self) -> None:
+        """The next pair does not follow the last one (a frame could not be used): start it
+        cold. The bound on the motion still holds across the gap."""
+        self._last_ok = None
+
+    def estimate(self, prev: NDArray, curr: NDArray, t: float, dt: float,
+                 prepared: PreparedPair | None = None) -> tuple[PairResult, bool]:
+        """The pair of ``prev`` and ``curr`` (a frame ending at ``t``, ``dt`` [s] after the one
+        before) and whether the returned result was seeded by tracking."""
+        guess = self._guess(t, dt)
+        result = estimate_pair(self.estimator, prev, curr, guess, dt, prepared)
+        if guess is not None and result.status != "ok" and self.retry_cold:
+            result = estimate_pair(self.estimator, prev, curr, None, dt, prepared)
+            guess = None
+        if result.status == "ok":
+            self._hold_to_physics(result, t, dt)
+        self._last_ok = (result, dt, t) if result.status == "ok" else None
+        return result, guess is not None
+
+    def _guess(self, t: float, dt: float) -> PairGuess | None:
+        if not self.tracking or self._last_ok is None:
+            return None
+        previous, dt_prev, t_prev = self._last_ok
+        within = self.track_within_s
+        if within is not None and not t - t_prev <= within:
+            return None
+        return predict_guess(previous, dt_prev, dt)
+
+    def _hold_to_physics(self, result: PairResult, t: float, dt: float) -> None:
+        """Mark ``result`` implausible where its velocity conflicts with a confirmed ``ok``
+        pair's within :data:`MOTION_HORIZON_S`; otherwise it becomes the pair to hold the next
+        to."""
+        if not math.isfinite(self.max_accel) or not dt > 0:
+            return
+        now = pair_velocity(result, t, dt)
+        before = self._last_velocity
+        if before is None or now.t_mid - before.t_mid > MOTION_HORIZON_S:
+            self._last_velocity = now
+            return
+        conflict = motion_conflict(now, before, self.max_accel)
+        if conflict is not None and before.confirmed:
+            mark_failed(result, STATUS_IMPLAUSIBLE_MOTION, conflict)
+            return
+        self._last_velocity = dataclasses.replace(now, confirmed=conflict is None)
