@@ -58,7 +58,7 @@ class StepTestConfig:
 
     enabled: bool = True
     threshold: float = 5.0
-    min_segment_s: float = 2.0
+    min_segment_s: float = 1.0
     block_s: float = 1.0
     max_steps: int = 8
     trend_threshold: float = 7.0

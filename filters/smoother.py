@@ -257,6 +257,11 @@ def pair_factors(
     ]
 
 
+#: an offline step this close to a change the EKF's test found [s] is that change (the
+#: CUSUM alarms a little after it)
+SAME_CHANGE_S = 2.0
+
+
 def mount_jumps(
     ms: Sequence[PairMeasurement], speeds: FloatArray, cfg: SmootherConfig,
     offline: list[list[MountStep]] | None = None,
@@ -278,7 +283,7 @@ def mount_jumps(
     for axis, found in enumerate(offline_steps(ms, cfg) if offline is None else offline):
         near = [onset for onset, a, _ in changes if a == axis]
         changes += [(s.onset_s, axis, s.step) for s in found
-                    if all(abs(s.onset_s - o) > cfg.mount_steps.min_segment_s for o in near)]
+                    if all(abs(s.onset_s - o) > SAME_CHANGE_S for o in near)]
     out: dict[int, FloatArray] = {}
     for onset, axis, step in changes:
         k = max(1, int(np.searchsorted(t, onset)))

@@ -19,6 +19,7 @@ import sys
 import tempfile
 import time
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +50,12 @@ CASES: tuple[Case, ...] = (
     *(Case(f"cart {p}", "cart", p, 12.0) for p in ("static", "shaking", "gradual", "turn")),
     *(Case(f"car {p}", "car", p, 8.0) for p in ("shaking", "gradual", "turn")),
 )
+#: knocks near a drive's edges: (case, seconds from the window's start to the knock, > 0, or
+#: from the knock to the window's end, < 0; ``score``'s ``edge_s``)
+EDGE_CASES: tuple[tuple[Case, float], ...] = (
+    *((Case("car knock 1°", "car", "knock", 12.0), e) for e in (2.0, 1.6, 1.2, 0.8)),
+    *((Case("cart knock 1°", "cart", "knock", 20.0), e) for e in (1.6, 1.2, -1.6, -1.2)),
+)
 KITTI_ROWS = ROOT / "tests" / "data" / "kitti07_estimates.csv"
 #: a step found within this of the knock is the knock's [s]
 AT_KNOCK_S = 1.0
@@ -63,13 +70,18 @@ def steps_found(ms, cfg: SmootherConfig) -> tuple[list[float], int]:
     return [s.onset_s for steps in offline for s in steps], drifting
 
 
-def score(case: Case, seed: int, cache: Path) -> dict:
+def score(case: Case, seed: int, cache: Path, edge_s: float | None = None) -> dict:
     """One drive: per-frame mount errors [deg] and coverage with the test on / off, and the
-    steps found (at the knock / elsewhere)."""
+    steps found (at the knock / elsewhere). ``edge_s``: only a window of the drive, from
+    ``edge_s`` before the knock to the end (> 0), or from the start to ``-edge_s`` after the
+    knock (< 0)."""
     render_and_estimate(case, seed, cache)
     folder = _folder(case, seed, cache)
     gt = read_table(folder / "gt.csv")
     ms = read_measurements(folder / "est.csv")
+    if edge_s is not None:
+        t_knock = knock_time(gt["t"])
+        ms = [m for m in ms if (m.t >= t_knock - edge_s if edge_s > 0 else m.t <= t_knock - edge_s)]
     frames = np.array([m.frame for m in ms])
     truth = np.column_stack([gt["mount_pitch_deg"][frames], gt["mount_roll_deg"][frames]])
     base = SmootherConfig(height_m=PRESETS[case.preset].height_m,
@@ -139,6 +151,20 @@ def main(argv: list[str] | None = None) -> int:
         knock = f"{at}/{args.seeds}" if case.profile == "knock" else "—"
         row = (f"| {case.name} | {knock} | {false} | {drifting} | {_cells(scores, 'on')} | "
                f"{_cells(scores, 'off')} |")
+        print(row, flush=True)
+        lines.append(row)
+    lines += ["", "Knocks near the edges of a drive: a window of the drive above, starting the "
+              "given time before the knock (or ending that long after it):", "", header,
+              "|" + " --- |" * 8]
+    for case, edge in EDGE_CASES:
+        scores = scores_by_case(partial(score, edge_s=edge), [case], args.seeds, args.jobs,
+                                cache)[0]
+        at = sum(s["steps"][0] for s in scores)
+        false = sum(s["steps"][1] for s in scores)
+        drifting = sum(s["steps"][2] for s in scores)
+        where = f"{edge:g} s after its start" if edge > 0 else f"{-edge:g} s before its end"
+        row = (f"| {case.name} ({case.seconds:g} s), knock {where} | {at}/{args.seeds} | "
+               f"{false} | {drifting} | {_cells(scores, 'on')} | {_cells(scores, 'off')} |")
         print(row, flush=True)
         lines.append(row)
     kitti_rows = read_measurements(KITTI_ROWS)

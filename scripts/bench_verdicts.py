@@ -127,6 +127,9 @@ def render_and_estimate(case: Case, seed: int, cache: Path) -> float:
         effects = Effects(rolling_shutter=case.readout_frac, seed=seed, **case.effects)
         simulate_sequence(case.preset, case.frames(), folder, seed=seed, profile=case.profile,
                           effects=effects, speed=case.speed, amplitude=case.amplitude)
+        # an estimate of the frames rendered before (another benchmark's case of the same
+        # name and another length shares the folder) is not this drive's
+        (folder / "est.csv").unlink(missing_ok=True)
     est = folder / "est.csv"
     if not est.is_file():
         rig = Rig(load_camera(folder / "camera.yaml"), preset.height_m, preset.pitch_deg,

@@ -536,6 +536,7 @@ def test_the_drive_summary_says_when_a_forward_camera_drove_slowly():
     slow = drive(20.0, seed=6, speed_min_mps=3.0, speed_max_mps=3.0, stop_probability=0.0)
     note = slow_drive_note(slow.measurements)
     assert note.startswith(f"{sum(m.ok for m in slow.measurements)} of the ") and "(100%)" in note
+    assert "these pairs' median: 0.20)" in note  # 3 m/s at 10 fps, 1.5 m: 0.2 heights a frame
     fast = drive(20.0, seed=6, speed_min_mps=12.0, speed_max_mps=12.0, stop_probability=0.0)
     assert slow_drive_note(fast.measurements) == ""
     cart = simulate_drive(DriveConfig.preset("cart", duration_s=20.0, stop_probability=0.0),

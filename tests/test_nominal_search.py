@@ -215,3 +215,21 @@ def test_search_starts_where_a_drive_that_starts_standing_moves(tmp_path):
                                 _rig(camera, preset), EstimatorConfig())
     assert found is not None and found.frames == (19, 20)
     assert abs(found.pitch_deg - math.degrees(traj.pitch[1])) < 0.5
+
+
+def test_a_travel_pitch_that_sees_no_ground_leaves_the_pose_undetermined():
+    # a narrow camera (±1.7° vertically) pitched 5° up by its direction of travel sees only
+    # sky: the search says so rather than stopping the run on an empty region of interest
+    from types import SimpleNamespace
+
+    from vipm_track.camera import CameraModel
+    from vipm_track.nominal_search import _from_travel
+    from vipm_track.travel_direction import TravelPitch
+
+    camera = CameraModel(np.array([[5000.0, 0, 200], [0, 5000.0, 150], [0, 0, 1]]), 400, 300)
+    rig = Rig(camera, 1.5, DEFAULT_PITCH_DEG)
+    travel = TravelPitch(-5.0, 6, 6, 0.1)
+    found = _from_travel(rig, EstimatorConfig(), [SimpleNamespace(frames=(0, 1))], travel,
+                         None, 10)
+    assert not found.determined
+    assert found.undetermined.startswith("at the direction of travel's pitch -5.0° the region")

@@ -62,6 +62,12 @@ def test_pairs_that_disagree_or_are_too_few_leave_the_pitch_undetermined():
     assert not scattered.determined and "disagree" in scattered.reason
     sideways = pitch_from_travel([PairTravel((0, 1), np.array([0.8, 0.0, 0.6]), 200, 0.1)])
     assert not sideways.determined and sideways.off_axis_deg == pytest.approx(53.13, abs=0.01)
+    # agreeing on a camera looking 36° up: no ground in view (a cart pitching by degrees
+    # between frames at 5 fps turned its flow so, and the search then failed on an empty
+    # region of interest)
+    up = pitch_from_travel([_travel(-36.0 + d) for d in (-0.3, 0.1, 0.0, 0.4, -0.2, 0.2)])
+    assert not up.determined and "-36.0°, outside the -10° to 90°" in up.reason
+    assert pitch_from_travel([_travel(-9.5 + d) for d in (-0.3, 0.1, 0.0, 0.2, 0.3)]).determined
 
 
 @pytest.fixture(scope="module")

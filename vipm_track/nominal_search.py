@@ -229,11 +229,17 @@ def _from_travel(
     determined where the ground fit's pitch disagrees with the travel's by more than
     ``GROUND_AGREE_DEG`` (vehicles or walls taken for the ground) or its roll is implausible
     (``EstimatorConfig.max_roll_deg``)."""
-    estimator = TwoFrameEstimator(rig.with_pose(round(travel.pitch_deg, 1)), config)
+    frames = pairs[0].frames
+    try:
+        estimator = TwoFrameEstimator(rig.with_pose(round(travel.pitch_deg, 1)), config)
+    except InputError as exc:  # no ground in view at that pitch
+        return NominalSearch(round(travel.pitch_deg, 1), rig.roll_deg,
+                             round(travel.pitch_deg, 1), rig.pitch_deg, frames, 0,
+                             travel=travel, undetermined=f"at the direction of travel's pitch "
+                             f"{travel.pitch_deg:.1f}° the {exc}")
     poses = [r.pose_curr for p in pairs
              if (r := estimate_pair(estimator, p.before, p.image, None, p.interval_s)
                  ).status == STATUS_OK and r.pose_curr is not None]
-    frames = pairs[0].frames
     if not poses:  # the ground fit from the travel's pitch failed: the nominal roll stays
         return NominalSearch(round(travel.pitch_deg, 1), rig.roll_deg,
                              round(travel.pitch_deg, 1), rig.pitch_deg, frames, 0,

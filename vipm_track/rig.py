@@ -22,6 +22,9 @@ from .geometry import GroundPose
 #: the nominal pitch where nothing says otherwise: the paper's cold start, a steep camera
 #: [deg]
 DEFAULT_PITCH_DEG = 60.0
+#: the nominal pitches a vehicle camera that sees the ground can have [deg]: from slightly up
+#: (a forward camera) to straight down
+PITCH_RANGE_DEG = (-10.0, 90.0)
 
 
 #: the largest pitch or roll of a camera against the ground [deg]: straight down, or on its

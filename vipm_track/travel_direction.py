@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .camera import CameraModel
+from .rig import PITCH_RANGE_DEG
 
 #: corners tracked per pair, and their minimum spacing [px]
 MAX_CORNERS = 2000
@@ -186,6 +187,11 @@ def pitch_from_travel(travels: list[PairTravel | None], roll: float = 0.0) -> Tr
     elif agreeing < MIN_AGREEING_SHARE * len(forward):
         reason = (f"the pairs' directions disagree: {agreeing} of {len(forward)} within "
                   f"{AGREE_DEG:g}° of their median pitch {median:.1f}°")
+    elif not PITCH_RANGE_DEG[0] <= median <= PITCH_RANGE_DEG[1]:
+        # a body pitching by degrees between frames turns the flow as travel would
+        reason = (f"the pairs' directions give a pitch of {median:.1f}°, outside the "
+                  f"{PITCH_RANGE_DEG[0]:g}° to {PITCH_RANGE_DEG[1]:g}° of a camera that sees "
+                  "the ground")
     return TravelPitch(median, len(forward), agreeing, spread, reason, median_off,
                        tuple(tr.direction for tr in known))
 

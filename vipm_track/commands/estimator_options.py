@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from ..camera import CameraModel
 from ..errors import InputError
 from ..estimator_config import REFINEMENT_WEIGHTING
-from ..rig import DEFAULT_PITCH_DEG, Rig
+from ..rig import DEFAULT_PITCH_DEG, PITCH_RANGE_DEG, Rig
 from ..text_files import read_text
 from .common import seconds_or_auto
 from .option_types import whole_number
@@ -189,7 +189,7 @@ def build_rig(
     ``args``: ``--pitch``/``--roll`` where given, else ``pitch_deg``/``roll_deg`` (a nominal
     calibration's), else ``rig.DEFAULT_PITCH_DEG`` and level; ``--readout-time`` (``auto``: a
     global shutter until searched, ``commands.inputs.with_searched_setup``)."""
-    pitch = _angle(getattr(args, "pitch", None), "--pitch", -10.0, 90.0)
+    pitch = _angle(getattr(args, "pitch", None), "--pitch", *PITCH_RANGE_DEG)
     roll = _angle(getattr(args, "roll", None), "--roll", -45.0, 45.0)
     readout = getattr(args, "readout_time", 0.0)
     if readout == "auto":
