@@ -15,13 +15,13 @@ from vipm_track.estimator_config import EstimatorConfig
 from vipm_track.measurement import read_measurements
 from vipm_track.pair_chain import (
     MOTION_HORIZON_S,
-    STATUS_IMPLAUSIBLE_MOTION,
     PairChain,
     PairVelocity,
     motion_conflict,
     pair_velocity,
+    predict_guess,
 )
-from vipm_track.pair_result import PairResult
+from vipm_track.pair_result import STATUS_IMPLAUSIBLE_MOTION, PairResult
 
 DATA = Path(__file__).parent / "data"
 
@@ -55,9 +55,15 @@ def _stored(path: Path) -> tuple[list[PairResult], np.ndarray]:
     return results, np.array([m.t for m in ms])
 
 
-def _chain_statuses(results, t, config=None, retry_cold=False) -> list[str]:
-    estimator = _Replay(results, config or EstimatorConfig())
-    chain = PairChain(estimator, retry_cold=retry_cold)
+def _chain(results, config=None, **options) -> tuple[PairChain, _Replay]:
+    config = config or EstimatorConfig()
+    estimator = _Replay(results, config)
+    return PairChain(estimator, retry_cold=False,
+                     max_acceleration_mps2=config.max_acceleration_mps2, **options), estimator
+
+
+def _chain_statuses(results, t, config=None) -> list[str]:
+    chain, _ = _chain(results, config)
     return [chain.estimate(None, None, t[i + 1], t[i + 1] - t[i])[0].status
             for i in range(len(results))]
 
@@ -125,29 +131,88 @@ def test_a_wrong_first_pair_cannot_hold_the_truth_off():
     results, t = _speeds([2.5, 25, 25, 25, 2.5, 25])
     assert _chain_statuses(results, t) == [
         "ok", "ok", "ok", "ok", STATUS_IMPLAUSIBLE_MOTION, "ok"]
+    # a pair that disagreed with the one before it cannot reject the next either
+    results, t = _speeds([2.5, 25, 2.5, 2.5])
+    assert _chain_statuses(results, t) == ["ok"] * 4
 
 
 def test_the_bound_reaches_across_failures_but_not_beyond_the_horizon():
-    gap = round(MOTION_HORIZON_S / 0.1)
     # three failed pairs: 0.4 s between the middles, 4 m/s allowed
     results, t = _speeds([25, 25, None, None, None, 2.5])
     assert _chain_statuses(results, t)[-1] == STATUS_IMPLAUSIBLE_MOTION
     results, t = _speeds([25, 25, None, None, None, 21.5])
     assert _chain_statuses(results, t)[-1] == "ok"
-    # beyond the horizon nothing is held against it
-    results, t = _speeds([25, 25, *[None] * gap, 2.5, 2.5])
+    # up to 1 s between the middles, not beyond
+    assert MOTION_HORIZON_S == 1.0
+    results, t = _speeds([25, 25, *[None] * 8, 2.5])
+    assert _chain_statuses(results, t)[-1] == STATUS_IMPLAUSIBLE_MOTION
+    results, t = _speeds([25, 25, *[None] * 10, 2.5, 2.5])
     assert _chain_statuses(results, t)[-2:] == ["ok", "ok"]
 
 
 def test_a_rejected_pair_is_no_seed_and_no_reference():
     results, t = _speeds([25, 25, 2.5, 25, 25])
-    estimator = _Replay(results, EstimatorConfig())
-    chain = PairChain(estimator, retry_cold=False)
+    chain, estimator = _chain(results)
     out = [chain.estimate(None, None, t[i + 1], 0.1) for i in range(len(results))]
     assert [r.status for r, _ in out] == ["ok", "ok", STATUS_IMPLAUSIBLE_MOTION, "ok", "ok"]
     assert [tracked for _, tracked in out] == [False, True, True, False, True]
     assert estimator.guesses[3] is None  # the pair after the rejected one starts cold
     assert estimator.guesses[1].motion.tz == pytest.approx(2.5)
+    # nor the reference: a pair like the one before the rejected one is held to that
+    results, t = _speeds([25, 25, 2.5, 24.9, 2.5])
+    assert _chain_statuses(results, t) == [
+        "ok", "ok", STATUS_IMPLAUSIBLE_MOTION, "ok", STATUS_IMPLAUSIBLE_MOTION]
+
+
+def test_two_pairs_that_agree_outweigh_the_reference():
+    # two wrong pairs at the start agree with each other: the truth after them is held off
+    # for one pair only, then taken (it agrees with the one rejected)
+    results, t = _speeds([2.5, 2.5, *[25] * 6])
+    assert _chain_statuses(results, t) == ["ok", "ok", STATUS_IMPLAUSIBLE_MOTION, *["ok"] * 5]
+
+
+def test_the_bound_holds_across_a_break_in_tracking():
+    results, t = _speeds([25, 25, 2.5])
+    chain, estimator = _chain(results)
+    chain.estimate(None, None, t[1], 0.1)
+    chain.estimate(None, None, t[2], 0.1)
+    chain.break_tracking()
+    result, tracked = chain.estimate(None, None, t[3], 0.1)
+    assert result.status == STATUS_IMPLAUSIBLE_MOTION and not tracked
+    assert estimator.guesses[2] is None
+
+
+def test_millisecond_timestamps_and_jitter_do_not_reject_steady_driving():
+    # 30 m/s at 30 fps, 1 m per frame: stamps rounded to the millisecond (33/33/34-ms
+    # intervals) make the speeds 30 ± 0.9 m/s, and 2 ms of jitter at 15 m/s far more
+    frames = 40
+    true_t = np.arange(frames + 1) / 30.0
+    for speed, stamps in ((30.0, np.round(true_t, 3)),
+                          (15.0, true_t + np.random.default_rng(3).normal(0, 2e-3, frames + 1))):
+        cov = np.diag([1e-8] * 4 + [1e-6] * 2 + [1e-8])
+        results = [_result([0.05, 0, 0.05, 0, 0.0, speed / 30.0, 0], cov) for _ in range(frames)]
+        assert set(_chain_statuses(results, stamps)) == {"ok"}, speed
+    # the same jitter on a locked pair still rejects it
+    results = [_result([0.05, 0, 0.05, 0, 0.0, 0.5, 0], cov) for _ in range(frames)]
+    results[20] = _result([0.05, 0, 0.05, 0, 0.0, 0.05, 0], cov)
+    statuses = _chain_statuses(results, stamps)
+    assert statuses[20] == STATUS_IMPLAUSIBLE_MOTION and statuses.count("ok") == frames - 1
+
+
+def test_a_live_chain_tracks_only_within_its_window():
+    results, _ = _speeds([25, 25, 25])
+    chain, estimator = _chain(results, track_within_s=1.0)
+    chain.estimate(None, None, 0.1, 0.1)
+    chain.estimate(None, None, 0.2, 0.1)
+    chain.estimate(None, None, 1.5, 0.1)  # frames dropped: 1.3 s after the last pair
+    assert estimator.guesses[1] is not None and estimator.guesses[2] is None
+
+
+def test_the_guess_scales_the_motion_by_the_interval_ratio_clipped():
+    result = _speeds([25])[0][0]
+    assert predict_guess(result, 0.1, 0.2).motion.tz == pytest.approx(5.0)
+    assert predict_guess(result, 0.1, 1.0).motion.tz == pytest.approx(10.0)  # clipped at 4×
+    assert predict_guess(result, 0.1, 0.001).motion.tz == pytest.approx(0.625)  # at 0.25×
 
 
 def test_pair_velocity_and_its_covariance():
@@ -158,6 +223,13 @@ def test_pair_velocity_and_its_covariance():
     np.testing.assert_allclose(v.velocity, [6.0, 8.0])
     np.testing.assert_allclose(v.covariance, cov[4:6, 4:6] / 0.01)
     assert (v.t_mid, v.half_dt) == pytest.approx((0.95, 0.05))
+    # an interval known to 2 ms scales the velocity by 2 % along itself
+    timed = pair_velocity(result, t=1.0, dt=0.1, dt_std=0.002)
+    np.testing.assert_allclose(timed.covariance - v.covariance,
+                               0.02**2 * np.outer([6.0, 8.0], [6.0, 8.0]))
+    # an unknown covariance: nothing to judge by
+    assert pair_velocity(_result([0, 0, 0, 0, 0.6, 0.8, 0], np.full((7, 7), np.nan)),
+                         1.0, 0.1) is None
 
 
 def _velocity(x, z, t_mid, half_dt, var=0.0):
@@ -182,6 +254,10 @@ def test_motion_conflict_counts_unequal_intervals_and_the_direction():
     # excuse it
     wide_across = PairVelocity(np.array([0.0, 17.0]), np.diag([100.0, 0.0]), 0.15, 0.05)
     assert motion_conflict(wide_across, before, 10.0) is not None
+    # both pairs' standard deviations count: 3 m/s in 0.1 s is within 1 + 3 × 1 m/s, 4.1 not
+    uncertain_before = _velocity(0, 20, 0.05, 0.05, var=1.0)
+    assert motion_conflict(_velocity(0, 17, 0.15, 0.05), uncertain_before, 10.0) is None
+    assert motion_conflict(_velocity(0, 15.9, 0.15, 0.05), uncertain_before, 10.0) is not None
 
 
 def test_a_sideways_lock_is_rejected():

@@ -180,7 +180,9 @@ class LiveMonitor:
         self.camera, self.nominal = rig.camera, nominal
         self.estimator = TwoFrameEstimator(rig, config)
         # frames may be dropped between pairs: a result seeds one ending within 1 s of it
-        self._chain = PairChain(self.estimator, track_within_s=_TRACK_WITHIN_S)
+        self._chain = PairChain(
+            self.estimator, track_within_s=_TRACK_WITHIN_S,
+            max_acceleration_mps2=self.estimator.config.max_acceleration_mps2)
         self.speed = SpeedBuffer()
         self.online = OnlineMonitor(nominal, EkfConfig(height_m=nominal.height_m),
                                     dict(monitor_options or {}), fps=fps, speed=self.speed)

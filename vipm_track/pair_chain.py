@@ -3,22 +3,21 @@
 :class:`PairChain` is what the sequence runner (``pipeline.run_sequence``) and the live
 monitor share: it seeds a pair from the last ``ok`` one (tracking: :func:`predict_guess`),
 tries a tracked pair that fails once more cold, and holds every ``ok`` pair to the
-vehicle's physics: its mean velocity on the ground may differ from the last ``ok`` pair's
-(within :data:`MOTION_HORIZON_S`) by no more than ``EstimatorConfig.max_acceleration_mps2``
-allows over the time between them, plus three standard deviations of the change. A pair
-beyond it gets status :data:`STATUS_IMPLAUSIBLE_MOTION`.
-
-Why: a cold start, which knows nothing of the pairs before it, can lock onto a patch
-field's second minimum. Beyond the motion range (a car at 2.5 m per frame) cold pairs after
-failed ones came out ``ok`` with a tenth of the travel, or with the car going sideways and
-back, and standard deviations that did not show it (docs/usage.md). Only a pair that itself
-agreed with the ``ok`` pair before it can reject a later one, so one wrong pair cannot hold
-the truth off after it."""
+vehicle's physics: its mean velocity on the ground may differ from the reference pair's
+(the last ``ok`` pair that agreed with the one before it, within :data:`MOTION_HORIZON_S`)
+by no more than the largest acceleration allows over the time between them, plus three
+standard deviations of the change (the travel's, and the frame times' jitter). A pair
+beyond it gets status ``implausible motion``: a cold start, which knows nothing of the
+pairs before it, can lock onto another minimum of the patch field (docs/usage.md). A pair
+that agrees with the one rejected before it is taken, and becomes the reference: two pairs
+in a row that agree outweigh the reference, so that a real change beyond the bound, or a
+wrong reference, holds the pairs off for one pair only."""
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from collections import deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -26,12 +25,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .estimator import PreparedPair, TwoFrameEstimator
-from .pair_result import FloatArray, PairGuess, mark_failed
+from .pair_result import STATUS_IMPLAUSIBLE_MOTION, FloatArray, PairGuess, mark_failed
 
 if TYPE_CHECKING:
     from .pair_result import PairResult
-
-STATUS_IMPLAUSIBLE_MOTION = "implausible motion"
 
 #: Bounds on the frame-interval ratio used to scale the previous motion into a prediction.
 _DT_RATIO_RANGE = (0.25, 4.0)
@@ -40,6 +37,11 @@ _DT_RATIO_RANGE = (0.25, 4.0)
 MOTION_HORIZON_S = 1.0
 #: standard deviations of the velocity's change added to the physical bound
 _SIGMAS = 3.0
+#: the least error of a frame interval taken from two timestamps [s] (millisecond stamps);
+#: more where the intervals scatter (a live camera stamped on arrival)
+MIN_INTERVAL_STD_S = 1.4e-3
+#: frame intervals whose scatter measures the timestamps' jitter
+_INTERVALS_KEPT = 30
 #: indices of tx and tz in ``PairResult.covariance`` (``measurement`` order)
 _TRAVEL = slice(4, 6)
 
@@ -93,20 +95,26 @@ class PairVelocity:
     confirmed: bool = False
 
 
-def pair_velocity(result: PairResult, t: float, dt: float) -> PairVelocity:
+def pair_velocity(result: PairResult, t: float, dt: float, dt_std: float = 0.0
+                  ) -> PairVelocity | None:
     """The mean velocity of an ``ok`` pair ending at ``t`` [s], ``dt`` [s] long, with its
-    covariance from the travel's."""
-    travel = np.array([result.motion.tx, result.motion.tz])
-    cov = np.asarray(result.covariance)[_TRAVEL, _TRAVEL]
-    cov = cov if np.all(np.isfinite(cov)) else np.zeros((2, 2))
-    return PairVelocity(travel / dt, cov / dt**2, t - dt / 2, dt / 2)
+    covariance from the travel's and from the interval's error ``dt_std`` [s] (which scales
+    the velocity along itself); None where the travel's covariance is not known."""
+    cov = getattr(result, "covariance", None)
+    if cov is None or not np.all(np.isfinite(np.asarray(cov)[_TRAVEL, _TRAVEL])):
+        return None
+    velocity = np.array([result.motion.tx, result.motion.tz]) / dt
+    cov = np.asarray(cov)[_TRAVEL, _TRAVEL] / dt**2 + (dt_std / dt) ** 2 * np.outer(velocity,
+                                                                                   velocity)
+    return PairVelocity(velocity, cov, t - dt / 2, dt / 2)
 
 
 def motion_conflict(now: PairVelocity, before: PairVelocity, max_accel: float) -> str | None:
     """Why ``now`` cannot follow ``before`` at accelerations up to ``max_accel`` [m/s²]
     (None where it can): the change of mean velocity between two intervals is at most
-    ``max_accel`` times the time between their middles, plus half their lengths' difference,
-    and three standard deviations of the change (along it)."""
+    ``max_accel`` times the time between their middles, plus half their lengths' difference
+    (which also covers the chord's turn between unequal intervals in a curve), and three
+    standard deviations of the change (along it; the two pairs' errors independent)."""
     elapsed = now.t_mid - before.t_mid + abs(now.half_dt - before.half_dt)
     change = now.velocity - before.velocity
     size = float(np.hypot(*change))
@@ -127,19 +135,22 @@ class PairChain:
 
     ``tracking``: seed a pair from the last ``ok`` one ending where it starts (or, with
     ``track_within_s``, ending at most that long before its end: frames may be dropped).
-    ``retry_cold``: try a tracked pair that fails once more cold.
+    ``retry_cold``: try a tracked pair that fails once more cold. ``max_acceleration_mps2``:
+    the bound on the motion between pairs (inf: none).
     """
 
-    def __init__(self, estimator: Any, tracking: bool = True,
-                 retry_cold: bool = True, track_within_s: float | None = None) -> None:
+    def __init__(self, estimator: TwoFrameEstimator, tracking: bool = True,
+                 retry_cold: bool = True, track_within_s: float | None = None,
+                 max_acceleration_mps2: float = math.inf) -> None:
         self.estimator = estimator
         self.tracking = tracking
         self.retry_cold = retry_cold
         self.track_within_s = track_within_s
-        config = getattr(estimator, "config", None)  # (stand-ins for tests have none)
-        self.max_accel = getattr(config, "max_acceleration_mps2", math.inf)
+        self.max_accel = max_acceleration_mps2
         self._last_ok: tuple[PairResult, float, float] | None = None  # result, its dt, its t
-        self._last_velocity: PairVelocity | None = None
+        self._reference: PairVelocity | None = None
+        self._rejected: PairVelocity | None = None
+        self._intervals: deque[float] = deque(maxlen=_INTERVALS_KEPT)
 
     def break_tracking(self) -> None:
         """The next pair does not follow the last one (a frame could not be used): start it
@@ -155,6 +166,8 @@ class PairChain:
         if guess is not None and result.status != "ok" and self.retry_cold:
             result = estimate_pair(self.estimator, prev, curr, None, dt, prepared)
             guess = None
+        if math.isfinite(dt) and dt > 0:
+            self._intervals.append(dt)
         if result.status == "ok":
             self._hold_to_physics(result, t, dt)
         self._last_ok = (result, dt, t) if result.status == "ok" else None
@@ -169,19 +182,33 @@ class PairChain:
             return None
         return predict_guess(previous, dt_prev, dt)
 
+    def interval_std(self) -> float:
+        """The error of a frame interval [s]: the scatter of the recent intervals (a
+        timestamp's jitter enters two intervals), at least :data:`MIN_INTERVAL_STD_S`."""
+        spread = float(np.std(self._intervals)) if len(self._intervals) > 1 else 0.0
+        return max(MIN_INTERVAL_STD_S, spread)
+
     def _hold_to_physics(self, result: PairResult, t: float, dt: float) -> None:
-        """Mark ``result`` implausible where its velocity conflicts with a confirmed ``ok``
-        pair's within :data:`MOTION_HORIZON_S`; otherwise it becomes the pair to hold the next
-        to."""
+        """Mark ``result`` implausible where its velocity conflicts with the reference's
+        within :data:`MOTION_HORIZON_S` and not with the pair rejected before it; otherwise
+        it becomes the reference (confirmed where it agreed with the one before)."""
         if not math.isfinite(self.max_accel) or not dt > 0:
             return
-        now = pair_velocity(result, t, dt)
-        before = self._last_velocity
+        now = pair_velocity(result, t, dt, self.interval_std())
+        if now is None:
+            return
+        before = self._reference
         if before is None or now.t_mid - before.t_mid > MOTION_HORIZON_S:
-            self._last_velocity = now
+            self._reference, self._rejected = now, None
             return
         conflict = motion_conflict(now, before, self.max_accel)
         if conflict is not None and before.confirmed:
-            mark_failed(result, STATUS_IMPLAUSIBLE_MOTION, conflict)
-            return
-        self._last_velocity = dataclasses.replace(now, confirmed=conflict is None)
+            rejected = self._rejected
+            if (rejected is None or now.t_mid - rejected.t_mid > MOTION_HORIZON_S
+                    or motion_conflict(now, rejected, self.max_accel) is not None):
+                mark_failed(result, STATUS_IMPLAUSIBLE_MOTION, conflict)
+                self._rejected = now
+                return
+            conflict = None  # two pairs in a row agree: they outweigh the reference
+        self._reference = dataclasses.replace(now, confirmed=conflict is None)
+        self._rejected = None

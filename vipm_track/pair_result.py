@@ -22,6 +22,9 @@ STATUS_FEW_INLIERS = "too few inliers"
 STATUS_NOT_CONVERGED = "did not converge"
 STATUS_DEGENERATE = "degenerate"
 STATUS_NO_NOMINAL = "no nominal pose"
+#: an ``ok`` pair whose motion the vehicle could not have reached from the pairs before it
+#: (``pair_chain.PairChain``)
+STATUS_IMPLAUSIBLE_MOTION = "implausible motion"
 
 
 @dataclass(frozen=True)

@@ -1,13 +1,15 @@
 """Chunked runs of the sequence runner in several processes, for long recordings.
 
-A pair's estimate depends only on its two frames and the tracking guess from the pair
-before, so a recording splits into chunks of consecutive frames that run independently: each
+A pair's estimate depends only on its two frames, the tracking guess from the pair before
+and the bound on the motion (``pair_chain``: the pairs of the second before), so a recording
+splits into chunks of consecutive frames that run independently: each
 chunk also reads the frame before its first (the pair across the boundary is estimated in
 the chunk, cold-started like a pair after a failure) and its steps are yielded in frame
 order as the chunks finish. The chunks, hence the results, depend on ``chunk_frames`` only,
 not on the number of processes; they differ from one sequential run only in the pairs from
 each chunk's first on, until tracking has forgotten its start (on a steep camera within a
-few pairs; a level camera's run is chaotic in its last bits, see ``docs/kitti.md``).
+few pairs; a level camera's run is chaotic in its last bits, see ``docs/kitti.md``); a
+chunk's first pairs have no earlier motion to be held to.
 """
 
 from __future__ import annotations

@@ -34,13 +34,13 @@ from numpy.typing import NDArray
 from .camera import CameraModel
 from .errors import InputError
 from .estimator import PreparedFrame, PreparedPair, TwoFrameEstimator
+from .estimator_config import EstimatorConfig
 from .pair_chain import PairChain
 from .rig import Rig
 from .sources import Frame, FrameSource
 from .workers import threads
 
 if TYPE_CHECKING:
-    from .estimator_config import EstimatorConfig
     from .pair_result import PairResult
 
 FIRST_FRAME = "first frame"
@@ -97,7 +97,10 @@ def run_sequence(
     camera = rig.camera
     prev_image: NDArray | None = None
     prev_t = float("nan")
-    chain = PairChain(estimator, tracking, retry_cold)
+    settings = (estimator.config if isinstance(estimator, TwoFrameEstimator)
+                else config or EstimatorConfig())
+    chain = PairChain(estimator, tracking, retry_cold,
+                      max_acceleration_mps2=settings.max_acceleration_mps2)
     checked_size = continuation
     frames = _prepared_frames(source, estimator, camera)
     for frame, prepared in (_read_ahead(frames) if threads() > 1 else frames):

@@ -58,9 +58,10 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
                        "rejected (default 10)")
     group.add_argument("--max-acceleration", type=float, default=None, metavar="M/S²",
                        help="the vehicle's largest acceleration, m/s²: an ok pair whose velocity "
-                       "on the ground differs from the last ok pair's (within 1 s) by more than "
-                       "it allows, plus three standard deviations, gets status 'implausible "
-                       "motion' (default 10, about 1 g; 'inf' turns it off)")
+                       "on the ground differs from that of the last ok pair which agreed with "
+                       "the one before it (within 1 s) by more than it allows, plus three "
+                       "standard deviations, gets status 'implausible motion' (default 10, "
+                       "about 1 g; 'inf' turns it off)")
     group.add_argument("--pose-prior-deg", type=float, default=None, metavar="DEG",
                        help="standard deviation of a prior on pitch and roll around "
                        "--pitch/--roll inside the fit, degrees; resolves the pitch/travel "
