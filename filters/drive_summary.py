@@ -14,7 +14,7 @@ from vipm_track.measurement import PairMeasurement
 from .forward_slow import slow_drive_note
 from .long_run import batch_means
 from .mount_change import short_drive_note
-from .mount_steps import StepTestConfig, untested_drive_note
+from .mount_steps import StepTestConfig, mount_steps, trend_statistic, untested_drive_note
 from .smoother_config import SmoothedFrame
 
 FloatArray = NDArray[np.float64]
@@ -88,6 +88,10 @@ def summarize_mount(
         note = slow_drive_note(measurements)
         if note:
             out["slow_forward"] = note
+        if step_test is not None and step_test.enabled:
+            note = _trend_note(measurements, step_test, out)
+            if note:
+                out["pairs_trend"] = note
     return out
 
 
@@ -111,6 +115,34 @@ def _height_scale_note(height_m: float, measurements: Sequence[PairMeasurement])
             f"{float(np.median(assumed)):g} m the pairs were estimated with: the wheel speed "
             "sets the scale, so it likely belongs to another drive, has another unit or scale "
             "(--speed-scale), or is offset in time (--clock-offset).")
+
+
+def _trend_note(measurements: Sequence[PairMeasurement], cfg: StepTestConfig,
+                summary: dict[str, object]) -> str:
+    """A warning where the usable pairs' pitch or roll trends within the drive beyond the
+    step test's threshold but below the drift test's (``mount_steps.trend_statistic``,
+    within the segments the steps leave; each axis's ``pairs_trend_per_min`` and
+    ``pairs_trend_t`` go into ``summary``): the batch then holds the mount still, and the
+    trend is the body, the road or a mount creeping faster than the data can tell."""
+    usable = [m for m in measurements if m.ok]
+    t = np.array([m.t for m in usable])
+    trending = []
+    for i, name in enumerate(("pitch", "roll")):
+        x = np.array([m.z[2 + i] for m in usable])
+        trend = trend_statistic(t, x, mount_steps(t, x, cfg), cfg)
+        if trend is None or not isinstance(summary.get(name), dict):
+            continue
+        per_min = float(np.degrees(trend[0]) * 60.0)
+        summary[name].update(pairs_trend_per_min=per_min, pairs_trend_t=trend[1])  # type: ignore[union-attr]
+        if cfg.threshold < trend[1] <= cfg.trend_threshold:
+            trending.append(f"{name} by {per_min:+.2f}°/min (t = {trend[1]:.1f})")
+    if not trending:
+        return ""
+    return (f"the pairs' {' and '.join(trending)} trend within the drive, beyond what the step "
+            f"test calls significant ({cfg.threshold:g}) but below what the drift test calls "
+            f"a drift ({cfg.trend_threshold:g}, above a real road's wander): the mount is held "
+            "still and its intervals assume it did not creep; if it may have, judge it from "
+            "a longer drive (docs/filters.md)")
 
 
 def _pose_residuals(
@@ -152,7 +184,8 @@ def summary_markdown(summary: dict[str, object]) -> str:
         )
     warnings = [w for w in (_rejection_warning(summary), str(summary.get("short_drive", "")),
                             str(summary.get("height_scale", "")),
-                            str(summary.get("slow_forward", ""))) if w]
+                            str(summary.get("slow_forward", "")),
+                            str(summary.get("pairs_trend", ""))) if w]
     return "\n".join(lines) + "\n" + "".join(f"\n**Warning:** {w}\n" for w in warnings)
 
 

@@ -209,6 +209,16 @@ def mount_trend(t: FloatArray, x: FloatArray, steps: list[MountStep],
     the segments ``steps`` leave, where its statistic (module doc) exceeds
     ``cfg.trend_threshold``; None where it does not."""
     cfg = cfg or StepTestConfig()
+    trend = trend_statistic(t, x, steps, cfg)
+    return trend[0] if trend is not None and trend[1] > cfg.trend_threshold else None
+
+
+def trend_statistic(t: FloatArray, x: FloatArray, steps: list[MountStep],
+                    cfg: StepTestConfig | None = None) -> tuple[float, float] | None:
+    """The slope [unit of ``x`` per s] of a linear trend of ``x`` (at times ``t`` [s]) within
+    the segments ``steps`` leave and its statistic (the slope over its long-run standard
+    error); None where it cannot be measured."""
+    cfg = cfg or StepTestConfig()
     t, x = _finite(t, x)
     if len(x) < 3:
         return None
@@ -225,4 +235,4 @@ def mount_trend(t: FloatArray, x: FloatArray, steps: list[MountStep],
     variance = long_run_variance(xc - slope * tc, t, cfg.block_s)
     if variance is None or not variance > 0:
         return None
-    return slope if abs(slope) / np.sqrt(variance / spread) > cfg.trend_threshold else None
+    return slope, abs(slope) / float(np.sqrt(variance / spread))

@@ -227,4 +227,7 @@ def test_stored_fixtures_still_read():
         assert len(table["frame"]) > 0, path
         if path.name.endswith(("_est.csv", "_estimates.csv")):
             ms = read_measurements(path)
-            assert sum(m.ok for m in ms) > 0.5 * len(ms), path
+            # every row the table calls ok reads as a usable measurement (a drive beyond the
+            # motion range has fewer than half of them)
+            said_ok = int(np.count_nonzero(np.asarray(table["status"], dtype=object) == "ok"))
+            assert sum(m.ok for m in ms) == said_ok > 0.3 * len(ms), path

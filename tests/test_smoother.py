@@ -957,3 +957,25 @@ def test_yaw_of_a_frame_whose_heading_crosses_half_a_turn_is_the_turn(lag_s):
     assert len(yaw) > 0.9 * len(frames)
     rate = 8.0 * 0.03 / run.config.fps
     assert np.all(np.abs(yaw - rate) < 0.01), np.abs(yaw - rate).max()
+
+
+@pytest.mark.parametrize("ramp_deg_per_min, warned", [(0.0, False), (9.0, True), (12.0, False)])
+def test_summary_warns_of_a_trend_the_drift_test_does_not_call_a_drift(
+        tmp_path: Path, ramp_deg_per_min: float, warned: bool):
+    # KITTI 07's real rows (a mount that did not move: pitch t = 1.8) with a creep of the
+    # pitch added: 9°/min gives t = 6.1, between the step test's 5 and the drift test's 7, so
+    # the batch holds the mount still and the summary says so; 12°/min (t = 7.6) is a drift
+    # the mount walks with, no warning
+    ramp = math.radians(ramp_deg_per_min / 60.0)
+    rows = [replace(m, z=m.z + ramp * np.array([m.t - 0.1, 0, m.t, 0, 0, 0, 0]))
+            for m in read_measurements(Path(__file__).parent / "data" / "kitti07_estimates.csv")]
+    est = tmp_path / "est.csv"
+    write_table(est, [measurement_row(m) for m in rows], ESTIMATE_COLUMNS)
+    assert main(["smooth", "--estimates", str(est), "--height", "1.65", "--out",
+                 str(tmp_path / "s.csv"), "--quiet"]) == 0
+    summary = json.loads((tmp_path / "s.summary.json").read_text())
+    assert summary["pitch"]["pairs_trend_t"] == pytest.approx(
+        {0.0: 1.8, 9.0: 6.1, 12.0: 7.6}[ramp_deg_per_min], abs=0.1)
+    assert ("pairs_trend" in summary) == warned
+    text = (tmp_path / "s.summary.md").read_text()
+    assert ("the pairs' pitch by +" in text) == warned
