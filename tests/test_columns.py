@@ -231,3 +231,29 @@ def test_stored_fixtures_still_read():
             # motion range has fewer than half of them)
             said_ok = int(np.count_nonzero(np.asarray(table["status"], dtype=object) == "ok"))
             assert sum(m.ok for m in ms) == said_ok > 0.3 * len(ms), path
+
+
+def test_a_status_vipm_track_does_not_write_is_reported(tmp_path: Path, capsys):
+    from vipm_track import statuses
+    from vipm_track.cli import main
+
+    # every status in the stored tables is one vipm-track writes
+    for path in DATA.glob("*_est*.csv"):
+        for status in read_table(path)["status"]:
+            assert statuses.is_known(str(status)), (path, status)
+    assert statuses.is_known("unreadable frame: 000003.png")
+    assert statuses.is_known("estimator error: ValueError: x")
+    assert not statuses.is_known("weird") and not statuses.is_known("OK")
+    # a table from elsewhere: the row is read as not usable, and the run says which
+    lines = (DATA / "kitti07_estimates.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    row = lines[5].split(",")
+    row[header.index("status")] = "weird"
+    lines[5] = ",".join(row)
+    est = tmp_path / "est.csv"
+    est.write_text("\n".join(lines) + "\n")
+    assert main(["track", "--estimates", str(est), "--height", "1.65",
+                 "--out", str(tmp_path / "t.csv"), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert (f"1 rows have a status vipm-track does not write, read as not usable: row 6 frame "
+            f"{row[header.index('frame')]} 'weird'") in err

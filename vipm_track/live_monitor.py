@@ -45,6 +45,7 @@ from .pair_chain import PairChain
 from .pipeline import WRONG_SIZE, prepare_image
 from .rig import Rig
 from .sources import Frame, _to_grey
+from .statuses import NO_ESTIMATE
 from .table import TableColumns
 
 #: columns a live row adds after the monitor's: the pair's first frame, frames dropped
@@ -354,7 +355,7 @@ class LiveMonitor:
         if m is None:
             m = PairMeasurement(b.index, b.t, np.full(7, np.nan), np.full((7, 7), np.nan),
                                 self.nominal.height_m,
-                                status if status != "ok" else "no estimate")
+                                status if status != "ok" else NO_ESTIMATE)
         hold = self._holds.get("speed", "")
         self._waiting[b.index] = (a, b, result, dropped)
         for decided in self.online.step(m, a.t, hold):

@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import InputError
+from .statuses import MISSING_NUMBERS, is_known
 from .table import CORRELATION_COLUMNS, first_data_row, read_table
 
 PARAMETER_NAMES: tuple[str, ...] = ("pitch_prev", "roll_prev", "pitch", "roll", "tx", "tz", "yaw")
@@ -181,8 +182,6 @@ def read_measurements(path: str | Path) -> list[PairMeasurement]:
     return measurements_from_table(read_table(path), str(path))
 
 
-#: Status given to a row whose status says ``ok`` but whose numbers are not all there.
-MISSING_NUMBERS = "no estimate (numbers missing in the table)"
 
 
 @dataclass(frozen=True)
@@ -190,15 +189,18 @@ class SequenceIssues:
     """Rows of an estimates table that do not form a sequence, by their row number in the
     file (a CSV's header is row 1): ``duplicated`` (row, frame, row it first appeared in),
     ``out_of_order`` (row, frame, previous frame), ``backwards`` (row, t, previous t),
-    ``missing`` (row, frame) of rows saying ``ok`` with numbers missing."""
+    ``missing`` (row, frame) of rows saying ``ok`` with numbers missing, ``unknown`` (row,
+    frame, status) of rows with a status vipm-track does not write (read as not usable)."""
 
     duplicated: tuple[tuple[int, int, int], ...] = ()
     out_of_order: tuple[tuple[int, int, int], ...] = ()
     backwards: tuple[tuple[int, float, float], ...] = ()
     missing: tuple[tuple[int, int], ...] = ()
+    unknown: tuple[tuple[int, int, str], ...] = ()
 
     def __bool__(self) -> bool:
-        return bool(self.duplicated or self.out_of_order or self.backwards or self.missing)
+        return bool(self.duplicated or self.out_of_order or self.backwards or self.missing
+                    or self.unknown)
 
     def lines(self, source: str, first: int = 5) -> list[str]:
         """One line per kind of issue, naming the first ``first`` rows."""
@@ -223,6 +225,10 @@ class SequenceIssues:
             out.append(f"{source}: {len(self.missing)} rows say ok but lack numbers, read as "
                        f"'{MISSING_NUMBERS}': " + rows(
                            self.missing, lambda r, f: f"row {r} frame {f}"))
+        if self.unknown:
+            out.append(f"{source}: {len(self.unknown)} rows have a status vipm-track does not "
+                       "write, read as not usable: " + rows(
+                           self.unknown, lambda r, f, s: f"row {r} frame {f} {s!r}"))
         return out
 
 
@@ -265,15 +271,17 @@ def in_sequence(
     keep, issues = sequence_rows(np.array([m.frame for m in measurements], dtype=float),
                                  np.array([m.t for m in measurements], dtype=float), first_row)
     kept: list[PairMeasurement] = []
-    missing = []
+    missing, unknown = [], []
     for i in keep:
         m = measurements[i]
         if m.status == "ok" and not (np.isfinite(m.z).all()
                                      and np.isfinite(np.diag(m.covariance)).all()):
             missing.append((i + first_row, m.frame))
             m = replace(m, status=MISSING_NUMBERS)
+        elif not is_known(m.status):
+            unknown.append((i + first_row, m.frame, m.status))
         kept.append(m)
-    return kept, replace(issues, missing=tuple(missing))
+    return kept, replace(issues, missing=tuple(missing), unknown=tuple(unknown))
 
 
 def table_in_sequence(

@@ -25,7 +25,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .estimator import PreparedPair, TwoFrameEstimator
-from .pair_result import STATUS_IMPLAUSIBLE_MOTION, FloatArray, PairGuess, mark_failed
+from .pair_result import FloatArray, PairGuess, mark_failed
+from .statuses import ESTIMATOR_ERROR, STATUS_IMPLAUSIBLE_MOTION
 
 if TYPE_CHECKING:
     from .pair_result import PairResult
@@ -65,7 +66,7 @@ def estimate_pair(
             return estimator.estimate(prev, curr, guess, frame_interval_s, prepared=prepared)
         return estimator.estimate(prev, curr, guess, frame_interval_s)
     except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
-        return _FailedResult(f"estimator error: {type(exc).__name__}: {exc}"[:200])
+        return _FailedResult(f"{ESTIMATOR_ERROR}: {type(exc).__name__}: {exc}"[:200])
 
 
 @dataclass

@@ -12,19 +12,37 @@ from numpy.typing import NDArray
 from .displacement_model import pack
 from .geometry import GroundPose, IpmGrid, PlanarMotion
 from .measurement import PairMeasurement
+from .statuses import (
+    STATUS_DEGENERATE,
+    STATUS_FEW_INLIERS,
+    STATUS_IMPLAUSIBLE_MOTION,
+    STATUS_NO_MOTION,
+    STATUS_NO_NOMINAL,
+    STATUS_NO_TEXTURE,
+    STATUS_NOT_CONVERGED,
+    STATUS_OK,
+)
 
 FloatArray = NDArray[np.float64]
 
-STATUS_OK = "ok"
-STATUS_NO_TEXTURE = "no texture"
-STATUS_NO_MOTION = "no motion"
-STATUS_FEW_INLIERS = "too few inliers"
-STATUS_NOT_CONVERGED = "did not converge"
-STATUS_DEGENERATE = "degenerate"
-STATUS_NO_NOMINAL = "no nominal pose"
-#: an ``ok`` pair whose motion the vehicle could not have reached from the pairs before it
-#: (``pair_chain.PairChain``)
-STATUS_IMPLAUSIBLE_MOTION = "implausible motion"
+__all__ = [
+    "STATUS_DEGENERATE",
+    "STATUS_FEW_INLIERS",
+    "STATUS_IMPLAUSIBLE_MOTION",
+    "STATUS_NOT_CONVERGED",
+    "STATUS_NO_MOTION",
+    "STATUS_NO_NOMINAL",
+    "STATUS_NO_TEXTURE",
+    "STATUS_OK",
+    "PairGuess",
+    "PairResult",
+    "PatchField",
+    "StageEstimate",
+    "StageFailure",
+    "add_timings",
+    "angular_change",
+    "mark_failed",
+]
 
 
 @dataclass(frozen=True)

@@ -38,15 +38,14 @@ from .estimator_config import EstimatorConfig
 from .pair_chain import PairChain
 from .rig import Rig
 from .sources import Frame, FrameSource
+from .statuses import FIRST_FRAME, NO_PREVIOUS, UNREADABLE, WRONG_SIZE
 from .workers import threads
 
 if TYPE_CHECKING:
     from .pair_result import PairResult
 
-FIRST_FRAME = "first frame"
-NO_PREVIOUS = "no previous frame"
-UNREADABLE = "unreadable frame"
-WRONG_SIZE = "wrong image size"
+__all__ = ["FIRST_FRAME", "NO_PREVIOUS", "UNREADABLE", "WRONG_SIZE", "SequenceStep",
+           "config_with", "prepare_image", "run_sequence"]
 
 
 @dataclass(frozen=True)
