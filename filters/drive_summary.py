@@ -14,7 +14,13 @@ from vipm_track.measurement import PairMeasurement
 from .forward_slow import slow_drive_note
 from .long_run import batch_means
 from .mount_change import short_drive_note
-from .mount_steps import StepTestConfig, mount_steps, trend_statistic, untested_drive_note
+from .mount_steps import (
+    StepTestConfig,
+    mount_steps,
+    trend_statistic,
+    untested_drive_note,
+    usable_angles,
+)
 from .smoother_config import SmoothedFrame
 
 FloatArray = NDArray[np.float64]
@@ -124,11 +130,10 @@ def _trend_note(measurements: Sequence[PairMeasurement], cfg: StepTestConfig,
     within the segments the steps leave; each axis's ``pairs_trend_per_min`` and
     ``pairs_trend_t`` go into ``summary``): the batch then holds the mount still, and the
     trend is the body, the road or a mount creeping faster than the data can tell."""
-    usable = [m for m in measurements if m.ok]
-    t = np.array([m.t for m in usable])
+    t, angles = usable_angles(measurements)
     trending = []
     for i, name in enumerate(("pitch", "roll")):
-        x = np.array([m.z[2 + i] for m in usable])
+        x = angles[:, i]
         trend = trend_statistic(t, x, mount_steps(t, x, cfg), cfg)
         if trend is None or not isinstance(summary.get(name), dict):
             continue

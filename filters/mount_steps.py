@@ -36,10 +36,13 @@ KITTI 07's rows up to 4.5 (a turn's body roll), knocks 5–6 before their step i
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+
+from vipm_track.measurement import PairMeasurement
 
 FloatArray = NDArray[np.float64]
 
@@ -173,6 +176,14 @@ def _best_split(x: FloatArray, t: FloatArray, cfg: StepTestConfig) -> MountStep 
         return None
     statistic, a, b, k = best
     return MountStep(float(t[k + 1]), statistic, float(x[k + 1:b].mean() - x[a:k + 1].mean()))
+
+
+def usable_angles(ms: Sequence[PairMeasurement]) -> tuple[FloatArray, FloatArray]:
+    """Times [s] and (n, 2) angles of their current frame (pitch, roll; rad) of the usable
+    pairs: the series the step and drift tests look at."""
+    usable = [m for m in ms if m.ok]
+    return (np.array([m.t for m in usable]),
+            np.array([m.z[2:4] for m in usable]).reshape(-1, 2))
 
 
 def _finite(t: FloatArray, x: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -44,7 +44,7 @@ from .ekf import ExtrinsicsEKF
 from .ekf_state import EkfConfig
 from .model import NoiseParams
 from .mount_change import across_jump, jump_variance
-from .mount_steps import MountStep, mount_steps, mount_trend
+from .mount_steps import MountStep, mount_steps, mount_trend, usable_angles
 from .smoother_config import SmoothedFrame, SmootherConfig, chi_norm
 from .smoother_marginals import block_marginals, block_norms, state_covariances, states_of
 
@@ -300,7 +300,7 @@ def mount_creep(ms: Sequence[PairMeasurement], cfg: SmootherConfig,
     out = np.zeros((len(ms), 2))
     if not cfg.mount_steps.enabled:
         return out
-    t_usable, angles = _usable_angles(ms)
+    t_usable, angles = usable_angles(ms)
     t = np.array([m.t for m in ms])
     for axis, found in enumerate(offline):
         slope = mount_trend(t_usable, angles[:, axis], found, cfg.mount_steps)
@@ -309,18 +309,10 @@ def mount_creep(ms: Sequence[PairMeasurement], cfg: SmootherConfig,
     return out
 
 
-def _usable_angles(ms: Sequence[PairMeasurement]) -> tuple[FloatArray, FloatArray]:
-    """Times [s] and (n, 2) angles of their current frame (pitch, roll; rad) of the usable
-    pairs."""
-    usable = [m for m in ms if m.ok]
-    return (np.array([m.t for m in usable]),
-            np.array([m.z[2:4] for m in usable]).reshape(-1, 2))
-
-
 def offline_steps(ms: Sequence[PairMeasurement], cfg: SmootherConfig) -> list[list[MountStep]]:
     """Per axis (pitch, roll) the steps ``mount_steps`` finds in the usable pairs' angle of
     their current frame (none where the test is off or fewer than 3 pairs are usable)."""
-    t, angles = _usable_angles(ms)
+    t, angles = usable_angles(ms)
     if not cfg.mount_steps.enabled or len(t) < 3:
         return [[], []]
     return [mount_steps(t, angles[:, axis], cfg.mount_steps) for axis in (0, 1)]
