@@ -197,8 +197,16 @@ class DriftMonitor:
             return (f"{AXES[j]} {_fmt_dev(j, float(core.s.invalid_dev[0]))} from nominal "
                     f"({source}) exceeds the limit {limit}")
         if code == UNCALIBRATED:
-            return (f"collecting evidence ({int(core.s.evidence[0])}/{core.calib_frames} "
-                    "usable frames)")
+            evidence = int(core.s.evidence[0])
+            if evidence < core.calib_frames:
+                return f"collecting evidence ({evidence}/{core.calib_frames} usable frames)"
+            mean, se = (x[0] for x in core.mean_deviation())
+            half = core.config.calibrate_within_z * se
+            tol = core.nominal.tolerances
+            j = int(np.nanargmax(np.abs(mean) - tol - half))
+            return (f"collecting evidence ({evidence} usable frames): the mean deviation so "
+                    f"far, {AXES[j]} {_fmt_dev(j, mean[j])} ± {_fmt_dev(j, half[j], sign=False)},"
+                    f" is not within the tolerance {_fmt_dev(j, tol[j], sign=False)} yet")
         if code == CALIBRATED:
             # what the test can say: it has not found a change; one less than its smallest
             # design shift beyond the tolerance takes long to find (a 0.3° knock against a

@@ -99,6 +99,8 @@ class _Arrays:
     ema: FloatArray  # (B, 3)
     base: NDArray[np.int64]  # (B,)
     evidence: NDArray[np.int64]  # (B,) usable frames since UNCALIBRATED began
+    info: FloatArray  # (B, 3) Σ 1/w_k over the used frames since then
+    info_u: FloatArray  # (B, 3) Σ u_k/w_k: with ``info``, the mean deviation's estimate
     quiet: NDArray[np.int64]  # (B,) frames below warn_exit while RECALIBRATE / INVALID
     gated_run: NDArray[np.int64]  # (B,)
     alarm_axis: NDArray[np.int64]  # (B,) axis of the last alarm / warning
@@ -195,6 +197,7 @@ class MonitorCore:
             used=np.zeros((b, 3), dtype=np.int64), count=np.zeros(b, dtype=np.int64),
             ema=np.zeros((b, 3)),
             base=np.full(b, UNCALIBRATED, dtype=np.int64), evidence=np.zeros(b, dtype=np.int64),
+            info=np.zeros((b, 3)), info_u=np.zeros((b, 3)),
             quiet=np.zeros(b, dtype=np.int64), gated_run=np.zeros(b, dtype=np.int64),
             alarm_axis=np.zeros(b, dtype=np.int64),
         )
@@ -218,6 +221,23 @@ class MonitorCore:
         zeros = np.where(live, s.zero_count[rows, axis][rows, side], np.iinfo(np.int64).max)
         first = zeros.min(axis=1)
         return np.where(live.any(axis=1), first, s.count)
+
+    def mean_deviation(self) -> tuple[FloatArray, FloatArray]:
+        """(B, 3) weighted mean of the whitened deviations u_k since the evidence began
+        (rad, rad, m; NaN on an axis without frames) and its standard error: the estimate of
+        a constant Δ the CUSUMs test, all of it, not only the part beyond the tolerance."""
+        s = self.s
+        with np.errstate(divide="ignore", invalid="ignore"):
+            mean = np.where(s.info > 0, s.info_u / s.info, np.nan)
+            se = np.where(s.info > 0, 1.0 / np.sqrt(s.info), np.nan)
+        return mean, se
+
+    def within_tolerance(self) -> NDArray[np.bool_]:
+        """(B,) the mean deviation since the evidence began lies within the tolerance, to
+        ``calibrate_within_z`` standard errors, on every axis that has frames."""
+        mean, se = self.mean_deviation()
+        beyond = np.abs(mean) - self.nominal.tolerances > self.config.calibrate_within_z * se
+        return ~np.any(np.isfinite(mean) & beyond, axis=1)
 
     def normalised_statistic(self) -> FloatArray:
         """(B, 3): per axis, the largest CUSUM divided by its threshold (1 = alarm)."""
@@ -276,6 +296,8 @@ class MonitorCore:
         s.t_last = np.where(use, t[:, None], s.t_last)
         s.used = s.used + use
         s.count = s.count + usable
+        s.info = np.where(use, s.info + 1.0 / w, s.info)
+        s.info_u = np.where(use, s.info_u + u / w, s.info_u)
 
         # CUSUM bank: (B, 3, side, D)
         signed = np.stack([u, -u], axis=2)[..., None]  # (B, 3, 2, 1)
@@ -375,12 +397,15 @@ class MonitorCore:
         normal = usable & ~alarm & np.isin(base, (UNCALIBRATED, CALIBRATED, DRIFTING))
         s.evidence = np.where(normal, s.evidence + 1, s.evidence)
         enough = s.evidence >= self.calib_frames
+        # entering CALIBRATED takes a mean deviation within the tolerance as well; once
+        # there, the CUSUMs alone judge (a later change would be diluted in the mean)
+        settled = enough & ((base == CALIBRATED) | self.within_tolerance())
         nxt = np.where(
             warn & enough, DRIFTING,
             np.where(
                 base == DRIFTING,
-                np.where(calm, np.where(enough, CALIBRATED, UNCALIBRATED), DRIFTING),
-                np.where(enough, CALIBRATED, UNCALIBRATED),
+                np.where(calm, np.where(settled, CALIBRATED, UNCALIBRATED), DRIFTING),
+                np.where(settled, CALIBRATED, UNCALIBRATED),
             ),
         )
         base = np.where(normal, nxt, base)

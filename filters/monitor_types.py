@@ -3,8 +3,11 @@ in (``MonitorInput``) and comes out (``MonitorOutput``) at each frame.
 
 States (``STATES``; the codes ``UNCALIBRATED`` … ``HOLD`` index it):
 
-- ``UNCALIBRATED``: not enough usable evidence yet (start-up, after INVALID clears);
-- ``CALIBRATED``: consistent with the nominal calibration within its tolerances;
+- ``UNCALIBRATED``: not enough usable evidence yet (start-up, after INVALID clears), or
+  evidence that does not yet put the deviation within the tolerances;
+- ``CALIBRATED``: consistent with the nominal calibration within its tolerances: no change
+  found, and the mean deviation since the evidence began within them (to
+  ``calibrate_within_z`` standard errors);
 - ``DRIFTING``: evidence of a deviation beyond tolerance is accumulating (a test statistic
   above ``warn_enter`` × its threshold);
 - ``RECALIBRATE``: a test crossed its threshold; the output carries the new extrinsics and
@@ -88,6 +91,10 @@ class MonitorConfig:
     warn_enter: float = 0.5
     warn_exit: float = 0.25
     calibrate_after_s: float = 3.0
+    #: CALIBRATED also needs the mean deviation since the evidence began (the whitened
+    #: observations' weighted mean) within the tolerance up to this many standard errors:
+    #: "no change found" alone called a camera 1° off CALIBRATED until its test caught up
+    calibrate_within_z: float = 1.96
     clear_after_s: float = 10.0
     invalid_tau_s: float = 1.0
     #: frames the filter gated feed the test once gating persists this long (a moved camera
@@ -119,6 +126,8 @@ class MonitorConfig:
             raise InputError("monitor: design shifts must be > 0")
         if not self.body_window_min_s >= 0:
             raise InputError("monitor: body_window_min_s must be >= 0")
+        if not self.calibrate_within_z > 0:
+            raise InputError("monitor: calibrate_within_z must be > 0")
         if not 0 < self.warn_exit <= self.warn_enter < 1:
             raise InputError("monitor: need 0 < warn_exit <= warn_enter < 1")
 

@@ -161,6 +161,8 @@ class DriveScore:
     flagged: bool  # any DRIFTING / RECALIBRATE / INVALID after settling (before the knock)
     knock_delay_s: float  # knock → first RECALIBRATE (NaN: no knock; inf: never)
     offsets_s: dict[str, float]  # nominal offset → first RECALIBRATE (inf: never)
+    offsets_calibrated: dict[str, int]  # nominal offset → CALIBRATED frames (all wrong)
+    calibrated_from_s: float  # true nominal: first CALIBRATED frame (inf: never)
     ok_share: float
 
 
@@ -219,16 +221,18 @@ def score_drive(case: Case, seed: int, cache: Path, use_speed: bool) -> DriveSco
     knock = math.nan
     if math.isfinite(t_knock):
         knock = first_recalibrate(outs, t_knock) - t_knock
-    offsets = {}
+    offsets, offsets_calibrated = {}, {}
     for label, kw in (("pitch +0.5°", {"pitch_deg": 0.5}), ("pitch +1°", {"pitch_deg": 1.0}),
                       ("height +2 cm", {"height_m": 0.02})):
         if case.profile in ("static", "shaking", "turn") and (use_speed or "height" not in label):
             _, o = monitor_measurements(ms, shifted(nominal, **kw), speed)
             offsets[label] = first_recalibrate(o)
+            offsets_calibrated[label] = sum(x.state == "CALIBRATED" for x in o)
+    calibrated_from = next((o.t for o in outs if o.state == "CALIBRATED"), math.inf)
     return DriveScore(
         errors, covered, states,
         sum(1 for o, i in judged if o.state == "HOLD" and i.usable),
-        any(states[s] for s in FLAGS), knock, offsets,
+        any(states[s] for s in FLAGS), knock, offsets, offsets_calibrated, calibrated_from,
         float(np.mean([m.ok for m in ms])),
     )
 
@@ -277,9 +281,12 @@ def matrix_rows(case: Case, scores: list[DriveScore], use_speed: bool) -> tuple[
     for key in ("pitch +0.5°", "pitch +1°", "height +2 cm"):
         vals = [s.offsets_s[key] for s in scores if key in s.offsets_s]
         offsets.append(_time(vals) if vals else "—")
+    wrong = [n for s in scores for n in s.offsets_calibrated.values()]
+    wrong_cell = f"{sum(wrong)} ({sum(n > 0 for n in wrong)}/{len(wrong)})" if wrong else "—"
     monitor_row = (f"| {label} | {shares} | {sum(s.hold_usable for s in scores)} | "
-                   f"{flagged}/{len(scores)} | {_time([s.knock_delay_s for s in scores])} | "
-                   + " | ".join(offsets) + " |")
+                   f"{flagged}/{len(scores)} | {_time([s.calibrated_from_s for s in scores])} | "
+                   f"{_time([s.knock_delay_s for s in scores])} | "
+                   + " | ".join(offsets) + f" | {wrong_cell} |")
     return filters_row, monitor_row
 
 
@@ -291,9 +298,11 @@ FILTERS_HEAD = (
 MONITOR_HEAD = (
     "| drive | wheel speed | CALIBRATED % | UNCALIBRATED % | DRIFTING % | RECALIBRATE % "
     "| INVALID % | HOLD % | HOLD on usable frames | drives flagged (true nominal) "
+    "| CALIBRATED from s (true nominal) "
     "| knock → RECALIBRATE s (median / max) | nominal pitch +0.5°: RECALIBRATE at s "
-    "| nominal pitch +1° | nominal height +2 cm |\n"
-    "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+    "| nominal pitch +1° | nominal height +2 cm | nominal off: CALIBRATED frames (runs) |\n"
+    "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- "
+    "| --- | --- |"
 )
 
 

@@ -47,3 +47,31 @@ def test_state_changes_on_the_configured_frame(calibrate_s: float, clear_s: floa
     assert states[flagged:cleared] == ["RECALIBRATE"] * (cleared - flagged)
     assert states[cleared] == "CALIBRATED"
     assert set(states[cleared:]) == {"CALIBRATED"}
+
+
+def _noisy_constant(offset_deg: float, std_deg: float, n: int, within_z: float = 1.96):
+    """Frames exactly ``offset_deg`` off the nominal pitch whose stated σ is ``std_deg``: the
+    CUSUMs, told of that σ, gather evidence slowly; the mean deviation is plain at once."""
+    nominal = NominalCalibration(pitch_deg=2.0, roll_deg=0.0, height_m=1.5)
+    monitor = DriftMonitor(nominal, MonitorConfig(fps=FPS, calibrate_within_z=within_z))
+    var = np.array([math.radians(std_deg) ** 2] * 2 + [np.nan])
+    pose = np.array([math.radians(2.0 + offset_deg), 0.0, np.nan])
+    return [monitor.update(MonitorInput(frame=k, t=k / FPS, pose=pose, pose_var=var))
+            for k in range(n)]
+
+
+def test_calibrated_only_where_the_mean_deviation_is_within_the_tolerance() -> None:
+    # 1° off against a 0.1° tolerance: the test had found no change after 3 s and the
+    # monitor said CALIBRATED; the mean deviation (1° ± 0.6° at 95 %) says otherwise
+    states = [o.state for o in _noisy_constant(1.0, 1.5, 200)]
+    assert "CALIBRATED" not in states
+    assert "RECALIBRATE" in states
+    held = _noisy_constant(1.0, 1.5, 33)[-1]  # 3.2 s: before DRIFTING
+    assert held.state == "UNCALIBRATED"
+    assert "pitch +1.00°" in held.reason and "tolerance 0.10°" in held.reason
+    # without the gate (an unreachable z) the same frames were called CALIBRATED
+    assert _noisy_constant(1.0, 1.5, 33, within_z=1e9)[-1].state == "CALIBRATED"
+    # the nominal itself, as noisy, is CALIBRATED on the configured frame
+    states = [o.state for o in _noisy_constant(0.0, 1.5, 60)]
+    calib = round(MonitorConfig().calibrate_after_s * FPS)
+    assert states[calib - 2] == "UNCALIBRATED" and set(states[calib - 1:]) == {"CALIBRATED"}

@@ -253,11 +253,13 @@ def test_monitor_status_quotes_the_results_files():
     assert road and all(set(r[2].split(", ")) == {"never"} for r in road)
     assert f"| never flagged (flat default, s: {flat[2]}) |" in _status("monitor on roads")
     verdicts = _rows(RESULTS / "bench_verdicts.md")
-    knock = [float(x) for r in verdicts if len(r) == 14 and r[0].startswith(("cart knock",
-                                                                              "car knock"))
-             for x in r[10].split(" / ")]
+    monitored = [r for r in verdicts if len(r) == 16]
+    knock = [float(x) for r in monitored if r[0].startswith(("cart knock", "car knock"))
+             for x in r[11].split(" / ")]
     hours = next(r for r in verdicts if len(r) == 5 and r[0].startswith("cart, simulated"))
-    assert (f"| {_range(knock, '.1f')} s; {hours[2]} in {hours[1]} h |" in _status("verdicts"))
+    wrong = [r[15].split(" (")[0] for r in monitored if r[15][:1].isdigit()]
+    assert (f"| {_range(knock, '.1f')} s; {hours[2]} in {hours[1]} h; "
+            f"{sum(int(n) for n in wrong)} |" in _status("verdicts"))
 
 
 def test_mount_steps_status_quotes_the_results_file():
