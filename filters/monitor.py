@@ -211,6 +211,9 @@ class DriftMonitor:
             # what the test can say: it has not found a change; one less than its smallest
             # design shift beyond the tolerance takes long to find (a 0.3° knock against a
             # 0.2° tolerance stayed CALIBRATED for 9 s on a cart)
+            if core.s.used[0, 2] == 0:  # no metric travel yet: the height has not been tested
+                return ("no change beyond the tolerance found in pitch and roll; height not "
+                        "tested (it needs wheel speed)")
             return "no change beyond the tolerance found"
         j = int(core.s.alarm_axis[0])
         tol = _fmt_dev(j, core.nominal.tolerances[j], sign=False)

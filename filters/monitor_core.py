@@ -195,7 +195,7 @@ class MonitorCore:
             t_last=np.full((b, 3), np.nan), cusum=np.zeros((b, 3, 2, d)),
             zero_count=np.zeros((b, 3, 2, d), dtype=np.int64),
             used=np.zeros((b, 3), dtype=np.int64), count=np.zeros(b, dtype=np.int64),
-            ema=np.zeros((b, 3)),
+            ema=np.full((b, 3), np.nan),
             base=np.full(b, UNCALIBRATED, dtype=np.int64), evidence=np.zeros(b, dtype=np.int64),
             info=np.zeros((b, 3)), info_u=np.zeros((b, 3)),
             quiet=np.zeros(b, dtype=np.int64), gated_run=np.zeros(b, dtype=np.int64),

@@ -186,7 +186,8 @@ class MonitorOutput:
     """The monitor's verdict at one frame.
 
     ``statistic``: per axis, the largest CUSUM over its threshold (1 = alarm);
-    ``deviation``: 1 s average of pose − nominal (rad, rad, m); ``estimate``/``interval95``:
+    ``deviation``: 1 s average of pose − nominal (rad, rad, m; NaN on an axis no frame has
+    measured yet, e.g. height without wheel speed); ``estimate``/``interval95``:
     new extrinsics (rad, rad, m) and their 95 % interval ((3, 2): low, high) while DRIFTING
     or RECALIBRATE, else None; ``event``: a JSON-ready dict when the state changed.
     """

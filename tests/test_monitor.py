@@ -412,6 +412,31 @@ def test_cli_monitor_from_estimates(cli_inputs):
     assert all(list(e) == list(events[0]) for e in events)
 
 
+def test_cli_monitor_says_the_height_went_untested_without_wheel_speed(cli_inputs, capsys):
+    """Without wheel speed the height cannot be tested: CALIBRATED says so in its reason, the
+    run says so on stderr, the deviation column is empty; with it, none of that."""
+    from vipm_track.cli import main
+    from vipm_track.table import read_table
+
+    d, nominal = cli_inputs
+    for speed in ([], ["--speed-csv", str(d / "speed.csv")]):
+        rc = main(["monitor", "--estimates", str(d / "est.csv"), "--camera", str(d / "cam.yaml"),
+                   "--nominal", str(nominal), "--out", str(d / "mon.csv"),
+                   "--columns", "all", "--max-frames", "400", *speed])
+        assert rc == 0
+        err = capsys.readouterr().err
+        table = read_table(d / "mon.csv")
+        calibrated = table["reason"][table["monitor_state"] == "CALIBRATED"]
+        assert len(calibrated)
+        untested = [("height not tested" in r) for r in calibrated]
+        if speed:
+            assert not any(untested) and "height not tested" not in err
+            assert np.isfinite(table["dev_height_m"]).any()
+        else:
+            assert all(untested) and "height not tested" in err
+            assert not np.isfinite(table["dev_height_m"].astype(float)).any()
+
+
 def test_cli_monitor_rows_saying_ok_have_their_numbers(cli_inputs):
     """CONVENTIONS.md: a row's status is ``ok`` only with its numbers. While the EKF waits for
     its first pairs the monitor has no pose to write, so those rows say so, as ``track``'s do

@@ -150,6 +150,10 @@ def run(args: argparse.Namespace) -> int:
         if flagged is not None:
             print(f"first RECALIBRATE at t={flagged.t:.2f} s (frame {flagged.frame}): "
                   f"{flagged.reason}", file=sys.stderr)
+        if not any(math.isfinite(o.deviation[2]) for o in outputs):
+            print("height not tested: no frame had a metric travel (give wheel speed: "
+                  "--speed-csv or --can); the tables' height columns repeat the nominal "
+                  f"{nominal.height_m:g} m", file=sys.stderr)
     if getattr(args, "interrupted_at", None) is not None:
         raise KeyboardInterrupt
     return 0
