@@ -346,3 +346,18 @@ def test_other_status_rows_quote_the_results_files():
     assert (f"| {_range([float(r[9]) for r in live], '.2f')} s; "
             f"{max(int(r[10]) for r in live)}; {_range([float(r[11]) for r in live], '.2f')} s |"
             in _status("live monitoring"))
+
+
+def test_shutter_assumed_status_quotes_the_results_file():
+    rows = [r for r in _rows(RESULTS / "bench_readout_stake.md") if len(r) == 8
+            and r[1].isdigit()]
+    warned = sum(r[3] == "yes" for r in rows)
+
+    def pitch(cell: str) -> float:
+        return float(cell.split("°")[0])
+
+    off = [abs(pitch(r[5]) - pitch(r[6])) for r in rows if float(r[2]) > 0
+           and r[0] != "car shaking"]
+    shaking = next(abs(pitch(r[5]) - pitch(r[6])) for r in rows if r[0] == "car shaking")
+    assert (f"| {warned}/{len(rows)}; off by {_range(off, '.2f')}° "
+            f"(car shaking {shaking:.2f}°) |" in _status("shutter assumed"))

@@ -62,7 +62,7 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..runs import estimate_sequence
     from ..sources import open_source
-    from .inputs import with_searched_setup
+    from .inputs import warn_readout_stake, with_searched_setup
 
     out = check_output(args.out, args.parquet)
     columns = choose_columns(ESTIMATE_TABLE, args.columns)
@@ -104,6 +104,8 @@ def run(args: argparse.Namespace) -> int:
         logging.finish()
     if not args.quiet:
         print(f"{out}: {summary.line()}", file=sys.stderr)
+    if summary.ok > 0:
+        warn_readout_stake(args, source, rig, config)
     if summary.ok == 0:
         kinds = Counter(s.split(":")[0] for s in summary.statuses.elements())
         counts = ", ".join(f"{n}× {s}" for s, n in kinds.most_common())

@@ -74,7 +74,7 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
                        "parameter; default: on for steep cameras, off for level ones, where "
                        "it trades against pitch; turn it on for a body that bounces much "
                        "per frame; docs/kitti.md)")
-    group.add_argument("--readout-time", type=seconds_or_auto, default=0.0,
+    group.add_argument("--readout-time", type=seconds_or_auto, default=None,
                        metavar="SECONDS|auto",
                        help="rolling shutter: time from the exposure of the image's first row "
                        "to its last, seconds (a CMOS dashcam's is 10-35 ms; see the sensor's "
@@ -82,9 +82,11 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
                        "frames (the readout whose fit leaves the smallest residual, printed "
                        "with its uncertainty, ~25 s; where the residual shows no clear dip, a "
                        "warning and a global shutter); the fit then gives each patch the motion "
-                       "over its rows' exposure times. Default 0: global shutter (on a "
-                       "rendered car at 0.6 m per frame a 33 ms readout left unmodelled "
-                       "biases pitch by -0.4 deg and distance by +6.5 %%)")
+                       "over its rows' exposure times. Default: a global shutter, with a warning "
+                       "where a 20 ms readout would move this drive's pitch, roll or travel "
+                       "(on a rendered car at 0.6 m per frame a 33 ms readout left unmodelled "
+                       "biases pitch by -0.4 deg and distance by +6.5 %%); 0 says the "
+                       "shutter is global")
     group.add_argument("--subset-seed", type=int, default=None, metavar="N",
                        help="seed of the random-subset sampler (default: the estimator's, 0); "
                        "a run is deterministic for a given seed, and another seed shows how "
@@ -192,8 +194,8 @@ def build_rig(
     global shutter until searched, ``commands.inputs.with_searched_setup``)."""
     pitch = _angle(getattr(args, "pitch", None), "--pitch", *PITCH_RANGE_DEG)
     roll = _angle(getattr(args, "roll", None), "--roll", -45.0, 45.0)
-    readout = getattr(args, "readout_time", 0.0)
-    if readout == "auto":
+    readout = getattr(args, "readout_time", None)
+    if readout is None or readout == "auto":
         readout = 0.0
     if not (math.isfinite(readout) and 0 <= readout <= 1):
         raise InputError(f"--readout-time must be in [0, 1] seconds, got {readout}")

@@ -236,6 +236,21 @@ def with_searched_setup(
     return with_searched_nominal(args, source, rig.with_readout(with_readout.readout_s), config)
 
 
+def warn_readout_stake(
+    args: argparse.Namespace, source: FrameSource, rig: Rig, config: EstimatorConfig,
+) -> None:
+    """Where no ``--readout-time`` was given: a warning on stderr if a typical rolling
+    shutter's readout would move this drive's pose or travel (``readout_stake``); a global
+    shutter is assumed either way. Called after a run, so as not to delay its first row."""
+    if getattr(args, "readout_time", 0.0) is not None or config.nominal_undetermined:
+        return
+    from ..readout_stake import readout_stake
+
+    stake = readout_stake(source, rig, config)
+    if stake is not None and stake.matters:
+        print(f"vipm-track: warning: {stake.line()}", file=sys.stderr)
+
+
 def with_searched_readout(
     args: argparse.Namespace,
     source: FrameSource,
@@ -296,23 +311,30 @@ def estimate_stream(
                          start=getattr(args, "start", 0),
                          max_frames=getattr(args, "max_frames", None))
     rig, config = with_searched_setup(args, source, rig, config, search_pose)
+
+    def at_end(plain: Any = source, rig: Rig = rig, config: EstimatorConfig = config) -> None:
+        warn_readout_stake(args, plain, rig, config)
+
     if sink is not None:
         from ..sinks.rerun_sequence import ImageTap
 
         source = ImageTap(source, rig.camera)
         config = replace(config, keep_images=True)
-    return _measurements(source, rig, config, parallel, height, sink)
+    return _measurements(source, rig, config, parallel, height, sink, at_end)
 
 
 def _measurements(source: Any, rig: Rig, config: EstimatorConfig, parallel: dict[str, Any],
-                  height: float, sink: Any) -> Iterator[PairMeasurement]:
-    """The pair measurements of :func:`estimate_stream`, as the sequence runner makes them."""
+                  height: float, sink: Any,
+                  at_end: Callable[[], None]) -> Iterator[PairMeasurement]:
+    """The pair measurements of :func:`estimate_stream`, as the sequence runner makes them;
+    ``at_end`` is called after the last (what the shutter assumed stakes)."""
     from ..runs import sequence_steps, step_measurement
 
     for step in sequence_steps(source, rig, config, **parallel):
         if sink is not None and step.result is not None:
             sink.log_pair_views(step.frame, step.t, step.result, source.image(step.frame))
         yield step_measurement(step, height)
+    at_end()
 
 
 def frame_total(args: argparse.Namespace) -> int:
