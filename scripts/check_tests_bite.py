@@ -194,7 +194,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "vipm_track/readout_stake.py",
            "r.motion.distance / base[j].motion.distance - 1.0",
            "base[j].motion.distance / r.motion.distance - 1.0",
-           ("tests/test_readout_stake.py",)),
+           ("tests/test_estimate_warnings.py",)),
     Mutant("monitor-body-window-in-pairs", "monitor",
            "unit: the body std's measuring span in pairs, not seconds",
            "filters/monitor_types.py", "math.ceil(self.body_window_min_s * self.fps)",

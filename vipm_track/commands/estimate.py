@@ -105,6 +105,17 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"{out}: {summary.line()}", file=sys.stderr)
     if summary.ok > 0:
+        from vipm_track.filters.forward_slow import slow_drive_note
+
+        from ..measurement import read_measurements
+
+        # said under --quiet too: the rows' σ do not cover a bias one way over the stretch
+        try:
+            note = slow_drive_note(read_measurements(out))
+        except InputError:  # a --columns choice without the pose or travel
+            note = ""
+        if note:
+            print(f"vipm-track estimate: warning: {note}", file=sys.stderr)
         warn_readout_stake(args, source, rig, config)
     if summary.ok == 0:
         kinds = Counter(s.split(":")[0] for s in summary.statuses.elements())

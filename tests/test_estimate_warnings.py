@@ -1,6 +1,6 @@
-"""What a global shutter assumed stakes (vipm_track/readout_stake.py), against a rendered
-rolling shutter whose readout is known, and the warning `estimate` gives without
-``--readout-time``."""
+"""What `estimate` warns of after a run, against renders whose truth is known: what a global
+shutter assumed stakes (vipm_track/readout_stake.py) where no ``--readout-time`` was given,
+and a forward camera driven too slowly for its pitch (filters/forward_slow.py)."""
 
 from __future__ import annotations
 
@@ -66,3 +66,19 @@ def test_a_small_stake_does_not_matter():
     assert not ReadoutStake(0.02, 0.1, -0.1, 0.01, 3).matters
     assert ReadoutStake(0.02, 0.0, -0.25, 0.0, 3).matters
     assert ReadoutStake(0.02, 0.0, 0.0, -0.025, 3).matters
+
+
+def test_estimate_warns_of_a_forward_camera_driven_slowly(tmp_path, capsys):
+    # a car at 0.3 m/s, 20 fps: 0.01 camera heights per frame; the rows are ok with a wide σ,
+    # but their pitch reads low one way over the whole stretch
+    folder = tmp_path / "slow_car"
+    simulate_sequence("car", 5, folder, seed=62, profile="static", speed=0.3)
+    args = ["estimate", "--images", str(folder / "images"), "--height", "1.5", "--pitch", "3",
+            "--readout-time", "0", "--quiet"]
+    assert main([*args, "--out", str(tmp_path / "slow.csv")]) == 0
+    err = capsys.readouterr().err
+    assert "vipm-track estimate: warning:" in err and "travel less than 0.25 camera heights" in err
+    fast = tmp_path / "fast_car"
+    simulate_sequence("car", 5, fast, seed=62, profile="static", speed=12.0)
+    assert main([*args[:2], str(fast / "images"), *args[3:], "--out", str(tmp_path / "f.csv")]) == 0
+    assert "travel less than" not in capsys.readouterr().err
