@@ -211,10 +211,15 @@ class DriftMonitor:
             # what the test can say: it has not found a change; one less than its smallest
             # design shift beyond the tolerance takes long to find (a 0.3° knock against a
             # 0.2° tolerance stayed CALIBRATED for 9 s on a cart)
-            if core.s.used[0, 2] == 0:  # no metric travel yet: the height has not been tested
-                return ("no change beyond the tolerance found in pitch and roll; height not "
-                        "tested (it needs wheel speed)")
-            return "no change beyond the tolerance found"
+            mean, se = (x[0] for x in core.mean_deviation())
+            half = core.config.calibrate_within_z * se
+            tested = [j for j in range(3) if math.isfinite(mean[j])]
+            so_far = ", ".join(f"{AXES[j]} {_fmt_dev(j, mean[j])} ± "
+                               f"{_fmt_dev(j, half[j], sign=False)}" for j in tested)
+            if 2 not in tested:  # no metric travel yet: the height has not been tested
+                return (f"no change beyond the tolerance found in pitch and roll (mean "
+                        f"deviation {so_far}); height not tested (it needs wheel speed)")
+            return f"no change beyond the tolerance found (mean deviation {so_far})"
         j = int(core.s.alarm_axis[0])
         tol = _fmt_dev(j, core.nominal.tolerances[j], sign=False)
         dev = (estimate - core.nominal_values)[j] if estimate is not None else core.s.ema[0, j]

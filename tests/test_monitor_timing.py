@@ -71,7 +71,10 @@ def test_calibrated_only_where_the_mean_deviation_is_within_the_tolerance() -> N
     assert "pitch +1.00°" in held.reason and "tolerance 0.10°" in held.reason
     # without the gate (an unreachable z) the same frames were called CALIBRATED
     assert _noisy_constant(1.0, 1.5, 33, within_z=1e9)[-1].state == "CALIBRATED"
-    # the nominal itself, as noisy, is CALIBRATED on the configured frame
-    states = [o.state for o in _noisy_constant(0.0, 1.5, 60)]
+    # the nominal itself, as noisy, is CALIBRATED on the configured frame, and says on what
+    out = _noisy_constant(0.0, 1.5, 60)
+    states = [o.state for o in out]
     calib = round(MonitorConfig().calibrate_after_s * FPS)
     assert states[calib - 2] == "UNCALIBRATED" and set(states[calib - 1:]) == {"CALIBRATED"}
+    assert "(mean deviation pitch +0.00° ± 0." in out[-1].reason
+    assert "height not tested" in out[-1].reason
