@@ -736,3 +736,59 @@ def test_a_byte_order_mark_is_read_past(tmp_path, capsys, est):
     times = tmp_path / "times.txt"
     times.write_bytes(b"\xef\xbb\xbf0.0\n0.1\n")
     np.testing.assert_array_equal(read_times(times), [0.0, 0.1])
+
+
+def _tiny_images(tmp_path: Path, size: tuple[int, int] = (8, 8)) -> Path:
+    """Three black frames, a times.txt beside their folder and a car camera.yaml in it."""
+    from conftest import CAR_CAMERA_YAML
+
+    images = tmp_path / "images"
+    images.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(images / f"{k:06d}.png"), np.zeros(size, np.uint8))
+    (images / "camera.yaml").write_text(CAR_CAMERA_YAML)
+    (tmp_path / "times.txt").write_text("0.0\n0.1\n0.2\n")
+    return images
+
+
+def test_outputs_over_files_read_beside_the_images_are_refused(tmp_path, capsys):
+    """An audit overwrote the times.txt and the camera.yaml that estimate had found beside the
+    images (the next run then failed on them); only inputs named by an option were guarded."""
+    images = _tiny_images(tmp_path)
+    for target in (tmp_path / "times.txt", images / "camera.yaml"):
+        before = target.read_bytes()
+        rc, err = _run(capsys, "estimate", "--images", images, "--height", "1.5", "--pitch", "3",
+                       "--readout-time", "0", "--out", target)
+        assert rc == 2 and f"--out {target}: is " in err and "destroy the input" in err
+        assert target.read_bytes() == before
+
+
+def test_two_outputs_that_are_one_file_are_refused(tmp_path, capsys, est):
+    """`--out x.csv --rerun x.csv` interleaved a table and a recording in one file; smooth's
+    --summary replaced the estimates it read (or its own table) by JSON."""
+    table = tmp_path / "est.csv"
+    table.write_bytes(est.read_bytes())
+    out = tmp_path / "sm.csv"
+    rc, err = _run(capsys, "smooth", "--estimates", table, "--height", "1.65", "--out", out,
+                   "--summary", table)
+    assert rc == 2 and f"--summary {table}: is the input --estimates {table}" in err
+    assert table.read_bytes() == est.read_bytes()
+    rc, err = _run(capsys, "smooth", "--estimates", table, "--height", "1.65", "--out", out,
+                   "--summary", out)
+    assert rc == 2 and f"--out {out} and --summary {out} are the same file" in err
+    rc, err = _run(capsys, "track", "--estimates", table, "--height", "1.65", "--out", out,
+                   "--rerun", out)
+    assert rc == 2 and "are the same file" in err and not out.exists()
+
+
+def test_a_run_that_fails_before_its_first_row_leaves_an_earlier_table(tmp_path, capsys):
+    """A camera that does not fit the images is found at the first frame; the table at --out
+    (an earlier run's) had already been cut to its header."""
+    images = _tiny_images(tmp_path)  # 8×8 frames, a 1280×720 camera
+    out = tmp_path / "keep.csv"
+    out.write_text("frame,t\n0,0.0\n1,0.1\n")
+    before = out.read_bytes()
+    rc, err = _run(capsys, "estimate", "--images", images, "--height", "1.5", "--pitch", "3",
+                   "--readout-time", "0", "--out", out)
+    assert rc == 2 and "but the camera model is" in err
+    assert out.read_bytes() == before

@@ -111,8 +111,8 @@ def _run(argv: list[str]) -> int:
         return EXIT_INTERRUPTED
     name = f"vipm-track {args.command}"
     try:
+        infer_inputs(args)  # first: an input found beside the images is an input too
         check_outputs_apart(args)
-        infer_inputs(args)
         return int(args.handler(args) or 0)
     except SystemError as exc:
         if not interrupted_in(exc):

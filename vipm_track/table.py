@@ -201,20 +201,29 @@ class TableWriter:
         self.parquet_path = Path(parquet_path) if parquet_path else None
         if self.parquet_path is not None:
             _require_pyarrow()
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        # unbuffered: each line goes to the file in the call that writes it, so that a write
-        # that fails part-way (disk full) can be cut back to the last complete row
-        self._file = self.path.open("wb", buffering=0)
+        # opened with the first row (or at a normal close): a run that fails before its first
+        # row (a camera that does not fit the images) leaves a table already there untouched
+        self._file: Any = None
         self._written = 0
         self._rows: list[dict[str, Any]] = []
         self._line = io.StringIO()
         self._line_writer = csv.writer(self._line, lineterminator=LINE_END)
+
+    def _open(self) -> None:
+        if self._file is not None:
+            return
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        # unbuffered: each line goes to the file in the call that writes it, so that a write
+        # that fails part-way (disk full) can be cut back to the last complete row
+        with self._named_os_errors():
+            self._file = self.path.open("wb", buffering=0)
         self._write_line(self.columns)
 
     def write(self, row: Mapping[str, Any]) -> None:
         unknown = set(row) - self._known
         if unknown:
             raise KeyError(f"{self.path}: row has columns not in the table: {sorted(unknown)}")
+        self._open()
         self._write_line([format_value(row.get(c)) for c in self.columns])
         if self.parquet_path is not None:
             self._rows.append({c: row.get(c) for c in self.columns})
@@ -249,6 +258,7 @@ class TableWriter:
             raise OSError(exc.errno, exc.strerror, str(self.path)) from None
 
     def close(self) -> None:
+        self._open()  # a run without rows still leaves its header
         if self._file.closed:
             return
         with self._named_os_errors():
@@ -259,7 +269,9 @@ class TableWriter:
     def __enter__(self) -> TableWriter:
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        if exc_type is not None and self._file is None:
+            return  # failed before its first row: nothing to keep, nothing overwritten
         self.close()
 
 

@@ -118,24 +118,52 @@ def infer_inputs(args: argparse.Namespace) -> None:
 #: options naming what a command reads, and what it writes (``--parquet``: beside ``--out``)
 _INPUT_OPTIONS = ("estimates", "images", "video", "bag", "camera", "can", "dbc", "gt",
                   "nominal", "speed_csv", "frame_times", "roi", "log", "table", "drives")
-_OUTPUT_OPTIONS = ("out", "events", "rerun")
+_OUTPUT_OPTIONS = ("out", "events", "rerun", "summary")
 
 
 def _option(name: str) -> str:
     return f"--{name.replace('_', '-')}" if name not in ("log", "table", "drives") else name.upper()
 
 
-def check_outputs_apart(args: argparse.Namespace) -> None:
-    """InputError where an output would overwrite an input: the same file (``smooth
-    --estimates x.csv --out x.csv`` replaced the table it read) or a file of an input folder
-    (a frame of ``--images``)."""
-    inputs = [(name, Path(value)) for name in _INPUT_OPTIONS
-              if isinstance(value := getattr(args, name, None), (str, Path)) and value
-              and Path(value).exists()]
+def _implicit_inputs(args: argparse.Namespace) -> list[tuple[str, Path]]:
+    """Inputs read without an option naming them: the ``times.txt`` of ``--images``."""
+    images = getattr(args, "images", None)
+    if not isinstance(images, (str, Path)) or not images:
+        return []
+    folder = Path(images)
+    return [("images", times) for times in (folder / "times.txt", folder.parent / "times.txt")
+            if times.is_file()]
+
+
+def _outputs(args: argparse.Namespace) -> list[tuple[str, Path]]:
+    """Every file a command writes that an option names or implies: ``--parquet`` beside
+    ``--out``, ``smooth``'s summary (JSON and Markdown, default beside ``--out``)."""
     outputs = [(name, Path(value)) for name in _OUTPUT_OPTIONS
                if isinstance(value := getattr(args, name, None), (str, Path)) and value]
-    if getattr(args, "parquet", None) is True and getattr(args, "out", None):
-        outputs.append(("parquet", Path(args.out).with_suffix(".parquet")))
+    out = getattr(args, "out", None)
+    if getattr(args, "parquet", None) is True and out:
+        outputs.append(("parquet", Path(out).with_suffix(".parquet")))
+    if getattr(args, "command", None) == "smooth" and out:
+        summary = Path(args.summary) if args.summary else Path(out).with_suffix(".summary.json")
+        outputs = [o for o in outputs if o[0] != "summary"]
+        outputs += [("summary", summary), ("summary", summary.with_suffix(".md"))]
+    return outputs
+
+
+def check_outputs_apart(args: argparse.Namespace) -> None:
+    """InputError where an output would overwrite an input: the same file (``smooth
+    --estimates x.csv --out x.csv`` replaced the table it read), a file of an input folder
+    (a frame of ``--images``) or one read beside it (its ``times.txt``); or where two outputs
+    are one file (``--out x.csv --rerun x.csv`` interleaved a table and a recording)."""
+    inputs = [(name, Path(value)) for name in _INPUT_OPTIONS
+              if isinstance(value := getattr(args, name, None), (str, Path)) and value
+              and Path(value).exists()] + _implicit_inputs(args)
+    outputs = _outputs(args)
+    for i, (name_a, a) in enumerate(outputs):
+        for name_b, b in outputs[i + 1:]:
+            if a.resolve() == b.resolve():
+                raise InputError(f"{_option(name_a)} {a} and {_option(name_b)} {b} are the same "
+                                 "file; give each output its own path")
     for out_name, out in outputs:
         if not out.exists():
             continue
