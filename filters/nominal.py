@@ -19,6 +19,15 @@ from vipm_track.rig import MAX_ANGLE_DEG, Rig, plausible_angle
 FloatArray = NDArray[np.float64]
 
 
+#: each field of ``NominalCalibration`` as the file names it
+FILE_KEYS: dict[str, str] = {
+    "pitch_deg": "pitch_deg", "roll_deg": "roll_deg", "height_m": "height_m",
+    "pitch_tol_deg": "tolerances.pitch_deg", "roll_tol_deg": "tolerances.roll_deg",
+    "height_tol_m": "tolerances.height_m", "max_angle_dev_deg": "limits.max_angle_dev_deg",
+    "max_height_dev_frac": "limits.max_height_dev_frac",
+}
+
+
 @dataclass(frozen=True)
 class NominalCalibration:
     """Nominal extrinsics with tolerances and physical limits (degrees / metres, as in files).
@@ -38,20 +47,23 @@ class NominalCalibration:
     max_height_dev_frac: float = 0.5
 
     def __post_init__(self) -> None:
-        for name in ("pitch_deg", "roll_deg", "height_m", "pitch_tol_deg", "roll_tol_deg",
-                     "height_tol_m", "max_angle_dev_deg", "max_height_dev_frac"):
+        for name, key in FILE_KEYS.items():
             if not math.isfinite(getattr(self, name)):
-                raise InputError(f"nominal calibration: {name} must be a finite number")
+                raise InputError(f"nominal calibration: {key} must be a finite number")
         for name in ("pitch_deg", "roll_deg"):
             if not plausible_angle(getattr(self, name)):
                 raise InputError(f"nominal calibration: {name} must be within "
                                  f"±{MAX_ANGLE_DEG:g}°, got {getattr(self, name)}")
         if self.height_m <= 0:
             raise InputError(f"nominal calibration: height_m must be > 0, got {self.height_m}")
-        if min(self.pitch_tol_deg, self.roll_tol_deg, self.height_tol_m) < 0:
-            raise InputError("nominal calibration: tolerances must be >= 0")
-        if self.max_angle_dev_deg <= 0 or self.max_height_dev_frac <= 0:
-            raise InputError("nominal calibration: limits must be > 0")
+        for name in ("pitch_tol_deg", "roll_tol_deg", "height_tol_m"):
+            if getattr(self, name) < 0:
+                raise InputError(f"nominal calibration: {FILE_KEYS[name]} must be >= 0, got "
+                                 f"{getattr(self, name)}")
+        for name in ("max_angle_dev_deg", "max_height_dev_frac"):
+            if getattr(self, name) <= 0:
+                raise InputError(f"nominal calibration: {FILE_KEYS[name]} must be > 0, got "
+                                 f"{getattr(self, name)}")
 
     def rig(self, camera: CameraModel, readout_s: float = 0.0) -> Rig:
         """``camera`` mounted at this nominal pitch, roll [deg] and height [m], with a
@@ -101,6 +113,8 @@ def load_nominal(path: str | Path) -> NominalCalibration:
         raise InputError(f"{path}: unknown key(s) {unknown}; expected {sorted(known)}")
 
     def number(section: dict[str, Any], key: str, where: str) -> float:
+        if isinstance(section.get(key), bool):  # YAML's true/yes: float() would take it as 1
+            raise InputError(f"{path}: '{where}{key}' is not a number: {section[key]!r}")
         try:
             return float(section[key])
         except KeyError as exc:

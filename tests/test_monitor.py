@@ -120,6 +120,14 @@ def test_nominal_round_trip(tmp_path):
         ("pitch_deg: 450\nroll_deg: 0\nheight_m: 1.5\n", "pitch_deg must be within ±90°, got 450"),
         ("pitch_deg: 3\nroll_deg: 0\nheight_m: 1.5\ntolerance: {pitch_deg: 1}\n",
          r"unknown key\(s\) \['tolerance'\]; expected .*'tolerances'"),
+        # YAML's true is not 1°; a bad tolerance or limit is named as the file names it
+        ("pitch_deg: true\nroll_deg: 0\nheight_m: 1.5\n", "'pitch_deg' is not a number: True"),
+        ("pitch_deg: 3\nroll_deg: 0\nheight_m: 1.5\ntolerances: {roll_deg: -0.1}\n",
+         r"tolerances\.roll_deg must be >= 0, got -0\.1"),
+        ("pitch_deg: 3\nroll_deg: 0\nheight_m: 1.5\nlimits: {max_height_dev_frac: 0}\n",
+         r"limits\.max_height_dev_frac must be > 0, got 0"),
+        ("pitch_deg: 3\nroll_deg: 0\nheight_m: 1.5\ntolerances: {pitch_deg: .nan}\n",
+         r"tolerances\.pitch_deg must be a finite number"),
     ],
 )
 def test_nominal_errors_name_file_and_key(tmp_path, text, message):

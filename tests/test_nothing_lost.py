@@ -792,3 +792,34 @@ def test_a_run_that_fails_before_its_first_row_leaves_an_earlier_table(tmp_path,
                    "--readout-time", "0", "--out", out)
     assert rc == 2 and "but the camera model is" in err
     assert out.read_bytes() == before
+
+
+def test_a_filter_command_without_input_asks_for_one(tmp_path, capsys):
+    """`track --out x.csv` alone said '--height must be a positive number, got None'."""
+    for command in ("track", "smooth"):
+        rc, err = _run(capsys, command, "--out", tmp_path / "x.csv")
+        assert rc == 2 and "give exactly one of --estimates EST.csv, --images DIR" in err
+        assert "--height" not in err
+
+
+def test_a_fleet_drive_whose_speed_file_holds_no_sample_says_so(tmp_path):
+    """A header-only speed.csv failed the drive with an IndexError from deep inside."""
+    from vipm_track.errors import InputError
+    from vipm_track.fleet.drive_run import FleetSettings, drive_speed
+    from vipm_track.fleet.drives import DriveSpec
+
+    speed = tmp_path / "speed.csv"
+    speed.write_text("t,speed_mps\n")
+    with pytest.raises(InputError, match=r"speed\.csv: no speed samples"):
+        drive_speed(DriveSpec("d", speed_csv=speed), FleetSettings())
+
+
+def test_live_refuses_a_frame_rate_that_is_not_positive(tmp_path, capsys, nominal):
+    """`live --fps -5` ran and dropped every frame (estimate refused the same option)."""
+    from conftest import CAR_CAMERA_YAML
+
+    (tmp_path / "cam.yaml").write_text(CAR_CAMERA_YAML)
+    rc, err = _run(capsys, "live", "--video", tmp_path / "none.avi", "--camera",
+                   tmp_path / "cam.yaml", "--nominal", nominal, "--fps", "-5",
+                   "--out", tmp_path / "live.csv")
+    assert rc == 2 and "--fps must be a positive number of frames per second, got -5" in err

@@ -92,12 +92,20 @@ def height_of_table(path: str | Path) -> float | None:
     return float(np.median(heights)) if heights.size else None
 
 
+#: what the filter commands read their pairs from, one of them
+ONE_INPUT = "give exactly one of --estimates EST.csv, --images DIR, --video FILE"
+
+
 def infer_inputs(args: argparse.Namespace) -> None:
     """Fill in what the data already says where the user left it out (said on stderr unless
     ``--quiet``): ``--camera`` from the file beside ``--images``; ``--height`` of ``track`` and
-    ``smooth`` from the ``--estimates`` table's ``height_m``."""
+    ``smooth`` from the ``--estimates`` table's ``height_m``. A filter command without any
+    input says so first (not that its height is missing)."""
     quiet = getattr(args, "quiet", False)
     command = f"vipm-track {getattr(args, 'command', '')}".strip()
+    if getattr(args, "command", None) in ("track", "smooth", "monitor") and not any(
+            getattr(args, name, None) for name in ("estimates", "images", "video")):
+        raise InputError(ONE_INPUT)
     if hasattr(args, "camera") and not args.camera and getattr(args, "images", None):
         found = camera_beside(args.images)
         if found is not None:

@@ -22,7 +22,7 @@ from ..camera import CameraModel, load_camera
 from ..errors import InputError, NothingUsable, interrupted_in
 from ..measurement import PairMeasurement, in_sequence, read_measurements
 from ..table import first_data_row
-from .common import frame_window
+from .common import ONE_INPUT, frame_window
 
 if TYPE_CHECKING:
     from vipm_track.filters.clock_offset import ClockOffsetFit
@@ -362,8 +362,7 @@ def measurements_from_args(
     estimated: the measurements are those before it)."""
     given = [o for o in ("estimates", "images", "video") if getattr(args, o, None)]
     if len(given) != 1:
-        raise InputError("give exactly one of --estimates EST.csv, --images DIR, --video FILE"
-                         + (f" (got --{' --'.join(given)})" if given else ""))
+        raise InputError(ONE_INPUT + (f" (got --{' --'.join(given)})" if given else ""))
     if args.estimates:
         args.input_notes = []
         measurements = read_estimates(args.estimates, args.input_notes)

@@ -95,6 +95,8 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--{name.replace('_', '-')} must be > 0, got {value}")
     if not (math.isfinite(args.road_std) and args.road_std >= 0):
         raise InputError(f"--road-std must be >= 0 degrees, got {args.road_std}")
+    if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
+        raise InputError(f"--fps must be a positive number of frames per second, got {args.fps}")
     if args.duration is not None and not args.duration > 0:
         raise InputError(f"--duration must be > 0 seconds, got {args.duration}")
     try:

@@ -166,18 +166,21 @@ def open_recording(spec: DriveSpec, settings: FleetSettings
 
 def drive_speed(spec: DriveSpec, settings: FleetSettings) -> SpeedSeries | None:
     """The drive's speed [t on its clock s, m/s]: ``speed.csv``, the CAN log decoded with
-    its DBC (the DBC's rear wheel speeds), or the bag's twist / odometry topic; None."""
+    its DBC (the DBC's rear wheel speeds), or the bag's twist / odometry topic; None.
+    InputError where the file holds no sample (as ``track`` says it)."""
+    series = None
     if spec.speed_csv is not None:
-        return read_speed_csv(spec.speed_csv)
-    if spec.can is not None:
+        series = read_speed_csv(spec.speed_csv)
+    elif spec.can is not None:
         assert spec.dbc is not None
         series, _ = decode_can_log(spec.can, spec.dbc)
-        return series
-    if spec.bag is not None:
+    elif spec.bag is not None:
         found = read_bag_speed(spec.bag, settings.speed_topic)
         if found is not None:
-            return SpeedSeries(found.t, found.speed_mps, source=found.source)
-    return None
+            series = SpeedSeries(found.t, found.speed_mps, source=found.source)
+    if series is not None and len(series) == 0:
+        raise InputError(f"{series.source}: no speed samples")
+    return series
 
 
 def smoother_config(height_m: float, settings: FleetSettings) -> SmootherConfig:
