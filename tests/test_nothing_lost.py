@@ -823,3 +823,38 @@ def test_live_refuses_a_frame_rate_that_is_not_positive(tmp_path, capsys, nomina
                    tmp_path / "cam.yaml", "--nominal", nominal, "--fps", "-5",
                    "--out", tmp_path / "live.csv")
     assert rc == 2 and "--fps must be a positive number of frames per second, got -5" in err
+
+
+def test_a_second_ctrl_c_does_not_cut_what_the_first_left_to_write(tmp_path, capsys, est,
+                                                                   monkeypatch):
+    """After the first Ctrl-C smooth writes the frames it did not smooth and its summary; a
+    second one during that cut the table short (760 of 9,600 rows) and wrote no summary."""
+    import vipm_track.filters.track as track_module
+    from vipm_track.filters.fixed_lag import FixedLagSmoother
+
+    real_step, real_row = FixedLagSmoother.step, track_module.track_row
+    steps, after = [0], [0]  # smoother steps; rows made after the first Ctrl-C
+
+    def step_then_ctrl_c(self, *a, **k):
+        steps[0] += 1
+        if steps[0] > 60:
+            raise KeyboardInterrupt
+        return real_step(self, *a, **k)
+
+    def row_then_ctrl_c(*a, **k):
+        if steps[0] > 60:
+            after[0] += 1
+            if after[0] == 3:  # the user presses Ctrl-C again while the rest is written
+                os.kill(os.getpid(), signal.SIGINT)
+        return real_row(*a, **k)
+
+    monkeypatch.setattr(FixedLagSmoother, "step", step_then_ctrl_c)
+    monkeypatch.setattr(track_module, "track_row", row_then_ctrl_c)
+    out = tmp_path / "s.csv"
+    rc, _ = _run(capsys, "smooth", "--estimates", est, "--height", "1.65", "--lag", "1",
+                   "--out", out, "--quiet")
+    assert rc == 130 and after[0] > 3
+    assert list(read_table(out)["frame"]) == list(range(120))
+    summary = json.loads(out.with_suffix(".summary.json").read_text())
+    assert summary["status"].startswith("interrupted")
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored

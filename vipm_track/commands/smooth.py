@@ -7,6 +7,7 @@ import argparse
 import json
 import math
 import sys
+from contextlib import ExitStack
 from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
@@ -14,7 +15,7 @@ from types import SimpleNamespace
 from vipm_track.filters.factors import LOSSES
 from vipm_track.filters.smoother_config import SmootherConfig
 
-from ..errors import InputError
+from ..errors import InputError, interrupts_held
 from .common import (
     add_filter_inputs,
     add_output_options,
@@ -202,43 +203,47 @@ def run(args: argparse.Namespace) -> int:
     if getattr(args, "interrupted_at", None) is not None:
         interrupted = (f"interrupted while estimating: smoothed over the frames up to "
                        f"{args.interrupted_at}")
-    with TableWriter(out, TRACK_COLUMNS, parquet_path=pq, columns=columns) as writer:
-        try:
-            for f, row in smoothed_rows(measurements, speed, config, not args.quiet):
-                writer.write(row)
-                frames.append(f)
-                rows.append(row)
-        except KeyboardInterrupt:
-            interrupted = _write_interrupted(writer, measurements, frames, rows)
-    if sink is not None:
-        log_filter_run(sink, measurements, rows, "smoothed")
-        sink.finish()
-    summary = summarize_mount(
-        frames, measurements[: len(frames)],
-        config.mount_steps if config.lag_s == 0 else None) if frames else {}
-    summary["status"] = interrupted or "complete"
-    summary["input_notes"] = getattr(args, "input_notes", [])
-    summary["smoother"] = {
-        "lag_s": config.lag_s,
-        "loss": config.loss,
-        "motion_given_pose": config.motion_given_pose,
-        "body_window_s": config.body_window_s,
-        "wheel_speed": speed is not None,
-        "clock_offset_s": None if speed is None else speed.clock_offset,
-        "clock_offset_std_s": None if clock_fit is None else clock_fit.std_s,
-        "source": _source_name(args),
-    }
-    write_text(summary_path, json.dumps(summary, indent=2) + "\n")
-    text = summary_markdown(summary) if frames else ""
-    if interrupted:
-        text = f"**{interrupted}**\n\n" + text
-    write_text(summary_path.with_suffix(".md"), "# Drive summary\n\n" + text)
-    if not args.quiet:
-        print(text, file=sys.stderr)
-        print(f"vipm-track smooth: {len(rows)} frames → {out}; summary → {summary_path}",
-              file=sys.stderr)
-    if interrupted:
-        raise KeyboardInterrupt
+    held = ExitStack()
+    with held:
+        with TableWriter(out, TRACK_COLUMNS, parquet_path=pq, columns=columns) as writer:
+            try:
+                for f, row in smoothed_rows(measurements, speed, config, not args.quiet):
+                    writer.write(row)
+                    frames.append(f)
+                    rows.append(row)
+            except KeyboardInterrupt:
+                # from here on a second Ctrl-C would cut the rest of the table and the summary
+                held.enter_context(interrupts_held())
+                interrupted = _write_interrupted(writer, measurements, frames, rows)
+        if sink is not None:
+            log_filter_run(sink, measurements, rows, "smoothed")
+            sink.finish()
+        summary = summarize_mount(
+            frames, measurements[: len(frames)],
+            config.mount_steps if config.lag_s == 0 else None) if frames else {}
+        summary["status"] = interrupted or "complete"
+        summary["input_notes"] = getattr(args, "input_notes", [])
+        summary["smoother"] = {
+            "lag_s": config.lag_s,
+            "loss": config.loss,
+            "motion_given_pose": config.motion_given_pose,
+            "body_window_s": config.body_window_s,
+            "wheel_speed": speed is not None,
+            "clock_offset_s": None if speed is None else speed.clock_offset,
+            "clock_offset_std_s": None if clock_fit is None else clock_fit.std_s,
+            "source": _source_name(args),
+        }
+        write_text(summary_path, json.dumps(summary, indent=2) + "\n")
+        text = summary_markdown(summary) if frames else ""
+        if interrupted:
+            text = f"**{interrupted}**\n\n" + text
+        write_text(summary_path.with_suffix(".md"), "# Drive summary\n\n" + text)
+        if not args.quiet:
+            print(text, file=sys.stderr)
+            print(f"vipm-track smooth: {len(rows)} frames → {out}; summary → {summary_path}",
+                  file=sys.stderr)
+        if interrupted:
+            raise KeyboardInterrupt
     return 0
 
 
