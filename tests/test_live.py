@@ -286,3 +286,16 @@ def test_run_live_is_callable_with_plain_arguments_fast(knock, tmp_path):
     assert stats.seen == 20 and stats.processed == 19 and stats.dropped == 0
     assert "UNCALIBRATED" in stdout.getvalue()
     assert Path(out).read_text().endswith("\n")
+
+
+def test_a_camera_that_does_not_fit_the_video_is_named_at_once(knock, tmp_path, capsys):
+    """Every frame was HOLD 'wrong image size' and the run ended with exit 0."""
+    from conftest import CAR_CAMERA_YAML
+
+    camera = tmp_path / "car.yaml"
+    camera.write_text(CAR_CAMERA_YAML)
+    rc = main(["live", "--video", str(knock["video"]), "--camera", str(camera), "--nominal",
+               str(knock["nominal"]), "--out", str(tmp_path / "o.csv")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "image is 320×240 px but the camera model is 1280×720 px" in err
+    assert not (tmp_path / "o.csv").exists()

@@ -105,7 +105,13 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.nominal}: not a text file (undecodable byte at offset "
                          f"{exc.start}); a nominal calibration is YAML") from None
     height = nominal_height(args.height, nominal.height_m, args.nominal)
-    camera = load_camera(args.camera, first_frame_size(video=args.video))
+    size = first_frame_size(video=args.video)
+    camera = load_camera(args.camera, size)
+    if size is not None:  # every frame would be HOLD 'wrong image size': say so at once
+        try:
+            camera.check_image((size[1], size[0]), f"--video {args.video}")
+        except ValueError as exc:
+            raise InputError(f"{exc} ({args.camera})") from None
     rig, config = estimator_setup(args, camera, height, pitch_deg=nominal.pitch_deg,
                                   roll_deg=nominal.roll_deg)
     if args.clock_offset == "auto":
