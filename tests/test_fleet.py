@@ -354,3 +354,24 @@ def test_interrupt_keeps_every_drive_in_the_summary(fleet, drives, cluster, tmp_
     assert status["a"] == "ok" and status["c_bag"] == "ok"  # done before: kept
     assert status["b"] == "ok" or "interrupted" in status["b"]
     assert status["no_nominal"].startswith("error:") and "interrupted" not in status["no_nominal"]
+
+
+def test_a_drive_with_a_kitti_calib_takes_its_size_from_the_frames(tmp_path):
+    """calib.txt holds no image size; fleet took KITTI's raw 1241×376 and refused KITTI 07's
+    1226×370 frames kept in images/, which `estimate --images` reads fine."""
+    import cv2
+    import numpy as np
+    from conftest import shared_data
+
+    from vipm_track.fleet.drive_run import FleetSettings, open_recording
+    from vipm_track.fleet.drives import DriveSpec
+
+    calib = tmp_path / "calib.txt"  # in a drive folder: no image_0/ beside it
+    calib.write_bytes(shared_data("kitti07", "calib.txt").read_bytes())
+    images = tmp_path / "images"
+    images.mkdir()
+    for k in range(2):
+        cv2.imwrite(str(images / f"{k:06d}.png"), np.zeros((370, 1226), np.uint8))
+    _, camera = open_recording(DriveSpec("k", images=images, camera=calib, fps=10.0),
+                               FleetSettings())
+    assert (camera.width, camera.height) == (1226, 370)

@@ -38,7 +38,7 @@ from ..camera import CameraModel, load_camera
 from ..errors import InputError, NothingUsable, printable
 from ..estimator_config import EstimatorConfig
 from ..runs import sequence_steps, step_measurement, step_row
-from ..sources import FrameSource, open_source
+from ..sources import FrameSource, first_frame_size, open_source
 from ..table import CONCISE, ESTIMATE_TABLE, choose_columns_each, write_table
 from .drives import DriveSpec
 
@@ -161,7 +161,8 @@ def open_recording(spec: DriveSpec, settings: FleetSettings
         return source, camera
     source = open_source(images=spec.images, video=spec.video, fps=spec.fps)
     assert spec.camera is not None
-    return source, load_camera(spec.camera)
+    # a KITTI calib.txt has no image size: the frames give it (as estimate does)
+    return source, load_camera(spec.camera, first_frame_size(spec.images, spec.video))
 
 
 def drive_speed(spec: DriveSpec, settings: FleetSettings) -> SpeedSeries | None:
