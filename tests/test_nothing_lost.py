@@ -858,3 +858,15 @@ def test_a_second_ctrl_c_does_not_cut_what_the_first_left_to_write(tmp_path, cap
     summary = json.loads(out.with_suffix(".summary.json").read_text())
     assert summary["status"].startswith("interrupted")
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
+
+
+@pytest.mark.parametrize("command", ["estimate", "track"])
+def test_an_images_folder_that_is_not_one_is_named(tmp_path, capsys, command):
+    """A missing folder was reported as a missing --camera, a file as '(found beside the
+    images)' then 'image folder not found'."""
+    (tmp_path / "camera.yaml").write_text("x: 1\n")
+    for given, message in ((tmp_path / "nope" / "images", "no such folder"),
+                           (tmp_path / "camera.yaml", "is a file; give the folder")):
+        rc, err = _run(capsys, command, "--images", given, "--height", "1.5",
+                       "--out", tmp_path / "o.csv")
+        assert rc == 2 and f"--images {given}: {message}" in err and "--camera" not in err

@@ -106,8 +106,14 @@ def infer_inputs(args: argparse.Namespace) -> None:
     if getattr(args, "command", None) in ("track", "smooth", "monitor") and not any(
             getattr(args, name, None) for name in ("estimates", "images", "video")):
         raise InputError(ONE_INPUT)
-    if hasattr(args, "camera") and not args.camera and getattr(args, "images", None):
-        found = camera_beside(args.images)
+    images = getattr(args, "images", None)
+    if isinstance(images, (str, Path)) and images and not Path(images).is_dir():
+        # before the camera is looked for beside it, which would send the user after that
+        what = "is a file; give the folder of the images" if Path(images).exists() else \
+            "no such folder"
+        raise InputError(f"--images {images}: {what}")
+    if hasattr(args, "camera") and not args.camera and images:
+        found = camera_beside(images)
         if found is not None:
             args.camera = str(found)
             if not quiet:
