@@ -27,6 +27,11 @@ from vipm_track.errors import InputError, printable
 TEXT_READERS: dict[str, str] = {
     ".log": "CanutilsLogReader", ".asc": "ASCReader", ".trc": "TRCReader", ".csv": "CSVReader",
 }
+#: What each text format's lines look like, for the reason a line is not one of them.
+TEXT_FORMATS: dict[str, str] = {
+    ".log": "candump -l line '(time) iface id#data'", ".asc": "Vector ASC line",
+    ".trc": "PCAN TRC line", ".csv": "python-can CSV row 'timestamp,arbitration_id,...'",
+}
 #: Suffixes python-can's ``LogReader`` reads (``.mf4`` needs asammdf).
 LOG_SUFFIXES = (*TEXT_READERS, ".blf", ".mf4", ".db")
 
@@ -167,7 +172,8 @@ class LogRecords:
                     lines = feed.taken()
                     if lines:
                         self._passed_over(lines[:-1], meta)
-                        self.on_bad(lines[-1][0], _why(exc))
+                        self.on_bad(lines[-1][0],
+                                    f"not a {TEXT_FORMATS[self.suffix]} ({_why(exc)})")
                     elif feed.lineno == last_failed:
                         self.position = feed.lineno
                         self.stopped = f"{_why(exc)}; reading stopped there"

@@ -332,6 +332,15 @@ def test_asc_cut_and_garbage_lines_are_counted_and_named(tmp_path, can_data, asc
     assert f"{bad}:{hit[0] + 1}: " in text  # the first few are named by line
 
 
+def test_a_log_in_another_format_says_what_its_lines_are_not(tmp_path, can_data, asc_lines):
+    """An .asc renamed .log: each bad line said 'ValueError: too many values to unpack'."""
+    renamed = tmp_path / "drive.log"
+    renamed.write_text("\n".join(asc_lines) + "\n")
+    _series, summary = _decode(renamed, can_data)
+    assert summary.frames == 0 and summary.bad_lines > 2900
+    assert f"{renamed}:1: not a candump -l line '(time) iface id#data' (" in str(summary)
+
+
 @pytest.mark.parametrize("fmt", ["log", "asc", "trc", "csv", "blf"])
 def test_every_python_can_format_reads_the_same_frames(tmp_path, can_data, fmt):
     import can
