@@ -336,9 +336,12 @@ def test_a_log_in_another_format_says_what_its_lines_are_not(tmp_path, can_data,
     """An .asc renamed .log: each bad line said 'ValueError: too many values to unpack'."""
     renamed = tmp_path / "drive.log"
     renamed.write_text("\n".join(asc_lines) + "\n")
-    _series, summary = _decode(renamed, can_data)
-    assert summary.frames == 0 and summary.bad_lines > 2900
-    assert f"{renamed}:1: not a candump -l line '(time) iface id#data' (" in str(summary)
+    from vipm_track.errors import InputError
+
+    with pytest.raises(InputError, match="no speed sample decoded") as info:
+        _decode(renamed, can_data)
+    assert "3000 lines the log reader could not read" in str(info.value)
+    assert f"{renamed}:1: not a candump -l line '(time) iface id#data' (" in str(info.value)
 
 
 @pytest.mark.parametrize("fmt", ["log", "asc", "trc", "csv", "blf"])
