@@ -181,7 +181,7 @@ def test_cli(drives, cluster, tmp_path, capsys):
 @pytest.mark.parametrize(("content", "why"), [
     (b"vehicle: [\n", "line 2, column 1: not valid YAML"),
     (b"- van1\n", "expected a mapping with 'vehicle' and/or 'started'"),
-    (b"vehicle: van1\ncolour: red\n", "expected a mapping with 'vehicle' and/or 'started'"),
+    (b"vehicle: van1\ncolour: red\n", "unknown key(s) ['colour']; expected 'vehicle' and/or"),
     (b"vehicle: \xff\n", "not a text file (byte 9"),
 ])
 def test_a_bad_drive_yaml_is_that_drives_problem(tmp_path, content, why):

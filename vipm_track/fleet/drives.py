@@ -140,8 +140,12 @@ def _drive_yaml(path: Path) -> dict:
         raise InputError(f"{path}: not a text file (byte {exc.start}: {exc.reason})") from None
     except yaml.YAMLError as exc:
         raise InputError(f"{path}: {yaml_error_line(exc)}") from None
-    if not isinstance(doc, dict) or set(doc) - {"vehicle", "started"}:
+    if not isinstance(doc, dict):
         raise InputError(f"{path}: expected a mapping with 'vehicle' and/or 'started'")
+    unknown = sorted(str(k) for k in set(doc) - {"vehicle", "started"})
+    if unknown:
+        raise InputError(f"{path}: unknown key(s) {unknown}; expected 'vehicle' and/or "
+                         "'started'")
     return doc
 
 
