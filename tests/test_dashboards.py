@@ -345,6 +345,13 @@ def test_report_cli_and_errors(tmp_path: Path, capsys: pytest.CaptureFixture) ->
     (tmp_path / "bad.csv").write_text("frame,t,speed\n0,0.0,1\n")
     assert main(["report", str(tmp_path / "bad.csv"), "--out", str(tmp_path / "r")]) == 2
     assert "no pose or motion column" in capsys.readouterr().err
+    # motion but no pose: reported, and said (it went by as 'rows with a pose: 0 / n')
+    (tmp_path / "motion.csv").write_text("frame,t,tz_m\n0,0.0,0.5\n1,0.1,0.5\n")
+    assert main(["report", str(tmp_path / "motion.csv"), "--out", str(tmp_path / "m")]) == 0
+    assert "motion.csv: no row has a pitch (pitch_deg missing or empty)" in \
+        capsys.readouterr().err
+    assert main(["report", str(track), "--out", str(tmp_path / "r")]) == 0
+    assert "no row has a pitch" not in capsys.readouterr().err
 
 
 def test_track_cli_writes_recording(tmp_path: Path) -> None:

@@ -132,6 +132,10 @@ def write_report(
     if len(est["frame"]) == 0:
         raise InputError(f"{track}: the table has no rows"
                          + (f" from frame {start}" if start else ""))
+    pitch = np.asarray(est.get("pitch_deg", np.full(len(est["frame"]), np.nan)), float)
+    if not np.isfinite(pitch).any() and notes is not None:
+        notes.append(f"{track}: no row has a pitch (pitch_deg missing or empty): the report "
+                     "shows no pose")
     truth = read_truth(gt) if gt is not None else None
     relative = gt is not None and is_kitti_poses(gt)  # only pitch/roll changes are truth
     if truth is not None:
