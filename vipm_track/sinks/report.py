@@ -158,9 +158,10 @@ def write_report(
     if drift is not None:
         plots["drift"] = drift_figure(plt, est, drift, nominal, truth, out / "drift.png",
                                       f"{title}: calibration")
-    plots["pitch_roll_height"] = _series_figure(
-        plt, est, truth, x, x_truth, x_label, POSE_PANELS, out / "pitch_roll_height.png",
-        f"{title}: pose against the ground")
+    if any(c in est for c, *_ in POSE_PANELS):  # a motion-only table has no pose figure
+        plots["pitch_roll_height"] = _series_figure(
+            plt, est, truth, x, x_truth, x_label, POSE_PANELS, out / "pitch_roll_height.png",
+            f"{title}: pose against the ground")
     errors: dict[str, NDArray] = {}
     if truth is not None:
         errors = frame_errors(est, truth, scored="finite")
