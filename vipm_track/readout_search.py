@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .estimator import TwoFrameEstimator
-from .nominal_search import moving_pairs
+from .nominal_search import MovingPair, moving_pairs
 from .pair_chain import estimate_pair
 from .pair_result import STATUS_OK
 
@@ -108,6 +108,22 @@ class ReadoutSearch:
                 f"{evidence}")
 
 
+def spread_moving_pairs(
+    source: FrameSource, rig: Rig, scan_pairs: int, max_frames: int,
+) -> tuple[list[MovingPair], float] | None:
+    """Up to ``scan_pairs`` pairs of ``source`` in which the view moves, spread over its first
+    ``max_frames`` frames, and their median frame interval [s]; None where there is none (or
+    no positive interval)."""
+    stride = max(1, min(len(source), max_frames) // max(scan_pairs, 1))
+    pairs = moving_pairs(source, rig.camera, scan_pairs, max_frames, stride)
+    if not pairs:
+        return None
+    interval = float(np.median([p.interval_s for p in pairs]))
+    if not (math.isfinite(interval) and interval > 0):
+        return None
+    return pairs, interval
+
+
 def search_readout(
     source: FrameSource,
     rig: Rig,
@@ -123,13 +139,10 @@ def search_readout(
     median frame interval); the ``max_pairs`` of them that travel furthest (the rolling
     shutter's effect grows with the motion) then at every other one. None where fewer than
     ``MIN_PAIRS`` pairs are solved at the readouts around the best one."""
-    stride = max(1, min(len(source), max_frames) // max(scan_pairs, 1))
-    pairs = moving_pairs(source, rig.camera, scan_pairs, max_frames, stride)
-    if not pairs:
+    spread = spread_moving_pairs(source, rig, scan_pairs, max_frames)
+    if spread is None:
         return None
-    interval = float(np.median([p.interval_s for p in pairs]))
-    if not (math.isfinite(interval) and interval > 0):
-        return None
+    pairs, interval = spread
     readouts = np.asarray(fractions, dtype=float) * interval
 
     def costs(readout: float, chosen: list) -> tuple[FloatArray, FloatArray]:

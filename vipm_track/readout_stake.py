@@ -20,9 +20,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .estimator import TwoFrameEstimator
-from .nominal_search import moving_pairs
 from .pair_chain import estimate_pair
 from .pair_result import STATUS_OK
+from .readout_search import spread_moving_pairs
 
 if TYPE_CHECKING:
     from .estimator_config import EstimatorConfig
@@ -68,13 +68,10 @@ def readout_stake(
     """The stake (module doc) on the ``max_pairs`` furthest-travelling of ``scan_pairs``
     moving pairs spread over the first ``max_frames`` frames of ``source``, each started
     cold from ``rig``'s nominal pose; None where fewer than one pair is solved both ways."""
-    stride = max(1, min(len(source), max_frames) // max(scan_pairs, 1))
-    pairs = moving_pairs(source, rig.camera, scan_pairs, max_frames, stride)
-    if not pairs:
+    spread = spread_moving_pairs(source, rig, scan_pairs, max_frames)
+    if spread is None:
         return None
-    interval = float(np.median([p.interval_s for p in pairs]))
-    if not (math.isfinite(interval) and interval > 0):
-        return None
+    pairs, interval = spread
     readout = min(TYPICAL_READOUT_S, 0.5 * interval)
 
     def solve(readout_s: float, chosen: list) -> list:
