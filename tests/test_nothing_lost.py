@@ -452,6 +452,13 @@ def test_backward_times_and_missing_numbers_are_reported_with_rows(tmp_path, cap
                    "--columns", "all")
     assert rc == 0
     assert "row 22 t " in err and "row 32 frame 30" in err
+    cells[40][1] = "nan"  # a time that is no number is named as such, not as 'nan after'
+    path.write_text("\n".join([lines[0], *(",".join(c) for c in cells)]) + "\n")
+    rc, err = _run(capsys, "track", "--estimates", path, "--height", "1.65",
+                   "--out", tmp_path / "t2.csv")
+    assert rc == 0 and "row 42 t not a number" in err and "nan after" not in err
+    cells[40][1] = lines[41].split(",")[1]
+    path.write_text("\n".join([lines[0], *(",".join(c) for c in cells)]) + "\n")
     table = read_table(out)
     assert 20 not in table["frame"].tolist() and len(table["frame"]) == 119
     k = table["frame"].tolist().index(30)

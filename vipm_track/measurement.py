@@ -12,6 +12,7 @@ order and units. A frame whose ``status`` is not ``ok`` carries NaNs.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
@@ -213,14 +214,20 @@ class SequenceIssues:
             out.append(f"{source}: {len(self.duplicated)} rows repeat an earlier frame, left "
                        "out (the first row of each frame is used): " + rows(
                            self.duplicated, lambda r, f, r0: f"row {r} frame {f} (first row {r0})"))
+        def after(r: int, name: str, value: float, before: float) -> str:
+            # a missing number is not 'after' anything: say what it is
+            if not math.isfinite(value):
+                return f"row {r} {name} not a number"
+            return f"row {r} {name} {value!r} after {before!r}"
+
         if self.out_of_order:
             out.append(f"{source}: {len(self.out_of_order)} rows have a frame before the "
-                       "previous row's, left out: " + rows(
-                           self.out_of_order, lambda r, f, f0: f"row {r} frame {f} after {f0}"))
+                       "previous row's or none, left out: " + rows(
+                           self.out_of_order, lambda r, f, f0: after(r, "frame", f, f0)))
         if self.backwards:
             out.append(f"{source}: {len(self.backwards)} rows have a time not after the "
-                       "previous row's, left out: " + rows(
-                           self.backwards, lambda r, t, t0: f"row {r} t {t!r} after {t0!r}"))
+                       "previous row's or none, left out: " + rows(
+                           self.backwards, lambda r, t, t0: after(r, "t", t, t0)))
         if self.missing:
             out.append(f"{source}: {len(self.missing)} rows say ok but lack numbers, read as "
                        f"'{MISSING_NUMBERS}': " + rows(
