@@ -78,6 +78,8 @@ class DecodeSummary:
     channels: Counter = field(default_factory=Counter)
     t_first: float = math.nan  # first frame's time in the log's own time base [s]
     t_last: float = math.nan
+    #: what the source holds: CAN "frames", or "rows" of a t,speed_mps CSV
+    unit: str = "frames"
 
     @property
     def bad(self) -> int:
@@ -92,7 +94,7 @@ class DecodeSummary:
 
     def lines(self) -> list[str]:
         """Human-readable report, one line per non-zero count."""
-        out = [f"{self.source}: {self.frames} frames read, {self.used} decoded, "
+        out = [f"{self.source}: {self.frames} {self.unit} read, {self.used} decoded, "
                f"{self.samples} speed samples"]
         if math.isfinite(self.t_first):
             out.append(f"  time span {self.t_first:.6f} .. {self.t_last:.6f} s "
@@ -107,7 +109,8 @@ class DecodeSummary:
             ("error_frames", "error/remote frames (skipped)"),
             ("length_mismatch", "wanted frames with a length other than the DBC's (skipped)"),
             ("decode_errors", "wanted frames undecodable or out of the DBC range (skipped)"),
-            ("non_monotonic", "wanted frames with a time out of order (skipped)"),
+            ("non_monotonic", "rows with a time not after the previous row's (skipped)"
+             if self.unit == "rows" else "wanted frames with a time out of order (skipped)"),
             ("bad_rows", "rows that are not two finite numbers (skipped)"),
             ("bad_lines", "lines the log reader could not read as a CAN frame (skipped)"),
         ]
@@ -303,7 +306,7 @@ def read_speed_csv(path: str | Path) -> SpeedSeries:
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: speed CSV not found")
-    summary = DecodeSummary(source=str(path))
+    summary = DecodeSummary(source=str(path), unit="rows")
     ts: list[float] = []
     vs: list[float] = []
     reader = csv.reader(io.StringIO(read_text(path), newline=""))

@@ -348,6 +348,9 @@ def test_speed_csv_roundtrip_and_bad_rows(tmp_path):
     np.testing.assert_allclose(back.t, [0.1, 0.3, 0.5])
     assert back.summary.bad_rows == 3 and back.summary.non_monotonic == 1
     assert any("1e+09 m/s is no ground vehicle's" in line for line in back.summary.examples)
+    text = "\n".join(back.summary.lines())  # a CSV's rows, not a CAN log's frames
+    assert "7 rows read" in text and "1 rows with a time not after the previous row's" in text
+    assert "frames" not in text
     (tmp_path / "w.csv").write_text("time,v\n1,2\n")
     with pytest.raises(InputError, match=r"w.csv.*speed_mps"):
         read_speed_csv(tmp_path / "w.csv")
