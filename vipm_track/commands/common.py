@@ -92,6 +92,16 @@ def height_of_table(path: str | Path) -> float | None:
     return float(np.median(heights)) if heights.size else None
 
 
+def check_images_folder(args: argparse.Namespace) -> None:
+    """``--images`` (where given) as an existing folder: named as such before the camera is
+    looked for beside it (a missing folder was reported as a missing ``--camera``)."""
+    images = getattr(args, "images", None)
+    if isinstance(images, (str, Path)) and images and not Path(images).is_dir():
+        what = "is a file; give the folder of the images" if Path(images).exists() else \
+            "no such folder"
+        raise InputError(f"--images {images}: {what}")
+
+
 #: what the filter commands read their pairs from, one of them
 ONE_INPUT = "give exactly one of --estimates EST.csv, --images DIR, --video FILE"
 
@@ -107,12 +117,7 @@ def infer_inputs(args: argparse.Namespace) -> None:
             getattr(args, name, None) for name in ("estimates", "images", "video")):
         raise InputError(ONE_INPUT)
     images = getattr(args, "images", None)
-    if isinstance(images, (str, Path)) and images and not Path(images).is_dir():
-        # before the camera is looked for beside it, which would send the user after that
-        what = "is a file; give the folder of the images" if Path(images).exists() else \
-            "no such folder"
-        raise InputError(f"--images {images}: {what}")
-    if hasattr(args, "camera") and not args.camera and images:
+    if hasattr(args, "camera") and not args.camera and images and Path(images).is_dir():
         found = camera_beside(images)
         if found is not None:
             args.camera = str(found)

@@ -15,6 +15,7 @@ from .common import (
     add_output_options,
     add_rerun_options,
     check_height,
+    check_images_folder,
     check_output,
     check_rerun_output,
 )
@@ -67,6 +68,7 @@ def run(args: argparse.Namespace) -> int:
     out = check_output(args.out, args.parquet)
     columns = choose_columns(ESTIMATE_TABLE, args.columns)
     check_rerun_output(args)
+    check_images_folder(args)
     if not args.camera and not args.bag:
         raise InputError("--camera not given and no camera.yaml or calib.txt beside the "
                          "images (or a --video): give --camera CAMERA.yaml")

@@ -22,7 +22,7 @@ from ..camera import CameraModel, load_camera
 from ..errors import InputError, NothingUsable, interrupted_in
 from ..measurement import PairMeasurement, in_sequence, read_measurements
 from ..table import first_data_row
-from .common import ONE_INPUT, frame_window
+from .common import ONE_INPUT, check_images_folder, frame_window
 
 if TYPE_CHECKING:
     from vipm_track.filters.clock_offset import ClockOffsetFit
@@ -297,6 +297,7 @@ def estimate_stream(
     from ..sources import first_frame_size, open_source
     from .estimator_options import parallel_settings
 
+    check_images_folder(args)
     if not args.camera:
         raise InputError("--images/--video need --camera CAMERA.yaml (none found beside the "
                          "images)")
