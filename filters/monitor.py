@@ -200,22 +200,19 @@ class DriftMonitor:
             evidence = int(core.s.evidence[0])
             if evidence < core.calib_frames:
                 return f"collecting evidence ({evidence}/{core.calib_frames} usable frames)"
-            mean, se = (x[0] for x in core.mean_deviation())
-            half = core.config.calibrate_within_z * se
+            mean, half = _mean_so_far(core)
             tol = core.nominal.tolerances
             j = int(np.nanargmax(np.abs(mean) - tol - half))
             return (f"collecting evidence ({evidence} usable frames): the mean deviation so "
-                    f"far, {AXES[j]} {_fmt_dev(j, mean[j])} ± {_fmt_dev(j, half[j], sign=False)},"
-                    f" is not within the tolerance {_fmt_dev(j, tol[j], sign=False)} yet")
+                    f"far, {_fmt_mean(j, mean, half)}, is not within the tolerance "
+                    f"{_fmt_dev(j, tol[j], sign=False)} yet")
         if code == CALIBRATED:
             # what the test can say: it has not found a change; one less than its smallest
             # design shift beyond the tolerance takes long to find (a 0.3° knock against a
             # 0.2° tolerance stayed CALIBRATED for 9 s on a cart)
-            mean, se = (x[0] for x in core.mean_deviation())
-            half = core.config.calibrate_within_z * se
+            mean, half = _mean_so_far(core)
             tested = [j for j in range(3) if math.isfinite(mean[j])]
-            so_far = ", ".join(f"{AXES[j]} {_fmt_dev(j, mean[j])} ± "
-                               f"{_fmt_dev(j, half[j], sign=False)}" for j in tested)
+            so_far = ", ".join(_fmt_mean(j, mean, half) for j in tested)
             if 2 not in tested:  # no metric travel yet: the height has not been tested
                 return (f"no change beyond the tolerance found in pitch and roll (mean "
                         f"deviation {so_far}); height not tested (it needs wheel speed)")
@@ -255,6 +252,18 @@ class DriftMonitor:
 def _pose_dict(v: FloatArray) -> dict[str, float | None]:
     out = {"pitch_deg": math.degrees(v[0]), "roll_deg": math.degrees(v[1]), "height_m": v[2]}
     return {k: (round(float(x), 6) if math.isfinite(x) else None) for k, x in out.items()}
+
+
+def _mean_so_far(core: MonitorCore) -> tuple[FloatArray, FloatArray]:
+    """The (one) stream's mean deviation since the evidence began (3,) and the half-width
+    CALIBRATED holds it to (``calibrate_within_z`` standard errors)."""
+    mean, se = (x[0] for x in core.mean_deviation())
+    return mean, core.config.calibrate_within_z * se
+
+
+def _fmt_mean(axis: int, mean: FloatArray, half: FloatArray) -> str:
+    """'pitch -0.53° ± 0.51°': one axis of :func:`_mean_so_far`."""
+    return f"{AXES[axis]} {_fmt_dev(axis, mean[axis])} ± {_fmt_dev(axis, half[axis], sign=False)}"
 
 
 def _fmt_dev(axis: int, value: float, sign: bool = True) -> str:

@@ -171,6 +171,13 @@ class SpeedSeries:
     def __len__(self) -> int:
         return int(self.t.size)
 
+    def with_samples(self) -> SpeedSeries:
+        """This series; InputError naming its source where it holds no sample (a header-only
+        speed CSV, a log without the wanted frames)."""
+        if len(self) == 0:
+            raise InputError(f"{self.source}: no speed samples")
+        return self
+
     def shifted(self, offset: float) -> SpeedSeries:
         """The same samples with ``offset`` seconds added to the times."""
         return replace(self, t=self.t + offset, clock_offset=self.clock_offset + offset)

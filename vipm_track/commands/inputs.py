@@ -86,8 +86,7 @@ def speed_from_args(args: argparse.Namespace, progress: bool = True,
             report(line)
         if series.summary.interrupted:
             raise KeyboardInterrupt
-    if len(series) == 0:
-        raise InputError(f"{series.source}: no speed samples")
+    series = series.with_samples()
     return series.shifted(offset) if offset else series
 
 

@@ -179,9 +179,7 @@ def drive_speed(spec: DriveSpec, settings: FleetSettings) -> SpeedSeries | None:
         found = read_bag_speed(spec.bag, settings.speed_topic)
         if found is not None:
             series = SpeedSeries(found.t, found.speed_mps, source=found.source)
-    if series is not None and len(series) == 0:
-        raise InputError(f"{series.source}: no speed samples")
-    return series
+    return None if series is None else series.with_samples()
 
 
 def smoother_config(height_m: float, settings: FleetSettings) -> SmootherConfig:
