@@ -20,7 +20,6 @@ import sys
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -28,49 +27,31 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench_shutter import Case, drive  # noqa: E402
+
 from vipm_track.camera import load_camera  # noqa: E402
 from vipm_track.cli import main as cli_main  # noqa: E402
 from vipm_track.estimator_config import EstimatorConfig  # noqa: E402
 from vipm_track.readout_stake import readout_stake  # noqa: E402
-from vipm_track.render import Effects  # noqa: E402
 from vipm_track.rig import Rig  # noqa: E402
-from vipm_track.sim import PRESETS, simulate_sequence  # noqa: E402
+from vipm_track.sim import PRESETS  # noqa: E402
 from vipm_track.sources import open_source  # noqa: E402
 from vipm_track.table import read_table  # noqa: E402
 
-
-@dataclass(frozen=True)
-class Case:
-    preset: str
-    profile: str
-    seed: int
-    frames: int
-    readout_s: float
-
-
 CASES = [
-    Case("cart", "static", 601, 40, 0.0),
-    Case("cart", "static", 601, 40, 0.02),
-    Case("cart", "static", 601, 40, 0.04),
-    Case("cart", "shaking", 602, 40, 0.02),
-    Case("cart", "turn", 603, 40, 0.03),
-    Case("car", "static", 604, 60, 0.0),
-    Case("car", "static", 604, 60, 0.02),
-    Case("car", "shaking", 605, 60, 0.03),
-    Case("car", "turn", 606, 60, 0.02),
+    Case(f"{preset} {profile}", preset, profile, seed, frames, readout_s)
+    for preset, profile, seed, frames, readout_s in (
+        ("cart", "static", 601, 40, 0.0),
+        ("cart", "static", 601, 40, 0.02),
+        ("cart", "static", 601, 40, 0.04),
+        ("cart", "shaking", 602, 40, 0.02),
+        ("cart", "turn", 603, 40, 0.03),
+        ("car", "static", 604, 60, 0.0),
+        ("car", "static", 604, 60, 0.02),
+        ("car", "shaking", 605, 60, 0.03),
+        ("car", "turn", 606, 60, 0.02),
+    )
 ]
-
-
-def drive(case: Case, cache: Path) -> Path:
-    """The rendered drive's folder (rendered once)."""
-    folder = cache / f"{case.preset}_{case.profile}_s{case.seed}_r{case.readout_s}"
-    images = folder / "images"
-    if not (images.is_dir() and len(list(images.glob("*.png"))) == case.frames):
-        fps = PRESETS[case.preset].fps
-        simulate_sequence(case.preset, case.frames, folder, seed=case.seed,
-                          profile=case.profile,
-                          effects=Effects(seed=case.seed, rolling_shutter=case.readout_s * fps))
-    return folder
 
 
 def biases(est: dict, truth: dict) -> tuple[float, float]:
@@ -122,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
         s = r["stake"]
         scale = case.readout_s / s.readout_s
         rows.append(
-            f"| {case.preset} {case.profile} | {case.seed} | {case.readout_s * 1e3:.0f} | "
+            f"| {case.name} | {case.seed} | {case.readout_s * 1e3:.0f} | "
             f"{'yes' if r['warned'] else 'no'} | {s.pitch_deg:+.2f}° / {s.travel_rel:+.1%} | "
             f"{-scale * s.pitch_deg:+.2f}° / {-scale * s.travel_rel:+.1%} | "
             f"{r['assumed'][0]:+.2f}° / {r['assumed'][1]:+.1%} | "
