@@ -201,11 +201,13 @@ class DriftMonitor:
             if evidence < core.calib_frames:
                 return f"collecting evidence ({evidence}/{core.calib_frames} usable frames)"
             mean, half = _mean_so_far(core)
-            tol = core.nominal.tolerances
-            j = int(np.nanargmax(np.abs(mean) - tol - half))
+            bound = core.calibrated_bound()
+            j = int(np.nanargmax(np.abs(mean) + half - bound))
             return (f"collecting evidence ({evidence} usable frames): the mean deviation so "
-                    f"far, {_fmt_mean(j, mean, half)}, is not within the tolerance "
-                    f"{_fmt_dev(j, tol[j], sign=False)} yet")
+                    f"far, {_fmt_mean(j, mean, half)}, is not shown within "
+                    f"{_fmt_dev(j, bound[j], sign=False)} yet (the tolerance "
+                    f"{_fmt_dev(j, core.nominal.tolerances[j], sign=False)} and the smallest "
+                    "change tested)")
         if code == CALIBRATED:
             # what the test can say: it has not found a change; one less than its smallest
             # design shift beyond the tolerance takes long to find (a 0.3° knock against a

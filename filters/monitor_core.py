@@ -29,6 +29,29 @@ added to w_k (and σ_g² to the clipping variance): slow excursions then count f
 are worth, at the price of a longer delay for small steps (``scripts/bench_monitor.py``,
 "road" rows). The default 0 keeps the flat-ground model.
 
+Errors that run on from frame to frame
+--------------------------------------
+The front end's errors are not independent: a tracked pair starts from the pose the pair
+before found and successive pairs see the same road (lag-1 autocorrelation of the pitch/roll
+innovations 0.7–0.8 on KITTI 07). Taken as independent, a few seconds of them look like a
+moved camera. The monitor measures their long-run variance on its own normalised innovations
+z_k = ν_k/√S_k (1 per frame if the model is right) and multiplies w_k (and the thresholds'
+typical w) by its ratio to the expected one, never below 1:
+
+- batch means: the variance of √n × the mean z over blocks of ``correlation_block_s``, from
+  successive blocks' differences (a constant offset drops out; one clipped difference holds
+  a step), over an exponential window of ``correlation_window_blocks``, taken where it is
+  significantly above the expected; judged by as measured ``correlation_delay_s`` earlier, so
+  that a mount change, whose innovations run on, does not widen its own test;
+- before ``correlation_min_blocks`` blocks, the variance of z × (1+ρ)/(1−ρ) of their lag-1
+  autocorrelation ρ over an exponential window of ``correlation_tau_s`` (as the filters'
+  ``row_correlation``; where ρ is significant), and before ``correlation_min_pairs`` lagged
+  frames the cap (1+0.9)/(1−0.9) = 19.
+
+Differences of 1-s blocks do not see a wander slower than a few seconds: a road whose tilt
+wanders over seconds still needs ``road_std_deg`` (below), against which the measured long-run
+variance is then judged.
+
 For each axis, each side (+/−) and each design shift δ of ``MonitorConfig`` a CUSUM of the
 log-likelihood ratio of Δ = tol + δ against Δ = tol (tol = the nominal file's tolerance):
 
@@ -44,7 +67,9 @@ computed at the nominal deviation Δ = 0 and the typical w) is set to
 INVALID uses a 1 s exponential average of the deviations (and the filter's mount estimate
 where given) against the physical limits. The new extrinsics reported with DRIFTING and
 RECALIBRATE are ``filters.monitor.DriftMonitor``'s, from the change time ``change_onset``
-estimates.
+estimates. CALIBRATED vouches for the mount: it is entered where the weighted mean of the u_k
+since the evidence began, ± ``calibrate_within_z`` of its standard errors (from the w_k), lies
+within the tolerance plus the smallest design shift (``calibrated_bound``).
 
 Height is tested only on frames with a metric travel (wheel speed; see
 ``inputs_from_measurements``): h_k = h_assumed · d_wheel / ‖t_est‖ (CONVENTIONS.md, Scale).
@@ -59,7 +84,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .monitor_stats import (
-    BODY_SCALES,
+    W_SCALES,
     ar1_coefficient,
     cusum_threshold,
     interpolate_thresholds,
@@ -75,6 +100,7 @@ from .monitor_types import (
     MonitorConfig,
 )
 from .nominal import NominalCalibration
+from .row_correlation import MAX_LAG_FRAMES, MAX_RHO, MAX_Z, ar1_variance_factor
 
 FloatArray = NDArray[np.float64]
 
@@ -86,6 +112,14 @@ class _Arrays:
     body: FloatArray  # (B, 3) body estimate
     body_var: FloatArray  # (B, 3)
     body_std: FloatArray  # (B, 3) stationary body std (rad, rad, m): the model's or adapted
+    corr_factor: FloatArray  # (B, 3) long-run variance factor of the errors' correlation
+    corr_recent: FloatArray  # (B, 3, K) the factors measured at the last K frames, oldest first
+    corr_sums: FloatArray  # (B, 3, 7) weighted sums over lagged innovations (``_correlation``)
+    block: FloatArray  # (B, 3, 3) the open block's start time, Σz and frame count
+    block_y: FloatArray  # (B, 3) the last closed block's √n × mean z (NaN: none yet)
+    block_sums: FloatArray  # (B, 3, 3) Σw, Σw², Σw·d² over successive blocks' differences
+    last_z: FloatArray  # (B, 3) the last used frame's normalised innovation
+    last_used: NDArray[np.int64]  # (B, 3) ``count`` at that frame
     threshold: FloatArray  # (B, 3, D) CUSUM thresholds at that body std
     invalid_axis: NDArray[np.int64]  # (B,) axis that made the last frame INVALID
     invalid_dev: FloatArray  # (B,) its deviation from nominal (rad or m)
@@ -136,16 +170,14 @@ class MonitorCore:
         self._meas_var = np.array([math.radians(cfg.meas_angle_std_deg) ** 2] * 2
                                   + [cfg.meas_height_std_m**2])
         self.w_nominal = self._typical_w(self.body_std)
+        self._unknown_factor = (float(ar1_variance_factor(np.float64(MAX_RHO)))
+                                if cfg.correlation_tau_s > 0 else 1.0)
+        self._corr_delay = max(1, round(cfg.correlation_delay_s * cfg.fps))
         self._arl = self.n_tests * 3600.0 * cfg.fps / cfg.false_alarms_per_hour
-        # thresholds (log-likelihood units) at the model's body std and at larger adapted ones:
-        # angles at k × the model's std, height (no body in the model) where its long-run
-        # variance is k² × the measurement's alone
-        meas_h = math.sqrt(self._meas_var[2])
-        self._threshold_table = np.stack([
-            self._thresholds(self._typical_w(
-                np.array([sb * k, sb * k, meas_h * math.sqrt(k * k - 1.0)])))
-            for k in BODY_SCALES
-        ])  # (S, 3, D)
+        # thresholds (log-likelihood units) at the model's long-run variance and at larger
+        # ones (an adapted body std, correlated errors)
+        self._threshold_table = np.stack(
+            [self._thresholds(self.w_nominal * k) for k in W_SCALES])  # (S, 3, D)
         self.threshold = self._threshold_table[0]
         self.limits = nominal.limits
         self.nominal_values = nominal.values
@@ -154,13 +186,13 @@ class MonitorCore:
         self.max_gated = max(0, round(cfg.max_gated_run_s * cfg.fps))
         self.reset()
 
-    def _typical_w(self, body_std: FloatArray) -> FloatArray:
-        """(3,) long-run variance per frame at the configured frame rate and measurement
-        noise for a body of stationary std ``body_std`` (3,)."""
-        dt = np.full(3, 1.0 / self.config.fps)
+    def _typical_w(self, body_std: FloatArray, factor: FloatArray | float = 1.0) -> FloatArray:
+        """(..., 3) long-run variance per frame at the configured frame rate and measurement
+        noise for a body of stationary std ``body_std`` (..., 3), the errors' correlation
+        inflating it by ``factor``."""
+        dt = np.full(body_std.shape, 1.0 / self.config.fps)
         a = ar1_coefficient(dt, self.body_tau(body_std))
-        return np.array([long_run_variance(body_std[j], a[j], self._meas_var[j])
-                         for j in range(3)]) + self._road_lrv(dt)
+        return (long_run_variance(body_std, a, self._meas_var) + self._road_lrv(dt)) * factor
 
     def _thresholds(self, w: FloatArray) -> FloatArray:
         """(3, D) CUSUM thresholds for the requested false-alarm rate at long-run
@@ -189,6 +221,12 @@ class MonitorCore:
         fresh = _Arrays(
             body=np.zeros((b, 3)), body_var=np.tile(self.body_std**2, (b, 1)),
             body_std=np.tile(self.body_std, (b, 1)),
+            corr_factor=np.full((b, 3), self._unknown_factor),
+            corr_recent=np.full((b, 3, self._corr_delay), np.nan),
+            corr_sums=np.zeros((b, 3, 7)),
+            block=np.tile([np.nan, 0.0, 0.0], (b, 3, 1)), block_y=np.full((b, 3), np.nan),
+            block_sums=np.zeros((b, 3, 3)),
+            last_z=np.zeros((b, 3)), last_used=np.full((b, 3), -10, dtype=np.int64),
             threshold=np.tile(self.threshold, (b, 1, 1)),
             invalid_axis=np.zeros(b, dtype=np.int64), invalid_dev=np.zeros(b),
             invalid_mount=np.zeros(b, dtype=bool), onset=np.zeros(b, dtype=np.int64),
@@ -232,11 +270,17 @@ class MonitorCore:
             se = np.where(s.info > 0, 1.0 / np.sqrt(s.info), np.nan)
         return mean, se
 
+    def calibrated_bound(self) -> FloatArray:
+        """(3,) the deviation CALIBRATED vouches for (rad, rad, m): the tolerance plus the
+        smallest change beyond it the test is designed to find."""
+        return self.nominal.tolerances + self.delta.min(axis=1)
+
     def within_tolerance(self) -> NDArray[np.bool_]:
-        """(B,) the mean deviation since the evidence began lies within the tolerance, to
-        ``calibrate_within_z`` standard errors, on every axis that has frames."""
+        """(B,) the mean deviation since the evidence began is shown within
+        ``calibrated_bound``, its ``calibrate_within_z``-standard-error interval inside it, on
+        every axis that has frames."""
         mean, se = self.mean_deviation()
-        beyond = np.abs(mean) - self.nominal.tolerances > self.config.calibrate_within_z * se
+        beyond = np.abs(mean) + self.config.calibrate_within_z * se > self.calibrated_bound()
         return ~np.any(np.isfinite(mean) & beyond, axis=1)
 
     def normalised_statistic(self) -> FloatArray:
@@ -284,13 +328,20 @@ class MonitorCore:
         p_pred = a * a * s.body_var + s.body_std**2 * (1.0 - a * a)
         nu = dev0 - x_pred
         sv = p_pred + var0
+        gain = p_pred / sv
+        rho = (1.0 - a) / (1.0 - a + a * gain)
+        road_lrv = self._road_lrv(dt)
+        # the innovations' long-run variance the model expects (the road's, where modelled,
+        # runs on in them): the measured one is judged against it
+        expected = 1.0 + road_lrv * rho * rho / sv
+        self._correlation(t, np.clip(nu / np.sqrt(sv), -MAX_Z, MAX_Z), use, dt, expected)
+        s.threshold = interpolate_thresholds(
+            self._threshold_table, self._typical_w(s.body_std, s.corr_factor) / self.w_nominal)
         road_var = self.road_std**2
         lim = cfg.huber_k * np.sqrt(sv + road_var)
         nu_c = np.clip(nu, -lim, lim)
-        gain = p_pred / sv
-        rho = (1.0 - a) / (1.0 - a + a * gain)
         u = nu_c / rho
-        w = sv / (rho * rho) + self._road_lrv(dt)
+        w = (sv / (rho * rho) + road_lrv) * s.corr_factor
         s.body = np.where(use, x_pred + gain * nu_c, s.body)
         s.body_var = np.where(use, (1.0 - gain) * p_pred, s.body_var)
         s.t_last = np.where(use, t[:, None], s.t_last)
@@ -345,17 +396,101 @@ class MonitorCore:
 
     def _set_body_std(self, body_std: FloatArray) -> None:
         """Adopt body stds (B, 2) for pitch and roll (floored at the configured one) or (B, 3)
-        with the height's heave too (m; none in the model: white, at least 0) and the
-        thresholds that go with them."""
-        s = self.s
+        with the height's heave too (m; none in the model: white, at least 0)."""
         n = body_std.shape[1]
-        std = np.maximum(body_std, self.body_std[:n])
-        s.body_std[:, :n] = std
-        scale = np.empty_like(std)
-        scale[:, :2] = std[:, :2] / self.body_std[:2]
-        if n == 3:  # the height's long-run variance over its measurement's alone, rooted
-            scale[:, 2] = np.sqrt(1.0 + std[:, 2] ** 2 / self._meas_var[2])
-        s.threshold[:, :n] = interpolate_thresholds(self._threshold_table, scale)
+        self.s.body_std[:, :n] = np.maximum(body_std, self.body_std[:n])
+
+    def _correlation(self, t: FloatArray, z: FloatArray, use: NDArray[np.bool_],
+                     dt: FloatArray, expected: FloatArray) -> None:
+        """Update the long-run variance factor ``corr_factor`` (B, 3) from the normalised
+        innovations ``z`` (B, 3) at times ``t`` (B,): their long-run variance over the
+        ``expected`` one (B, 3), at least 1 (module doc)."""
+        s, cfg = self.s, self.config
+        if cfg.correlation_tau_s <= 0:
+            return
+        lag1 = self._lag1_lrv(z, use, dt)
+        block, n_blocks = self._block_lrv(t, z, use)
+        block_known = n_blocks >= cfg.correlation_min_blocks
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # batch means where significantly above the expected (2 σ of a χ² estimate)
+            block_excess = block > expected * (1.0 + 2.0 * np.sqrt(2.0 / n_blocks))
+        block_factor = np.where(block_known, np.maximum(
+            np.where(block_excess, block, expected) / expected, 1.0), np.nan)
+        # batch means are judged by as measured ``correlation_delay_s`` ago (a mount change
+        # makes the innovations after it run on, and must not widen its own test); until
+        # then as measured, before them the lag-1 estimate, before that ``_unknown_factor``
+        s.corr_recent = np.concatenate([s.corr_recent[..., 1:], block_factor[..., None]],
+                                       axis=-1)
+        early = np.where(np.isfinite(lag1), np.maximum(lag1 / expected, 1.0),
+                         self._unknown_factor)
+        s.corr_factor = np.where(np.isfinite(s.corr_recent[..., 0]), s.corr_recent[..., 0],
+                                 np.where(block_known, block_factor, early))
+
+    def _lag1_lrv(self, z: FloatArray, use: NDArray[np.bool_], dt: FloatArray) -> FloatArray:
+        """The long-run variance of ``z`` as their variance × (1+ρ)/(1−ρ), ρ their lag-1
+        autocorrelation over the exponential window (1 where ρ is not significant), and where
+        ``correlation_min_pairs`` lagged frames were seen (before, from three on, the variance
+        × the cap's factor; NaN before that): the first estimate, an upper one for a smooth
+        sway (whose long-run variance is small)."""
+        s, cfg = self.s, self.config
+        decay = np.where(use, np.exp(-np.minimum(dt, 1e6) / cfg.correlation_tau_s), 1.0)
+        lagged = use & (s.count[:, None] - s.last_used <= MAX_LAG_FRAMES)
+        prev = s.last_z
+        sums = s.corr_sums
+        sums *= decay[..., None]
+        sums[..., 1] *= decay  # Σw² decays by the square
+        add = np.stack([np.ones_like(z), np.ones_like(z), prev, z, prev * prev, z * z,
+                        prev * z], axis=-1)
+        sums += np.where(lagged[..., None], add, 0.0)
+        s.last_z = np.where(use, z, s.last_z)
+        s.last_used = np.where(use, s.count[:, None], s.last_used)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            n = sums[..., 0]
+            n_eff = n * n / sums[..., 1]
+            ma, mb = sums[..., 2] / n, sums[..., 3] / n
+            va = sums[..., 4] / n - ma * ma
+            vb = sums[..., 5] / n - mb * mb
+            r = (sums[..., 6] / n - ma * mb) / np.sqrt(np.maximum(va * vb, 1e-12))
+            sig = 2.0 / np.sqrt(n_eff)
+        # the variance is 1 if the model is right, far less where the errors are far below it
+        # (a still camera's); with too few lagged frames for ρ, taken at its cap
+        var = np.nan_to_num(vb)
+        lrv = var * ar1_variance_factor(np.nan_to_num(r))
+        known = np.nan_to_num(n_eff) >= cfg.correlation_min_pairs
+        return np.where(known, np.where(np.nan_to_num(r) > sig, lrv, 1.0),
+                        np.where(n >= 3, var * self._unknown_factor, np.nan))
+
+    def _block_lrv(self, t: FloatArray, z: FloatArray, use: NDArray[np.bool_]
+                   ) -> tuple[FloatArray, FloatArray]:
+        """Batch means: the variance of √n × the mean of ``z`` over blocks of
+        ``correlation_block_s`` (1 for white innovations, less for a sway that averages out
+        within a block), from successive blocks' differences (a constant offset does not
+        count, a step only in one difference of many) over an exponential window of
+        ``correlation_window_blocks``, and the number of differences it rests on."""
+        s, cfg = self.s, self.config
+        blk, last, sums = s.block, s.block_y, s.block_sums
+        tt = np.broadcast_to(t[:, None], z.shape)
+        blk[..., 0] = np.where(use & np.isnan(blk[..., 0]), tt, blk[..., 0])
+        blk[..., 1] += np.where(use, z, 0.0)
+        blk[..., 2] += use
+        closed = use & (tt - blk[..., 0] >= cfg.correlation_block_s - 0.5 / cfg.fps)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            y = blk[..., 1] / np.sqrt(blk[..., 2])
+        diff = closed & np.isfinite(last)
+        decay = np.where(closed, math.exp(-1.0 / cfg.correlation_window_blocks), 1.0)
+        sums[..., 0] = sums[..., 0] * decay + diff
+        sums[..., 1] = sums[..., 1] * decay * decay + diff
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # one difference counts for at most 9 × the estimate so far: a step is in one
+            current = np.where(sums[..., 0] > 0, sums[..., 2] / sums[..., 0], np.inf)
+        d2 = np.minimum(0.5 * (y - np.nan_to_num(last)) ** 2, 9.0 * np.maximum(current, 1.0))
+        sums[..., 2] = sums[..., 2] * decay + np.where(diff, d2, 0.0)
+        s.block_y = np.where(closed, y, last)
+        blk[closed] = [np.nan, 0.0, 0.0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = sums[..., 2] / sums[..., 0]
+            n_eff = np.nan_to_num(sums[..., 0] ** 2 / sums[..., 1])
+        return f, n_eff
 
     def _transition(
         self, usable: NDArray[np.bool_], invalid_now: NDArray[np.bool_]

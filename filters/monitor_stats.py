@@ -18,9 +18,10 @@ from .body_scale import cautious_std
 FloatArray = NDArray[np.float64]
 
 _SIEGMUND_SHIFT = 1.166  # Siegmund's correction of the CUSUM threshold for the overshoot
-#: body std over the configured one (σ/σ₀) at which the thresholds are tabulated for a body
-#: std adapted to the data; between them the threshold is interpolated in log σ
-BODY_SCALES = np.array([1.0, 1.5, 2.0, 3.0, 5.0, 8.0, 13.0, 20.0, 35.0, 60.0])
+#: long-run variances over the model's (w/w₀) at which the thresholds are tabulated for a body
+#: std and an error correlation adapted to the data; between them the threshold is
+#: interpolated in log w
+W_SCALES = np.geomspace(1.0, 1e5, 41)
 
 
 # --- CUSUM thresholds -------------------------------------------------------------------------
@@ -34,6 +35,8 @@ def cusum_log_arl(b: float, drift: float) -> float:
     if abs(drift) < 1e-9:
         return 2.0 * math.log(bb)
     x = 2.0 * drift * bb
+    if abs(x) < 1e-3:  # the series of exp(−x) + x − 1, which cancels in floating point
+        return 2.0 * math.log(bb) + math.log1p(-x / 3.0 + x * x / 12.0)
     if -x > 30.0:  # exp(-x) dominates; stay in log space
         return -x + math.log1p((x - 1.0) * math.exp(x)) - math.log(2.0 * drift * drift)
     return math.log(math.exp(-x) + x - 1.0) - math.log(2.0 * drift * drift)
@@ -51,7 +54,9 @@ def cusum_threshold(arl: float, drift: float) -> float:
         # an alarm then needs one increment beyond it, so the tail of a single sample sets
         # it, with at least one standard deviation so that a statistic of zero is not at it.
         return max(float(norm.isf(1.0 / arl)) + drift, 1.0)
-    return float(brentq(lambda b: cusum_log_arl(b, drift) - target, 0.0, 1e3 + target))
+    # without drift the ARL is about b²: the bracket reaches past √ARL
+    hi = 1e3 + target + 2.0 * math.sqrt(arl)
+    return float(brentq(lambda b: cusum_log_arl(b, drift) - target, 0.0, hi))
 
 
 def long_run_variance(body_std: float, a: float, meas_var: float) -> float:
@@ -78,11 +83,12 @@ def ar1_coefficient(dt: FloatArray, tau: FloatArray) -> FloatArray:
 
 
 def interpolate_thresholds(table: FloatArray, scale: FloatArray) -> FloatArray:
-    """(B, n, D) thresholds at body scales ``scale`` (B, n; the first n axes), interpolated
-    log-linearly in ``table`` (S, 3, D), tabulated at ``BODY_SCALES`` (clamped at its ends)."""
+    """(B, n, D) thresholds at long-run variance ratios ``scale`` (B, n; the first n axes),
+    interpolated log-linearly in ``table`` (S, 3, D), tabulated at ``W_SCALES`` (clamped at
+    its ends)."""
     n = scale.shape[1]
-    x = np.log(np.clip(scale, BODY_SCALES[0], BODY_SCALES[-1]))
-    grid = np.log(BODY_SCALES)
+    x = np.log(np.clip(scale, W_SCALES[0], W_SCALES[-1]))
+    grid = np.log(W_SCALES)
     hi = np.clip(np.searchsorted(grid, x, side="right"), 1, len(grid) - 1)  # (B, n)
     lo = hi - 1
     f = ((x - grid[lo]) / (grid[hi] - grid[lo]))[..., None]  # (B, n, 1)
@@ -136,6 +142,12 @@ class HeaveScale:
 
 
 __all__ = [
-    "BODY_SCALES", "HeaveScale", "ar1_coefficient", "cusum_log_arl", "cusum_threshold",
-    "interpolate_thresholds", "long_run_variance", "mean_variance",
+    "W_SCALES",
+    "HeaveScale",
+    "ar1_coefficient",
+    "cusum_log_arl",
+    "cusum_threshold",
+    "interpolate_thresholds",
+    "long_run_variance",
+    "mean_variance",
 ]

@@ -5,9 +5,9 @@ States (``STATES``; the codes ``UNCALIBRATED`` … ``HOLD`` index it):
 
 - ``UNCALIBRATED``: not enough usable evidence yet (start-up, after INVALID clears), or
   evidence that does not yet put the deviation within the tolerances;
-- ``CALIBRATED``: consistent with the nominal calibration within its tolerances: no change
-  found, and the mean deviation since the evidence began within them (to
-  ``calibrate_within_z`` standard errors);
+- ``CALIBRATED``: consistent with the nominal calibration: no change found, and the mean
+  deviation since the evidence began shown within the tolerance plus the smallest design
+  shift (its ``calibrate_within_z``-standard-error interval inside that bound);
 - ``DRIFTING``: evidence of a deviation beyond tolerance is accumulating (a test statistic
   above ``warn_enter`` × its threshold);
 - ``RECALIBRATE``: a test crossed its threshold; the output carries the new extrinsics and
@@ -84,6 +84,20 @@ class MonitorConfig:
     #: simulated drives); public roads: see ``scripts/eval_kitti_monitor.py``
     road_std_deg: float = 0.0
     road_tau_s: float = 2.0
+    #: errors that run on from frame to frame (a tracked pair starts from the pose the pair
+    #: before found; successive pairs see the same road): the lag-1 autocorrelation ρ of the
+    #: whitened innovations over an exponential window of this time constant (s; as many
+    #: pairs as a trailing window twice as long), where significant, inflates the long-run
+    #: variance by (1+ρ)/(1−ρ) (``filters.row_correlation``, as the filters' σ); ρ is taken as
+    #: its cap until ``correlation_min_pairs`` lagged frames were seen, and the factor judged
+    #: by is the oldest of the last ``correlation_delay_s`` (a mount change makes the
+    #: innovations after it run on: it must not widen its own test). 0: white errors
+    correlation_tau_s: float = 3.0
+    correlation_min_pairs: int = 10
+    correlation_block_s: float = 1.0
+    correlation_window_blocks: float = 10.0
+    correlation_min_blocks: int = 5
+    correlation_delay_s: float = 5.0
     meas_angle_std_deg: float = 0.1
     meas_height_std_m: float = 0.006
     huber_k: float = 3.0
@@ -92,8 +106,10 @@ class MonitorConfig:
     warn_exit: float = 0.25
     calibrate_after_s: float = 3.0
     #: CALIBRATED also needs the mean deviation since the evidence began (the whitened
-    #: observations' weighted mean) within the tolerance up to this many standard errors:
-    #: "no change found" alone called a camera 1° off CALIBRATED until its test caught up
+    #: observations' weighted mean), ± this many standard errors, within the tolerance plus
+    #: the smallest design shift: "no change found" alone called a camera 1° off CALIBRATED
+    #: until its test caught up, and "not shown beyond" did so wherever the errors were
+    #: too correlated to show anything
     calibrate_within_z: float = 1.96
     clear_after_s: float = 10.0
     invalid_tau_s: float = 1.0

@@ -98,8 +98,15 @@ class PoseErrorCorrelation:
         # each sum over its own count: gaps between the pairs must not dilute the covariance
         variance = np.maximum(np.mean((r - mean) ** 2, axis=0), 1e-12)
         rho = np.mean(first * second, axis=0) / variance
-        rho = np.where(rho > 2.0 / math.sqrt(n), np.minimum(rho, MAX_RHO), 0.0)
-        return np.sqrt((1.0 + rho) / (1.0 - rho))
+        rho = np.where(rho > 2.0 / math.sqrt(n), rho, 0.0)
+        return np.sqrt(ar1_variance_factor(rho))
+
+
+def ar1_variance_factor(rho: FloatArray) -> FloatArray:
+    """(1+ρ)/(1−ρ), ρ capped at ``MAX_RHO``: the factor by which errors of lag-1
+    autocorrelation ρ (AR(1)) inflate the variance of their mean (Bartlett)."""
+    rho = np.minimum(rho, MAX_RHO)
+    return (1.0 + rho) / (1.0 - rho)
 
 
 def widen(estimate: Estimate, scale: FloatArray) -> Estimate:

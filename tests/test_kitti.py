@@ -184,24 +184,36 @@ def test_smoothed_summary_interval_is_honest_on_the_real_drive():
         assert 0.3 < (d["ci95"][1] - d["ci95"][0]) / 2 < 1.0
 
 
-def test_monitor_on_the_real_drive_needs_the_road_model(tmp_path: Path):
+def test_monitor_on_the_real_drive_measures_its_errors_correlation(tmp_path: Path):
     # KITTI's camera did not move, so any DRIFTING or RECALIBRATE is a false alarm. The
-    # flat-ground monitor (the default) raises one: the road's slow camber/slope excursions
-    # look like a moved camera to it. With the road-tilt model it stays quiet. The slow start
-    # (under 0.25 heights per frame) is held, not judged (it called RECALIBRATE at 2.9 s).
-    nominal = tmp_path / "nominal.yaml"
-    nominal.write_text("pitch_deg: 1.0\nroll_deg: 0.0\nheight_m: 1.65\n"
-                       "tolerances: {pitch_deg: 0.1, roll_deg: 0.1, height_m: 0.005}\n")
-    states = {}
-    for name, extra in (("flat", []), ("road", ["--road-std", "0.5", "--road-tau", "2"])):
-        out = tmp_path / f"{name}.csv"
+    # tracked pairs' errors run on from frame to frame (lag-1 autocorrelation 0.7–0.8): taken
+    # as independent, the flat-ground test read them as a moved camera (DRIFTING, or
+    # RECALIBRATE at 4.2 s on another draw of the drive). Measured, they widen the test: no
+    # alarm, and no CALIBRATED either (12 s of such frames put the mean within ±0.4°, not
+    # 0.25°). A nominal 2° off is still RECALIBRATE. The slow start (under 0.25 heights per
+    # frame) is held, not judged (it called RECALIBRATE at 2.9 s).
+    from vipm_track.commands.inputs import read_estimates
+    from vipm_track.filters.monitor_inputs import frame_rate, monitor_measurements
+    from vipm_track.filters.monitor_types import MonitorConfig
+    from vipm_track.filters.nominal import NominalCalibration
+
+    def states(pitch_deg: float, *extra: str) -> np.ndarray:
+        nominal = tmp_path / "nominal.yaml"
+        nominal.write_text(f"pitch_deg: {pitch_deg}\nroll_deg: 0.0\nheight_m: 1.65\n"
+                           "tolerances: {pitch_deg: 0.1, roll_deg: 0.1, height_m: 0.005}\n")
+        out = tmp_path / "monitor.csv"
         assert main(["monitor", "--estimates", str(KITTI_ESTIMATES), "--height", "1.65",
                      "--nominal", str(nominal), "--out", str(out), "--quiet", *extra]) == 0
         table = read_table(out)
-        states[name] = np.asarray(table["monitor_state"], dtype=object)
         reasons = np.asarray(table["reason"], dtype=object)
         slow = reasons == "slow for a forward camera"
-        t = np.asarray(table["t"])
-        assert slow.sum() > 30 and t[slow].max() < 6.0  # the slow start, not the rest
-    assert {"DRIFTING", "RECALIBRATE"} & set(states["flat"])
-    assert not {"DRIFTING", "RECALIBRATE"} & set(states["road"])
+        assert slow.sum() > 30 and np.asarray(table["t"])[slow].max() < 6.0
+        return np.asarray(table["monitor_state"], dtype=object)
+
+    assert set(states(1.0)) == {"HOLD", "UNCALIBRATED"}
+    assert not {"DRIFTING", "RECALIBRATE"} & set(states(1.0, "--road-std", "0.5"))
+    assert "RECALIBRATE" in set(states(3.0))
+    measurements = read_estimates(str(KITTI_ESTIMATES))
+    white = MonitorConfig(fps=frame_rate(measurements), correlation_tau_s=0.0)
+    _, out = monitor_measurements(measurements, NominalCalibration(1.0, 0.0, 1.65), config=white)
+    assert {"DRIFTING", "RECALIBRATE"} & {o.state for o in out}

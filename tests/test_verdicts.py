@@ -74,29 +74,42 @@ def test_ekf_mount_is_within_its_interval_at_every_frame_after_5s(tmp_path, name
 
 
 @pytest.mark.parametrize("name", sorted(DRIVES))
-def test_monitor_calls_a_correct_camera_calibrated(tmp_path, name):
-    """With the true nominal: after 5 s every frame CALIBRATED (no DRIFTING / RECALIBRATE /
-    INVALID) and no HOLD on a frame whose pair is usable; a robot moving 5 cm per frame is not
-    standing still."""
+def test_monitor_vouches_for_a_correct_camera_once_the_frames_show_it(tmp_path, name):
+    """With the true nominal: no DRIFTING / RECALIBRATE / INVALID, and no HOLD on a frame
+    whose pair is usable (a robot moving 5 cm per frame is not standing still). These bodies
+    shake by ~1° per frame, so the mean mount is known to ±0.25° only after ~10 s:
+    UNCALIBRATED until then, its reason's interval holding the truth, CALIBRATED after (the
+    20-s robot from 12.3 s on; the 10-s cart is not there yet)."""
     out = tmp_path / "monitor.csv"
     assert main(["monitor", "--estimates", str(DATA / f"{name}_shaking_est.csv"),
                  "--nominal", str(_nominal(tmp_path, name)), "--out", str(out),
                  "--quiet"]) == 0
     tab = read_table(out)
-    late = tab["t"] >= 5.0
+    late = tab["t"] >= 1.0
     states = tab["monitor_state"][late]
-    assert set(states) == {"CALIBRATED"}, dict(zip(*np.unique(states, return_counts=True),
-                                                  strict=True))
+    assert set(states) <= {"UNCALIBRATED", "CALIBRATED"}, dict(
+        zip(*np.unique(states, return_counts=True), strict=True))
+    calibrated = np.flatnonzero(states == "CALIBRATED")
+    if len(calibrated):  # once vouched for, it stays
+        assert set(states[calibrated[0]:]) == {"CALIBRATED"}
+    assert (len(calibrated) > 0) == (name == "robot")
+    if name == "robot":
+        assert tab["t"][late][calibrated[0]] <= 14.0
+    for reason in tab["reason"][late][-20:]:
+        for mean, half in re.findall(r"([+-]\d+\.\d+)° ± (\d+\.\d+)°", str(reason)):
+            assert abs(float(mean)) <= float(half), reason  # the truth: 0
     assert "standstill" not in set(tab["reason"])
 
 
 @pytest.mark.parametrize("name", sorted(DRIVES))
-def test_a_one_degree_nominal_error_is_flagged_within_7s(tmp_path, name):
+def test_a_one_degree_nominal_error_is_flagged_within_9s(tmp_path, name):
     """The same drives judged against a nominal 1° off in pitch: RECALIBRATE, with the reason
     naming the pitch and the change the frames show. Not within 3 s: these bodies shake by
     ~1° std per frame, so a 0.9° excess over the tolerance earns Δ²/2σ² ≈ 0.4 log-likelihood
     per frame against a threshold of ~15 (0.1 false alarms per hour): ≥ 3.8 s after the
-    ~1 s it takes to measure the shaking (measured 5.4 s cart, 4.5 s robot)."""
+    ~1 s it takes to measure the shaking and the errors' correlation (measured 5.5 s cart;
+    8.3 s robot, whose 1–3 Hz shaking reads as correlated errors: lag-1 autocorrelation 0.5 of
+    its innovations, 2× the model's long-run variance in its 1-s batch means)."""
     pitch, height = DRIVES[name]
     path = tmp_path / "off.yaml"
     write_nominal(NominalCalibration(pitch - 1.0, 0.0, height, 0.1, 0.1, 0.005), path)
@@ -105,7 +118,7 @@ def test_a_one_degree_nominal_error_is_flagged_within_7s(tmp_path, name):
                  "--nominal", str(path), "--out", str(out), "--quiet"]) == 0
     tab = read_table(out)
     recal = np.flatnonzero(tab["monitor_state"] == "RECALIBRATE")
-    assert len(recal) and tab["t"][recal[0]] <= 7.0
+    assert len(recal) and tab["t"][recal[0]] <= 9.0
     reason = str(tab["reason"][recal[0]])
     assert reason.startswith("pitch changed: +")
     change, lo, hi = (float(x) for x in re.findall(r"([+-]\d+\.\d+)°", reason)[:3])
