@@ -136,6 +136,7 @@ class _Arrays:
     info: FloatArray  # (B, 3) Σ 1/w_k over the used frames since then
     info_u: FloatArray  # (B, 3) Σ u_k/w_k: with ``info``, the mean deviation's estimate
     quiet: NDArray[np.int64]  # (B,) frames below warn_exit while RECALIBRATE / INVALID
+    vouched: NDArray[np.bool_]  # (B, 3) axes the mean deviation was last shown within on
     gated_run: NDArray[np.int64]  # (B,)
     alarm_axis: NDArray[np.int64]  # (B,) axis of the last alarm / warning
 
@@ -236,7 +237,8 @@ class MonitorCore:
             ema=np.full((b, 3), np.nan),
             base=np.full(b, UNCALIBRATED, dtype=np.int64), evidence=np.zeros(b, dtype=np.int64),
             info=np.zeros((b, 3)), info_u=np.zeros((b, 3)),
-            quiet=np.zeros(b, dtype=np.int64), gated_run=np.zeros(b, dtype=np.int64),
+            quiet=np.zeros(b, dtype=np.int64), vouched=np.zeros((b, 3), dtype=bool),
+            gated_run=np.zeros(b, dtype=np.int64),
             alarm_axis=np.zeros(b, dtype=np.int64),
         )
         if streams is None or not hasattr(self, "s"):
@@ -534,7 +536,13 @@ class MonitorCore:
         enough = s.evidence >= self.calib_frames
         # entering CALIBRATED takes a mean deviation within the tolerance as well; once
         # there, the CUSUMs alone judge (a later change would be diluted in the mean)
-        settled = enough & ((base == CALIBRATED) | self.within_tolerance())
+        # (an axis tested only since, the height once a wheel speed gives one, is judged
+        # so before CALIBRATED goes on)
+        tested = np.isfinite(self.mean_deviation()[0])
+        within = self.within_tolerance()
+        s.vouched = np.where((enough & within)[:, None], tested, s.vouched)
+        kept = (base == CALIBRATED) & ~np.any(tested & ~s.vouched, axis=1)
+        settled = enough & (kept | within)
         nxt = np.where(
             warn & enough, DRIFTING,
             np.where(

@@ -90,3 +90,23 @@ def test_calibrated_only_where_the_mean_deviation_is_shown_within_the_tolerance(
     assert states[calib - 2] == "UNCALIBRATED" and set(states[calib - 1:]) == {"CALIBRATED"}
     assert "(mean deviation pitch +0.00° ± 0." in out[-1].reason
     assert "height not tested" in out[-1].reason
+
+
+def test_an_axis_tested_only_later_is_judged_before_calibrated_goes_on() -> None:
+    """The height is tested only once a wheel speed gives frames a metric travel: a camera
+    CALIBRATED on its angles alone whose height then shows 2 cm off a 0.5-cm tolerance is no
+    longer vouched for, and says why (on rendered carts whose heights' errors run on, the
+    height's test took longer than the 12-s drive, and it stayed CALIBRATED throughout)."""
+    nominal = NominalCalibration(pitch_deg=2.0, roll_deg=0.0, height_m=1.5)
+    monitor = DriftMonitor(nominal, MonitorConfig(fps=FPS, correlation_tau_s=0.0))
+    var = np.array([math.radians(0.1) ** 2] * 2 + [0.005**2])
+    out = []
+    for k in range(80):
+        height = np.nan if k < 40 else 1.52
+        pose = np.array([math.radians(2.0), 0.0, height])
+        out.append(monitor.update(MonitorInput(frame=k, t=k / FPS, pose=pose, pose_var=var)))
+    states = [o.state for o in out]
+    assert states[39] == "CALIBRATED" and "height not tested" in out[39].reason
+    assert "CALIBRATED" not in states[40:]  # its height's test then flags it, here at once
+    assert states[40] == "UNCALIBRATED" and "height +1.5 cm ± 1.0 cm" in out[40].reason
+    assert "RECALIBRATE" in states
