@@ -134,7 +134,7 @@ class _Arrays:
     base: NDArray[np.int64]  # (B,)
     evidence: NDArray[np.int64]  # (B,) usable frames since UNCALIBRATED began
     info: FloatArray  # (B, 3) Σ 1/w_k over the used frames since then
-    info_u: FloatArray  # (B, 3) Σ u_k/w_k: with ``info``, the mean deviation's estimate
+    info_u: FloatArray  # (B, 3) Σ u_k/w_k (unclipped): with ``info``, the mean deviation
     quiet: NDArray[np.int64]  # (B,) frames below warn_exit while RECALIBRATE / INVALID
     vouched: NDArray[np.bool_]  # (B, 3) axes the mean deviation was last shown within on
     gated_run: NDArray[np.int64]  # (B,)
@@ -163,6 +163,7 @@ class MonitorCore:
         self.n_tests = 2 * (len(ang) * 2 + len(hgt))
         tol = nominal.tolerances
         self.ref = tol[:, None] + self.delta / 2.0  # (3, D)
+        self._clip_floor = tol + self.delta.max(axis=1)  # (3,)
         self.tau = np.array([cfg.body_tau_s, cfg.body_tau_s, 0.0])
         sb = math.radians(cfg.body_std_deg)
         self.body_std = np.array([sb, sb, 0.0])
@@ -340,7 +341,10 @@ class MonitorCore:
         s.threshold = interpolate_thresholds(
             self._threshold_table, self._typical_w(s.body_std, s.corr_factor) / self.w_nominal)
         road_var = self.road_std**2
-        lim = cfg.huber_k * np.sqrt(sv + road_var)
+        # clipped (outliers), but never below what the largest design shift beyond the
+        # tolerance leaves: heights measured to a millimetre clipped a 2-cm offset to its
+        # 5-mm tolerance, which no test then saw (one frame's push is capped below)
+        lim = np.maximum(cfg.huber_k * np.sqrt(sv + road_var), self._clip_floor)
         nu_c = np.clip(nu, -lim, lim)
         u = nu_c / rho
         w = (sv / (rho * rho) + road_lrv) * s.corr_factor
@@ -350,12 +354,15 @@ class MonitorCore:
         s.used = s.used + use
         s.count = s.count + usable
         s.info = np.where(use, s.info + 1.0 / w, s.info)
-        s.info_u = np.where(use, s.info_u + u / w, s.info_u)
+        s.info_u = np.where(use, s.info_u + nu / rho / w, s.info_u)  # the mean: unclipped
 
         # CUSUM bank: (B, 3, side, D)
         signed = np.stack([u, -u], axis=2)[..., None]  # (B, 3, 2, 1)
         inc = (self.delta / w[..., None])[:, :, None, :] * (signed - self.ref[None, :, None, :])
-        new = np.maximum(0.0, s.cusum + inc)
+        # one frame moves a test by at most 1/``min_alarm_frames`` of its threshold: an
+        # outlier the clip above lets through does not raise an alarm on its own
+        cap = s.threshold[:, :, None, :] / cfg.min_alarm_frames
+        new = np.maximum(0.0, s.cusum + np.minimum(inc, cap))
         use4 = use[:, :, None, None]
         s.cusum = np.where(use4, new, s.cusum)
         s.zero_count = np.where(use4 & (new <= 0.0), s.count[:, None, None, None], s.zero_count)

@@ -101,6 +101,9 @@ class MonitorConfig:
     meas_angle_std_deg: float = 0.1
     meas_height_std_m: float = 0.006
     huber_k: float = 3.0
+    #: no test crosses its threshold on fewer frames than this (each moves it by at most
+    #: 1/min_alarm_frames of it): one outlier is not a change
+    min_alarm_frames: int = 3
     #: DRIFTING above warn_enter × threshold, back below warn_exit × threshold
     warn_enter: float = 0.5
     warn_exit: float = 0.25

@@ -8,6 +8,7 @@ another exactly)."""
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -108,5 +109,25 @@ def test_an_axis_tested_only_later_is_judged_before_calibrated_goes_on() -> None
     states = [o.state for o in out]
     assert states[39] == "CALIBRATED" and "height not tested" in out[39].reason
     assert "CALIBRATED" not in states[40:]  # its height's test then flags it, here at once
-    assert states[40] == "UNCALIBRATED" and "height +1.5 cm ± 1.0 cm" in out[40].reason
+    assert states[40] == "UNCALIBRATED" and "height +2.0 cm ± 1.0 cm" in out[40].reason
     assert "RECALIBRATE" in states
+
+
+def test_an_offset_far_beyond_the_frames_scatter_is_not_clipped_to_the_tolerance() -> None:
+    """Heights measured to a millimetre, 2 cm below a nominal with a 5-mm tolerance: each
+    frame's innovation was clipped to 3 of its σ (3 mm), inside the tolerance, so the test
+    never moved and the (clipped) mean deviation, -0.5 cm, was CALIBRATED. Clipped no lower
+    than the tolerance plus the largest design shift, it is RECALIBRATE within a second."""
+    nominal = NominalCalibration(pitch_deg=2.0, roll_deg=0.0, height_m=1.5)
+    monitor = DriftMonitor(nominal, MonitorConfig(fps=FPS, correlation_tau_s=0.0))
+    var = np.array([math.radians(0.1) ** 2] * 2 + [0.001**2])
+    rng = np.random.default_rng(3)
+    out = []
+    for k in range(60):
+        pose = np.array([math.radians(2.0), 0.0, 1.48 + rng.normal(scale=0.001)])
+        out.append(monitor.update(MonitorInput(frame=k, t=k / FPS, pose=pose, pose_var=var)))
+    states = [o.state for o in out]
+    assert "CALIBRATED" not in states
+    flagged = states.index("RECALIBRATE")
+    assert MonitorConfig().min_alarm_frames - 1 <= flagged <= 10  # not on one frame alone
+    assert re.search(r"height changed: -(1\.9|2\.0|2\.1) cm", out[flagged].reason)
