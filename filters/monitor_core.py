@@ -18,7 +18,10 @@ variance S_k. A constant Δ leaves a steady innovation ρΔ with ρ = (1 − a)/
 (K the Kalman gain), so u_k = ν_k/ρ is a per-frame observation of Δ with variance
 w_k = S_k/ρ², which in steady state is the long-run variance σ_b²(1 + a)/(1 − a) + r:
 the test uses all the information the data hold about Δ. Innovations are clipped at
-``huber_k``·√S_k (outliers cannot push a statistic far; a real step still can).
+``huber_k``·√S_k, but no lower than the tolerance plus the largest design shift (an offset of
+many σ must still count as one), and one frame moves a test by at most
+1/``min_alarm_frames`` of its threshold: an outlier cannot push a statistic far on its own; a
+real step still can, over a few frames.
 
 Real roads add a slow term g_k to d_k that is not a calibration change either: camber and
 slope changes, load, and the front end's tracking correlation (on KITTI 07 the 1 s means of

@@ -298,8 +298,9 @@ def road_section(args: argparse.Namespace) -> list[str]:
         out.append(row)
     out.append(
         "\nThe flat-ground monitor takes the road's slow excursions for calibration changes "
-        "(it flags before any change, then stays latched in RECALIBRATE, so onsets undercount it: "
-        "see the share of drives flagged); told of them "
+        "(it flags before any change, its measured error correlation, over 1-s blocks, blind "
+        "to a wander over seconds; each RECALIBRATE clears and is raised again: see the share "
+        "of drives flagged); told of them "
         "(`vipm-track monitor --road-std 0.5 --road-tau 2`) it keeps its false-alarm rate, and "
         "small steps take longer to tell from the road: the price of driving on real roads. "
         "On flat ground (renders, test tracks) leave it off.")
