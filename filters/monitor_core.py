@@ -281,11 +281,10 @@ class MonitorCore:
         smallest change beyond it the test is designed to find."""
         return self.nominal.tolerances + self.delta.min(axis=1)
 
-    def within_tolerance(self) -> NDArray[np.bool_]:
-        """(B,) the mean deviation since the evidence began is shown within
-        ``calibrated_bound``, its ``calibrate_within_z``-standard-error interval inside it, on
-        every axis that has frames."""
-        mean, se = self.mean_deviation()
+    def within_tolerance(self, mean: FloatArray, se: FloatArray) -> NDArray[np.bool_]:
+        """(B,) the mean deviation since the evidence began (``mean_deviation``'s ``mean``,
+        ``se``) is shown within ``calibrated_bound``, its ``calibrate_within_z``-standard-error
+        interval inside it, on every axis that has frames."""
         beyond = np.abs(mean) + self.config.calibrate_within_z * se > self.calibrated_bound()
         return ~np.any(np.isfinite(mean) & beyond, axis=1)
 
@@ -548,8 +547,9 @@ class MonitorCore:
         # there, the CUSUMs alone judge (a later change would be diluted in the mean)
         # (an axis tested only since, the height once a wheel speed gives one, is judged
         # so before CALIBRATED goes on)
-        tested = np.isfinite(self.mean_deviation()[0])
-        within = self.within_tolerance()
+        mean, se = self.mean_deviation()
+        tested = np.isfinite(mean)
+        within = self.within_tolerance(mean, se)
         s.vouched = np.where((enough & within)[:, None], tested, s.vouched)
         kept = (base == CALIBRATED) & ~np.any(tested & ~s.vouched, axis=1)
         settled = enough & (kept | within)
