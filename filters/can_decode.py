@@ -67,9 +67,39 @@ def load_dbc(path: str | Path) -> cantools.database.can.Database:
             raise DbcError(f"{path}: line {where[1]}, column {where[2]}: not valid DBC syntax "
                            "(cantools)") from None
         raise DbcError(f"{path}: cannot load as DBC: {printable(exc, 200)}") from None
+    _check_all_read(path, path.read_text(errors="replace"), db)
     if not db.messages:
         raise DbcError(f"{path}: DBC defines no messages")
     return db
+
+
+#: A message (``BO_ id name:``) and a signal (`` SG_ name``) statement of a DBC's text.
+_MESSAGE_LINE = re.compile(r"BO_\s+\d+\s+(\w+)\s*:")
+_SIGNAL_LINE = re.compile(r"\s+SG_\s+(\w+)")
+#: Vector's holder of signals sent by no message: not a message (cantools leaves it out).
+_INDEPENDENT = "VECTOR__INDEPENDENT_SIG_MSG"
+
+
+def _check_all_read(path: Path, text: str, db: cantools.database.can.Database) -> None:
+    """:class:`DbcError` naming the line of the first message or signal statement in ``text``
+    that ``db`` lacks. cantools passes over a statement cut short at the end of the file (a
+    DBC cut mid-copy loaded with its last message or signal missing, unsaid)."""
+    signals = {m.name: {s.name for s in m.signals} for m in db.messages}
+    current: set[str] | None = None
+    for number, line in enumerate(text.splitlines(), 1):
+        message = _MESSAGE_LINE.match(line)
+        if message is not None or line.startswith("BO_ "):
+            name = message[1] if message is not None else None
+            current = signals.get(name) if name is not None else None
+            if name != _INDEPENDENT and current is None:
+                raise DbcError(f"{path}: line {number}: message statement not read "
+                               f"({printable(line.strip(), 80)}); is the file cut short?")
+            continue
+        signal = _SIGNAL_LINE.match(line)
+        if (signal is not None or line.strip() == "SG_") and current is not None and (
+                signal is None or signal[1] not in current):
+            raise DbcError(f"{path}: line {number}: signal statement not read "
+                           f"({printable(line.strip(), 80)}); is the file cut short?")
 
 
 def _binary_offset(data: bytes) -> tuple[int, int] | None:

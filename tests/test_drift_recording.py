@@ -113,3 +113,13 @@ def test_cli_image_options(tmp_path: Path, capsys: pytest.CaptureFixture) -> Non
     with pytest.raises(SystemExit):
         main(["estimate", "--help"])
     assert "under 1 GB" in " ".join(capsys.readouterr().out.split())
+
+
+@pytest.mark.parametrize("command", ["report", "fleet"])
+def test_help_prints_percent_signs_once(command: str, capsys: pytest.CaptureFixture) -> None:
+    """A description is printed as written (argparse formats only the options' help):
+    "95 %% bands" was printed with both signs."""
+    with pytest.raises(SystemExit):
+        main([command, "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "95 % " in text and "%%" not in text

@@ -161,6 +161,28 @@ def test_truth_of_another_drive_is_refused(tmp_path: Path, capsys) -> None:
     assert "nopitch.csv: no values in column(s) pitch_deg: not scored" in capsys.readouterr().err
 
 
+def test_an_infinite_number_is_named_not_left_out(tmp_path: Path, capsys) -> None:
+    """An `inf` pitch in the table (or the truth) was taken as a missing value and the report
+    written as if the row had none; it is an error naming row, frame and column."""
+    table = read_table(DATA / "knock_cart_smoothed.csv")
+    columns = [c for c in table if c not in ("frame", "t")]
+    rows = [{c: table[c][i] for c in table} for i in range(len(table["frame"]))]
+    rows[5]["mount_pitch_deg"] = float("inf")
+    write_table(tmp_path / "inf.csv", rows, columns)
+    assert main(["report", str(tmp_path / "inf.csv"), "--out", str(tmp_path / "r1")]) == 2
+    frame = int(table["frame"][5])
+    assert (f"inf.csv: row 7 (frame {frame}): mount_pitch_deg = inf is not a finite number"
+            in capsys.readouterr().err)
+    assert not (tmp_path / "r1" / "report.md").exists()
+    gt = read_table(DATA / "knock_cart_gt.csv")
+    rows = [{c: gt[c][i] for c in gt} for i in range(len(gt["frame"]))]
+    rows[2]["pitch_deg"] = float("-inf")
+    write_table(tmp_path / "gt.csv", rows, [c for c in gt if c not in ("frame", "t")])
+    assert main(["report", str(DATA / "knock_cart_smoothed.csv"), "--gt",
+                 str(tmp_path / "gt.csv"), "--out", str(tmp_path / "r2")]) == 2
+    assert "gt.csv: row 4 (frame " in capsys.readouterr().err
+
+
 def test_drift_rate_only_over_long_spans() -> None:
     """A 0.05°/min creep over 10 min is found within 3σ; over 30 s no rate is given."""
     s = summarize_drift(ramp_table(10.0, 0.05))

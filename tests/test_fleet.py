@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import re
 import shutil
 import socket
 import threading
@@ -376,3 +377,38 @@ def test_a_drive_with_a_kitti_calib_takes_its_size_from_the_frames(tmp_path):
     _, camera = open_recording(DriveSpec("k", images=images, camera=calib, fps=10.0),
                                FleetSettings())
     assert (camera.width, camera.height) == (1226, 370)
+
+
+def test_a_running_drive_shows_its_frames(drives, cluster, tmp_path, capsys, monkeypatch):
+    """The bar counted finished drives only: a long drive was silence until it ended. The
+    worker now sends its drive's stage and frames; the bar shows them while it runs."""
+    from vipm_track import progress as progress_module
+    from vipm_track.fleet import drive_progress
+
+    monkeypatch.setattr(drive_progress, "EVENT_INTERVAL_S", 0.0)  # an event every frame
+    monkeypatch.setattr(progress_module, "LOG_INTERVAL_S", 0.0)  # a log line every redraw
+    only_a = tmp_path / "only_a"
+    only_a.mkdir()
+    shutil.copytree(drives / "a", only_a / "a")
+    rows = run_fleet(find_drives(only_a), tmp_path / "o", SETTINGS,
+                     scheduler=cluster.scheduler_address, progress=True)
+    assert rows[0]["status"] == "ok"
+    frames = len(list((only_a / "a" / "images").glob("*.png")))
+    err = capsys.readouterr().err
+    shown = [int(k) for k in re.findall(rf"a: estimate (\d+)/{frames} frames", err)]
+    assert shown and min(shown) < frames // 2, err  # seen while the drive's pairs ran
+    assert "a: smooth" in err or "a: monitor" in err
+
+
+def test_progress_text_names_the_running_drives():
+    from vipm_track.fleet.drive_progress import SHOWN_DRIVES, FleetProgress
+
+    running = FleetProgress()
+    for k in range(SHOWN_DRIVES + 2):
+        running.on_event((0.0, {"drive": f"d{k}", "stage": "estimate", "done": 10 * k,
+                                "frames": 100}))
+    running.on_event((0.0, {"drive": "d1", "stage": "smooth", "done": None, "frames": 100}))
+    running.finished("d0")
+    running.on_event((0.0, {"drive": "d0", "stage": "monitor", "done": None, "frames": 100}))
+    assert running.text() == ("d1: smooth, d2: estimate 20/100 frames, d3: estimate 30/100 "
+                              "frames; 1 more running")

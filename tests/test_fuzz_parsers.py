@@ -292,6 +292,30 @@ def test_dbc(data):
     _check(load_dbc, _tmp("car.dbc"), data.draw(mutations(seed)))
 
 
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(st.data())
+def test_a_dbc_cut_within_a_statement_names_its_line(data):
+    """cantools passed over a message or signal statement cut short at the end of the file
+    and loaded the rest: a DBC cut mid-copy was used with a message or signal missing."""
+    from vipm_track.filters.can_decode import DbcError, load_dbc
+
+    text = (shared_data("comma2k19_can") / "toyota_2017.dbc").read_text()
+    lines = text.splitlines(keepends=True)
+    statements = [i for i, line in enumerate(lines) if line.lstrip().startswith(("BO_ ", "SG_ "))
+                  and not line.startswith("BO_TX_BU_")]
+    i = data.draw(st.sampled_from(statements))
+    # cut before the statement's last token (its nodes): a cut within that leaves a valid
+    # statement naming another node ("XXX" cut to "X")
+    keep = data.draw(st.integers(4, lines[i].rstrip().rindex(" ")))
+    path = _tmp("cut.dbc")
+    path.write_text("".join(lines[:i]) + lines[i][:keep])
+    with pytest.raises(DbcError, match=rf": line {i + 1}(, column \d+)?: "):
+        load_dbc(path)
+    if i > statements[0]:  # cut where a statement begins: all of it read
+        path.write_text("".join(lines[:i]))
+        assert load_dbc(path).messages
+
+
 # -- nominal calibration (filters.nominal.load_nominal) ----------------------------------------
 
 NOMINAL = (ROOT / "data" / "nominal_car.yaml").read_bytes()

@@ -237,6 +237,8 @@ BO_ 170 WHEEL_SPEEDS: 8 X
     (["--video", "{video}", "--camera-timeout", "0"], "--camera-timeout must be > 0"),
     (["--video", "{video}", "--speed-csv", "{speed}", "--clock-offset", "auto"],
      "--clock-offset auto"),
+    # it ran with a global shutter and said nothing
+    (["--video", "{video}", "--readout-time", "auto"], "--readout-time auto fits the readout"),
     # a replayed speed on another clock held every frame for the whole video, exit 0
     (["--video", "{video}", "--speed-csv", "{speed}", "--clock-offset", "1000"],
      "has a wheel speed"),

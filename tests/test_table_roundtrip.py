@@ -109,3 +109,15 @@ def test_a_folder_given_as_a_table_is_named_so(tmp_path):
 
     with pytest.raises(TableError, match="a folder, not a table"):
         read_table(tmp_path)
+
+
+def test_a_text_file_that_is_no_table_is_named_by_its_header(tmp_path):
+    """A README given as estimates said "line 3: 2 cells but the header has 1 (a cut or
+    damaged row)"; it lacks the table's columns, and that is what the error says."""
+    from vipm_track.table import TableError, read_table
+
+    path = tmp_path / "notes.md"
+    path.write_text("# notes\n\nfirst, then the rest\n")
+    with pytest.raises(TableError, match=r"missing column\(s\) \['frame', 't'\]; header is "
+                                         r"\['# notes'\]"):
+        read_table(path)

@@ -36,3 +36,10 @@ def progress_bar(iterable: Any = None, **options: Any) -> tqdm:
         return tqdm(iterable, file=stream, **options)
     options.setdefault("mininterval", LOG_INTERVAL_S)
     return tqdm(iterable, file=_Lines(stream or sys.__stderr__), ascii=True, **options)
+
+
+def redraw_interval_s() -> float:
+    """Seconds between redraws of text that changes often (a bar's postfix): a second on a
+    terminal, ``LOG_INTERVAL_S`` where each redraw is a line of a log."""
+    stream = sys.stderr
+    return 1.0 if stream is not None and stream.isatty() else LOG_INTERVAL_S

@@ -341,6 +341,14 @@ def write_parquet(
     pq.write_table(pa.table(arrays), str(path))
 
 
+def _check_header(path: Path, header: list, required: Sequence[str]) -> None:
+    """:class:`TableError` naming the required columns the header lacks."""
+    missing = [c for c in required if c not in header]
+    if missing:
+        raise TableError(f"{path}: missing column(s) {missing}; header is "
+                         f"{printable(header, 160)}")
+
+
 def first_data_row(path: str | Path) -> int:
     """Number of a table file's first data row, as messages about its rows count them: 2 in a
     CSV (the header is row 1), 1 in a Parquet file."""
@@ -369,12 +377,16 @@ def read_table(path: str | Path, required: Sequence[str] = BASE_COLUMNS[:2], *,
             raise TableError(f"{path}: not a readable Parquet table "
                              f"({printable(exc, 160)})") from None
         header = list(raw)
+        _check_header(path, header, required)
         records = [[raw[c][i] for c in header] for i in range(table.num_rows)]
     else:
         text = read_text(path)
         reader = csv.reader(io.StringIO(text, newline=""))
         try:
             header = [h.strip() for h in next(reader)]
+            # a file that is not such a table (a README, a log) says so, not that its
+            # second line has the wrong number of cells
+            _check_header(path, header, required)
             records = []
             for r in reader:
                 if not r:
@@ -395,10 +407,6 @@ def read_table(path: str | Path, required: Sequence[str] = BASE_COLUMNS[:2], *,
             raise TableError(f"{path}: empty file, expected a header row") from None
         except csv.Error as exc:
             raise TableError(f"{path}: line {reader.line_num}: not CSV ({exc})") from None
-    missing = [c for c in required if c not in header]
-    if missing:
-        raise TableError(f"{path}: missing column(s) {missing}; header is "
-                         f"{printable(header, 160)}")
     repeated = sorted({h for h in header if header.count(h) > 1})
     if repeated:
         raise TableError(f"{path}: column(s) {printable(repeated, 200)} appear more than once "

@@ -17,7 +17,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Process every drive of DRIVES (a folder with one subfolder per drive, "
         "or a manifest CSV; docs/fleet.md) as one Dask task each, on a local cluster or an "
         "existing scheduler: estimate every pair (seeded at the drive's nominal.yaml), smooth "
-        "the drive, summarise its mount with 95 %% intervals and monitor it against its "
+        "the drive, summarise its mount with 95 % intervals and monitor it against its "
         "nominal. Writes OUT/drive=NAME/{estimates,smoothed,monitor}.parquet, "
         "OUT/fleet_summary.csv/.parquet and OUT/fleet_report.md/.png. Drives already done "
         "with the same inputs and settings are skipped.",

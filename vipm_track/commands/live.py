@@ -112,6 +112,10 @@ def run(args: argparse.Namespace) -> int:
             camera.check_image((size[1], size[0]), f"--video {args.video}")
         except ValueError as exc:
             raise InputError(f"{exc} ({args.camera})") from None
+    if args.readout_time == "auto":  # estimator_setup would take it as a global shutter
+        raise InputError("--readout-time auto fits the readout over the first 300 frames of a "
+                         "recorded drive; live, give it in seconds (found by 'vipm-track "
+                         "estimate --readout-time auto' on a recording of this camera)")
     rig, config = estimator_setup(args, camera, height, pitch_deg=nominal.pitch_deg,
                                   roll_deg=nominal.roll_deg)
     if args.clock_offset == "auto":

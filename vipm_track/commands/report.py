@@ -12,7 +12,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "report",
         help="plots (PNG) and a Markdown summary of a track / estimate / monitor table",
         description="The calibration of a track / smooth / monitor table in a minute: the "
-        "mount pitch, roll and height over time with 95 %% bands, the nominal and its "
+        "mount pitch, roll and height over time with 95 % bands, the nominal and its "
         "tolerances, the monitor's states and events, and the summary (current extrinsics with "
         "their interval, change since the nominal, when it changed, how sure, drift rates over "
         "spans of a minute or more); then the per-frame pose, motion and trajectory, with "

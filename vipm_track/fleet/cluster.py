@@ -34,9 +34,10 @@ from distributed import comm as dask_comm
 from distributed.comm.registry import get_backend
 
 from ..errors import InputError, printable
-from ..progress import progress_bar
+from ..progress import progress_bar, redraw_interval_s
 from ..table import format_value
 from ..workers import THREADS_ENV
+from .drive_progress import PROGRESS_TOPIC, FleetProgress
 from .drive_run import FleetSettings, done_row, drive_folder, run_drive
 from .drives import DriveSpec
 
@@ -151,9 +152,14 @@ def _run_all(specs: Sequence[DriveSpec], out: Path, settings: FleetSettings, wor
         futures = {client.submit(run_drive, spec, str(out), settings, key=f"drive-{spec.drive}",
                                  pure=False, retries=retries): spec for spec in specs}
         bar = progress_bar(total=len(futures), desc="fleet", unit="drive", disable=not progress)
+        running = FleetProgress()
+        if progress:
+            client.subscribe_topic(PROGRESS_TOPIC, _show_running(running, bar))
         try:
             for future in as_completed(futures):
                 spec = futures[future]
+                running.finished(spec.drive)
+                bar.set_postfix_str(running.text(), refresh=False)
                 try:
                     row = future.result()
                 except Exception as exc:  # the worker died `retries` times, or was lost
@@ -167,9 +173,27 @@ def _run_all(specs: Sequence[DriveSpec], out: Path, settings: FleetSettings, wor
                     on_row(row)
                 write_summary(out, [rows[s.drive] for s in specs if s.drive in rows])
         finally:
+            if progress:
+                client.unsubscribe_topic(PROGRESS_TOPIC)
             bar.close()
             for future in futures:
                 future.cancel()
+
+
+def _show_running(running: FleetProgress, bar: Any) -> Callable[[tuple], None]:
+    """The progress events' handler: tallies them in ``running`` and shows its text beside
+    ``bar`` (redrawn at most every ``redraw_interval_s()``)."""
+    last = [-float("inf")]
+    interval = redraw_interval_s()
+
+    def handler(event: tuple) -> None:
+        running.on_event(event)
+        now = time.monotonic()
+        if now - last[0] >= interval:
+            last[0] = now
+            bar.set_postfix_str(running.text())
+
+    return handler
 
 
 def _client(workers: int, scheduler: str | None, timeout_s: float, processes: bool) -> Any:

@@ -40,6 +40,7 @@ from ..estimator_config import EstimatorConfig
 from ..runs import sequence_steps, step_measurement, step_row
 from ..sources import FrameSource, first_frame_size, open_source
 from ..table import CONCISE, ESTIMATE_TABLE, choose_columns_each, write_table
+from .drive_progress import DriveProgress
 from .drives import DriveSpec
 
 #: the file in a drive's folder that says its outputs are complete, with their input hash
@@ -196,10 +197,13 @@ def _process(spec: DriveSpec, folder: Path, settings: FleetSettings) -> dict[str
     speed = drive_speed(spec, settings)
     folder.mkdir(parents=True, exist_ok=True)
     estimate_rows, measurements = [], []
+    progress = DriveProgress(spec.drive, _frame_count(source))
     for step in sequence_steps(source, nominal.rig(camera), EstimatorConfig(),
                                chunk_frames=settings.chunk_frames):
         estimate_rows.append(step_row(step, height))
         measurements.append(step_measurement(step, height))
+        progress.update("estimate", len(measurements))
+    progress.update("smooth", None, final=True)
     _table_atomic(folder / "estimates.parquet", estimate_rows, settings)
     if not any(m.ok for m in measurements):
         counts = Counter(m.status for m in measurements)
@@ -218,6 +222,7 @@ def _process(spec: DriveSpec, folder: Path, settings: FleetSettings) -> dict[str
     _table_atomic(folder / "smoothed.parquet", rows, settings)
     summary = summarize_mount(frames, measurements,
                               config.mount_steps if config.lag_s == 0 else None)
+    progress.update("monitor", None, final=True)
     ekf_config = EkfConfig(height_m=height)
     monitor_config = MonitorConfig.from_noise(ekf_config.noise, fps=frame_rate(measurements))
     monitor_rows, states = [], []
@@ -227,6 +232,14 @@ def _process(spec: DriveSpec, folder: Path, settings: FleetSettings) -> dict[str
     _table_atomic(folder / "monitor.parquet", monitor_rows, settings)
     _write_atomic(folder / "summary.json", json.dumps(summary, indent=2) + "\n")
     return _row(spec, summary, measurements, states, nominal, speed is not None)
+
+
+def _frame_count(source: FrameSource) -> int | None:
+    """The recording's number of frames, where its source knows it (a stream may not)."""
+    try:
+        return len(source) or None
+    except (TypeError, NotImplementedError):
+        return None
 
 
 def _row(spec: DriveSpec, summary: dict, measurements: list, outputs: list,

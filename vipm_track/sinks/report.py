@@ -38,7 +38,7 @@ from ..errors import InputError
 from ..evaluate import frame_errors
 from ..kitti import is_kitti_poses, kitti_truth_table
 from ..measurement import table_in_sequence
-from ..table import first_data_row, read_table
+from ..table import TEXT_COLUMNS, first_data_row, read_table
 from .drift_report import STATE_COLORS, drift_figure, fmt, summary_lines, write_html
 from .drift_summary import (
     MIN_RATE_SPAN_S,
@@ -125,6 +125,7 @@ def write_report(
         table, issues = table_in_sequence(table, first_data_row(track))
         if issues and notes is not None:
             notes.extend(issues.lines(str(track)))
+    _check_finite(table, track)
     est = window_rows(table, start, max_frames)
     if not any(c in est for c, *_ in POSE_PANELS + MOTION_PANELS):
         raise InputError(f"{track}: no pose or motion column (pitch_deg, roll_deg, height_m, "
@@ -187,6 +188,21 @@ def write_report(
     return Report(out, plots, markdown, summary, error_summary, drift, page)
 
 
+def _check_finite(table: Mapping[str, NDArray], path: Path) -> None:
+    """InputError naming row, frame and column for the first infinite time, angle or length
+    (``t``, ``*_deg``, ``*_m``): no estimate has one; plotted or summarised as a missing
+    value it would pass unseen (an empty cell is the way to say "none")."""
+    for name, values in table.items():
+        if not (name == "t" or name.endswith(("_deg", "_m"))) or name in TEXT_COLUMNS:
+            continue
+        bad = np.isinf(np.asarray(values, float))
+        if bad.any():
+            row = int(np.flatnonzero(bad)[0])
+            frame = f" (frame {int(table['frame'][row])})" if "frame" in table else ""
+            raise InputError(f"{path}: row {row + first_data_row(path)}{frame}: {name} = "
+                             f"{values[row]} is not a finite number")
+
+
 def window_rows(table: dict[str, NDArray], start: int = 0,
                 max_frames: int | None = None) -> dict[str, NDArray]:
     """The rows of ``table`` whose frame is at least ``start``, at most ``max_frames`` of them
@@ -234,7 +250,9 @@ def read_truth(path: str | Path) -> dict[str, NDArray]:
     changes; its absolute pitch/roll are not known, so not scored)."""
     if is_kitti_poses(path):
         return kitti_truth_table(path)
-    return read_table(path)
+    table = read_table(path)
+    _check_finite(table, Path(path))
+    return table
 
 
 # --- numbers ---------------------------------------------------------------------------------
