@@ -488,12 +488,13 @@ class MonitorCore:
         with np.errstate(divide="ignore", invalid="ignore"):
             y = blk[..., 1] / np.sqrt(blk[..., 2])
         diff = closed & np.isfinite(last)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # one difference counts for at most 9 × the estimate so far (before it): a step
+            # is in one
+            current = np.where(sums[..., 0] > 0, sums[..., 2] / sums[..., 0], np.inf)
         decay = np.where(closed, math.exp(-1.0 / cfg.correlation_window_blocks), 1.0)
         sums[..., 0] = sums[..., 0] * decay + diff
         sums[..., 1] = sums[..., 1] * decay * decay + diff
-        with np.errstate(divide="ignore", invalid="ignore"):
-            # one difference counts for at most 9 × the estimate so far: a step is in one
-            current = np.where(sums[..., 0] > 0, sums[..., 2] / sums[..., 0], np.inf)
         d2 = np.minimum(0.5 * (y - np.nan_to_num(last)) ** 2, 9.0 * np.maximum(current, 1.0))
         sums[..., 2] = sums[..., 2] * decay + np.where(diff, d2, 0.0)
         s.block_y = np.where(closed, y, last)
