@@ -53,6 +53,8 @@ class SignalSpec:
 def load_dbc(path: str | Path) -> cantools.database.can.Database:
     """The DBC at ``path`` (non-strict: overlapping signals, common in opendbc, are allowed)."""
     path = Path(path)
+    if path.is_dir():
+        raise DbcError(f"{path}: a folder, not a DBC file")
     if not path.is_file():
         raise DbcError(f"{path}: DBC file not found")
     binary = _binary_offset(path.read_bytes())

@@ -191,6 +191,8 @@ class LogRecords:
     def _binary(self) -> Iterator[Any]:
         import can
 
+        if self.path.stat().st_size == 0:  # the reader's own words: "unpack requires ..."
+            raise InputError(f"{self.path}: empty file, no CAN log in it")
         try:
             reader = can.LogReader(str(self.path))
         except ImportError as exc:

@@ -36,6 +36,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from vipm_track.errors import InputError, printable
+from vipm_track.increasing import longest_increasing
 from vipm_track.table import read_text, write_columns_csv
 
 #: Rules combining several speed signals into one speed (rows: samples, columns: signals).
@@ -308,14 +309,15 @@ MAX_SPEED_MPS = 100.0
 def read_speed_csv(path: str | Path) -> SpeedSeries:
     """Speed series from a CSV with columns ``t`` [s] and ``speed_mps`` [m/s].
 
-    Rows that are not two finite numbers, and rows whose time is not after the previous
-    row's, are skipped and counted in ``series.summary``."""
+    Rows that are not two finite numbers, and rows out of time order (all but the longest
+    run of rows whose time increases), are skipped and counted in ``series.summary``."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: speed CSV not found")
     summary = DecodeSummary(source=str(path), unit="rows")
     ts: list[float] = []
     vs: list[float] = []
+    lines: list[int] = []
     reader = csv.reader(io.StringIO(read_text(path), newline=""))
     try:
         header = [h.strip() for h in next(reader, [])]
@@ -343,14 +345,22 @@ def read_speed_csv(path: str | Path) -> SpeedSeries:
                 summary.note(where, f"speed {v:g} m/s is no ground vehicle's (beyond "
                                     f"{MAX_SPEED_MPS:g})")
                 continue
-            if ts and t <= ts[-1]:
-                summary.non_monotonic += 1
-                summary.note(where, f"t {t} not after the previous row's {ts[-1]}")
-                continue
             ts.append(t)
             vs.append(v)
+            lines.append(reader.line_num)
     except csv.Error as exc:
         raise InputError(f"{path}: line {reader.line_num}: not CSV ({exc})") from None
+    # the longest run of rows whose time increases: one corrupt time drops only its row
+    kept = set(longest_increasing(ts).tolist()) if ts else set()
+    last = None
+    for i, line in enumerate(lines):
+        if i in kept:
+            last = i
+            continue
+        summary.non_monotonic += 1
+        summary.note(f"{path}:{line}", f"t {ts[i]} not after the previous row's {ts[last]}"
+                     if last is not None else f"t {ts[i]} after the rows that follow it")
+    ts, vs = [ts[i] for i in sorted(kept)], [vs[i] for i in sorted(kept)]
     summary.used = summary.samples = len(ts)
     if ts:
         summary.t_first, summary.t_last = ts[0], ts[-1]

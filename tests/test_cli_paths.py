@@ -415,8 +415,9 @@ def test_start_and_max_frames_window_every_filter(short_cart: Path, tmp_path: Pa
     out = tmp_path / f"{command}.csv"
     extra = ["--nominal", str(ROOT / "data" / "nominal_cart.yaml")] if command == "monitor" \
         else ["--height", "0.7"]
+    # four frames are too few for the EKF to start: track says so (exit 1), its rows kept
     assert main([command, "--estimates", str(est), "--start", "2", "--max-frames", "4",
-                 "--out", str(out), "--quiet", *extra]) == 0
+                 "--out", str(out), "--quiet", *extra]) == (1 if command == "track" else 0)
     assert list(read_table(out)["frame"]) == [2, 3, 4, 5]
     assert main([command, "--estimates", str(est), "--max-frames", "0", "--out", str(out),
                  "--quiet", *extra]) == 2

@@ -492,7 +492,7 @@ def _mount_scores(kind: str, seed: int) -> tuple[np.ndarray, np.ndarray]:
     late = (run.truth.t >= 5.0) & np.array([m.ok for m in meas])
     err = np.array([s.mount[:2] for s in states])[late] - np.stack(
         [run.truth.mount_pitch, run.truth.mount_roll], axis=1)[late]
-    var = np.array([np.diag(s.covariance)[[M.MOUNT_PITCH, M.MOUNT_ROLL]] for s in states])[late]
+    var = np.array([np.diag(s.mount_cov)[:2] for s in states])[late]
     raw = np.array([m.z[2:4] for m in meas])[late] - np.stack(
         [run.truth.mount_pitch, run.truth.mount_roll], axis=1)[late]
     ratio = np.sqrt(np.mean(err**2, axis=0) / np.mean(raw**2, axis=0))
@@ -518,10 +518,10 @@ def test_mount_under_coloured_noise(seed: int):
     assert np.all(ratio < 0.6), ratio
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "known limitation: the pair model takes angle noise as white; with AR(1) noise of τ 1 s "
-    "the mount's covariance is overconfident (NEES per axis measured 3.96 / 1.73 and "
-    "11.2 / 0.38 on two drives)"))
 def test_mount_covariance_is_honest_under_coloured_noise():
+    """The pair model takes angle noise as white; with AR(1) noise of τ 1 s the mount's
+    covariance was overconfident (NEES per axis 9.2 / 1.1 and 11.6 / 0.8 on two drives).
+    The mount's σ is widened as the pose's is, by the residuals' measured autocorrelation
+    (``row_correlation``): NEES 1.0 / 0.1 and 1.9 / 0.1."""
     worst = max(float(_mount_scores("coloured", seed)[1].max()) for seed in (0, 1))
     assert worst < 3.0, worst

@@ -170,6 +170,10 @@ def test_resume_skips_what_is_done(fleet, drives, cluster, tmp_path):
 def test_cli(drives, cluster, tmp_path, capsys):
     assert main(["fleet", str(tmp_path / "nowhere"), "--out", str(tmp_path / "o")]) == 2
     assert "not found" in capsys.readouterr().err
+    # an OUT inside DRIVES was taken for a failed drive 'results: no recording' next time
+    assert main(["fleet", str(drives), "--out", str(drives / "results")]) == 2
+    assert "inside the DRIVES folder" in capsys.readouterr().err
+    assert not (drives / "results").exists()
     only_broken = tmp_path / "only_broken"
     only_broken.mkdir()
     shutil.copytree(drives / "broken", only_broken / "broken")

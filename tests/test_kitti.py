@@ -58,6 +58,53 @@ def test_kitti_frames_through_the_cli(tmp_path: Path) -> None:
     assert np.median(np.abs(errors["yaw_deg"])) < 0.1
 
 
+def test_an_odd_first_frame_is_one_bad_frame_not_a_wrong_camera(tmp_path, capsys):
+    """calib.txt has no image size: it was taken from frame 0, so a resized frame 0 made
+    every other frame 'wrong image size' (exit 1), or a principal point outside the image
+    (exit 2). The size is now most of the first five frames', and a first frame of another
+    size is a bad frame like any other."""
+    import shutil
+
+    import cv2
+
+    data = shared_data("kitti07")
+    images = tmp_path / "image_0"
+    images.mkdir()
+    for k in range(8):
+        shutil.copy(data / "image_0" / f"{k:06d}.png", images)
+    shutil.copy(data / "calib.txt", tmp_path)
+    (tmp_path / "times.txt").write_text(
+        "".join((data / "times.txt").read_text().splitlines(keepends=True)[:8]))
+    first = cv2.imread(str(images / "000000.png"), cv2.IMREAD_GRAYSCALE)
+    for size in ((1240, 376), (600, 200)):
+        cv2.imwrite(str(images / "000000.png"), cv2.resize(first, size))
+        out = tmp_path / "e.csv"
+        assert main(["estimate", "--images", str(images), "--height", "1.65", "--pitch", "1",
+                     "--readout-time", "0", "--out", str(out), "--quiet"]) == 0
+        status = list(read_table(out)["status"])
+        assert status[0].startswith(f"wrong image size {size[0]}×{size[1]} (camera 1226×370)")
+        assert status[1] == "first frame" and status[2:] == ["ok"] * 6
+    capsys.readouterr()
+
+
+@pytest.mark.parametrize(("pitch", "warned"), [("8", True), ("-5", True), ("1", False)])
+def test_a_given_pitch_the_travel_contradicts_is_questioned(tmp_path, capsys, pitch, warned):
+    """A level camera's rows follow the nominal pitch they start from: with `--pitch -5` every
+    KITTI pair came out `ok` at -5.1 ± 1.2° (travel +78 %), with no word. The direction of
+    travel (0.5°) now questions a given pitch 2° and more away; 1° (the documented option)
+    passes."""
+    data = shared_data("kitti07")
+    rc = main(["estimate", "--images", str(data / "image_0"), "--camera",
+               str(data / "calib.txt"), "--height", "1.65", "--pitch", pitch,
+               "--readout-time", "0", "--max-frames", "30", "--out", str(tmp_path / "e.csv"),
+               "--quiet"])
+    assert rc == 0
+    err = capsys.readouterr().err
+    assert (f"--pitch {float(pitch):g}° but the direction of travel" in err) == warned, err
+    if warned:
+        assert "puts the camera at pitch 0.5°" in err
+
+
 #: ``vipm-track estimate`` on all 160 frames of KITTI 07 with the options above (seed 0),
 #: kept so the filters can be checked on real estimates without re-running the estimator.
 #: Made by ``python scripts/eval_kitti.py --seeds 1 --out DIR`` (``DIR/estimates.csv``); on
@@ -167,8 +214,10 @@ def test_filters_follow_the_real_kitti_drive(method: str, frames: int, median_ra
 def test_smoothed_summary_interval_is_honest_on_the_real_drive():
     # On KITTI 07 the measured pitch/roll wander by 1–2° over seconds (road camber and
     # slope, the front end's tracking correlation): 1 s means scatter 10–20× more than the
-    # model says. The model alone gives about ±0.1° for the drive's mean mount; the data's
-    # batch means widen it (±0.4–0.5°), which is what a 16 s drive can tell.
+    # model says. The model alone gave about ±0.1° for the drive's mean mount (σ 0.07°); the
+    # data's batch means widen it (±0.4–0.5°), which is what a 16 s drive can tell. The
+    # model's σ, widened by the pairs' measured autocorrelation as each frame's is
+    # (row_correlation), now agrees with the data's: 0.19 / 0.21° pitch, 0.17 / 0.20° roll.
     from vipm_track.filters.drive_summary import summarize_mount
     from vipm_track.filters.smoother_config import SmootherConfig
     from vipm_track.filters.smoothing import smooth
@@ -180,7 +229,7 @@ def test_smoothed_summary_interval_is_honest_on_the_real_drive():
     for axis in ("pitch", "roll"):
         d = s[axis]
         assert d["interval_from"] == "data"
-        assert d["std_model"] < 0.08 and d["std_data"] > 3 * d["std_model"]
+        assert 0.7 * d["std_data"] < d["std_model"] < 1.3 * d["std_data"]
         assert 0.3 < (d["ci95"][1] - d["ci95"][0]) / 2 < 1.0
 
 

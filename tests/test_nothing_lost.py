@@ -889,3 +889,75 @@ def test_an_images_folder_that_is_not_one_is_named(tmp_path, capsys, command):
         rc, err = _run(capsys, command, "--images", given, "--height", "1.5",
                        "--out", tmp_path / "o.csv")
         assert rc == 2 and f"--images {given}: {message}" in err and "--camera" not in err
+
+
+def test_an_interrupted_simulation_is_a_sequence_of_its_own(tmp_path, capsys, monkeypatch):
+    """simulate wrote times.txt, speed.csv and traffic.csv for every frame before rendering;
+    interrupted after 5 frames it said 'what was written is complete and kept', and estimate
+    then refused the folder: 40 timestamps but 5 images. Now all are cut to the 5 frames."""
+    import vipm_track.sim
+    from vipm_track.sources import open_source
+
+    real = vipm_track.sim.render_trajectory_frame
+
+    def render(tex, camera, traj, k, *a, **kw):
+        if k == 5:
+            raise KeyboardInterrupt
+        return real(tex, camera, traj, k, *a, **kw)
+
+    monkeypatch.setattr(vipm_track.sim, "render_trajectory_frame", render)
+    out = tmp_path / "sim"
+    rc, err = _run(capsys, "simulate", "--preset", "car", "--frames", "40", "--traffic",
+                   "light", "--out", out)
+    assert rc == 130 and "interrupted" in err
+    times = np.loadtxt(out / "times.txt")
+    assert len(times) == 5 == len(list((out / "images").glob("*.png")))
+    assert len(open_source(images=out / "images")) == 5  # times.txt and images agree
+    gt = np.genfromtxt(out / "gt.csv", delimiter=",", names=True)
+    assert len(gt) == 5
+    speed = np.genfromtxt(out / "speed.csv", delimiter=",", names=True)
+    assert speed["t"].max() <= times[-1] and speed["t"].max() > times[-1] - 0.05
+    traffic = np.genfromtxt(out / "traffic.csv", delimiter=",", names=True)
+    assert traffic["frame"].max() == 4
+
+
+def test_track_whose_filter_never_started_exits_1(tmp_path, capsys, est):
+    """Seven usable pairs, fewer than the EKF starts on: every row 'waiting for first
+    pairs', and it exited 0 as if the drive had been tracked."""
+    short = tmp_path / "short.csv"
+    short.write_text("".join(est.read_text().splitlines(keepends=True)[:9]))
+    rc, err = _run(capsys, "track", "--estimates", short, "--height", "1.65", "--out",
+                   tmp_path / "t.csv", "--quiet")
+    assert rc == 1
+    assert ("short.csv: the filter never started: it starts on 10 usable pairs and the drive "
+            "has 7" in err)
+    assert "None:" not in err
+
+
+def test_a_missing_height_and_a_folder_given_as_a_dbc_are_named_as_such(tmp_path, capsys,
+                                                                        can_data):
+    """`track --images` without --height said '--height must be a positive number of metres,
+    got None'; `can-speed --dbc FOLDER` said the output 'is a file of the input --dbc'."""
+    images = tmp_path / "images"
+    images.mkdir()
+    rc, err = _run(capsys, "track", "--images", images, "--pitch", "45", "--out",
+                   tmp_path / "t.csv")
+    assert rc == 2 and "--height is needed" in err and "None" not in err
+    out = tmp_path / "x.csv"
+    out.write_text("t,speed_mps\n")
+    rc, err = _run(capsys, "can-speed", can_data / "rav4_drive.log", "--dbc", tmp_path,
+                   "--out", out)
+    assert rc == 2 and f"{tmp_path}: a folder, not a DBC file" in err
+    # the summary's Markdown goes beside its JSON: a .md name was 'the same file' as itself
+    rc, err = _run(capsys, "smooth", "--estimates", out, "--height", "1.5", "--out",
+                   tmp_path / "s.csv", "--summary", tmp_path / "s.md")
+    assert rc == 2 and "names the JSON summary" in err
+    # the recording's image options are checked before any work, and leave no recording
+    rc, err = _run(capsys, "estimate", "--images", images, "--height", "1.5", "--out",
+                   tmp_path / "e.csv", "--rerun", tmp_path / "r.rrd", "--rerun-jpeg-quality", "0")
+    assert rc == 2 and "--rerun-jpeg-quality must be in 1..100" in err
+    assert not (tmp_path / "r.rrd").exists()
+    (tmp_path / "empty.blf").write_bytes(b"")  # said "unpack requires a buffer of 72 bytes"
+    rc, err = _run(capsys, "can-speed", tmp_path / "empty.blf", "--dbc",
+                   can_data / "toyota_2017.dbc", "--out", tmp_path / "s.csv")
+    assert rc == 2 and "empty.blf: empty file, no CAN log in it" in err

@@ -242,3 +242,25 @@ def test_can_speed_auto_offset_from_estimates_read_first(tmp_path, capsys, monke
     written = read_speed_csv(tmp_path / "speed.csv")
     shift = np.median(written.t - series.t)
     assert abs(shift - 0.6) < 0.05, capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("options", "message"), [
+    (["--speed-scale", "2"], "--speed-scale apply to a wheel speed: give --speed-csv or --can"),
+    (["--clock-offset", "0.5"], "--clock-offset apply to a wheel speed"),
+    (["--can-channel", "0"], "--can-channel decode a CAN log: give --can LOG"),
+    (["--speed-csv", "{speed}", "--signals", "WHEEL_SPEEDS.X"],
+     "--signals decode a CAN log (--can); --speed-csv"),
+    (["--speed-csv", "{speed}", "--combine", "max"], "--combine decode a CAN log (--can)"),
+])
+def test_speed_options_without_what_they_apply_to_are_refused(tmp_path, capsys, options,
+                                                              message):
+    """A speed option with nothing to apply to was silently ignored (`track --speed-csv S
+    --signals X` and `--speed-scale 2` without a speed exited 0)."""
+    speed = tmp_path / "speed.csv"
+    speed.write_text("t,speed_mps\n0,1\n1,1\n")
+    est = tmp_path / "est.csv"
+    est.write_text("frame,t\n0,0\n")
+    argv = ["track", "--estimates", str(est), "--height", "1.5", "--out",
+            str(tmp_path / "t.csv"), *[o.format(speed=speed) for o in options]]
+    assert _exit_code(argv) == 2
+    assert message in capsys.readouterr().err

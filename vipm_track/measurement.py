@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import InputError
+from .increasing import longest_increasing
 from .statuses import MISSING_NUMBERS, is_known
 from .table import CORRELATION_COLUMNS, first_data_row, read_table
 
@@ -243,30 +244,46 @@ def sequence_rows(
     frames: NDArray, times: NDArray | None = None, first_row: int = 2
 ) -> tuple[list[int], SequenceIssues]:
     """Indices of the rows that form a sequence (frames and, where given, times strictly
-    increasing; the first row of a repeated frame kept) and the rows left out, numbered from
-    ``first_row`` (2: a CSV's first data row)."""
+    increasing; the first row of a repeated frame kept; of the rest, the longest run that
+    increases, so one corrupt row is the only one left out) and the rows left out, numbered
+    from ``first_row`` (2: a CSV's first data row)."""
     frames = np.asarray(frames, dtype=float)
-    keep: list[int] = []
     seen: dict[float, int] = {}
     duplicated, out_of_order, backwards = [], [], []
+    candidates: list[int] = []
     for i, frame in enumerate(frames):
-        row = i + first_row
-        last = keep[-1] if keep else None
         if frame in seen:
-            duplicated.append((row, int(frame), seen[frame]))
-            continue
-        if not np.isfinite(frame) or (last is not None and frame < frames[last]):
-            out_of_order.append((row, frame if not np.isfinite(frame) else int(frame),
-                                 int(frames[last]) if last is not None else float("nan")))
-            continue
-        if times is not None and (not np.isfinite(times[i])
-                                  or (last is not None and not times[i] > times[last])):
-            backwards.append((row, float(times[i]),
-                              float(times[last]) if last is not None else float("nan")))
-            continue
-        seen[frame] = row
-        keep.append(i)
-    return keep, SequenceIssues(tuple(duplicated), tuple(out_of_order), tuple(backwards))
+            duplicated.append((i + first_row, int(frame), seen[frame]))
+        elif not np.isfinite(frame):
+            out_of_order.append((i + first_row, frame, float("nan")))
+        else:
+            seen[frame] = i + first_row
+            candidates.append(i)
+    keep = _increasing_rows(candidates, frames, out_of_order, first_row, int)
+    if times is not None:
+        timed = [i for i in keep if np.isfinite(times[i])]
+        backwards += [(i + first_row, float(times[i]), float("nan")) for i in keep
+                      if not np.isfinite(times[i])]
+        keep = _increasing_rows(timed, np.asarray(times, dtype=float), backwards, first_row,
+                                float)
+    return keep, SequenceIssues(tuple(duplicated), tuple(sorted(out_of_order)),
+                                tuple(sorted(backwards)))
+
+
+def _increasing_rows(rows: list[int], values: NDArray, left_out: list, first_row: int,
+                     kind: type) -> list[int]:
+    """Of ``rows``, those whose ``values`` form the longest increasing run; each other one
+    is appended to ``left_out`` as (row number, its value, the last kept value before it)."""
+    kept = [rows[j] for j in longest_increasing(values[rows])] if rows else []
+    kept_set = set(kept)
+    last = None
+    for i in rows:
+        if i in kept_set:
+            last = i
+        else:
+            left_out.append((i + first_row, kind(values[i]),
+                             kind(values[last]) if last is not None else float("nan")))
+    return kept
 
 
 def in_sequence(

@@ -37,7 +37,7 @@ from .estimator import PreparedFrame, PreparedPair, TwoFrameEstimator
 from .estimator_config import EstimatorConfig
 from .pair_chain import PairChain
 from .rig import Rig
-from .sources import Frame, FrameSource
+from .sources import FIRST_SIZE_FRAMES, Frame, FrameSource
 from .statuses import FIRST_FRAME, NO_PREVIOUS, UNREADABLE, WRONG_SIZE
 from .workers import threads
 
@@ -86,10 +86,11 @@ def run_sequence(
     """Yield one :class:`SequenceStep` per frame of ``source`` (see module doc).
 
     The ``rig``'s height [m] makes the motion metric. Raises :class:`InputError` when the
-    first readable frame's size disagrees with the rig's camera;
-    later frames of a wrong size get status ``wrong image size``. ``continuation``: the
-    source continues a run (a later chunk), so none of its frames is the run's first: a
-    frame of a wrong size gets that status, one without a predecessor ``no previous frame``.
+    first ``FIRST_SIZE_FRAMES`` readable frames (or all, where fewer) disagree with the
+    rig's camera; other frames of a wrong size get status ``wrong image size``.
+    ``continuation``: the source continues a run (a later chunk), so none of its frames is
+    the run's first: a frame of a wrong size gets that status, one without a predecessor
+    ``no previous frame``.
     """
     if estimator is None:
         estimator = TwoFrameEstimator(rig, config)
@@ -101,24 +102,40 @@ def run_sequence(
     chain = PairChain(estimator, tracking, retry_cold,
                       max_acceleration_mps2=settings.max_acceleration_mps2)
     checked_size = continuation
+    # the first frames until one has the camera's size: held back, and an InputError where
+    # FIRST_SIZE_FRAMES of them do not (the camera is another's), so that one odd first
+    # frame is a frame of the wrong size, not a wrong camera
+    held: list[SequenceStep] = []
+    mismatch: ValueError | None = None
     frames = _prepared_frames(source, estimator, camera)
     for frame, prepared in (_read_ahead(frames) if threads() > 1 else frames):
         if frame.image is None:
             prev_image = None
-            yield SequenceStep(frame.index, frame.t, None, frame.error or UNREADABLE)
+            step = SequenceStep(frame.index, frame.t, None, frame.error or UNREADABLE)
+            if held:
+                held.append(step)
+            else:
+                yield step
             continue
         try:
             image = prepare_image(frame, camera)
         except ValueError as exc:
-            if not checked_size:
-                raise InputError(f"{source.description}: {exc}") from exc
             prev_image = None
             h, w = frame.image.shape[:2]
             named = f": {frame.name}" if frame.name else ""  # (as an unreadable frame is)
-            yield SequenceStep(frame.index, frame.t, None, f"{WRONG_SIZE} {w}×{h} (camera "
-                               f"{camera.width}×{camera.height}){named}")
+            step = SequenceStep(frame.index, frame.t, None, f"{WRONG_SIZE} {w}×{h} (camera "
+                                f"{camera.width}×{camera.height}){named}")
+            if checked_size:
+                yield step
+                continue
+            mismatch = mismatch or exc
+            held.append(step)
+            if sum(s.status.startswith(WRONG_SIZE) for s in held) >= FIRST_SIZE_FRAMES:
+                raise InputError(f"{source.description}: {mismatch}") from exc
             continue
         checked_size = True
+        yield from held
+        held.clear()
         if prev_image is None:
             status = FIRST_FRAME if np.isnan(prev_t) and not continuation else NO_PREVIOUS
             prev_image, prev_t = image, frame.t
@@ -131,6 +148,8 @@ def run_sequence(
         seconds = time.perf_counter() - start
         prev_image, prev_t = image, frame.t
         yield SequenceStep(frame.index, frame.t, result, result.status, tracked, seconds)
+    if held:  # no frame of the camera's size at all
+        raise InputError(f"{source.description}: {mismatch}")
 
 
 def _prepared_frames(source: FrameSource, estimator: TwoFrameEstimator, camera: CameraModel,

@@ -27,6 +27,7 @@ from __future__ import annotations
 import csv
 import errno
 import functools
+import math
 import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -509,14 +510,43 @@ def simulate_sequence(
     iterator = range(frames)
     if progress:
         iterator = progress_bar(iterator, desc=f"simulate {p.name}", unit="frame")
-    with TableWriter(out / "gt.csv", GT_EXTRA_COLUMNS) as writer:
-        for k, row in zip(iterator, gt_rows(traj), strict=True):
-            img = render_trajectory_frame(tex, camera, traj, k, effects, vehicles)
-            image_path = out / "images" / f"{k:06d}.png"
-            if not cv2.imwrite(str(image_path), img):
-                raise OSError(errno.EIO, "OpenCV could not write the image", str(image_path))
-            writer.write(row)
+    written = 0
+    try:
+        with TableWriter(out / "gt.csv", GT_EXTRA_COLUMNS) as writer:
+            for k, row in zip(iterator, gt_rows(traj), strict=True):
+                img = render_trajectory_frame(tex, camera, traj, k, effects, vehicles)
+                image_path = out / "images" / f"{k:06d}.png"
+                if not cv2.imwrite(str(image_path), img):
+                    raise OSError(errno.EIO, "OpenCV could not write the image",
+                                  str(image_path))
+                writer.write(row)
+                written = k + 1
+    except BaseException:  # Ctrl-C, a full disk: what is kept must be a sequence of its own
+        _cut_to_frames(out, written, traj)
+        raise
     return traj
+
+
+def _cut_to_frames(out: Path, frames: int, traj: Trajectory) -> None:
+    """Cut an interrupted run's files to its first ``frames`` frames: images, ``times.txt``,
+    the wheel speed and the traffic up to the last frame's time (they were written for all
+    of them before rendering began)."""
+    (out / "images" / f"{frames:06d}.png").unlink(missing_ok=True)  # its gt row is missing
+    (out / "times.txt").write_text("".join(f"{t:.6e}\n" for t in traj.t[:frames]))
+    end = float(traj.t[frames - 1]) if frames else -math.inf
+    for name, column in (("speed.csv", "t"), ("traffic.csv", "t")):
+        path = out / name
+        if not path.is_file():
+            continue
+        with path.open(newline="") as fh:
+            rows = list(csv.DictReader(fh))
+            header = list(rows[0]) if rows else None
+        if header is None:
+            continue
+        with path.open("w", newline="") as fh:
+            writer = csv.DictWriter(fh, header, lineterminator="\n")
+            writer.writeheader()
+            writer.writerows(r for r in rows if float(r[column]) <= end)
 
 
 def _write_traffic_csv(path: Path, vehicles: Sequence[Vehicle], traj: Trajectory) -> None:

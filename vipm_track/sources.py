@@ -20,6 +20,7 @@ from __future__ import annotations
 import copy
 import math
 import sys
+from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -159,18 +160,23 @@ def list_images(folder: str | Path) -> list[Path]:
     return files
 
 
+#: images read for a folder's frame size (:func:`first_frame_size`)
+FIRST_SIZE_FRAMES = 5
+
+
 def first_frame_size(images: str | Path | None = None, video: str | Path | None = None,
                      ) -> tuple[int, int] | None:
-    """(width, height) of the first readable image of a folder (in the source's order) or
-    of a video's frames; None where there is none (the source then says why)."""
+    """(width, height) of a folder's images, the size most of its first five readable ones
+    have (one odd first frame must not make every other frame the wrong size), or of a
+    video's frames; None where there is none (the source then says why)."""
     try:
         files = list_images(images) if images else []
     except SourceError:
         return None
-    for path in files[:5]:
-        image = read_grey(path)
-        if image is not None:
-            return image.shape[1], image.shape[0]
+    sizes = [(image.shape[1], image.shape[0]) for path in files[:FIRST_SIZE_FRAMES]
+             if (image := read_grey(path)) is not None]
+    if sizes:
+        return Counter(sizes).most_common(1)[0][0]  # a tie: the first frame's
     if video and Path(video).is_file():
         capture = cv2.VideoCapture(str(video))
         try:

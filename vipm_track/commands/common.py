@@ -138,6 +138,9 @@ def infer_inputs(args: argparse.Namespace) -> None:
 _INPUT_OPTIONS = ("estimates", "images", "video", "bag", "camera", "can", "dbc", "gt",
                   "nominal", "speed_csv", "frame_times", "roi", "log", "table", "drives")
 _OUTPUT_OPTIONS = ("out", "events", "rerun", "summary")
+#: inputs that are folders (a bag may be a rosbag2 folder); any other input given as a
+#: folder is the wrong input, which its reader names, not a folder of inputs
+_FOLDER_INPUTS = ("images", "bag", "drives")
 
 
 def _option(name: str) -> str:
@@ -164,6 +167,9 @@ def _outputs(args: argparse.Namespace) -> list[tuple[str, Path]]:
         outputs.append(("parquet", Path(out).with_suffix(".parquet")))
     if getattr(args, "command", None) == "smooth" and out:
         summary = Path(args.summary) if args.summary else Path(out).with_suffix(".summary.json")
+        if summary.suffix.lower() == ".md":
+            raise InputError(f"--summary {summary}: names the JSON summary (its Markdown goes "
+                             "beside it, as .md); give FILE.json")
         outputs = [o for o in outputs if o[0] != "summary"]
         outputs += [("summary", summary), ("summary", summary.with_suffix(".md"))]
     return outputs
@@ -188,7 +194,7 @@ def check_outputs_apart(args: argparse.Namespace) -> None:
             continue
         for in_name, given in inputs:
             same = out.samefile(given)
-            if same or (given.is_dir() and not out.is_dir()
+            if same or (given.is_dir() and in_name in _FOLDER_INPUTS and not out.is_dir()
                         and given.resolve() in out.resolve().parents):
                 what = "is" if same else "is a file of"
                 raise InputError(f"{_option(out_name)} {out}: {what} the input {_option(in_name)} "
@@ -212,7 +218,9 @@ def frame_window(items: list, frame_of, start: int, max_frames: int | None,
 
 def check_height(height: float | None) -> float:
     """``--height`` as a positive number of metres (InputError otherwise)."""
-    if height is None or not (math.isfinite(height) and height > 0):
+    if height is None:
+        raise InputError("--height is needed: the camera's height above the ground, metres")
+    if not (math.isfinite(height) and height > 0):
         raise InputError(f"--height must be a positive number of metres, got {height}")
     return float(height)
 
@@ -272,8 +280,13 @@ def check_output_dir(out: str | Path, option: str = "--out") -> Path:
 
 
 def check_rerun_output(args: argparse.Namespace) -> None:
-    """``--rerun OUT.rrd`` (where given) as a file this run can write (:func:`check_writable`)."""
+    """``--rerun OUT.rrd`` (where given) as a file this run can write (:func:`check_writable`)
+    and its image options, before any work."""
     if getattr(args, "rerun", None):
+        from ..sinks.rerun_sink import check_image_options
+
+        check_image_options(getattr(args, "rerun_image_every", None),
+                            getattr(args, "rerun_jpeg_quality", 75))
         check_writable(args.rerun, "--rerun")
 
 

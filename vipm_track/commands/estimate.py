@@ -63,7 +63,7 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..runs import estimate_sequence
     from ..sources import open_source
-    from .inputs import warn_readout_stake, with_searched_setup
+    from .inputs import warn_given_pitch, warn_readout_stake, with_searched_setup
 
     out = check_output(args.out, args.parquet)
     columns = choose_columns(ESTIMATE_TABLE, args.columns)
@@ -119,6 +119,7 @@ def run(args: argparse.Namespace) -> int:
         if note:
             print(f"vipm-track estimate: warning: {note}", file=sys.stderr)
         warn_readout_stake(args, source, rig, config)
+        warn_given_pitch(args, source, rig)
     if summary.ok == 0:
         kinds = Counter(s.split(":")[0] for s in summary.statuses.elements())
         counts = ", ".join(f"{n}× {s}" for s, n in kinds.most_common())

@@ -4,6 +4,7 @@ and monitored as Dask tasks; hive-partitioned Parquet, a fleet summary and a rep
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from ..errors import InputError, NothingUsable
 from .common import add_columns_option, check_output_dir
@@ -64,6 +65,10 @@ def run(args: argparse.Namespace) -> int:
                          f"{args.retries}")
     if args.scheduler is not None:
         scheduler_address(args.scheduler)
+    drives = Path(args.drives).resolve()
+    if drives.is_dir() and drives in Path(args.out).resolve().parents:
+        raise InputError(f"--out {args.out}: inside the DRIVES folder {args.drives}, where the "
+                         "next run would take it for a drive; give a folder outside it")
     out = check_output_dir(args.out)
     specs = find_drives(args.drives)
     settings = FleetSettings(vehicle=args.vehicle, lag_s=args.lag,

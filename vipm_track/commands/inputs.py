@@ -67,10 +67,24 @@ def speed_from_args(args: argparse.Namespace, progress: bool = True,
     offset = 0.0 if offset == "auto" else float(offset)
     if speed_csv and log:
         raise InputError("give either --speed-csv or --can, not both")
+    # a decoding option with nothing to decode was silently ignored
+    decoding = [name for name, given in (
+        ("--dbc", dbc), ("--signals", signals),
+        ("--can-channel", getattr(args, "can_channel", None) is not None),
+        ("--combine", getattr(args, "combine", "mean") != "mean")) if given]
     if not speed_csv and not log:
-        if dbc or signals:
-            raise InputError("--dbc/--signals need --can LOG")
+        if decoding:
+            raise InputError(f"{'/'.join(decoding)} decode a CAN log: give --can LOG")
+        timing = [name for name, given in (
+            ("--speed-scale", scale != 1.0),
+            ("--clock-offset", getattr(args, "clock_offset", 0.0) not in (0.0, None))) if given]
+        if timing:
+            raise InputError(f"{'/'.join(timing)} apply to a wheel speed: give --speed-csv "
+                             "or --can")
         return None
+    if speed_csv and decoding:
+        raise InputError(f"{'/'.join(decoding)} decode a CAN log (--can); --speed-csv "
+                         f"{speed_csv} is a speed already")
     if speed_csv:
         if not (math.isfinite(scale) and scale > 0):
             raise InputError(f"--speed-scale {scale!r} must be a positive number")
@@ -233,6 +247,38 @@ def with_searched_setup(
     if unchanged or with_readout.readout_s == searched[0].readout_s:
         return with_readout, searched[1]
     return with_searched_nominal(args, source, rig.with_readout(with_readout.readout_s), config)
+
+
+#: a given nominal pitch this far from the direction of travel's (beyond 3 of its standard
+#: errors) is questioned [deg]: KITTI 07's pairs scatter 0.74° about the poses' travel
+GIVEN_PITCH_TOLERANCE_DEG = 2.0
+
+
+def warn_given_pitch(args: argparse.Namespace, source: FrameSource, rig: Rig) -> None:
+    """Where ``--pitch`` was given: a warning on stderr if the direction of travel over the
+    first frames (``nominal_search.travel_pitch_over``) puts the camera at another pitch. A
+    level camera's rows follow the nominal pose they start from (KITTI 07 with ``--pitch -5``:
+    every pair ``ok`` at −5.1 ± 1.2°, travel +78 %). Called after a run (its first row is
+    not delayed)."""
+    if getattr(args, "pitch", None) is None:
+        return
+    from ..nominal_search import LEVEL_PITCH_DEG, travel_pitch_over
+    from ..travel_direction import AGREE_DEG
+
+    travel = travel_pitch_over(source, rig.camera, 300, math.radians(rig.roll_deg))
+    # a steep camera's rows find its pitch from any start: only a level one's follow it
+    if not travel.determined or min(travel.pitch_deg, rig.pitch_deg) >= LEVEL_PITCH_DEG:
+        return
+    se = 1.86 * travel.spread_deg / math.sqrt(travel.pairs)  # the median's (1.25 × 1.48 MAD)
+    off = rig.pitch_deg - travel.pitch_deg
+    if abs(off) <= GIVEN_PITCH_TOLERANCE_DEG + 3.0 * se:
+        return
+    print(f"vipm-track: warning: --pitch {args.pitch:g}° but the direction of travel over "
+          f"{travel.pairs} pairs of the first frames puts the camera at pitch "
+          f"{travel.pitch_deg:.1f}° ({travel.agreeing} pairs within {AGREE_DEG:g}°): a "
+          "level camera's rows follow the nominal pose they start from, their pitch and "
+          f"travel with it ({off:+.1f}° here); check --pitch, or leave it out to take the "
+          "travel's", file=sys.stderr)
 
 
 def warn_readout_stake(

@@ -120,9 +120,19 @@ def run(args: argparse.Namespace) -> int:
                  slow_share_note(np.array(usable.pitch_deg), np.array(usable.slow))):
         if note:  # said under --quiet too: the mount intervals do not cover it
             print(f"vipm-track track: warning: {note}", file=sys.stderr)
+    source = args.estimates or args.images or args.video
     if not usable.pitch_deg:
-        raise NothingUsable(f"{args.images or args.video}: no frame has a usable pair "
-                            f"estimate; {args.out} holds the filter's priors only")
+        raise NothingUsable(f"{source}: no frame has a usable pair estimate; {args.out} holds "
+                            "the filter's priors only")
+    if set(counts) <= {"waiting"}:  # usable pairs, but too few for the filter to start
+        from vipm_track.filters.body_scale import pairs_to_start
+
+        start = pairs_to_start(config.init_pairs, config.body_window_s,
+                               config.body_window_min_pairs)
+        raise NothingUsable(
+            f"{source}: the filter never started: it starts on {start} usable "
+            f"pairs and the drive has {len(usable.pitch_deg)}; every row of {args.out} is "
+            "'waiting for first pairs'")
     return 0
 
 

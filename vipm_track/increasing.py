@@ -1,0 +1,41 @@
+"""The rows of a series that should be increasing and are: its longest strictly increasing
+subsequence. One corrupt row (a time of 100 s in a 4-s table, a frame number of 100000) is
+then the only row left out, where keeping each row after the last kept one dropped every
+row after the corrupt one."""
+
+from __future__ import annotations
+
+from bisect import bisect_left
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+
+def longest_increasing(values: ArrayLike) -> NDArray[np.int64]:
+    """Indices (ascending) of a longest strictly increasing subsequence of ``values`` (finite
+    floats); of several, the one of the earliest rows (in a tie, the row that goes back is
+    the one left out, as when reading row by row)."""
+    v = np.asarray(values, dtype=float)
+    ending = _run_lengths(v)  # longest increasing run ending at each row
+    starting = _run_lengths(-v[::-1])[::-1]  # ... and starting at each row
+    total = int(ending.max()) if v.size else 0
+    out: list[int] = []
+    for i in np.flatnonzero(ending + starting - 1 == total).tolist():
+        if ending[i] == len(out) + 1 and (not out or v[i] > v[out[-1]]):
+            out.append(i)
+    return np.array(out, dtype=np.int64)
+
+
+def _run_lengths(v: NDArray[np.float64]) -> NDArray[np.int64]:
+    """Length of the longest strictly increasing subsequence ending at each element
+    (patience sorting)."""
+    tails: list[float] = []  # smallest last value of an increasing run of each length
+    lengths = np.empty(v.size, dtype=np.int64)
+    for i, x in enumerate(v.tolist()):
+        k = bisect_left(tails, x)
+        if k == len(tails):
+            tails.append(x)
+        else:
+            tails[k] = x
+        lengths[i] = k + 1
+    return lengths
