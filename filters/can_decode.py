@@ -76,32 +76,44 @@ def load_dbc(path: str | Path) -> cantools.database.can.Database:
 
 
 #: A message (``BO_ id name:``) and a signal (`` SG_ name``) statement of a DBC's text.
-_MESSAGE_LINE = re.compile(r"BO_\s+\d+\s+(\w+)\s*:")
-_SIGNAL_LINE = re.compile(r"\s+SG_\s+(\w+)")
+_MESSAGE_LINE = re.compile(r"BO_\s+(\d+)\s+(\w+)\s*:")
+_SIGNAL_LINE = re.compile(r"\s+SG_\s")
 #: Vector's holder of signals sent by no message: not a message (cantools leaves it out).
 _INDEPENDENT = "VECTOR__INDEPENDENT_SIG_MSG"
 
 
 def _check_all_read(path: Path, text: str, db: cantools.database.can.Database) -> None:
-    """:class:`DbcError` naming the line of the first message or signal statement in ``text``
-    that ``db`` lacks. cantools passes over a statement cut short at the end of the file (a
-    DBC cut mid-copy loaded with its last message or signal missing, unsaid)."""
-    signals = {m.name: {s.name for s in m.signals} for m in db.messages}
-    current: set[str] | None = None
-    for number, line in enumerate(text.splitlines(), 1):
-        message = _MESSAGE_LINE.match(line)
-        if message is not None or line.startswith("BO_ "):
-            name = message[1] if message is not None else None
-            current = signals.get(name) if name is not None else None
-            if name != _INDEPENDENT and current is None:
+    """:class:`DbcError` naming the line of a message or signal statement in ``text`` that
+    ``db`` lacks. cantools passes over a statement cut short at the end of the file (a DBC
+    cut mid-copy loaded with its last message or signal missing, unsaid). Messages are
+    matched by frame id and signals counted per message: names may differ (cantools takes
+    a long name from its ``SystemMessageLongSymbol`` / ``SystemSignalLongSymbol``)."""
+    signals = {(m.frame_id, m.is_extended_frame): len(m.signals) for m in db.messages}
+    lines = text.splitlines()
+    current: tuple[int, bool] | None = None
+    seen: list[int] = []  # line numbers of the current message's signal statements
+
+    def check_signals() -> None:
+        if current is not None and len(seen) > signals[current]:
+            raise DbcError(f"{path}: line {seen[-1]}: signal statement not read "
+                           f"({printable(lines[seen[-1] - 1].strip(), 80)}); is the file cut "
+                           "short?")
+
+    for number, line in enumerate(lines, 1):
+        if line.startswith("BO_ ") or line.strip() == "BO_":
+            check_signals()
+            message = _MESSAGE_LINE.match(line)
+            current, seen = None, []
+            if message is not None and message[2] == _INDEPENDENT:
+                continue
+            frame_id = int(message[1]) if message is not None else -1
+            current = (frame_id & 0x1FFFFFFF, bool(frame_id & 0x80000000))
+            if current not in signals:
                 raise DbcError(f"{path}: line {number}: message statement not read "
                                f"({printable(line.strip(), 80)}); is the file cut short?")
-            continue
-        signal = _SIGNAL_LINE.match(line)
-        if (signal is not None or line.strip() == "SG_") and current is not None and (
-                signal is None or signal[1] not in current):
-            raise DbcError(f"{path}: line {number}: signal statement not read "
-                           f"({printable(line.strip(), 80)}); is the file cut short?")
+        elif _SIGNAL_LINE.match(line) or line.strip() == "SG_":
+            seen.append(number)
+    check_signals()
 
 
 def _binary_offset(data: bytes) -> tuple[int, int] | None:

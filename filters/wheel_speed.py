@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from vipm_track.errors import InputError, printable
-from vipm_track.increasing import longest_increasing
+from vipm_track.increasing import left_out_between
 from vipm_track.table import read_text, write_columns_csv
 
 #: Rules combining several speed signals into one speed (rows: samples, columns: signals).
@@ -110,7 +110,7 @@ class DecodeSummary:
             ("error_frames", "error/remote frames (skipped)"),
             ("length_mismatch", "wanted frames with a length other than the DBC's (skipped)"),
             ("decode_errors", "wanted frames undecodable or out of the DBC range (skipped)"),
-            ("non_monotonic", "rows with a time not after the previous row's (skipped)"
+            ("non_monotonic", "rows with a time out of order with the rows around them (skipped)"
              if self.unit == "rows" else "wanted frames with a time out of order (skipped)"),
             ("bad_rows", "rows that are not two finite numbers (skipped)"),
             ("bad_lines", "lines the log reader could not read as a CAN frame (skipped)"),
@@ -351,16 +351,13 @@ def read_speed_csv(path: str | Path) -> SpeedSeries:
     except csv.Error as exc:
         raise InputError(f"{path}: line {reader.line_num}: not CSV ({exc})") from None
     # the longest run of rows whose time increases: one corrupt time drops only its row
-    kept = set(longest_increasing(ts).tolist()) if ts else set()
-    last = None
-    for i, line in enumerate(lines):
-        if i in kept:
-            last = i
-            continue
+    kept, between = left_out_between(ts) if ts else (np.zeros(0, np.int64), [])
+    for i, before, after in between:
         summary.non_monotonic += 1
-        summary.note(f"{path}:{line}", f"t {ts[i]} not after the previous row's {ts[last]}"
-                     if last is not None else f"t {ts[i]} after the rows that follow it")
-    ts, vs = [ts[i] for i in sorted(kept)], [vs[i] for i in sorted(kept)]
+        around = [f"{w} kept {v!r}" for w, v in (("after", before), ("before", after))
+                  if math.isfinite(v)]
+        summary.note(f"{path}:{lines[i]}", f"t {ts[i]!r} out of order ({' and '.join(around)})")
+    ts, vs = [ts[i] for i in kept], [vs[i] for i in kept]
     summary.used = summary.samples = len(ts)
     if ts:
         summary.t_first, summary.t_last = ts[0], ts[-1]

@@ -124,8 +124,12 @@ def _filtered(est: Path, out: Path, speed: Path | None) -> dict[str, bytes]:
         "monitor": ["monitor", "--nominal", str(NOMINAL), *wheel],
     }
     for name, argv in runs.items():
-        assert main([*argv, "--estimates", str(est), "--height", "0.7", "--out",
-                     str(out / f"{name}.csv"), "--columns", "all", "--quiet"]) == 0
+        rc = main([*argv, "--estimates", str(est), "--height", "0.7", "--out",
+                   str(out / f"{name}.csv"), "--columns", "all", "--quiet"])
+        # a drive too short for the EKF to start: track exits 1, its rows all waiting
+        waiting = name == "track" and set(read_table(out / "track.csv")["status"]) == {
+            "waiting for first pairs"}
+        assert rc == (1 if waiting else 0)
     return {name: (out / f"{name}.csv").read_bytes() for name in runs}
 
 

@@ -174,6 +174,15 @@ def test_an_infinite_number_is_named_not_left_out(tmp_path: Path, capsys) -> Non
     assert (f"inf.csv: row 7 (frame {frame}): mount_pitch_deg = inf is not a finite number"
             in capsys.readouterr().err)
     assert not (tmp_path / "r1" / "report.md").exists()
+    # an infinite time too (it was left out as "t not a number"), named by the file's row
+    # even where an earlier row repeats a frame
+    rows[5]["mount_pitch_deg"] = table["mount_pitch_deg"][5]
+    rows[7]["t"] = float("inf")
+    rows.insert(2, dict(rows[1]))
+    write_table(tmp_path / "tinf.csv", rows, columns)
+    assert main(["report", str(tmp_path / "tinf.csv"), "--out", str(tmp_path / "r3")]) == 2
+    assert (f"tinf.csv: row 10 (frame {int(table['frame'][7])}): t = inf is not a finite "
+            "number" in capsys.readouterr().err)
     gt = read_table(DATA / "knock_cart_gt.csv")
     rows = [{c: gt[c][i] for c in gt} for i in range(len(gt["frame"]))]
     rows[2]["pitch_deg"] = float("-inf")

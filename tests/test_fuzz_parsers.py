@@ -316,6 +316,28 @@ def test_a_dbc_cut_within_a_statement_names_its_line(data):
         assert load_dbc(path).messages
 
 
+def test_a_dbc_with_vectors_long_names_is_read_whole():
+    """CANdb++ writes names over 32 characters cut, with the whole name in a
+    SystemMessageLongSymbol / SystemSignalLongSymbol attribute, which cantools takes: the
+    check that every statement was read must not take the renamed ones for unread."""
+    from vipm_track.filters.can_decode import load_dbc
+
+    path = _tmp("long.dbc")
+    path.write_text(
+        'VERSION ""\n\nNS_ :\n\nBS_:\n\nBU_: ECU\n\n'
+        "BO_ 100 VeryLongMessageNameThatIsTruncat: 8 ECU\n"
+        ' SG_ VeryLongSignalNameThatIsTruncated : 0|16@1+ (0.01,0) [0|250] "km/h" ECU\n'
+        ' SG_ Other : 16|8@1+ (1,0) [0|255] "" ECU\n\n'
+        'BA_DEF_ BO_ "SystemMessageLongSymbol" STRING ;\n'
+        'BA_DEF_ SG_ "SystemSignalLongSymbol" STRING ;\n'
+        'BA_ "SystemMessageLongSymbol" BO_ 100 "VeryLongMessageNameThatIsTruncatedByVector";\n'
+        'BA_ "SystemSignalLongSymbol" SG_ 100 VeryLongSignalNameThatIsTruncated '
+        '"VeryLongSignalNameThatIsTruncatedByVectorToo";\n')
+    (message,) = load_dbc(path).messages
+    assert message.name == "VeryLongMessageNameThatIsTruncatedByVector"
+    assert len(message.signals) == 2
+
+
 # -- nominal calibration (filters.nominal.load_nominal) ----------------------------------------
 
 NOMINAL = (ROOT / "data" / "nominal_car.yaml").read_bytes()

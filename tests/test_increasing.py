@@ -73,4 +73,22 @@ def test_track_and_a_speed_csv_keep_the_rows_around_a_corrupt_one(tmp_path, caps
         f"{1000.0 if k == 5 else 0.02 * k},1.2\n" for k in range(50)))
     series = read_speed_csv(speed)
     assert series.t.size == 49 and series.summary.non_monotonic == 1
-    assert any("speed.csv:7" in line and "t 1000.0" in line for line in series.summary.examples)
+    assert any("speed.csv:7: t 1000.0 out of order (after kept 0.08 and before kept 0.12)"
+               in line for line in series.summary.examples), series.summary.examples
+
+
+def test_a_frame_repeated_after_its_corrupt_first_row_is_kept():
+    """Frames 0, 5, 1, ..., 7: the early 5 is the corrupt row; the later, real frame 5 was
+    thrown away as its repeat (frame 5 lost entirely). Now the run decides first, a row is a
+    repeat only of an earlier kept one, and a row out of order is named by its kept
+    neighbours."""
+    keep, issues = sequence_rows(np.array([0, 5, 1, 2, 3, 4, 5, 6, 7], dtype=float))
+    assert keep == [0, 2, 3, 4, 5, 6, 7, 8]
+    assert not issues.duplicated
+    assert issues.lines("x.csv") == ["x.csv: 1 rows have a frame out of order with the rows "
+                                     "around it (or none), left out: row 3 frame 5 (between "
+                                     "kept 0 and 1)"]
+    keep, issues = sequence_rows(np.array([0, 1, 1, 2], dtype=float))
+    assert keep == [0, 1, 3] and issues.duplicated == ((4, 1, 3),)
+    _, issues = sequence_rows(np.array([100000, 1, 2], dtype=float))
+    assert "row 2 frame 100000 (before kept 1)" in issues.lines("x.csv")[0]

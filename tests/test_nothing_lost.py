@@ -487,7 +487,7 @@ def test_report_leaves_out_repeated_and_backward_rows_naming_them(tmp_path, caps
     backwards = tmp_path / "backwards.csv"
     backwards.write_text("\n".join([lines[0], *lines[1:][::-1]]) + "\n")
     rc, err = _run(capsys, "report", backwards, "--out", tmp_path / "rep2")
-    assert rc == 0 and "119 rows have a frame before the previous row's" in err
+    assert rc == 0 and "119 rows have a frame out of order with the rows around it" in err
     assert "(-" not in (tmp_path / "rep2" / "report.md").read_text()  # no negative span
 
 
@@ -891,21 +891,27 @@ def test_an_images_folder_that_is_not_one_is_named(tmp_path, capsys, command):
         assert rc == 2 and f"--images {given}: {message}" in err and "--camera" not in err
 
 
-def test_an_interrupted_simulation_is_a_sequence_of_its_own(tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize("when", ["rendering", "writing its truth"])
+def test_an_interrupted_simulation_is_a_sequence_of_its_own(tmp_path, capsys, monkeypatch,
+                                                            when):
     """simulate wrote times.txt, speed.csv and traffic.csv for every frame before rendering;
     interrupted after 5 frames it said 'what was written is complete and kept', and estimate
-    then refused the folder: 40 timestamps but 5 images. Now all are cut to the 5 frames."""
+    then refused the folder: 40 timestamps but 5 images. Now all are cut to the 5 frames,
+    also where frame 5's image was written and its truth row not."""
     import vipm_track.sim
     from vipm_track.sources import open_source
 
-    real = vipm_track.sim.render_trajectory_frame
+    if when == "rendering":
+        real = vipm_track.sim.render_trajectory_frame
 
-    def render(tex, camera, traj, k, *a, **kw):
-        if k == 5:
-            raise KeyboardInterrupt
-        return real(tex, camera, traj, k, *a, **kw)
+        def render(tex, camera, traj, k, *a, **kw):
+            if k == 5:
+                raise KeyboardInterrupt
+            return real(tex, camera, traj, k, *a, **kw)
 
-    monkeypatch.setattr(vipm_track.sim, "render_trajectory_frame", render)
+        monkeypatch.setattr(vipm_track.sim, "render_trajectory_frame", render)
+    else:
+        _interrupt_after(monkeypatch, vipm_track.sim.TableWriter, "write", 5)
     out = tmp_path / "sim"
     rc, err = _run(capsys, "simulate", "--preset", "car", "--frames", "40", "--traffic",
                    "light", "--out", out)

@@ -732,3 +732,31 @@ def test_a_failed_preparation_ahead_leaves_the_pair_to_the_estimator(
 
     steps = list(run_sequence(_WatchedSource(inner), rig, estimator=Failing(rig)))
     assert [s.status for s in steps] == [FIRST_FRAME, "ok", "ok"]
+
+
+@pytest.mark.parametrize("odd", [4, 5])
+def test_first_frames_of_another_size_fail_the_run_only_where_five_do(tmp_path, odd):
+    """One odd first frame was taken for a wrong camera (InputError, nothing written). The
+    first frames of another size are now held back: four are frames of the wrong size and
+    the run goes on; five are a wrong camera, raised before any row is yielded."""
+    from conftest import render_small_drive
+
+    from vipm_track.camera import load_camera
+    from vipm_track.rig import Rig
+    from vipm_track.sources import open_source
+
+    folder = render_small_drive(tmp_path / "d", frames=8)
+    for k in range(odd):
+        path = folder / "images" / f"{k:06d}.png"
+        cv2.imwrite(str(path), cv2.resize(cv2.imread(str(path)), (320, 240)))
+    source = open_source(images=folder / "images")
+    rig = Rig(load_camera(folder / "camera.yaml"), 0.7, 45.0)
+    steps = run_sequence(source, rig)
+    if odd == 5:
+        with pytest.raises(InputError, match=r"image is 320×240 px but the camera model is "
+                                             r"400×300"):
+            next(steps)
+        return
+    statuses = [s.status for s in steps]
+    assert all(s.startswith("wrong image size 320×240") for s in statuses[:4])
+    assert statuses[4] == "first frame" and statuses[5:] == ["ok"] * 3

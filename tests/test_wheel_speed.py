@@ -349,7 +349,7 @@ def test_speed_csv_roundtrip_and_bad_rows(tmp_path):
     assert back.summary.bad_rows == 3 and back.summary.non_monotonic == 1
     assert any("1e+09 m/s is no ground vehicle's" in line for line in back.summary.examples)
     text = "\n".join(back.summary.lines())  # a CSV's rows, not a CAN log's frames
-    assert "7 rows read" in text and "1 rows with a time not after the previous row's" in text
+    assert "7 rows read" in text and "1 rows with a time out of order with the rows around" in text
     assert "frames" not in text
     (tmp_path / "w.csv").write_text("time,v\n1,2\n")
     with pytest.raises(InputError, match=r"w.csv.*speed_mps"):

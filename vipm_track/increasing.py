@@ -39,3 +39,19 @@ def _run_lengths(v: NDArray[np.float64]) -> NDArray[np.int64]:
             tails[k] = x
         lengths[i] = k + 1
     return lengths
+
+
+def left_out_between(values: ArrayLike) -> tuple[NDArray[np.int64],
+                                                 list[tuple[int, float, float]]]:
+    """:func:`longest_increasing`'s indices and, for each index it leaves out, (index, the
+    kept value before it, the kept value after it; NaN where there is none): what a message
+    about the left-out row names it by."""
+    v = np.asarray(values, dtype=float)
+    kept = longest_increasing(v)
+    kept_list = kept.tolist()
+    out = []
+    for i in sorted(set(range(v.size)) - set(kept_list)):
+        at = bisect_left(kept_list, i)
+        out.append((i, float(v[kept_list[at - 1]]) if at > 0 else float("nan"),
+                    float(v[kept_list[at]]) if at < len(kept_list) else float("nan")))
+    return kept, out

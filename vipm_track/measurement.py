@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import InputError
-from .increasing import longest_increasing
+from .increasing import left_out_between
 from .statuses import MISSING_NUMBERS, is_known
 from .table import CORRELATION_COLUMNS, first_data_row, read_table
 
@@ -189,14 +189,15 @@ def read_measurements(path: str | Path) -> list[PairMeasurement]:
 @dataclass(frozen=True)
 class SequenceIssues:
     """Rows of an estimates table that do not form a sequence, by their row number in the
-    file (a CSV's header is row 1): ``duplicated`` (row, frame, row it first appeared in),
-    ``out_of_order`` (row, frame, previous frame), ``backwards`` (row, t, previous t),
+    file (a CSV's header is row 1): ``duplicated`` (row, frame, the row kept for it),
+    ``out_of_order`` (row, frame, the kept frames before and after it), ``backwards`` (row,
+    t, the kept times before and after it; NaN where there is none),
     ``missing`` (row, frame) of rows saying ``ok`` with numbers missing, ``unknown`` (row,
     frame, status) of rows with a status vipm-track does not write (read as not usable)."""
 
     duplicated: tuple[tuple[int, int, int], ...] = ()
-    out_of_order: tuple[tuple[int, int, int], ...] = ()
-    backwards: tuple[tuple[int, float, float], ...] = ()
+    out_of_order: tuple[tuple[int, float, float, float], ...] = ()
+    backwards: tuple[tuple[int, float, float, float], ...] = ()
     missing: tuple[tuple[int, int], ...] = ()
     unknown: tuple[tuple[int, int, str], ...] = ()
 
@@ -215,20 +216,24 @@ class SequenceIssues:
             out.append(f"{source}: {len(self.duplicated)} rows repeat an earlier frame, left "
                        "out (the first row of each frame is used): " + rows(
                            self.duplicated, lambda r, f, r0: f"row {r} frame {f} (first row {r0})"))
-        def after(r: int, name: str, value: float, before: float) -> str:
-            # a missing number is not 'after' anything: say what it is
+        def between(r: int, name: str, value: float, before: float, after: float) -> str:
+            # a missing number is not out of order: say what it is
             if not math.isfinite(value):
                 return f"row {r} {name} not a number"
-            return f"row {r} {name} {value!r} after {before!r}"
+            kept = (f"between kept {before!r} and {after!r}" if math.isfinite(before + after)
+                    else f"after kept {before!r}" if math.isfinite(before)
+                    else f"before kept {after!r}" if math.isfinite(after) else "")
+            return f"row {r} {name} {value!r}" + (f" ({kept})" if kept else "")
 
         if self.out_of_order:
-            out.append(f"{source}: {len(self.out_of_order)} rows have a frame before the "
-                       "previous row's or none, left out: " + rows(
-                           self.out_of_order, lambda r, f, f0: after(r, "frame", f, f0)))
+            out.append(f"{source}: {len(self.out_of_order)} rows have a frame out of order "
+                       "with the rows around it (or none), left out: " + rows(
+                           self.out_of_order, lambda r, f, f0, f1: between(r, "frame", f, f0,
+                                                                           f1)))
         if self.backwards:
-            out.append(f"{source}: {len(self.backwards)} rows have a time not after the "
-                       "previous row's or none, left out: " + rows(
-                           self.backwards, lambda r, t, t0: after(r, "t", t, t0)))
+            out.append(f"{source}: {len(self.backwards)} rows have a time out of order with "
+                       "the rows around it (or none), left out: " + rows(
+                           self.backwards, lambda r, t, t0, t1: between(r, "t", t, t0, t1)))
         if self.missing:
             out.append(f"{source}: {len(self.missing)} rows say ok but lack numbers, read as "
                        f"'{MISSING_NUMBERS}': " + rows(
@@ -243,47 +248,50 @@ class SequenceIssues:
 def sequence_rows(
     frames: NDArray, times: NDArray | None = None, first_row: int = 2
 ) -> tuple[list[int], SequenceIssues]:
-    """Indices of the rows that form a sequence (frames and, where given, times strictly
-    increasing; the first row of a repeated frame kept; of the rest, the longest run that
-    increases, so one corrupt row is the only one left out) and the rows left out, numbered
-    from ``first_row`` (2: a CSV's first data row)."""
+    """Indices of the rows that form a sequence and the rows left out, numbered from
+    ``first_row`` (2: a CSV's first data row). The sequence: the longest run of rows whose
+    frames (then, where given, times) strictly increase (``increasing``), so one corrupt row
+    is the only one left out; of a repeated frame, its first row where that fits the run.
+    A row left out whose frame a kept earlier row has is a repeat; the others are out of
+    order, named with the kept values on either side of them."""
     frames = np.asarray(frames, dtype=float)
-    seen: dict[float, int] = {}
-    duplicated, out_of_order, backwards = [], [], []
-    candidates: list[int] = []
-    for i, frame in enumerate(frames):
-        if frame in seen:
-            duplicated.append((i + first_row, int(frame), seen[frame]))
-        elif not np.isfinite(frame):
-            out_of_order.append((i + first_row, frame, float("nan")))
-        else:
-            seen[frame] = i + first_row
-            candidates.append(i)
-    keep = _increasing_rows(candidates, frames, out_of_order, first_row, int)
+    duplicated: list[tuple[int, int, int]] = []
+    out_of_order: list[tuple] = []
+    backwards: list[tuple] = []
+    finite = [i for i in range(frames.size) if np.isfinite(frames[i])]
+    out_of_order += [(i + first_row, float(frames[i]), math.nan, math.nan)
+                     for i in range(frames.size) if not np.isfinite(frames[i])]
+    keep = _increasing_rows(finite, frames, first_row, out_of_order, int)
+    kept_row = {frames[i]: i for i in keep}
+    for item in list(out_of_order):
+        i = item[0] - first_row
+        if np.isfinite(frames[i]) and kept_row.get(frames[i], i) < i:
+            out_of_order.remove(item)
+            duplicated.append((i + first_row, int(frames[i]), kept_row[frames[i]] + first_row))
     if times is not None:
-        timed = [i for i in keep if np.isfinite(times[i])]
-        backwards += [(i + first_row, float(times[i]), float("nan")) for i in keep
-                      if not np.isfinite(times[i])]
-        keep = _increasing_rows(timed, np.asarray(times, dtype=float), backwards, first_row,
-                                float)
-    return keep, SequenceIssues(tuple(duplicated), tuple(sorted(out_of_order)),
+        times = np.asarray(times, dtype=float)
+        backwards += [(i + first_row, float(times[i]), math.nan, math.nan)
+                      for i in keep if not np.isfinite(times[i])]
+        keep = _increasing_rows([i for i in keep if np.isfinite(times[i])], times, first_row,
+                                backwards, float)
+    return keep, SequenceIssues(tuple(sorted(duplicated)), tuple(sorted(out_of_order)),
                                 tuple(sorted(backwards)))
 
 
-def _increasing_rows(rows: list[int], values: NDArray, left_out: list, first_row: int,
+def _increasing_rows(rows: list[int], values: NDArray, first_row: int, left_out: list,
                      kind: type) -> list[int]:
     """Of ``rows``, those whose ``values`` form the longest increasing run; each other one
-    is appended to ``left_out`` as (row number, its value, the last kept value before it)."""
-    kept = [rows[j] for j in longest_increasing(values[rows])] if rows else []
-    kept_set = set(kept)
-    last = None
-    for i in rows:
-        if i in kept_set:
-            last = i
-        else:
-            left_out.append((i + first_row, kind(values[i]),
-                             kind(values[last]) if last is not None else float("nan")))
-    return kept
+    is appended to ``left_out`` as (row number, its value, the kept values before and after
+    it, NaN where there is none)."""
+    if not rows:
+        return []
+    kept, between = left_out_between(values[rows])
+    for j, before, after in between:
+        i = rows[j]
+        left_out.append((i + first_row, kind(values[i]),
+                         kind(before) if math.isfinite(before) else before,
+                         kind(after) if math.isfinite(after) else after))
+    return [rows[j] for j in kept]
 
 
 def in_sequence(

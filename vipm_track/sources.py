@@ -166,8 +166,9 @@ FIRST_SIZE_FRAMES = 5
 
 def first_frame_size(images: str | Path | None = None, video: str | Path | None = None,
                      ) -> tuple[int, int] | None:
-    """(width, height) of a folder's images, the size most of its first five readable ones
-    have (one odd first frame must not make every other frame the wrong size), or of a
+    """(width, height) of a folder's images, the size most of its first five image files
+    that can be read have (one odd first frame must not make every other frame the wrong
+    size), or of a
     video's frames; None where there is none (the source then says why)."""
     try:
         files = list_images(images) if images else []

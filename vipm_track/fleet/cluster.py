@@ -13,6 +13,7 @@ stopped resumes where it stopped.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import csv
 import os
 import re
@@ -37,7 +38,7 @@ from ..errors import InputError, printable
 from ..progress import progress_bar, redraw_interval_s
 from ..table import format_value
 from ..workers import THREADS_ENV
-from .drive_progress import PROGRESS_TOPIC, FleetProgress
+from .drive_progress import FleetProgress, progress_topic
 from .drive_run import FleetSettings, done_row, drive_folder, run_drive
 from .drives import DriveSpec
 
@@ -149,12 +150,14 @@ def _run_all(specs: Sequence[DriveSpec], out: Path, settings: FleetSettings, wor
     with dask.config.set({"distributed.scheduler.allowed-failures": retries,
                           "distributed.nanny.pre-spawn-environ": worker_environ(workers)}), \
             _client(workers, scheduler, timeout_s, processes) as client:
-        futures = {client.submit(run_drive, spec, str(out), settings, key=f"drive-{spec.drive}",
-                                 pure=False, retries=retries): spec for spec in specs}
+        topic = progress_topic() if progress else None
+        futures = {client.submit(run_drive, spec, str(out), settings, topic,
+                                 key=f"drive-{spec.drive}", pure=False, retries=retries): spec
+                   for spec in specs}
         bar = progress_bar(total=len(futures), desc="fleet", unit="drive", disable=not progress)
         running = FleetProgress()
-        if progress:
-            client.subscribe_topic(PROGRESS_TOPIC, _show_running(running, bar))
+        if topic is not None:
+            client.subscribe_topic(topic, _show_running(running, bar))
         try:
             for future in as_completed(futures):
                 spec = futures[future]
@@ -173,11 +176,12 @@ def _run_all(specs: Sequence[DriveSpec], out: Path, settings: FleetSettings, wor
                     on_row(row)
                 write_summary(out, [rows[s.drive] for s in specs if s.drive in rows])
         finally:
-            if progress:
-                client.unsubscribe_topic(PROGRESS_TOPIC)
             bar.close()
             for future in futures:
                 future.cancel()
+            if topic is not None:
+                with contextlib.suppress(Exception):  # a lost scheduler: nothing to undo
+                    client.unsubscribe_topic(topic)
 
 
 def _show_running(running: FleetProgress, bar: Any) -> Callable[[tuple], None]:

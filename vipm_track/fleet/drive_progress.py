@@ -6,10 +6,17 @@ from __future__ import annotations
 
 import threading
 import time
+import uuid
 from typing import Any
 
-#: the Dask event topic of drive progress (``Worker.log_event`` / ``Client.subscribe_topic``)
+#: the Dask event topic of drive progress (``Worker.log_event`` / ``Client.subscribe_topic``),
+#: one per fleet run (:func:`progress_topic`): runs sharing a scheduler see their own drives
 PROGRESS_TOPIC = "vipm-track-drive-progress"
+
+
+def progress_topic() -> str:
+    """A topic of its own for one fleet run's progress events."""
+    return f"{PROGRESS_TOPIC}-{uuid.uuid4().hex}"
 
 #: seconds between a drive's progress events (its first and a stage's last are always sent)
 EVENT_INTERVAL_S = 2.0
@@ -19,17 +26,19 @@ SHOWN_DRIVES = 3
 
 
 class DriveProgress:
-    """Progress of one drive, sent from the Dask worker running it (nothing elsewhere: a
-    drive run in a plain process has its own output)."""
+    """Progress of one drive, sent to ``topic`` from the Dask worker running it (nothing
+    without a topic or elsewhere: a drive run in a plain process has its own output)."""
 
-    def __init__(self, drive: str, frames: int | None) -> None:
+    def __init__(self, drive: str, frames: int | None, topic: str | None) -> None:
         from distributed import get_worker
 
-        try:
-            self._worker: Any = get_worker()
-        except ValueError:  # not within a Dask task
-            self._worker = None
-        self.drive, self.frames = drive, frames
+        self._worker: Any = None
+        if topic is not None:
+            try:
+                self._worker = get_worker()
+            except ValueError:  # not within a Dask task
+                pass
+        self.drive, self.frames, self.topic = drive, frames, topic
         self._last = -float("inf")
 
     def update(self, stage: str, done: int | None, final: bool = False) -> None:
@@ -39,8 +48,8 @@ class DriveProgress:
         if self._worker is None or (not final and now - self._last < EVENT_INTERVAL_S):
             return
         self._last = now
-        self._worker.log_event(PROGRESS_TOPIC, {"drive": self.drive, "stage": stage,
-                                                "done": done, "frames": self.frames})
+        self._worker.log_event(self.topic, {"drive": self.drive, "stage": stage,
+                                             "done": done, "frames": self.frames})
 
 
 class FleetProgress:

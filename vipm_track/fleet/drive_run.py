@@ -92,11 +92,13 @@ def drive_folder(out: str | Path, drive: str) -> Path:
     return Path(out) / f"drive={drive}"
 
 
-def run_drive(spec: DriveSpec, out: str | Path, settings: FleetSettings) -> dict[str, Any]:
+def run_drive(spec: DriveSpec, out: str | Path, settings: FleetSettings,
+              progress_topic: str | None = None) -> dict[str, Any]:
     """Process one drive into ``OUT/drive=NAME/`` (estimates, smoothed and monitor Parquet,
     ``summary.json``, ``done.json``) and return its fleet-summary row; where ``done.json``
     holds the same input hash, the earlier row (``skipped`` true). A drive that fails is a
-    row whose ``status`` is the error; nothing is raised."""
+    row whose ``status`` is the error; nothing is raised. ``progress_topic``: the Dask event
+    topic its progress goes to (``drive_progress``; None: none sent)."""
     start = time.perf_counter()
     folder = drive_folder(out, spec.drive)
     base = {"drive": spec.drive, "vehicle": spec.vehicle, "started": spec.started}
@@ -108,7 +110,7 @@ def run_drive(spec: DriveSpec, out: str | Path, settings: FleetSettings) -> dict
         if done is not None:
             return {**done, "skipped": True}
         (folder / DONE_FILE).unlink(missing_ok=True)
-        row = {**base, **_process(spec, folder, settings), "input_hash": key}
+        row = {**base, **_process(spec, folder, settings, progress_topic), "input_hash": key}
     except Exception as exc:  # a failed drive is a row of the summary; the fleet goes on
         if isinstance(exc, (InputError, NothingUsable, OSError)):
             why = printable(exc, 500)
@@ -189,7 +191,8 @@ def smoother_config(height_m: float, settings: FleetSettings) -> SmootherConfig:
                           lag_s=settings.lag_s, marginals=settings.marginals)
 
 
-def _process(spec: DriveSpec, folder: Path, settings: FleetSettings) -> dict[str, Any]:
+def _process(spec: DriveSpec, folder: Path, settings: FleetSettings,
+             progress_topic: str | None) -> dict[str, Any]:
     assert spec.nominal is not None
     nominal = load_nominal(spec.nominal)
     height = nominal.height_m
@@ -197,7 +200,7 @@ def _process(spec: DriveSpec, folder: Path, settings: FleetSettings) -> dict[str
     speed = drive_speed(spec, settings)
     folder.mkdir(parents=True, exist_ok=True)
     estimate_rows, measurements = [], []
-    progress = DriveProgress(spec.drive, _frame_count(source))
+    progress = DriveProgress(spec.drive, _frame_count(source), progress_topic)
     for step in sequence_steps(source, nominal.rig(camera), EstimatorConfig(),
                                chunk_frames=settings.chunk_frames):
         estimate_rows.append(step_row(step, height))

@@ -121,11 +121,11 @@ def write_report(
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a folder")
     table = read_table(track)
+    _check_finite(table, track)  # before rows are left out: the file's own row numbers
     if "frame" in table:  # repeats, frames or times going backwards: left out, said in notes
         table, issues = table_in_sequence(table, first_data_row(track))
         if issues and notes is not None:
             notes.extend(issues.lines(str(track)))
-    _check_finite(table, track)
     est = window_rows(table, start, max_frames)
     if not any(c in est for c, *_ in POSE_PANELS + MOTION_PANELS):
         raise InputError(f"{track}: no pose or motion column (pitch_deg, roll_deg, height_m, "
