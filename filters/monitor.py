@@ -12,7 +12,6 @@ the median), or the frames' own batch-means scatter (``filters.long_run``) where
 
 from __future__ import annotations
 
-import json
 import math
 from collections import deque
 from collections.abc import Iterable, Sequence
@@ -21,6 +20,8 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+from vipm_track import json_text
 
 from .body_scale import BodyScale
 from .long_run import batch_means
@@ -53,7 +54,7 @@ class DriftMonitor:
         for inp in inputs:
             out = mon.update(inp)
             if out.event:
-                print(json.dumps(out.event))
+                print(json_text.dumps(out.event))
     """
 
     def __init__(self, nominal: NominalCalibration, config: MonitorConfig | None = None) -> None:
@@ -290,7 +291,7 @@ def write_events(outputs: Sequence[MonitorOutput], path: str | Path) -> int:
     with Path(path).open("w") as f:
         for o in outputs:
             if o.event is not None:
-                f.write(json.dumps(o.event) + "\n")
+                f.write(json_text.dumps(o.event) + "\n")
                 n += 1
     return n
 

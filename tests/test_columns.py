@@ -261,3 +261,37 @@ def test_a_status_vipm_track_does_not_write_is_reported(tmp_path: Path, capsys):
     err = capsys.readouterr().err
     assert (f"1 rows have a status vipm-track does not write, read as not usable: row 6 frame "
             f"{row[header.index('frame')]} 'weird'") in err
+
+
+def test_json_outputs_are_strict_json(tmp_path):
+    """smooth's summary wrote a bare NaN (the height's std_data), which JSON has not: a
+    browser's JSON.parse and jq refused the file. Every JSON output goes through
+    json_text, which writes null."""
+    import json
+
+    from vipm_track.json_text import dumps
+
+    def refuse(name):
+        raise AssertionError(f"{name} in JSON")
+
+    assert json.loads(dumps({"a": float("nan"), "b": [1.0, float("inf")], "c": (2,)}),
+                      parse_constant=refuse) == {"a": None, "b": [1.0, None], "c": [2]}
+    out = tmp_path / "s.csv"
+    assert main(["smooth", "--estimates", str(DATA / "knock_cart_est.csv"), "--height", "0.7",
+                 "--vehicle", "cart", "--out", str(out), "--quiet"]) == 0
+    summary = json.loads(out.with_suffix(".summary.json").read_text(), parse_constant=refuse)
+    assert summary["height"]["std_data"] is None
+
+
+def test_a_parquet_cell_without_a_number_is_null(tmp_path):
+    """Parquet stored "no value" as NaN, which readers cannot tell from a number; it is null
+    (the CSV's empty cell), and reads back as NaN."""
+    import pyarrow.parquet as pq
+
+    from vipm_track.table import write_parquet
+
+    path = tmp_path / "t.parquet"
+    write_parquet([{"frame": 0, "t": 0.0, "pitch_deg": None},
+                   {"frame": 1, "t": 0.1, "pitch_deg": 1.5}], ["frame", "t", "pitch_deg"], path)
+    assert pq.read_table(path).column("pitch_deg").to_pylist() == [None, 1.5]
+    assert np.isnan(read_table(path)["pitch_deg"][0])

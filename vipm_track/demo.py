@@ -23,7 +23,6 @@ the sequence runner, the filters and the sinks, and nothing of the core imports 
 from __future__ import annotations
 
 import itertools
-import json
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -35,6 +34,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from vipm_track import json_text
 from vipm_track.filters.drive_summary import summarize_mount
 from vipm_track.filters.ekf import speed_at
 from vipm_track.filters.ekf_state import EkfConfig
@@ -369,7 +369,7 @@ def run_demo(
         log_demo(sink, result, tables, truth)
         seconds["recording"] = _lap(clock)
     files["summary"] = out / "summary.json"
-    files["summary"].write_text(json.dumps(_finite(result.summary()), indent=2) + "\n")
+    files["summary"].write_text(json_text.dumps(result.summary(), indent=2) + "\n")
     return result
 
 
@@ -526,17 +526,6 @@ def _speed(v: float) -> float | None:
 
 def _num(x: float) -> float | None:
     return float(x) if x is not None and math.isfinite(x) else None
-
-
-def _finite(value: Any) -> Any:
-    """``value`` with every non-finite float inside it None (strict JSON)."""
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_finite(v) for v in value]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
 
 
 def _lap(start: float) -> float:

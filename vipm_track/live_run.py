@@ -9,7 +9,6 @@ summary on stderr at the end, also after Ctrl-C / SIGTERM.
 
 from __future__ import annotations
 
-import json
 import sys
 import threading
 import time
@@ -24,6 +23,7 @@ from vipm_track.filters.speed_decoder import SpeedDecoder
 from vipm_track.filters.track import track_row
 from vipm_track.filters.wheel_speed import SpeedSeries
 
+from . import json_text
 from .errors import InputError
 from .estimator_config import EstimatorConfig
 from .live_monitor import LIVE_COLUMNS, LIVE_TABLE, LiveMonitor, LiveRow, LiveStats
@@ -138,7 +138,7 @@ def run_live(
 
     def on_event(event: dict[str, Any]) -> None:
         if events_file is not None:
-            events_file.write(json.dumps(event) + "\n")
+            events_file.write(json_text.dumps(event) + "\n")
             events_file.flush()
         t = event.get("t")
         when = f"t={t:.2f} s" if isinstance(t, float | int) else "t=?"

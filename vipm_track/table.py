@@ -337,7 +337,8 @@ def write_parquet(
         elif c == "frame":
             arrays[c] = pa.array([int(v) for v in values], pa.int64())
         else:
-            arrays[c] = pa.array([_to_float(v) for v in values], pa.float64())
+            # a cell without a number is null, as Parquet says "no value" (not NaN)
+            arrays[c] = pa.array([_to_float(v) for v in values], pa.float64(), from_pandas=True)
     pq.write_table(pa.table(arrays), str(path))
 
 

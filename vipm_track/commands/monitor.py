@@ -12,7 +12,6 @@ mount estimate), and while DRIFTING / RECALIBRATE ``new_*`` with ``new_*_lo``/``
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from collections import Counter
@@ -20,6 +19,7 @@ from typing import Any
 
 from vipm_track.filters.monitor_table import MONITOR_COLUMNS, MONITOR_TABLE, monitor_row
 
+from .. import json_text
 from ..camera import load_camera
 from ..errors import InputError
 from ..table import TableWriter, choose_columns
@@ -133,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
                 states.append(s)
                 outputs.append(o)
                 if events is not None and o.event is not None:
-                    events.write(json.dumps(o.event) + "\n")
+                    events.write(json_text.dumps(o.event) + "\n")
                     events.flush()
                     n_events += 1
     finally:

@@ -4,7 +4,6 @@ offline (whole drive) or with a sliding window; same columns as ``vipm-track tra
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from contextlib import ExitStack
@@ -15,6 +14,7 @@ from types import SimpleNamespace
 from vipm_track.filters.factors import LOSSES
 from vipm_track.filters.smoother_config import SmootherConfig
 
+from .. import json_text
 from ..errors import InputError, interrupts_held
 from .common import (
     add_filter_inputs,
@@ -233,7 +233,7 @@ def run(args: argparse.Namespace) -> int:
             "clock_offset_std_s": None if clock_fit is None else clock_fit.std_s,
             "source": _source_name(args),
         }
-        write_text(summary_path, json.dumps(summary, indent=2) + "\n")
+        write_text(summary_path, json_text.dumps(summary, indent=2) + "\n")
         text = summary_markdown(summary) if frames else ""
         if interrupted:
             text = f"**{interrupted}**\n\n" + text

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from vipm_track import json_text
 from vipm_track.filters.drive_summary import summarize_mount
 from vipm_track.filters.ekf_state import EkfConfig
 from vipm_track.filters.model import NoiseParams
@@ -122,7 +123,7 @@ def run_drive(spec: DriveSpec, out: str | Path, settings: FleetSettings,
                 "worker": _worker(), "skipped": False}
     row["wall_s"] = time.perf_counter() - start
     row["worker"] = _worker()
-    _write_atomic(folder / DONE_FILE, json.dumps(row, indent=2) + "\n")
+    _write_atomic(folder / DONE_FILE, json_text.dumps(row, indent=2) + "\n")
     return {**row, "skipped": False}
 
 
@@ -233,7 +234,7 @@ def _process(spec: DriveSpec, folder: Path, settings: FleetSettings,
         monitor_rows.append(monitor_row(m, s, o))
         states.append(o)
     _table_atomic(folder / "monitor.parquet", monitor_rows, settings)
-    _write_atomic(folder / "summary.json", json.dumps(summary, indent=2) + "\n")
+    _write_atomic(folder / "summary.json", json_text.dumps(summary, indent=2) + "\n")
     return _row(spec, summary, measurements, states, nominal, speed is not None)
 
 
