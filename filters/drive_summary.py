@@ -4,6 +4,7 @@ data's, from batch means of measured pose − smoothed mount) and its drift
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -60,6 +61,22 @@ def summarize_mount(
     std = np.array([f.mount_std for f in good])
     residual = _pose_residuals(good, measurements)
     out["duration_s"] = float(t[-1] - t[0])
+    steps = mount_steps_in(mount[:, :2], std[:, :2])
+    if steps:  # a mean across a knock is neither mount: the mount since the last one
+        out["mount_steps"] = [{"t": float(t[k]),
+                               "pitch_deg": math.degrees(mount[k, 0] - mount[k - 1, 0]),
+                               "roll_deg": math.degrees(mount[k, 1] - mount[k - 1, 1])}
+                              for k in steps]
+        last = steps[-1]
+        out["since_step"] = (
+            f"the mount stepped at {', '.join(f'{t[k]:.2f} s' for k in steps)} (pitch "
+            f"{math.degrees(mount[last, 0] - mount[last - 1, 0]):+.2f}°, roll "
+            f"{math.degrees(mount[last, 1] - mount[last - 1, 1]):+.2f}° at the last): the "
+            f"mount given is that of the {t[-1] - t[last]:.1f} s since; before it pitch "
+            f"{math.degrees(mount[last - 1, 0]):.3f}°, roll "
+            f"{math.degrees(mount[last - 1, 1]):.3f}°")
+        t, mount, std = t[last:], mount[last:], std[last:]
+        residual = None if residual is None else residual[last:]
     for i, (name, unit, conv) in enumerate(
         (("pitch", "deg", np.degrees), ("roll", "deg", np.degrees), ("height", "m", np.asarray))
     ):
@@ -99,6 +116,26 @@ def summarize_mount(
             if note:
                 out["pairs_trend"] = note
     return out
+
+
+#: a step of the smoothed mount between two frames beyond this many of its σ, and beyond
+#: ``STEP_OVER_TYPICAL`` × its typical change from frame to frame, is a knock (the batch
+#: lets its mount jump where its step tests found one; a drift moves it by hundredths of σ)
+STEP_SIGMAS = 3.0
+STEP_OVER_TYPICAL = 10.0
+
+
+def mount_steps_in(mount: FloatArray, std: FloatArray) -> list[int]:
+    """Indices k where the smoothed mount (n, axes) [rad] steps from frame k-1 to k on any
+    axis (``STEP_SIGMAS``, ``STEP_OVER_TYPICAL``), with its per-frame σ ``std`` (n, axes)."""
+    if len(mount) < 3:
+        return []
+    change = np.abs(np.diff(mount, axis=0))
+    typical = np.median(change, axis=0)
+    sigma = np.maximum(std[1:], std[:-1])
+    with np.errstate(invalid="ignore"):
+        step = (change > STEP_SIGMAS * sigma) & (change > STEP_OVER_TYPICAL * typical)
+    return [int(k) + 1 for k in np.flatnonzero(step.any(axis=1))]
 
 
 #: a smoothed height further than this factor from the height the pairs were estimated with
@@ -187,11 +224,18 @@ def summary_markdown(summary: dict[str, object]) -> str:
             f"{f(d['std'])} | {d.get('interval_from', 'model')} | {f(d['start'])} | "
             f"{f(d['end'])} | {f(d['drift_per_min'])} | {f(d['max_minus_min'])} |"
         )
-    warnings = [w for w in (_rejection_warning(summary), str(summary.get("short_drive", "")),
-                            str(summary.get("height_scale", "")),
-                            str(summary.get("slow_forward", "")),
-                            str(summary.get("pairs_trend", ""))) if w]
-    return "\n".join(lines) + "\n" + "".join(f"\n**Warning:** {w}\n" for w in warnings)
+    return "\n".join(lines) + "\n" + "".join(f"\n**Warning:** {w}\n"
+                                             for w in summary_warnings(summary))
+
+
+def summary_warnings(summary: dict[str, object]) -> list[str]:
+    """What the summary's numbers do not say on their own: a step of the mount (they are of
+    the frames since), most pairs rejected, a drive too short for the step test, a height
+    off the pairs', slow forward driving, a trend of the pairs."""
+    return [w for w in (str(summary.get("since_step", "")), _rejection_warning(summary),
+                        str(summary.get("short_drive", "")), str(summary.get("height_scale", "")),
+                        str(summary.get("slow_forward", "")),
+                        str(summary.get("pairs_trend", ""))) if w]
 
 
 #: share of the frames beyond which the pairs' rejection is called out in the summary

@@ -236,8 +236,10 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("rows-kept-after-the-last", "table reader",
            "greedy: each row kept if after the last kept (one corrupt row drops the rest)",
            "vipm_track/increasing.py",
-           "if ending[i] == len(out) + 1 and (not out or v[i] > v[out[-1]]):",
-           "if not out or v[i] > v[out[-1]]:", ("tests/test_increasing.py",)),
+           "for i in np.flatnonzero(ending + starting - 1 == total).tolist():\n"
+           "        if ending[i] == len(out) + 1 and (not out or v[i] > v[out[-1]]):",
+           "for i in range(v.size):\n        if not out or v[i] > v[out[-1]]:",
+           ("tests/test_increasing.py",)),
     Mutant("odd-first-frame-is-a-wrong-camera", "estimator",
            "threshold: the first frame of another size fails the run",
            "vipm_track/pipeline.py",

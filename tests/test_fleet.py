@@ -139,6 +139,9 @@ def test_report_shows_the_moved_camera(fleet):
     assert "**" not in line_a
     assert "## Vehicle van1" in text and "## Failed drives" in text
     assert png.stat().st_size > 10_000
+    # a 1.2-s drive's caveat was in its summary.json only, not in the fleet's summary/report
+    assert "the drive spans 1.1 s" in rows["a"]["warnings"]
+    assert "## Warnings" in text and "- **a**: the drive spans 1.1 s" in text
 
 
 def test_resume_skips_what_is_done(fleet, drives, cluster, tmp_path):

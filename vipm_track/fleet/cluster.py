@@ -69,12 +69,12 @@ SUMMARY_COLUMNS: tuple[str, ...] = (
     "mount_height_m", "mount_height_std_m", "mount_height_ci95_low_m",
     "mount_height_ci95_high_m", "height_drift_m_per_min",
     "nominal_pitch_deg", "nominal_roll_deg", "nominal_height_m", "wheel_speed",
-    "monitor_verdict", "first_recalibrate_s", "monitor_states", "wall_s", "skipped",
-    "worker", "input_hash",
+    "monitor_verdict", "first_recalibrate_s", "monitor_states", "warnings", "wall_s",
+    "skipped", "worker", "input_hash",
 )
 SUMMARY_TEXT_COLUMNS = frozenset({"drive", "vehicle", "started", "status", "monitor_verdict",
                                   "monitor_states", "worker", "input_hash", "wheel_speed",
-                                  "skipped"})
+                                  "skipped", "warnings"})
 
 
 def run_fleet(

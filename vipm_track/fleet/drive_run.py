@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from vipm_track import json_text
-from vipm_track.filters.drive_summary import summarize_mount
+from vipm_track.filters.drive_summary import summarize_mount, summary_warnings
 from vipm_track.filters.ekf_state import EkfConfig
 from vipm_track.filters.model import NoiseParams
 from vipm_track.filters.monitor_inputs import frame_rate, monitor_frames
@@ -265,6 +265,8 @@ def _row(spec: DriveSpec, summary: dict, measurements: list, outputs: list,
         "first_recalibrate_s": None if flagged is None else flagged.t,
         "monitor_states": ", ".join(f"{s} {n}" for s, n in
                                     Counter(o.state for o in outputs).most_common()),
+        # the short drive, a knock within it...: the summary.json's caveats, in the row too
+        "warnings": " | ".join(summary_warnings(summary)),
     }
     for axis, unit in (("pitch", "deg"), ("roll", "deg"), ("height", "m")):
         d = summary.get(axis) or {}

@@ -64,6 +64,11 @@ def fleet_markdown(rows: Sequence[dict[str, Any]]) -> str:
             lines.append(f"| {r['drive']} | {r.get('frames')} | {' | '.join(cells)} | "
                          f"{r.get('monitor_verdict', '')} | {flag} |")
         lines.append("")
+    warned = [r for r in ok if r.get("warnings")]
+    if warned:  # what the drives' numbers do not say on their own
+        lines += ["## Warnings", ""]
+        lines += [f"- **{r['drive']}**: {r['warnings']}" for r in warned]
+        lines.append("")
     failed = [r for r in rows if r.get("status") != "ok"]
     if failed:
         lines += ["## Failed drives", "", "| drive | error |", "| --- | --- |"]
