@@ -255,3 +255,13 @@ def test_times_keep_a_20_fps_frame_apart():
     from vipm_track.sinks.drift_report import fmt
 
     assert [fmt(t, "s") for t in (0.05, 0.1, 8.15)] == ["0.05", "0.10", "8.15"]
+
+
+def test_a_monitor_tables_change_is_dated_without_a_nominal() -> None:
+    """A monitor table has no mount σ at its start: without --nominal the report said "no
+    change" and "± –" beside a 1° knock. Its new-extrinsics interval now stands for the
+    step's: the knock at 7.2 s is dated, its change ± 0.06°."""
+    drift = summarize_drift(read_table(DATA / "knock_cart_monitor.csv"))
+    pitch = drift.axes["pitch"]
+    assert abs(pitch.change - 1.0) < 0.05 and 0.02 < pitch.change_std < 0.1
+    assert abs(pitch.changed_at_s - 7.2) < 0.3

@@ -166,13 +166,15 @@ def _axis(table: Mapping[str, NDArray], t: NDArray, frames: NDArray, spec: tuple
         change_std = sigma
     else:
         reference, reference_from, tolerance = start, "start", NAN
-        change_std = math.hypot(sigma, start_sigma)
+        change_std = math.hypot(sigma, start_sigma) if math.isfinite(start_sigma) else sigma
     change = current - reference
     # without a tolerance there is nothing to be beyond (a tolerance of 0 made it 1)
     p_beyond = (_p_beyond(change, change_std, tolerance) if math.isfinite(tolerance)
                 else NAN)
     step = current - start
-    step_sigma = math.hypot(sigma, start_sigma)
+    # a monitor's table has no mount σ at its start: its interval of where the camera now
+    # sits is then the step's (it said "no change" beside a 1° knock)
+    step_sigma = math.hypot(sigma, start_sigma) if math.isfinite(start_sigma) else sigma
     significant = (abs(step) > Z95 * step_sigma if math.isfinite(step_sigma)
                    else math.isfinite(tolerance) and abs(step) > tolerance)
     if math.isfinite(tolerance):
