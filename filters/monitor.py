@@ -230,8 +230,15 @@ class DriftMonitor:
                 span = f", 95 % {_fmt_dev(j, lo)} … {_fmt_dev(j, hi)}"
             over = ("since the change" if estimate is None or self._since_change else
                     f"of the last {self._estimate_frames} frames, from before the change")
-            return (f"{AXES[j]} changed: {_fmt_dev(j, dev)} from nominal (median {over}"
+            text = (f"{AXES[j]} changed: {_fmt_dev(j, dev)} from nominal (median {over}"
                     f"{span}), beyond the tolerance {tol}: the test crossed its threshold")
+            recent = float(core.s.ema[0, j])
+            if abs(recent) <= core.nominal.tolerances[j]:
+                # latched: the camera may have been set back (or knocked back) since
+                text += (f"; its last second reads {_fmt_dev(j, recent)}, within the "
+                         f"tolerance (RECALIBRATE clears after {self.config.clear_after_s:g} "
+                         "s of frames without a warning)")
+            return text
         over = ("since it began" if estimate is None or self._since_change else
                 f"over the last {self._estimate_frames} frames, from before it began")
         return (f"{AXES[j]} drifting: the test stands at {stat[j]:.0%} of its threshold "

@@ -539,6 +539,11 @@ class MonitorCore:
         # RECALIBRATE → CALIBRATED after clear_after_s of frames without a warning
         recal = usable & was_recal & ~alarm & (base == RECALIBRATE)
         s.quiet = np.where(recal, np.where(warn, 0, s.quiet + 1), s.quiet)
+        # the mean deviation restarts with the calm run that clears RECALIBRATE: after it,
+        # CALIBRATED's reason gave the mean since the drive began, the change included
+        # (+0.40° ± 0.05° against a tolerance of 0.1°)
+        restart = (alarm | (recal & warn))[:, None]
+        s.info, s.info_u = np.where(restart, 0.0, s.info), np.where(restart, 0.0, s.info_u)
         base = np.where(recal & (s.quiet >= self.clear_frames), CALIBRATED, base)
         # UNCALIBRATED / CALIBRATED / DRIFTING
         normal = usable & ~alarm & np.isin(base, (UNCALIBRATED, CALIBRATED, DRIFTING))
@@ -551,7 +556,8 @@ class MonitorCore:
         mean, se = self.mean_deviation()
         tested = np.isfinite(mean)
         within = self.within_tolerance(mean, se)
-        s.vouched = np.where((enough & within)[:, None], tested, s.vouched)
+        # (judged in those states only: in RECALIBRATE the mean restarts and has no axis)
+        s.vouched = np.where((normal & enough & within)[:, None], tested, s.vouched)
         kept = (base == CALIBRATED) & ~np.any(tested & ~s.vouched, axis=1)
         settled = enough & (kept | within)
         nxt = np.where(

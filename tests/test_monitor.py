@@ -248,6 +248,18 @@ def test_recalibrate_is_held_until_sustained_return():
     # alarm), so allow a second or two of slack
     assert t_clear is not None and 30.0 + 8.0 <= t_clear <= 30.0 + 20.0
     assert all(o.state in ("RECALIBRATE", "HOLD") for o in out if t_flag <= o.t < t_clear)
+    # while held, the reason says the camera now reads within the tolerance (it said only
+    # "beyond the tolerance", its median reaching back before the return)
+    before = [o.reason for o in out if t_flag <= o.t < 29.0 and o.state == "RECALIBRATE"]
+    after = [o.reason for o in out if 33.0 <= o.t < t_clear - 1.0 and o.state == "RECALIBRATE"]
+    assert before and not any("within the tolerance" in r for r in before)
+    assert any("its last second reads" in r and "within the tolerance" in r for r in after)
+    # CALIBRATED's mean deviation is of the calm run that cleared it, not the whole drive
+    # (it said +0.40° ± 0.05° against a tolerance of 0.1°)
+    cleared = next(o for o in out if o.t >= t_clear + 1.0)
+    assert cleared.state == "CALIBRATED"
+    mean = float(cleared.reason.split("pitch ")[1].split("°")[0])
+    assert abs(mean) < 0.1, cleared.reason
 
 
 def test_invalid_outside_physical_limits_then_uncalibrated():
