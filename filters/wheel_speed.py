@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from vipm_track.errors import InputError, printable
-from vipm_track.increasing import left_out_between
+from vipm_track.increasing import kept_around, left_out_between
 from vipm_track.table import read_text, write_columns_csv
 
 #: Rules combining several speed signals into one speed (rows: samples, columns: signals).
@@ -354,9 +354,9 @@ def read_speed_csv(path: str | Path) -> SpeedSeries:
     kept, between = left_out_between(ts) if ts else (np.zeros(0, np.int64), [])
     for i, before, after in between:
         summary.non_monotonic += 1
-        around = [f"{w} kept {v!r}" for w, v in (("after", before), ("before", after))
-                  if math.isfinite(v)]
-        summary.note(f"{path}:{lines[i]}", f"t {ts[i]!r} out of order ({' and '.join(around)})")
+        around = kept_around(before, after)
+        summary.note(f"{path}:{lines[i]}",
+                     f"t {ts[i]!r} out of order" + (f" ({around})" if around else ""))
     ts, vs = [ts[i] for i in kept], [vs[i] for i in kept]
     summary.used = summary.samples = len(ts)
     if ts:

@@ -73,7 +73,7 @@ def test_track_and_a_speed_csv_keep_the_rows_around_a_corrupt_one(tmp_path, caps
         f"{1000.0 if k == 5 else 0.02 * k},1.2\n" for k in range(50)))
     series = read_speed_csv(speed)
     assert series.t.size == 49 and series.summary.non_monotonic == 1
-    assert any("speed.csv:7: t 1000.0 out of order (after kept 0.08 and before kept 0.12)"
+    assert any("speed.csv:7: t 1000.0 out of order (between kept 0.08 and 0.12)"
                in line for line in series.summary.examples), series.summary.examples
 
 

@@ -5,6 +5,7 @@ row after the corrupt one."""
 
 from __future__ import annotations
 
+import math
 from bisect import bisect_left
 
 import numpy as np
@@ -55,3 +56,14 @@ def left_out_between(values: ArrayLike) -> tuple[NDArray[np.int64],
         out.append((i, float(v[kept_list[at - 1]]) if at > 0 else float("nan"),
                     float(v[kept_list[at]]) if at < len(kept_list) else float("nan")))
     return kept, out
+
+
+def kept_around(before: float, after: float) -> str:
+    """Where a left-out row sits among the kept ones, as its message says it: "between kept
+    A and B", "after kept A" or "before kept B" (NaN: no kept row on that side; "" where
+    there is none on either)."""
+    if math.isfinite(before) and math.isfinite(after):
+        return f"between kept {before!r} and {after!r}"
+    if math.isfinite(before):
+        return f"after kept {before!r}"
+    return f"before kept {after!r}" if math.isfinite(after) else ""

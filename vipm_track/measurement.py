@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import InputError
-from .increasing import left_out_between
+from .increasing import kept_around, left_out_between
 from .statuses import MISSING_NUMBERS, is_known
 from .table import CORRELATION_COLUMNS, first_data_row, read_table
 
@@ -220,9 +220,7 @@ class SequenceIssues:
             # a missing number is not out of order: say what it is
             if not math.isfinite(value):
                 return f"row {r} {name} not a number"
-            kept = (f"between kept {before!r} and {after!r}" if math.isfinite(before + after)
-                    else f"after kept {before!r}" if math.isfinite(before)
-                    else f"before kept {after!r}" if math.isfinite(after) else "")
+            kept = kept_around(before, after)
             return f"row {r} {name} {value!r}" + (f" ({kept})" if kept else "")
 
         if self.out_of_order:
