@@ -22,8 +22,10 @@ import pytest
 from vipm_track.cli import main
 from vipm_track.demo import FLAGS
 from vipm_track.evaluate import error_stats, frame_errors
+from vipm_track.filters.monitor_table import MONITOR_TABLE
+from vipm_track.filters.track import TRACK_TABLE
 from vipm_track.sinks.rerun_read import recording_entities
-from vipm_track.table import read_table
+from vipm_track.table import BASE_COLUMNS, CONCISE, ESTIMATE_TABLE, choose_columns, read_table
 
 FRAMES = 180
 NUM = r"(-?\d+\.\d+)"
@@ -137,9 +139,17 @@ def test_the_printed_accuracy_is_the_tables_against_the_truth(run: Run) -> None:
 
 def test_it_writes_its_files_and_says_where(run: Run) -> None:
     out = run.out
+    concise = {"estimates.csv": ESTIMATE_TABLE, "track.csv": TRACK_TABLE,
+               "smoothed.csv": TRACK_TABLE, "monitor.csv": MONITOR_TABLE}
     for name in ("estimates.csv", "track.csv", "smoothed.csv", "monitor.csv"):
         table = read_table(out / name)
         assert len(table["frame"]) == FRAMES, name
+        # each with the columns its command writes by default (smoothed and monitor had all)
+        header = (out / name).read_text().splitlines()[0].split(",")
+        written = {c for c in header if c not in BASE_COLUMNS}
+        assert set(choose_columns(concise[name], CONCISE)) <= written, name
+        if name in ("smoothed.csv", "monitor.csv"):
+            assert written == set(choose_columns(concise[name], CONCISE)), name
         assert str(out / name) in run.text or name in run.text
     assert (out / "demo.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert (out / "events.jsonl").stat().st_size > 0

@@ -192,6 +192,7 @@ def test_cli(drives, cluster, tmp_path, capsys):
     (b"- van1\n", "expected a mapping with 'vehicle' and/or 'started'"),
     (b"vehicle: van1\ncolour: red\n", "unknown key(s) ['colour']; expected 'vehicle' and/or"),
     (b"vehicle: \xff\n", "not a text file (byte 9"),
+    (b"started: monday\n", "started 'monday' is no ISO 8601 date or time"),
 ])
 def test_a_bad_drive_yaml_is_that_drives_problem(tmp_path, content, why):
     """A drive.yaml that cannot be read makes its drive a failed row; the other drives and
@@ -320,6 +321,9 @@ def test_manifest(drives, tmp_path):
     manifest.write_text("drive,fps\nx,fast\n")
     with pytest.raises(InputError, match="line 2: column fps"):
         find_drives(manifest)
+    manifest.write_text("drive,started\nx,2024-05-01\ny,02/05/2024\n")
+    with pytest.raises(InputError, match="line 3: column started: started '02/05/2024' is no"):
+        find_drives(manifest)
 
 
 @settings(max_examples=60, deadline=None,
@@ -419,3 +423,73 @@ def test_progress_text_names_the_running_drives():
     running.on_event((0.0, {"drive": "d0", "stage": "monitor", "done": None, "frames": 100}))
     assert running.text() == ("d1: smooth, d2: estimate 20/100 frames, d3: estimate 30/100 "
                               "frames; 1 more running")
+
+
+def test_a_drive_that_now_fails_leaves_no_tables(fleet, drives, cluster, tmp_path):
+    """Run again after b's nominal file broke: b is a failed row, and its tables of the run
+    before are gone (the dataset served them beside the summary's error)."""
+    out, _ = fleet
+    again, root = tmp_path / "out", tmp_path / "drives"
+    shutil.copytree(out, again)
+    for name in ("a", "b"):
+        shutil.copytree(drives / name, root / name)
+    (root / "b" / "nominal.yaml").write_text("pitch_deg: [\n")
+    rows = {r["drive"]: r for r in run_fleet(find_drives(root), again, SETTINGS,
+                                             scheduler=cluster.scheduler_address,
+                                             progress=False)}
+    assert rows["a"]["skipped"] and rows["b"]["status"].startswith("error:")
+    assert not any((again / "drive=b").glob("*.parquet"))
+    assert not (again / "drive=b" / "summary.json").exists()
+    # what the dataset serves matches the summary: b's tables neither here nor from before
+    table = fleet_dataset(again, "smoothed").to_table().to_pandas()
+    assert "b" not in set(table["drive"].astype(str))
+    # a drive's tables without its done.json (stopped part-way) are not served either
+    (again / "drive=a" / "done.json").unlink()
+    table = fleet_dataset(again, "smoothed").to_table().to_pandas()
+    assert "a" not in set(table["drive"].astype(str))
+
+
+def test_drive_names_with_percent_signs_stay_apart(drives, cluster, tmp_path):
+    """'run%41' was read back as 'runA' by every Parquet reader (a partition value is a URI
+    segment): 24 rows under one name, each frame twice."""
+    root = tmp_path / "drives"
+    for name in ("runA", "run%41"):
+        shutil.copytree(drives / "a", root / name)
+    rows = run_fleet(find_drives(root), tmp_path / "out", SETTINGS,
+                     scheduler=cluster.scheduler_address, progress=False)
+    assert all(r["status"] == "ok" for r in rows)
+    table = fleet_dataset(tmp_path / "out", "estimates").to_table().to_pandas()
+    counts = table["drive"].astype(str).value_counts().to_dict()
+    assert counts == {"runA": 12, "run%41": 12}
+
+
+def test_report_orders_drives_by_the_instant_they_started():
+    """10:00+02:00 (08:00 UTC) is before 09:00+00:00; as text it sorted after it, and the
+    "moved since previous" column compared the drives the wrong way round."""
+    from vipm_track.sinks.fleet_report import by_vehicle, fleet_markdown
+
+    rows = [{"drive": d, "vehicle": "v", "status": "ok", "started": when}
+            for d, when in (("d2", "2024-05-02T09:00:00+00:00"),
+                            ("d1", "2024-05-02T10:00:00+02:00"),
+                            ("d0", "2024-05-01"), ("d3", "2024-05-02 09:30:00+00:00"))]
+    assert [r["drive"] for r in by_vehicle(rows)["v"]] == ["d0", "d1", "d2", "d3"]
+    assert "those without are taken as UTC" in fleet_markdown(rows)
+    assert "taken as UTC" not in fleet_markdown(rows[:2])
+
+
+def test_drives_without_a_vehicle_are_grouped_by_their_nominal():
+    """A cart's and a car's drives, no drive.yaml: one group "(none)" had marked the car's
+    drive "moved since previous" against the cart's camera."""
+    from vipm_track.sinks.fleet_report import by_vehicle, fleet_markdown
+
+    def row(drive, pitch, height, low, high):
+        return {"drive": drive, "status": "ok", "nominal_pitch_deg": pitch,
+                "nominal_roll_deg": 0.0, "nominal_height_m": height,
+                "mount_pitch_ci95_low_deg": low, "mount_pitch_ci95_high_deg": high}
+
+    rows = [row("a", 45.0, 0.7, 44.9, 45.1), row("b", 45.0, 0.7, 44.95, 45.05),
+            row("c", 3.0, 1.5, 2.9, 3.1)]
+    groups = by_vehicle(rows)
+    assert sorted(len(g) for g in groups.values()) == [1, 2]
+    assert "(none; nominal 45°, 0°, 0.7 m)" in groups
+    assert "**pitch**" not in fleet_markdown(rows)

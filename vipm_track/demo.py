@@ -44,14 +44,14 @@ from vipm_track.filters.nominal import NominalCalibration, load_nominal
 from vipm_track.filters.smoother import mount_jumps
 from vipm_track.filters.smoother_config import SmootherConfig
 from vipm_track.filters.smoothing import smooth, speeds_at_frames
-from vipm_track.filters.track import TRACK_COLUMNS, track_row, write_track
+from vipm_track.filters.track import TRACK_COLUMNS, TRACK_TABLE, track_row, write_track
 from vipm_track.filters.wheel_speed import read_speed_csv
 
 from .camera import load_camera
 from .errors import InputError
 from .estimator_config import EstimatorConfig
 from .evaluate import ErrorStats, error_stats, frame_errors
-from .filters.monitor_table import MONITOR_COLUMNS, monitor_row
+from .filters.monitor_table import MONITOR_COLUMNS, MONITOR_TABLE, monitor_row
 from .measurement import PairMeasurement, read_measurements
 from .pipeline import SequenceStep
 from .resources import data_path
@@ -60,7 +60,7 @@ from .runs import estimate_sequence
 from .sim import PRESETS, simulate_sequence
 from .sinks.demo_figure import write_demo_figure
 from .sources import open_source
-from .table import TableWriter, read_table
+from .table import CONCISE, TableWriter, choose_columns, read_table
 
 PRESET = "cart"
 PROFILE = "knock"
@@ -308,7 +308,10 @@ def run_demo(
     write_track(((s, m, _speed(v)) for (m, s, _), v in zip(frames, speeds, strict=True)),
                 files["track"])
     files["monitor"] = out / "monitor.csv"
-    with TableWriter(files["monitor"], MONITOR_COLUMNS) as writer:
+    # the tables as `monitor` and `smooth` write them by default (the concise columns), as
+    # the estimates and track tables are
+    with TableWriter(files["monitor"], MONITOR_COLUMNS,
+                     columns=choose_columns(MONITOR_TABLE, CONCISE)) as writer:
         for m, s, o in frames:
             writer.write(monitor_row(m, s, o))
     files["events"] = out / "events.jsonl"
@@ -319,7 +322,8 @@ def run_demo(
     smoother_config = SmootherConfig(height_m=nominal.height_m)
     smoothed = smooth(measurements, speed, smoother_config)
     files["smoothed"] = out / "smoothed.csv"
-    with TableWriter(files["smoothed"], TRACK_COLUMNS) as writer:
+    with TableWriter(files["smoothed"], TRACK_COLUMNS,
+                     columns=choose_columns(TRACK_TABLE, CONCISE)) as writer:
         for f, m, v in zip(smoothed, measurements, speeds, strict=True):
             writer.write(track_row(f, m, _speed(v)))
     steps = _step_times(measurements, speeds_at_frames(measurements, speed), smoother_config)

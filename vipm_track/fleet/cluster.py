@@ -39,7 +39,7 @@ from ..progress import progress_bar, redraw_interval_s
 from ..table import format_value
 from ..workers import THREADS_ENV
 from .drive_progress import FleetProgress, progress_topic
-from .drive_run import FleetSettings, done_row, drive_folder, run_drive
+from .drive_run import DONE_FILE, FleetSettings, done_row, drive_folder, run_drive
 from .drives import DriveSpec
 
 
@@ -365,10 +365,12 @@ def _float(value: Any) -> float | None:
 
 
 def fleet_dataset(out: str | Path, table: str = "smoothed") -> ds.Dataset:
-    """One table (``estimates``, ``smoothed`` or ``monitor``) of every drive of a fleet's
-    OUT as a pyarrow dataset with the hive partition column ``drive``."""
+    """One table (``estimates``, ``smoothed`` or ``monitor``) of every finished drive of a
+    fleet's OUT (its ``done.json`` written: not a drive that failed or was interrupted
+    part-way) as a pyarrow dataset with the hive partition column ``drive``."""
     out = Path(out)
-    files = sorted(str(p) for p in out.glob(f"drive=*/{table}.parquet"))
+    files = sorted(str(p) for p in out.glob(f"drive=*/{table}.parquet")
+                   if (p.parent / DONE_FILE).is_file())
     return ds.dataset(files, format="parquet", partitioning="hive",
                       partition_base_dir=str(out))
 

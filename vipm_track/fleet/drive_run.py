@@ -46,6 +46,8 @@ from .drives import DriveSpec
 
 #: the file in a drive's folder that says its outputs are complete, with their input hash
 DONE_FILE = "done.json"
+#: what a drive writes before its done file
+OUTPUT_FILES = ("estimates.parquet", "smoothed.parquet", "monitor.parquet", "summary.json")
 
 
 @dataclass(frozen=True)
@@ -89,8 +91,10 @@ class FleetSettings:
 
 
 def drive_folder(out: str | Path, drive: str) -> Path:
-    """``OUT/drive=NAME``: the hive partition of a drive's tables."""
-    return Path(out) / f"drive={drive}"
+    """``OUT/drive=NAME``: the hive partition of a drive's tables. Parquet readers decode a
+    partition's value as a URI segment ("run%41" read back as "runA", the rows of two drives
+    under one name), so a '%' in the name is written as "%25"."""
+    return Path(out) / f"drive={drive.replace('%', '%25')}"
 
 
 def run_drive(spec: DriveSpec, out: str | Path, settings: FleetSettings,
@@ -110,7 +114,10 @@ def run_drive(spec: DriveSpec, out: str | Path, settings: FleetSettings,
         done = done_row(folder, key)
         if done is not None:
             return {**done, "skipped": True}
-        (folder / DONE_FILE).unlink(missing_ok=True)
+        # an earlier run's outputs go first: a drive that now fails or stops part-way must
+        # not leave tables that no done.json vouches for
+        for name in (DONE_FILE, *OUTPUT_FILES):
+            (folder / name).unlink(missing_ok=True)
         row = {**base, **_process(spec, folder, settings, progress_topic), "input_hash": key}
     except Exception as exc:  # a failed drive is a row of the summary; the fleet goes on
         if isinstance(exc, (InputError, NothingUsable, OSError)):

@@ -21,6 +21,7 @@ import yaml
 
 from ..bag_source import BAG_SUFFIXES, is_bag
 from ..errors import InputError, os_error_line, printable, yaml_error_line
+from ..sinks.fleet_report import started_instant
 from ..sources import IMAGE_SUFFIXES
 
 VIDEO_SUFFIXES: frozenset[str] = frozenset({".mp4", ".avi", ".mkv", ".mov", ".webm", ".m4v"})
@@ -146,7 +147,17 @@ def _drive_yaml(path: Path) -> dict:
     if unknown:
         raise InputError(f"{path}: unknown key(s) {unknown}; expected 'vehicle' and/or "
                          "'started'")
+    if "started" in doc:
+        check_started(doc["started"], str(path))
     return doc
+
+
+def check_started(value: object, where: str) -> None:
+    """InputError (at ``where``) for a ``started`` that is no ISO 8601 time: the report
+    orders a vehicle's drives by it, which it could only do as text."""
+    if started_instant(str(value)) is None:
+        raise InputError(f"{where}: started {printable(str(value), 60)!r} is no ISO 8601 date "
+                         "or time (e.g. 2024-05-01 or 2024-05-01T09:00:00+02:00)")
 
 
 def _checked(spec: DriveSpec, where: str) -> DriveSpec:
@@ -214,6 +225,8 @@ def read_manifest(path: Path) -> list[DriveSpec]:
             if not (fps > 0 and fps < float("inf")):
                 raise InputError(f"{path}: line {lineno}: column fps: a positive number is "
                                  f"needed, got {printable(row['fps'], 60)!r}")
+        if row.get("started"):
+            check_started(row["started"], f"{path}: line {lineno}: column started")
         paths = {k: (path.parent / v) for k, v in row.items()
                  if v and k in ("images", "video", "bag", "camera", "nominal", "speed_csv",
                                 "can", "dbc")}

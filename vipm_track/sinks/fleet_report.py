@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -15,17 +16,50 @@ AXES: tuple[tuple[str, str, str], ...] = (("pitch", "deg", "°"), ("roll", "deg"
                                           ("height", "m", " m"))
 
 
+def started_instant(text: str) -> datetime | None:
+    """A drive's ``started`` (ISO 8601: a date, or a date and time with or without a UTC
+    offset) as a time zone-aware instant, one without an offset taken as UTC; None where
+    it is no such time."""
+    try:
+        when = datetime.fromisoformat(str(text).strip())
+    except ValueError:
+        return None
+    return when if when.tzinfo is not None else when.replace(tzinfo=UTC)
+
+
+def _has_zone(text: str) -> bool:
+    try:
+        return datetime.fromisoformat(str(text).strip()).tzinfo is not None
+    except ValueError:
+        return False
+
+
 def by_vehicle(rows: Sequence[dict[str, Any]]) -> dict[str, list[dict[str, Any]]]:
-    """The ok drives of ``rows`` grouped by ``vehicle`` (empty: ``(none)``), each group in
-    time order (``started``, then the first frame's time, then the drive's name)."""
+    """The ok drives of ``rows`` grouped by ``vehicle`` (where none is given, by the nominal
+    calibration: a cart's drives are not compared with a car's), each group in time order
+    (``started`` as an instant — 10:00+02:00 before 09:00+00:00 —, then the first frame's
+    time, then the drive's name)."""
     groups: dict[str, list[dict[str, Any]]] = {}
     for row in rows:
         if row.get("status") == "ok":
-            groups.setdefault(str(row.get("vehicle") or "(none)"), []).append(row)
+            groups.setdefault(_vehicle(row), []).append(row)
+
+    def order(r: dict[str, Any]) -> tuple:
+        when = started_instant(str(r.get("started") or ""))
+        return (when is None, when.timestamp() if when else 0.0,
+                float_or_nan(r.get("t_start_s")), str(r["drive"]))
+
     for drives in groups.values():
-        drives.sort(key=lambda r: (str(r.get("started") or ""), float_or_nan(r.get("t_start_s")),
-                                   str(r["drive"])))
+        drives.sort(key=order)
     return dict(sorted(groups.items()))
+
+
+def _vehicle(row: dict[str, Any]) -> str:
+    if row.get("vehicle"):
+        return str(row["vehicle"])
+    nominal = ", ".join(f"{float_or_nan(row.get(f'nominal_{axis}_{unit}')):g}{sign}"
+                        for axis, unit, sign in AXES)
+    return f"(none; nominal {nominal})"
 
 
 def moved(previous: dict[str, Any], drive: dict[str, Any]) -> list[str]:
@@ -63,6 +97,10 @@ def fleet_markdown(rows: Sequence[dict[str, Any]]) -> str:
             flag = f"**{shift}**" if shift else ""
             lines.append(f"| {r['drive']} | {r.get('frames')} | {' | '.join(cells)} | "
                          f"{r.get('monitor_verdict', '')} | {flag} |")
+        zones = {_has_zone(str(r.get("started"))) for r in drives if r.get("started")}
+        if len(zones) > 1:
+            lines.append("Some drives' `started` has a UTC offset and some not: those without "
+                         "are taken as UTC in this order.")
         lines.append("")
     warned = [r for r in ok if r.get("warnings")]
     if warned:  # what the drives' numbers do not say on their own
