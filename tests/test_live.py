@@ -242,6 +242,10 @@ BO_ 170 WHEEL_SPEEDS: 8 X
     # a replayed speed on another clock held every frame for the whole video, exit 0
     (["--video", "{video}", "--speed-csv", "{speed}", "--clock-offset", "1000"],
      "has a wheel speed"),
+    # refused by the monitor once it measured the frame rate: the reader then waited on the
+    # dead monitor thread for ever, and Ctrl-C aborted the process (exit 134)
+    (["--video", "{video}", "--false-alarms-per-hour", "40000"],
+     "false alarms per hour must be at most one per frame (3600 × 10 fps = 36000)"),
 ])
 def test_bad_input_is_one_line_and_exit_2(knock, tmp_path, capsys, argv, message):
     dbc = tmp_path / "wheel.dbc"
@@ -301,3 +305,34 @@ def test_a_camera_that_does_not_fit_the_video_is_named_at_once(knock, tmp_path, 
     err = capsys.readouterr().err
     assert rc == 2 and "image is 320×240 px but the camera model is 1280×720 px" in err
     assert not (tmp_path / "o.csv").exists()
+
+
+def test_a_file_read_fast_has_no_wall_clock_watchdog(knock, tmp_path, monkeypatch):
+    """A slow first pair (kernels compiling) made "camera silent" and "wheel speed silent"
+    HOLDs, stamped after the frames, on a file read as fast as it is processed: rows that
+    depended on the machine's speed."""
+    import time as time_module
+
+    from vipm_track.camera import load_camera
+    from vipm_track.filters.nominal import load_nominal
+    from vipm_track.filters.wheel_speed import read_speed_csv
+    from vipm_track.live_monitor import LiveMonitor
+    from vipm_track.live_run import run_live
+
+    process = LiveMonitor._process
+    slow = {"first": True}
+
+    def slow_first(self, a, b):
+        if slow.pop("first", False):
+            time_module.sleep(1.5)
+        return process(self, a, b)
+
+    monkeypatch.setattr(LiveMonitor, "_process", slow_first)
+    events = tmp_path / "events.jsonl"
+    nominal = load_nominal(knock["nominal"])
+    run_live(str(knock["video"]), nominal.rig(load_camera(knock["folder"] / "camera.yaml")),
+             nominal, tmp_path / "o.csv", events=events, stdout=io.StringIO(), quiet=True,
+             speed=read_speed_csv(knock["folder"] / "speed.csv"), max_frames=6)
+    text = events.read_text()
+    assert "silent" not in text and "HOLD" not in text, text
+    assert set(read_table(tmp_path / "o.csv")["monitor_state"]) <= {"UNCALIBRATED"}

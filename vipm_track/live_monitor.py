@@ -158,6 +158,8 @@ class LiveMonitor:
     fps : processed pairs per second the monitor assumes (None: measured at the start).
     monitor_options : ``filters.monitor_types.MonitorConfig`` fields (false-alarm rate, road).
     on_row, on_event : called with each :class:`LiveRow` and each event dict.
+    watchdog : HOLD where no frame or wheel speed came for the timeouts of wall time (False:
+        a recording fed as fast as it is processed, whose silences are not the wall's).
     """
 
     def __init__(
@@ -175,6 +177,7 @@ class LiveMonitor:
         monitor_options: dict[str, Any] | None = None,
         on_row: Callable[[LiveRow], Any] | None = None,
         on_event: Callable[[dict[str, Any]], Any] | None = None,
+        watchdog: bool = True,
     ) -> None:
         if not (camera_timeout_s > 0 and speed_timeout_s > 0):
             raise ValueError("the watchdog's timeouts must be > 0 s")
@@ -192,6 +195,7 @@ class LiveMonitor:
         self.camera_timeout_s, self.speed_timeout_s = camera_timeout_s, speed_timeout_s
         self.max_pair_gap_s = camera_timeout_s if max_pair_gap_s is None else max_pair_gap_s
         self.on_row, self.on_event = on_row, on_event
+        self.watchdog = watchdog
         self.stats = LiveStats()
         self._cond = threading.Condition()
         self._newest: _Arrived | None = None
@@ -304,7 +308,8 @@ class LiveMonitor:
         try:
             while True:
                 pair = self._take(0.05)
-                self._watchdog()
+                if self.watchdog:
+                    self._watchdog()
                 if pair is not None:
                     self._process(*pair)
                 elif self._stop.is_set():
@@ -315,6 +320,9 @@ class LiveMonitor:
                 self._emit(*decided)
         except BaseException as exc:  # raised again by stop() in the caller's thread
             self.failure = exc
+        finally:
+            with self._cond:  # a reader waiting in wait_taken() sees the thread has ended
+                self._cond.notify_all()
 
     def _take(self, timeout: float) -> tuple[_Arrived, _Arrived] | None:
         """The newest pair of consecutive frames not processed yet, or None."""

@@ -149,7 +149,10 @@ def run_live(
     monitor = LiveMonitor(rig, nominal, config, can_decoder=decoder,
                           expect_speed=speed is not None or bus is not None,
                           camera_timeout_s=camera_timeout_s, speed_timeout_s=speed_timeout_s,
-                          monitor_options=monitor_options, on_row=on_row, on_event=on_event)
+                          monitor_options=monitor_options, on_row=on_row, on_event=on_event,
+                          # a file read as fast as it is processed has no wall-clock pace: a
+                          # slow first pair is no silent camera, nor a fast read a silent speed
+                          watchdog=spec.live or realtime)
     replay = None
     if speed is not None:
         replay = SpeedReplay(speed.t, speed.speed_mps, monitor.push_speed, playback)
@@ -182,12 +185,18 @@ def run_live(
         while not reader.finished.wait(0.1):
             if duration_s is not None and time.monotonic() - start >= duration_s:
                 break
+            if monitor.failure is not None:  # raised by monitor.stop() below
+                break
         if reader.failure is not None:
             raise reader.failure
     except KeyboardInterrupt:
         interrupted = True
     finally:
         stop.set()
+        # the readers first: a thread of OpenCV's still reading at exit aborts the process
+        for thread in (reader, replay and replay.thread, bus_reader):
+            if thread is not None and thread.is_alive():
+                thread.join(5.0)
         try:
             stats = monitor.stop(drain=not interrupted)
         finally:
