@@ -115,6 +115,9 @@ def test_pushed_frames_camera_stops_and_resumes(knock):
     assert states[0].state == "HOLD" and "camera silent" in states[0].reason
     holds = [e for e in events if e["state"] == "HOLD"]
     assert holds and "camera silent" in holds[0]["reason"]
+    # every event with every key of docs/formats.md (the watchdog's lacked the estimate's)
+    keys = {"t", "frame", "state", "estimate", "interval95", "filter_mount", "reason"}
+    assert all(set(e) == keys for e in events), [sorted(e) for e in events]
     assert any(e["reason"].startswith("data back") for e in events[events.index(holds[0]):])
     frames = [r["frame"] for r in rows]
     assert all(r["frame"] == r["prev_frame"] + 1 for r in rows)

@@ -141,6 +141,13 @@ class _Arrived:
     arrived: float
 
 
+def _bare_event(t: float | None, frame: int | None, state: str, reason: str) -> dict[str, Any]:
+    """An event of the watchdog's (no estimate behind it) with every key a monitor event has
+    (``DriftMonitor``'s; docs/formats.md), the ones it has no value for None."""
+    return {"t": t, "frame": frame, "state": state, "estimate": None, "interval95": None,
+            "filter_mount": None, "reason": reason}
+
+
 class LiveMonitor:
     """The online chain (module doc): estimator → EKF → drift monitor on a live stream.
 
@@ -384,8 +391,8 @@ class LiveMonitor:
             self.on_row(LiveRow(m, state, out, result, b.image, row, latency))
         if self._watchdog_held and out.state != "HOLD":
             # the data returned after a watchdog HOLD: say what the monitor says now
-            event = dict(out.event) if out.event is not None else {
-                "t": m.t, "frame": m.frame, "state": out.state}
+            event = dict(out.event) if out.event is not None else _bare_event(
+                m.t, m.frame, out.state, "")
             event["reason"] = f"data back; {out.reason}"
             self._announce(event)
         elif out.event is not None and out.state != self._reported:
@@ -410,8 +417,8 @@ class LiveMonitor:
             if reason and key not in self._holds:
                 self._holds[key] = reason
                 if self._reported != "HOLD":
-                    self._announce({"t": self._now_t(now), "frame": self._state.frame,
-                                    "state": "HOLD", "reason": reason})
+                    self._announce(_bare_event(self._now_t(now), self._state.frame, "HOLD",
+                                               reason))
                     self._watchdog_held = True
             elif not reason:
                 self._holds.pop(key, None)
