@@ -71,8 +71,6 @@ PROFILE_PASSES = 3
 STD_INFLATION = 1.2
 #: pairs whose whitened residual exceeds this many robust σ are outliers
 OUTLIER_SIGMAS = 5.0
-#: largest offset tried, seconds (a week: clocks that count from different epochs still fit)
-MAX_OFFSET_S = 7 * 86400.0
 
 
 @dataclass(frozen=True)
@@ -228,7 +226,9 @@ def _search_range(pairs: _Pairs, t_speed: FloatArray, min_overlap: float,
         raise InputError(f"{source}: clock offset: the speed samples "
                          f"span {t_speed[-1] - t_speed[0]:.1f} s, too short to cover "
                          f"{min_overlap:.0%} of the camera's {pairs.b[-1] - pairs.a[0]:.1f} s")
-    return max(lo, -MAX_OFFSET_S), min(hi, MAX_OFFSET_S)
+    # no bound beyond the overlap: a CAN log stamped in Unix time (1.7e9 s) beside a camera
+    # counting from 0 is the commonest pairing of all
+    return lo, hi
 
 
 def _candidates(pairs: _Pairs, t_speed: FloatArray, cum: FloatArray, lo: float, hi: float,

@@ -30,6 +30,8 @@ def _series(run, source: str = "sim") -> SpeedSeries:
     ("cart", 120.0, 0.8, 3),
     # clocks counting from different epochs: the speed log is nowhere near the camera's
     ("car", 60.0, 3000.0, 4),
+    # a CAN log in Unix time beside a camera from 0 (refused beyond a week before)
+    ("car", 60.0, -1.7e9, 5),
 ])
 def test_offset_of_simulated_drives(preset, duration_s, offset_s, seed):
     cfg = DriveConfig.preset(preset, duration_s=duration_s, speed_clock_offset_s=offset_s)
