@@ -101,8 +101,13 @@ class DecodeSummary:
             out.append(f"  time span {self.t_first:.6f} .. {self.t_last:.6f} s "
                        f"({self.t_last - self.t_first:.3f} s)")
         if self.channels:
+            # python-can numbers a Vector log's channels from 0 where the file counts from 1:
+            # `--can-channel 1` on "channel 1" of an .asc picked the file's channel 2
+            vector = Path(self.source).suffix.lower() in (".asc", ".blf")
             out.append("  channels: " + ", ".join(f"{printable(c, 40)}={n}" for c, n in sorted(
-                self.channels.items(), key=lambda kv: str(kv[0]))))
+                self.channels.items(), key=lambda kv: str(kv[0]))) + (
+                " (as python-can numbers them, from 0: the file's channel 1 is 0; "
+                "--can-channel takes these)" if vector else ""))
         labels = [
             ("other_ids", "frames of other DBC ids (not errors)"),
             ("unknown_ids", "frames of ids not in the DBC (not errors)"),

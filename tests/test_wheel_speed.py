@@ -76,7 +76,13 @@ def test_three_formats_decode_identically(data, dbc):
                                    atol=2e-6)
         for name in ("frames", "used", "samples", "other_ids", "unknown_ids", "bad"):
             assert getattr(summary, name) == getattr(ref_summary, name), (suffix, name)
+        # the file says "1" and "2", python-can 0 and 1: the summary says which --can-channel
+        # takes (the file's "1" picked its other bus)
+        line = next(x for x in summary.lines() if "channels:" in x)
+        assert "0=53800, 1=45000 (as python-can numbers them, from 0: the file's channel 1 is 0" \
+            in line, line
     assert ref_summary.bad == 0
+    assert not any("python-can numbers" in x for x in ref_summary.lines())  # can0, can1
 
 
 def test_matches_reference_wheel_speeds(dbc, messages, ref_wheels):

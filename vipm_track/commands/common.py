@@ -330,7 +330,9 @@ def add_can_decoding_options(group: argparse._ActionsContainer, dbc_required: bo
     group.add_argument("--combine", default="mean", choices=("mean", "median", "min", "max"),
                        help="rule combining several speed signals (default: mean)")
     group.add_argument("--can-channel", metavar="CH", default=None,
-                       help="only use frames from this CAN channel (can0 also matches index 0)")
+                       help="only use frames from this CAN channel, as the summary's "
+                            "'channels:' line names them (python-can's numbering: a Vector "
+                            ".asc/.blf's channel 1 is 0; can0 also matches 0)")
     group.add_argument("--speed-scale", type=float, default=1.0,
                        help="scale factor on the speed (tyre-radius correction)")
     group.add_argument("--clock-offset", type=seconds_or_auto, default=0.0,
