@@ -77,6 +77,10 @@ def summarize_mount(
             f"{math.degrees(mount[last - 1, 1]):.3f}°")
         t, mount, std = t[last:], mount[last:], std[last:]
         residual = None if residual is None else residual[last:]
+    elif step_test is None and measurements is not None:
+        note = _unfollowed_step_note(measurements, out)
+        if note:
+            out["pairs_step"] = note
     for i, (name, unit, conv) in enumerate(
         (("pitch", "deg", np.degrees), ("roll", "deg", np.degrees), ("height", "m", np.asarray))
     ):
@@ -187,6 +191,28 @@ def _trend_note(measurements: Sequence[PairMeasurement], cfg: StepTestConfig,
             "a longer drive (docs/filters.md)")
 
 
+def _unfollowed_step_note(measurements: Sequence[PairMeasurement],
+                          summary: dict[str, object]) -> str:
+    """A warning where the usable pairs' pitch or roll steps (``mount_steps``, its default
+    test; each step into ``summary["pairs_steps"]``) and the smoothed mount did not step with
+    it: a fixed-lag smoother's mount follows a small knock over tens of seconds, so its mean
+    and interval held neither mount (45.4 [45.26, 45.57] for 45° then 46°, no warning)."""
+    t, angles = usable_angles(measurements)
+    found = [(s.onset_s, name, s.step) for i, name in enumerate(("pitch", "roll"))
+             for s in mount_steps(t, angles[:, i])]
+    if not found:
+        return ""
+    found.sort()
+    summary["pairs_steps"] = [{"t": at, "axis": name, "step_deg": math.degrees(step)}
+                              for at, name, step in found]
+    said = ", ".join(f"{name} stepped {math.degrees(step):+.2f}° at {at:.2f} s"
+                     for at, name, step in found)
+    return (f"the pairs' {said}: this smoother's mount did not follow at once (a "
+            "fixed-lag window follows a small knock over tens of seconds): its mean and "
+            "interval may hold neither mount; the batch smoother (no --lag) splits the drive "
+            "at the step")
+
+
 def _pose_residuals(
     frames: Sequence[SmoothedFrame], measurements: Sequence[PairMeasurement] | None
 ) -> FloatArray | None:
@@ -232,7 +258,8 @@ def summary_warnings(summary: dict[str, object]) -> list[str]:
     """What the summary's numbers do not say on their own: a step of the mount (they are of
     the frames since), most pairs rejected, a drive too short for the step test, a height
     off the pairs', slow forward driving, a trend of the pairs."""
-    return [w for w in (str(summary.get("since_step", "")), _rejection_warning(summary),
+    return [w for w in (str(summary.get("since_step", "")), str(summary.get("pairs_step", "")),
+                        _rejection_warning(summary),
                         str(summary.get("short_drive", "")), str(summary.get("height_scale", "")),
                         str(summary.get("slow_forward", "")),
                         str(summary.get("pairs_trend", ""))) if w]

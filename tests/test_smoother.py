@@ -1004,3 +1004,29 @@ def test_the_drive_summary_is_of_the_mount_since_a_knock():
     low, high = summary["pitch"]["ci95"]
     assert low < truth["mount_pitch_deg"][-1] < high
     assert "the mount stepped at" in summary_markdown(summary)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_fixed_lag_summary_warns_of_a_step_its_mount_did_not_follow(seed):
+    """A 1° knock 6 s into a 20-s cart drive, smoothed with a 2-s lag: the mount creeps, and
+    the summary's mean and interval (45.37 [45.22, 45.52]) held neither 45° nor 46° and said
+    nothing. The pairs' own step test now says so; a drive without a knock is not warned."""
+    from vipm_track.filters.drive_sim import DriveConfig, MountChange, simulate_drive
+    from vipm_track.filters.drive_summary import summarize_mount, summary_warnings
+    from vipm_track.filters.smoother_config import SmootherConfig
+    from vipm_track.filters.smoothing import smooth
+
+    for knock in (False, True):
+        changes = (MountChange(6.0, pitch_deg=1.0),) if knock else ()
+        run = simulate_drive(DriveConfig.preset("cart", duration_s=20.0, mount_changes=changes,
+                                                mount_random_walk=False), seed)
+        frames = smooth(run.measurements, run.speed,
+                        SmootherConfig(height_m=0.7, noise=run.config.noise, lag_s=2.0))
+        summary = summarize_mount(frames, run.measurements, None)
+        warned = [w for w in summary_warnings(summary) if "the pairs' pitch stepped" in w]
+        if not knock:
+            assert not warned and "pairs_steps" not in summary
+            continue
+        assert len(warned) == 1 and "did not follow" in warned[0], summary_warnings(summary)
+        (step,) = summary["pairs_steps"]
+        assert abs(step["t"] - 6.0) < 0.3 and abs(step["step_deg"] - 1.0) < 0.15
