@@ -16,7 +16,7 @@ import math
 from collections import deque
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -26,6 +26,7 @@ from vipm_track import json_text
 from .body_scale import BodyScale
 from .long_run import batch_means
 from .monitor_core import MonitorCore
+from .monitor_segments import last_step
 from .monitor_stats import HeaveScale, ar1_coefficient, mean_variance
 from .monitor_types import (
     AXES,
@@ -45,6 +46,21 @@ from .nominal import NominalCalibration
 FloatArray = NDArray[np.float64]
 
 
+class _Frame(NamedTuple):
+    """A used frame as the new extrinsics are estimated from it: its used-frame count, time
+    (s), its deviation from nominal and variance (rad, rad, m), and the whitening filter's
+    innovation, its variance, AR(1) coefficient and gain (``MonitorCore.last_whitening``)."""
+
+    used: int
+    t: float
+    dev: FloatArray
+    var: FloatArray
+    nu: FloatArray
+    nu_var: FloatArray
+    a: FloatArray
+    gain: FloatArray
+
+
 class DriftMonitor:
     """Streaming monitor of one camera: ``update(MonitorInput) -> MonitorOutput``.
 
@@ -62,11 +78,13 @@ class DriftMonitor:
         self.nominal = nominal
         self.config = self.core.config
         n_hist = max(1, round(self.config.history_s * self.config.fps))
-        self._history: deque[tuple[int, FloatArray, FloatArray]] = deque(maxlen=n_hist)
+        self._history: deque[_Frame] = deque(maxlen=n_hist)
         self._state: str | None = None
         self._reported: str | None = None  # the state the last event announced
         # frames behind the last _estimate, and whether all of them follow the change's start
         self._estimate_frames, self._since_change = 0, True
+        self._estimate_from = math.nan  # time of the first frame behind the last _estimate (s)
+        self._alarm_t = math.nan  # when RECALIBRATE was entered (s)
         self._hold_event: dict[str, Any] | None = None  # a HOLD not yet long enough to report
         self._change_at: int | None = None
         self._held = 0
@@ -106,9 +124,12 @@ class DriftMonitor:
         base = int(core.s.base[0])
         used = int(core.s.count[0])
         if inp.usable:
-            self._history.append((used, pose - core.nominal_values, var))
+            nu, sv, a, gain = (v[0] for v in core.last_whitening)
+            self._history.append(_Frame(used, float(inp.t), pose - core.nominal_values, var, nu,
+                                        sv, a, gain))
         if base == RECALIBRATE and before != RECALIBRATE:
             self._change_at = int(core.s.onset[0])  # the statistics restarted at the alarm
+            self._alarm_t = float(inp.t)
         elif base not in (RECALIBRATE, DRIFTING):
             self._change_at = None
         state = STATES[code]
@@ -156,21 +177,37 @@ class DriftMonitor:
 
     def _estimate(self, start: int | None) -> tuple[FloatArray, FloatArray]:
         core, cfg = self.core, self.config
-        hist = [h for h in self._history if start is None or h[0] > start]
-        min_n = max(3, round(0.5 * cfg.fps))
-        # the frames since the change began, or the last min_n where fewer (a noisy median
-        # otherwise); the reason says which
-        self._since_change = len(hist) >= min_n
-        if not self._since_change:
-            hist = list(self._history)[-min_n:]
-        self._estimate_frames = len(hist)
-        dev = np.array([h[1] for h in hist])
-        var = np.array([h[2] for h in hist])
-        est = np.full(3, np.nan)
-        half = np.full(3, np.nan)
         body_std = core.s.body_std[0]
         a = ar1_coefficient(np.full(3, 1.0 / cfg.fps), core.body_tau(body_std))
         a_road = math.exp(-1.0 / (cfg.fps * cfg.road_tau_s))
+        history = list(self._history)
+        since = next((i for i, h in enumerate(history) if start is None or h.used > start),
+                     len(history))
+        # the change time may be many frames off, and the camera may have moved again since:
+        # the frames after the last step, looked for from a second before the change time
+        first = max(0, since - round(cfg.fps))
+        window = history[first:]
+        step = 0
+        if window:
+            nu = np.array([h.nu for h in window])
+            step = last_step(nu, np.array([h.nu_var for h in window]),
+                             np.median([h.a for h in window], axis=0),
+                             np.median([h.gain for h in window], axis=0), core.s.corr_factor[0])
+            if step > 0:
+                since = first + step
+        hist = history[since:]
+        min_n = max(3, round(0.5 * cfg.fps))
+        # the frames since the change began (a step found: however few), or the last min_n
+        # where fewer (a noisy median otherwise); the reason says which
+        self._since_change = len(hist) >= min_n or step > 0
+        if not self._since_change:
+            hist = history[-min_n:]
+        self._estimate_frames = len(hist)
+        self._estimate_from = hist[0].t if hist else math.nan
+        dev = np.array([h.dev for h in hist])
+        var = np.array([h.var for h in hist])
+        est = np.full(3, np.nan)
+        half = np.full(3, np.nan)
         for j in range(3):
             ok = np.isfinite(dev[:, j])
             n = int(ok.sum())
@@ -228,8 +265,21 @@ class DriftMonitor:
             if interval is not None:
                 lo, hi = interval[j] - core.nominal_values[j]
                 span = f", 95 % {_fmt_dev(j, lo)} … {_fmt_dev(j, hi)}"
-            over = ("since the change" if estimate is None or self._since_change else
+            over = (f"since {self._estimate_from:.2f} s" if estimate is None
+                    or self._since_change else
                     f"of the last {self._estimate_frames} frames, from before the change")
+            back = estimate is not None and (
+                abs(dev) <= core.nominal.tolerances[j]
+                or (interval is not None and interval[j, 0] <= core.nominal_values[j]
+                    <= interval[j, 1]))
+            if back and self._since_change and self._estimate_from > self._alarm_t:
+                # latched, and the frames since a step after the alarm read the nominal again
+                # (within the tolerance, or the nominal inside their interval): the camera was
+                # set back (or knocked back), as the new extrinsics say
+                return (f"{AXES[j]} changed beyond the tolerance {tol} (the test crossed its "
+                        f"threshold), and reads {_fmt_dev(j, dev)} from nominal again (median "
+                        f"{over}{span}): set back? RECALIBRATE clears after "
+                        f"{self.config.clear_after_s:g} s of frames without a warning")
             text = (f"{AXES[j]} changed: {_fmt_dev(j, dev)} from nominal (median {over}"
                     f"{span}), beyond the tolerance {tol}: the test crossed its threshold")
             recent = float(core.s.ema[0, j])
@@ -239,7 +289,8 @@ class DriftMonitor:
                          f"tolerance (RECALIBRATE clears after {self.config.clear_after_s:g} "
                          "s of frames without a warning)")
             return text
-        over = ("since it began" if estimate is None or self._since_change else
+        over = (f"since {self._estimate_from:.2f} s" if estimate is None
+                or self._since_change else
                 f"over the last {self._estimate_frames} frames, from before it began")
         return (f"{AXES[j]} drifting: the test stands at {stat[j]:.0%} of its threshold "
                 f"(DRIFTING from {self.config.warn_enter:.0%}); median deviation {over} "

@@ -248,12 +248,14 @@ def test_recalibrate_is_held_until_sustained_return():
     # alarm), so allow a second or two of slack
     assert t_clear is not None and 30.0 + 8.0 <= t_clear <= 30.0 + 20.0
     assert all(o.state in ("RECALIBRATE", "HOLD") for o in out if t_flag <= o.t < t_clear)
-    # while held, the reason says the camera now reads within the tolerance (it said only
-    # "beyond the tolerance", its median reaching back before the return)
+    # while held, the reason and the new extrinsics say the camera reads the nominal again
+    # since the return (they said "beyond the tolerance" of a median reaching back before it)
     before = [o.reason for o in out if t_flag <= o.t < 29.0 and o.state == "RECALIBRATE"]
-    after = [o.reason for o in out if 33.0 <= o.t < t_clear - 1.0 and o.state == "RECALIBRATE"]
-    assert before and not any("within the tolerance" in r for r in before)
-    assert any("its last second reads" in r and "within the tolerance" in r for r in after)
+    after = [o for o in out if 31.0 <= o.t < t_clear - 1.0 and o.state == "RECALIBRATE"]
+    assert before and not any("again" in r or "within the tolerance" in r for r in before)
+    assert after and all("from nominal again (median since 30.00 s" in o.reason
+                         and "set back?" in o.reason for o in after), after[0].reason
+    assert all(o.interval95[0, 0] <= math.radians(3.0) <= o.interval95[0, 1] for o in after)
     # CALIBRATED's mean deviation is of the calm run that cleared it, not the whole drive
     # (it said +0.40° ± 0.05° against a tolerance of 0.1°)
     cleared = next(o for o in out if o.t >= t_clear + 1.0)
@@ -656,3 +658,39 @@ def test_a_step_is_judged_by_the_error_correlation_measured_before_it():
     mean = {name: float(np.mean(d)) for name, d in delays.items()}  # s: 2.3, 2.4, 2.8
     assert mean["delayed"] <= mean["white"] + 0.2, mean
     assert mean["at once"] >= mean["delayed"] + 0.3, mean
+
+
+def _reported_at(out, t):
+    """The first output at or after ``t`` with new extrinsics."""
+    return next(o for o in out if o.t >= t and o.estimate is not None)
+
+
+@pytest.mark.parametrize("seed", [5001, 5004, 5005, 5006])
+def test_new_extrinsics_at_the_alarm_are_of_the_frames_after_the_step(seed):
+    """A 1° roll step: the CUSUM's change time reached 3.6 s before it (its small design
+    shift had been above zero since), and the median of frames mostly from before the step
+    reported −0.2° ± 0.37° at the alarm; the step found in the whitening filter's
+    innovations gives the frames after it."""
+    run = drive(30.0, seed=seed, changes=[MountChange(20.0, roll_deg=-1.0)])
+    _, out = monitor_run(run, nominal=NominalCalibration(3.0, 0.0, 1.5, 0.1, 0.1, 0.005))
+    alarm = next(o for o in out if o.event is not None and o.state == "RECALIBRATE")
+    assert 20.0 <= alarm.t <= 22.0
+    roll = math.degrees(alarm.estimate[1])
+    lo, hi = np.degrees(alarm.interval95[1])
+    assert abs(roll + 1.0) < 0.6 and lo <= -1.0 <= hi, (roll, lo, hi)
+
+
+@pytest.mark.parametrize("second, truth", [(1.0, 5.0), (-1.0, 3.0)], ids=["further", "set-back"])
+def test_new_extrinsics_follow_a_second_change_while_held(second, truth):
+    """Knocked +1° at 15 s, then +1° more (or set back) at 35 s, RECALIBRATE held: the
+    reported pitch is the camera's since the second change (the median since the first
+    alarm gave 4.5° for 5° at the end, a 95 % interval of ± 0.06° around it)."""
+    run = drive(60.0, seed=21, stop_probability=0.0,
+                changes=[MountChange(15.0, pitch_deg=1.0), MountChange(35.0, pitch_deg=second)])
+    cfg = MonitorConfig(fps=FPS, clear_after_s=30.0)  # held to the end in both cases
+    _, out = monitor_run(run, config=cfg)
+    at = _reported_at(out, 45.0)
+    assert at.state == "RECALIBRATE"
+    pitch = math.degrees(at.estimate[0])
+    lo, hi = np.degrees(at.interval95[0])
+    assert abs(pitch - truth) < 0.1 and lo <= truth <= hi, (pitch, lo, hi)
