@@ -1030,3 +1030,18 @@ def test_a_fixed_lag_summary_warns_of_a_step_its_mount_did_not_follow(seed):
         assert len(warned) == 1 and "did not follow" in warned[0], summary_warnings(summary)
         (step,) = summary["pairs_steps"]
         assert abs(step["t"] - 6.0) < 0.3 and abs(step["step_deg"] - 1.0) < 0.15
+
+
+def test_smooth_quiet_still_says_its_warnings(tmp_path, capsys):
+    """`smooth --quiet` printed nothing where `track --quiet` warns: a 4-s drive's "too short
+    for the step test" was in summary.md only."""
+    from vipm_track.cli import main
+
+    lines = (DATA / "knock_cart_est.csv").read_text().splitlines()
+    short = tmp_path / "short.csv"
+    short.write_text("\n".join(lines[:41]) + "\n")  # header and 4 s of frames
+    assert main(["smooth", "--estimates", str(short), "--height", "0.7", "--vehicle", "cart",
+                 "--out", str(tmp_path / "s.csv"), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "vipm-track smooth: warning: the drive spans 3.9 s, less than the 6 s" in err, err
+    assert "frames →" not in err  # the summary print itself stays off

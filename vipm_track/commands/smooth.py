@@ -128,7 +128,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="skip the marginal covariances (std columns empty; faster)",
     )
-    group.add_argument("--quiet", action="store_true", help="no progress bar, no summary print")
+    group.add_argument("--quiet", action="store_true",
+                       help="no progress bar, no summary print (its warnings are still said)")
     add_estimator_options(parser)
     add_parallel_options(parser)
     add_rerun_options(parser)
@@ -175,7 +176,11 @@ def build_config(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from vipm_track.filters.drive_summary import summarize_mount, summary_markdown
+    from vipm_track.filters.drive_summary import (
+        summarize_mount,
+        summary_markdown,
+        summary_warnings,
+    )
     from vipm_track.filters.smoothing import smoothed_rows
     from vipm_track.filters.track import TRACK_COLUMNS, TRACK_TABLE
 
@@ -242,6 +247,10 @@ def run(args: argparse.Namespace) -> int:
             print(text, file=sys.stderr)
             print(f"vipm-track smooth: {len(rows)} frames → {out}; summary → {summary_path}",
                   file=sys.stderr)
+        elif frames:
+            # said under --quiet too (as track does): the numbers do not say these on their own
+            for note in summary_warnings(summary):
+                print(f"vipm-track smooth: warning: {note}", file=sys.stderr)
         if interrupted:
             raise KeyboardInterrupt
     return 0
