@@ -303,6 +303,8 @@ class RerunSink:
             if math.isfinite(value):
                 self._scalar(path, value)
         motion = [float_or_nan(row.get(COLUMNS[n][0])) for n in MOTION]
+        if not all(math.isfinite(v) for v in motion):  # the pair's own, as planar_path does
+            motion = [float_or_nan(row.get(f"meas_{COLUMNS[n][0]}")) for n in MOTION]
         if all(math.isfinite(v) for v in motion):
             self._step_path(kind, PlanarMotion(motion[0], motion[1], math.radians(motion[2])))
 

@@ -17,8 +17,11 @@ def planar_path(columns: Mapping[str, NDArray], valid: NDArray | None = None) ->
 
     A table with ``world_x_m``/``world_z_m`` columns (ground truth of ``vipm-track
     simulate``) gives them directly. Otherwise ``tx_m, tz_m, yaw_deg`` are chained with
-    ``geometry.compose_motion`` from (0, 0) at the first valid row; a row without a motion
-    holds the position (the path then misses that frame's travel); rows not ``valid`` are NaN.
+    ``geometry.compose_motion`` from (0, 0) at the first valid row; a row without them takes
+    the pair's own measured motion where a track table has it (``meas_tx_m``, ``meas_tz_m``,
+    ``meas_yaw_deg``: the EKF's first frames, before it starts, drew its path 12 % short),
+    and holds the position where it has none (the path then misses that frame's travel);
+    rows not ``valid`` are NaN.
     """
     n = len(columns["frame"])
     valid = np.ones(n, bool) if valid is None else np.asarray(valid, bool)
@@ -31,6 +34,11 @@ def planar_path(columns: Mapping[str, NDArray], valid: NDArray | None = None) ->
         return None
     tx, tz = np.asarray(columns["tx_m"], float), np.asarray(columns["tz_m"], float)
     yaw = np.radians(np.asarray(columns["yaw_deg"], float))
+    if all(f"meas_{c}" in columns for c in ("tx_m", "tz_m", "yaw_deg")):
+        none = ~(np.isfinite(tx) & np.isfinite(tz) & np.isfinite(yaw))
+        tx = np.where(none, np.asarray(columns["meas_tx_m"], float), tx)
+        tz = np.where(none, np.asarray(columns["meas_tz_m"], float), tz)
+        yaw = np.where(none, np.radians(np.asarray(columns["meas_yaw_deg"], float)), yaw)
     xz = np.full((n, 2), np.nan)
     pose = PlanarMotion(0.0, 0.0, 0.0)
     # Sequential by nature (each step is rotated by the heading so far); one step per frame.
