@@ -92,3 +92,25 @@ def test_a_frame_repeated_after_its_corrupt_first_row_is_kept():
     assert keep == [0, 1, 3] and issues.duplicated == ((4, 1, 3),)
     _, issues = sequence_rows(np.array([100000, 1, 2], dtype=float))
     assert "row 2 frame 100000 (before kept 1)" in issues.lines("x.csv")[0]
+
+
+@pytest.mark.parametrize("command", ["track", "report"])
+def test_a_table_whose_times_never_increase_is_bad_input(tmp_path, capsys, command):
+    """Every time 5.0: 79 of 80 rows were left out and `track` said "no frame has a usable
+    pair estimate ... give --pitch" (exit 1); it is no sequence of frames (exit 2)."""
+    from pathlib import Path
+
+    lines = (Path(__file__).parent / "data" / "knock_cart_est.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    col = header.index("t")
+    bad = [lines[0]] + [",".join(c if i != col else "5.0" for i, c in enumerate(line.split(",")))
+                        for line in lines[1:81]]
+    est = tmp_path / "same.csv"
+    est.write_text("\n".join(bad) + "\n")
+    argv = (["track", "--estimates", str(est), "--height", "0.7", "--out",
+             str(tmp_path / "o.csv")] if command == "track"
+            else ["report", str(est), "--out", str(tmp_path / "r")])
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "79 of 80 rows repeat a frame or have a frame or time out of order" in err, err
+    assert "not a sequence of frames" in err and "--pitch" not in err

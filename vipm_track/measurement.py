@@ -205,6 +205,22 @@ class SequenceIssues:
         return bool(self.duplicated or self.out_of_order or self.backwards or self.missing
                     or self.unknown)
 
+    @property
+    def left_out(self) -> int:
+        """Rows left out of the sequence (repeats, frames or times out of order)."""
+        return len(self.duplicated) + len(self.out_of_order) + len(self.backwards)
+
+    def check_a_sequence(self, source: str, rows: int) -> None:
+        """InputError where most of a table's ``rows`` were left out: it is no sequence of
+        frames (every time equal said "no frame has a usable pair estimate ... give --pitch",
+        exit 1)."""
+        if rows >= 4 and 2 * self.left_out > rows:
+            raise InputError(f"{source}: {self.left_out} of {rows} rows repeat a frame or have "
+                             "a frame or time out of order with the rest: not a sequence of "
+                             "frames (their numbers and times must increase): "
+                             + "; ".join(line.split(": ", 1)[1]
+                                         for line in self.lines(source, first=3)))
+
     def lines(self, source: str, first: int = 5) -> list[str]:
         """One line per kind of issue, naming the first ``first`` rows."""
         def rows(items: tuple, text) -> str:

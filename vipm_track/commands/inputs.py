@@ -177,7 +177,9 @@ def read_estimates(path: str, notes: list[str] | None = None) -> list[PairMeasur
         raise InputError(f"{path}: {exc}") from exc
     if not measurements:
         raise InputError(f"{path}: no rows")
+    rows = len(measurements)
     measurements, issues = in_sequence(measurements, first_data_row(path))
+    issues.check_a_sequence(str(path), rows)
     lines = issues.lines(str(path)) if issues else []
     if notes is not None:
         notes.extend(lines)

@@ -123,7 +123,9 @@ def write_report(
     table = read_table(track)
     _check_finite(table, track)  # before rows are left out: the file's own row numbers
     if "frame" in table:  # repeats, frames or times going backwards: left out, said in notes
+        rows = len(table["frame"])
         table, issues = table_in_sequence(table, first_data_row(track))
+        issues.check_a_sequence(str(track), rows)
         if issues and notes is not None:
             notes.extend(issues.lines(str(track)))
     est = window_rows(table, start, max_frames)
