@@ -212,6 +212,10 @@ def test_rerun_connect_to_nobody_finishes(drive, tmp_path: Path) -> None:
         pytest.fail(f"still running after 30 s ({rows} rows written)")
     assert done.returncode == 0, done.stderr
     assert len(read_table(out)["frame"]) == 81
+    # one line of ours, at once (rerun's own retries took 19 s and printed four log lines)
+    assert done.stderr.splitlines() == [
+        "vipm-track: warning: --rerun-connect 127.0.0.1:9: no rerun viewer answers (Connection "
+        "refused); nothing is streamed to it"], done.stderr
 
 
 # --- wheel speed -------------------------------------------------------------------------------

@@ -4,9 +4,12 @@ and/or to a viewer at an address (:func:`open_sink`); the viewer address as a gR
 
 from __future__ import annotations
 
+import socket
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 from ..errors import InputError
 from .rerun_sink import IMAGE_PERIOD_S, RerunSink
@@ -41,10 +44,30 @@ def open_sink(app_id: str, path: str | Path | None = None, spawn: bool = False,
             raise InputError(f"--rerun-spawn: could not start the rerun viewer: {exc}") from exc
         sinks.append(rr.GrpcSink())
     if connect:
-        sinks.append(rr.GrpcSink(grpc_url(connect)))
+        url = grpc_url(connect)
+        why = _unreachable(url)
+        if why:
+            # said once, here: rerun's own retries took 19 s and printed four log lines
+            print(f"vipm-track: warning: --rerun-connect {connect}: no rerun viewer answers "
+                  f"({why}); nothing is streamed to it", file=sys.stderr)
+        else:
+            sinks.append(rr.GrpcSink(url))
+    if not sinks:
+        return None
     rec.set_sinks(*sinks)
     return RerunSink(rec, image_every=image_every, jpeg_quality=jpeg_quality,
                      image_period_s=image_period_s, layout=layout)
+
+
+def _unreachable(url: str, timeout_s: float = 2.0) -> str:
+    """Why nothing listens at a viewer URL's host and port ("" where something does)."""
+    parts = urlsplit(url)
+    try:
+        with socket.create_connection((parts.hostname or "127.0.0.1", parts.port or 9876),
+                                      timeout=timeout_s):
+            return ""
+    except OSError as exc:
+        return exc.strerror or str(exc) or type(exc).__name__
 
 
 def grpc_url(address: str) -> str:
