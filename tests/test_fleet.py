@@ -425,15 +425,20 @@ def test_progress_text_names_the_running_drives():
                               "frames; 1 more running")
 
 
-def test_a_drive_that_now_fails_leaves_no_tables(fleet, drives, cluster, tmp_path):
-    """Run again after b's nominal file broke: b is a failed row, and its tables of the run
-    before are gone (the dataset served them beside the summary's error)."""
+@pytest.mark.parametrize("break_it", ["garbled", "missing"])
+def test_a_drive_that_now_fails_leaves_no_tables(fleet, drives, cluster, tmp_path, break_it):
+    """Run again after b's nominal file broke (or went missing: found before the old tables
+    were removed): b is a failed row, and its tables of the run before are gone (the
+    dataset served them beside the summary's error)."""
     out, _ = fleet
     again, root = tmp_path / "out", tmp_path / "drives"
     shutil.copytree(out, again)
     for name in ("a", "b"):
         shutil.copytree(drives / name, root / name)
-    (root / "b" / "nominal.yaml").write_text("pitch_deg: [\n")
+    if break_it == "garbled":
+        (root / "b" / "nominal.yaml").write_text("pitch_deg: [\n")
+    else:
+        (root / "b" / "nominal.yaml").unlink()
     rows = {r["drive"]: r for r in run_fleet(find_drives(root), again, SETTINGS,
                                              scheduler=cluster.scheduler_address,
                                              progress=False)}

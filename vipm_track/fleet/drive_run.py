@@ -9,6 +9,7 @@ The steps are the library's own (``runs.sequence_steps``, ``filters.smoothing``,
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import time
@@ -114,12 +115,12 @@ def run_drive(spec: DriveSpec, out: str | Path, settings: FleetSettings,
         done = done_row(folder, key)
         if done is not None:
             return {**done, "skipped": True}
-        # an earlier run's outputs go first: a drive that now fails or stops part-way must
-        # not leave tables that no done.json vouches for
-        for name in (DONE_FILE, *OUTPUT_FILES):
-            (folder / name).unlink(missing_ok=True)
+        # an earlier run's outputs go first: a drive that now stops part-way must not leave
+        # tables that no done.json vouches for
+        _remove_outputs(folder)
         row = {**base, **_process(spec, folder, settings, progress_topic), "input_hash": key}
     except Exception as exc:  # a failed drive is a row of the summary; the fleet goes on
+        _remove_outputs(folder)  # a file missing now, found before the step above: the same
         if isinstance(exc, (InputError, NothingUsable, OSError)):
             why = printable(exc, 500)
         else:
@@ -132,6 +133,13 @@ def run_drive(spec: DriveSpec, out: str | Path, settings: FleetSettings,
     row["worker"] = _worker()
     _write_atomic(folder / DONE_FILE, json_text.dumps(row, indent=2) + "\n")
     return {**row, "skipped": False}
+
+
+def _remove_outputs(folder: Path) -> None:
+    """What a run of the drive wrote into ``folder``, its done file first."""
+    for name in (DONE_FILE, *OUTPUT_FILES):
+        with contextlib.suppress(OSError):
+            (folder / name).unlink(missing_ok=True)
 
 
 def _worker() -> str:

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from vipm_track.filters.mount_steps import mount_steps
+from vipm_track.filters.mount_steps import mount_steps, untested_drive_note
 
 Z95 = 1.959963984540054
 #: shortest span [s] a drift rate is given over: a calibration creeps over minutes, and over
@@ -241,14 +241,14 @@ def _split_time(table: Mapping[str, NDArray], t: NDArray, column: str, direction
         ok &= np.asarray(table["status"]).astype(str) == "ok"
     tx, x = t[ok], x[ok]
     n = len(x)
-    if n < 6:
+    if n < 6 or not untested_drive_note(tx):  # where the step test ran, its "none" stands
         return NAN
-    k = np.arange(1, n)
+    k = np.arange(3, n - 2)  # three frames on each side: one odd frame is no run
     total = np.cumsum(x)
-    diff = (total[-1] - total[:-1]) / (n - k) - total[:-1] / k
+    diff = (total[-1] - total[k - 1]) / (n - k) - total[k - 1] / k
     score = diff * direction * np.sqrt(k * (n - k) / n)
     best = int(np.argmax(score))
-    return float(tx[best + 1]) if score[best] > 0 else NAN
+    return float(tx[k[best]]) if score[best] > 0 else NAN
 
 
 def _halfway_time(t: NDArray, v: NDArray, start: float, current: float) -> float:
