@@ -49,7 +49,8 @@ FloatArray = NDArray[np.float64]
 class _Frame(NamedTuple):
     """A used frame as the new extrinsics are estimated from it: its used-frame count, time
     (s), its deviation from nominal and variance (rad, rad, m), and the whitening filter's
-    innovation, its variance, AR(1) coefficient and gain (``MonitorCore.last_whitening``)."""
+    innovation, its variance, AR(1) coefficient, gain and the road's long-run variance factor
+    on it (``MonitorCore.last_whitening``)."""
 
     used: int
     t: float
@@ -59,6 +60,7 @@ class _Frame(NamedTuple):
     nu_var: FloatArray
     a: FloatArray
     gain: FloatArray
+    road: FloatArray
 
 
 class DriftMonitor:
@@ -124,9 +126,9 @@ class DriftMonitor:
         base = int(core.s.base[0])
         used = int(core.s.count[0])
         if inp.usable:
-            nu, sv, a, gain = (v[0] for v in core.last_whitening)
+            nu, sv, a, gain, road = (v[0] for v in core.last_whitening)
             self._history.append(_Frame(used, float(inp.t), pose - core.nominal_values, var, nu,
-                                        sv, a, gain))
+                                        sv, a, gain, road))
         if base == RECALIBRATE and before != RECALIBRATE:
             self._change_at = int(core.s.onset[0])  # the statistics restarted at the alarm
             self._alarm_t = float(inp.t)
@@ -189,19 +191,23 @@ class DriftMonitor:
         window = history[first:]
         step = 0
         if window:
-            nu = np.array([h.nu for h in window])
-            step = last_step(nu, np.array([h.nu_var for h in window]),
+            # the errors' measured correlation and the road's modelled wander both run on in
+            # the innovations: a step must stand out of both (a told road's wander made steps)
+            factor = core.s.corr_factor[0] * np.nanmedian([h.road for h in window], axis=0)
+            step = last_step(np.array([h.nu for h in window]),
+                             np.array([h.nu_var for h in window]),
                              np.median([h.a for h in window], axis=0),
-                             np.median([h.gain for h in window], axis=0), core.s.corr_factor[0])
+                             np.median([h.gain for h in window], axis=0),
+                             np.nan_to_num(factor, nan=1.0), core.nominal.tolerances)
             if step > 0:
                 since = first + step
         hist = history[since:]
-        min_n = max(3, round(0.5 * cfg.fps))
-        # the frames since the change began (a step found: however few), or the last min_n
-        # where fewer (a noisy median otherwise); the reason says which
-        self._since_change = len(hist) >= min_n or step > 0
-        if not self._since_change:
-            hist = history[-min_n:]
+        # the frames since the change began, however few (a median of frames from before it
+        # is no estimate of where the camera went: the demo's DRIFTING, one frame after a +1°
+        # knock, reported -0.11°); the last frames where none has come since
+        self._since_change = bool(hist)
+        if not hist:
+            hist = history[-max(3, round(0.5 * cfg.fps)):]
         self._estimate_frames = len(hist)
         self._estimate_from = hist[0].t if hist else math.nan
         dev = np.array([h.dev for h in hist])
@@ -265,17 +271,14 @@ class DriftMonitor:
             if interval is not None:
                 lo, hi = interval[j] - core.nominal_values[j]
                 span = f", 95 % {_fmt_dev(j, lo)} … {_fmt_dev(j, hi)}"
-            over = (f"since {self._estimate_from:.2f} s" if estimate is None
-                    or self._since_change else
+            over = (self._since_text(inp) if estimate is None or self._since_change else
                     f"of the last {self._estimate_frames} frames, from before the change")
-            back = estimate is not None and (
-                abs(dev) <= core.nominal.tolerances[j]
-                or (interval is not None and interval[j, 0] <= core.nominal_values[j]
-                    <= interval[j, 1]))
-            if back and self._since_change and self._estimate_from > self._alarm_t:
-                # latched, and the frames since a step after the alarm read the nominal again
-                # (within the tolerance, or the nominal inside their interval): the camera was
-                # set back (or knocked back), as the new extrinsics say
+            settled = self._estimate_frames >= max(3, round(0.5 * self.config.fps))
+            if (estimate is not None and abs(dev) <= core.nominal.tolerances[j] and settled
+                    and self._since_change and self._estimate_from > self._alarm_t):
+                # latched, and half a second of frames since a step after the alarm reads
+                # within the tolerance: the camera was set back (or knocked back), as the new
+                # extrinsics say
                 return (f"{AXES[j]} changed beyond the tolerance {tol} (the test crossed its "
                         f"threshold), and reads {_fmt_dev(j, dev)} from nominal again (median "
                         f"{over}{span}): set back? RECALIBRATE clears after "
@@ -289,25 +292,39 @@ class DriftMonitor:
                          f"tolerance (RECALIBRATE clears after {self.config.clear_after_s:g} "
                          "s of frames without a warning)")
             return text
-        over = (f"since {self._estimate_from:.2f} s" if estimate is None
-                or self._since_change else
+        over = (self._since_text(inp) if estimate is None or self._since_change else
                 f"over the last {self._estimate_frames} frames, from before it began")
         return (f"{AXES[j]} drifting: the test stands at {stat[j]:.0%} of its threshold "
                 f"(DRIFTING from {self.config.warn_enter:.0%}); median deviation {over} "
                 f"{_fmt_dev(j, dev)}, tolerance {tol}")
 
+    def _since_text(self, inp: MonitorInput) -> str:
+        """How far back the new extrinsics reach, in seconds before this frame (a live
+        camera's times are Unix times: "since 1764445123.40 s" said nothing)."""
+        return (f"of the {self._estimate_frames} frames over the last "
+                f"{float(inp.t) - self._estimate_from:.1f} s")
+
     def _event(self, inp: MonitorInput, state: str, reason: str, estimate: FloatArray | None,
                interval: FloatArray | None) -> dict[str, Any]:
-        ev: dict[str, Any] = {"t": float(inp.t), "frame": int(inp.frame), "state": state}
-        ev["estimate"] = None if estimate is None else _pose_dict(estimate)
-        ev["interval95"] = None if interval is None else {
-            k: [v0, v1] for (k, v0), (_, v1) in zip(
-                _pose_dict(interval[:, 0]).items(), _pose_dict(interval[:, 1]).items(), strict=True)
-        }
-        ev["filter_mount"] = (None if inp.mount is None
-                              else _pose_dict(np.asarray(inp.mount, dtype=float)))
-        ev["reason"] = reason
-        return ev
+        return event_dict(float(inp.t), int(inp.frame), state, reason, estimate, interval,
+                          inp.mount)
+
+
+def event_dict(t: float | None, frame: int | None, state: str, reason: str,
+               estimate: FloatArray | None = None, interval: FloatArray | None = None,
+               mount: Any = None) -> dict[str, Any]:
+    """A monitor event as written to ``--events`` (docs/formats.md): time [s], frame, state,
+    the new extrinsics and their 95 % interval (rad, rad, m in; degrees and metres out; None
+    outside DRIFTING / RECALIBRATE), the filter's mount, the reason."""
+    ev: dict[str, Any] = {"t": t, "frame": frame, "state": state}
+    ev["estimate"] = None if estimate is None else _pose_dict(estimate)
+    ev["interval95"] = None if interval is None else {
+        k: [v0, v1] for (k, v0), (_, v1) in zip(
+            _pose_dict(interval[:, 0]).items(), _pose_dict(interval[:, 1]).items(), strict=True)
+    }
+    ev["filter_mount"] = None if mount is None else _pose_dict(np.asarray(mount, dtype=float))
+    ev["reason"] = reason
+    return ev
 
 
 def _pose_dict(v: FloatArray) -> dict[str, float | None]:

@@ -191,7 +191,7 @@ class MonitorCore:
         self.max_gated = max(0, round(cfg.max_gated_run_s * cfg.fps))
         self.reset()
         nan = np.full((batch, 3), np.nan)
-        self.last_whitening: tuple[FloatArray, ...] = (nan, nan, nan, nan)
+        self.last_whitening: tuple[FloatArray, ...] = (nan, nan, nan, nan, nan)
 
     def _typical_w(self, body_std: FloatArray, factor: FloatArray | float = 1.0) -> FloatArray:
         """(..., 3) long-run variance per frame at the configured frame rate and measurement
@@ -351,9 +351,10 @@ class MonitorCore:
         lim = np.maximum(cfg.huber_k * np.sqrt(sv + road_var), self._clip_floor)
         nu_c = np.clip(nu, -lim, lim)
         u = nu_c / rho
-        # the whitening filter's innovations and their variance, gain and AR(1) coefficient
-        # (NaN where unused): ``filters.monitor_segments`` finds steps in them
-        self.last_whitening = (np.where(use, nu_c, np.nan), sv, a, gain)
+        # the whitening filter's innovations, their variance, AR(1) coefficient, gain and the
+        # long-run variance factor the road's wander gives them (NaN where unused):
+        # ``filters.monitor_segments`` finds steps in them
+        self.last_whitening = (np.where(use, nu_c, np.nan), sv, a, gain, expected)
         w = (sv / (rho * rho) + road_lrv) * s.corr_factor
         s.body = np.where(use, x_pred + gain * nu_c, s.body)
         s.body_var = np.where(use, (1.0 - gain) * p_pred, s.body_var)

@@ -34,30 +34,38 @@ STEP_Z = 5.0
 MAX_STEPS = 4
 
 
-def step_signature(a: float, gain: float, n: int) -> FloatArray:
-    """(n,) g_j: the share of a step j frames ago left in the innovations of a steady
-    whitening filter of AR(1) coefficient ``a`` and Kalman gain ``gain`` (module doc)."""
-    g = np.empty(n)
+def step_signature(a: float, gain: float, n: int, settled: float = 1e-6,
+                   ) -> tuple[FloatArray, float]:
+    """g_j, the share of a step j frames ago left in the innovations of a steady whitening
+    filter of AR(1) coefficient ``a`` and Kalman gain ``gain`` (module doc), for j < n or
+    until it is within ``settled`` of its limit ρ; and ρ (it stays there)."""
+    rho = (1.0 - a) / (1.0 - a + a * gain)
+    g = []
     x = 0.0
-    for j in range(n):
-        g[j] = 1.0 - a * x
-        x = a * x + gain * g[j]
-    return g
+    for _ in range(n):
+        g.append(1.0 - a * x)
+        x = a * x + gain * g[-1]
+        if abs(g[-1] - rho) < settled:
+            break
+    return np.array(g), rho
 
 
 def last_step(nu: FloatArray, s: FloatArray, a: FloatArray, gain: FloatArray,
-              factor: FloatArray, min_after: int = 2, z: float = STEP_Z) -> int:
+              factor: FloatArray, least: FloatArray, min_after: int = 2,
+              z: float = STEP_Z) -> int:
     """Index of the first frame after the last step found (0: none).
 
     ``nu`` (n, 3): the whitening filter's innovations per frame and axis (NaN where the
     axis was not used), ``s`` (n, 3) their variances; per axis the filter's typical AR(1)
-    coefficient ``a`` and gain ``gain``, and ``factor`` ≥ 1, the long-run variance factor
-    of the errors' correlation. A step needs ``min_after`` frames after it."""
+    coefficient ``a`` and gain ``gain``, ``factor`` ≥ 1, the long-run variance factor of
+    what runs on in the innovations (the errors' correlation, the road's wander), and
+    ``least``, the smallest step that counts (the tolerance: a smaller move is no new
+    calibration). A step needs ``min_after`` frames after it."""
     n = len(nu)
     resid = np.array(nu, dtype=float)
     start = 0
     for _ in range(MAX_STEPS):
-        found = _strongest_step(resid, s, a, gain, factor, start, min_after, z)
+        found = _strongest_step(resid, s, a, gain, factor, least, start, min_after, z)
         if found is None:
             break
         start, fitted = found
@@ -66,27 +74,29 @@ def last_step(nu: FloatArray, s: FloatArray, a: FloatArray, gain: FloatArray,
 
 
 def _strongest_step(nu: FloatArray, s: FloatArray, a: FloatArray, gain: FloatArray,
-                    factor: FloatArray, after: int, min_after: int, z: float,
-                    ) -> tuple[int, FloatArray] | None:
-    """The frame m > ``after`` of the largest √Λ on any axis where that is at least ``z``,
-    and the (n, 3) innovations its fitted step explains (on that axis); None otherwise."""
+                    factor: FloatArray, least: FloatArray, after: int, min_after: int,
+                    z: float) -> tuple[int, FloatArray] | None:
+    """The frame m > ``after`` of the largest √Λ on any axis where that is at least ``z`` and
+    the step beyond ``least``, and the (n, 3) innovations the steps fitted there explain (on
+    every axis: a knock often moves two); None otherwise."""
     n = len(nu)
     best: tuple[int, float] | None = None  # (m, √Λ)
-    fits = []  # per axis: (signature, Δ̂ at each m)
+    fits = []  # per axis: (signature, ρ, Δ̂ at each m)
     for j in range(nu.shape[1]):
         use = np.isfinite(nu[:, j]) & np.isfinite(s[:, j]) & (s[:, j] > 0)
-        g = step_signature(float(a[j]), float(gain[j]), n)
+        g, rho = step_signature(float(a[j]), float(gain[j]), n)
         if use.sum() < min_after + 1:
-            fits.append((g, np.zeros(n)))
+            fits.append((g, rho, np.zeros(n)))
             continue
         y = np.where(use, nu[:, j] / np.where(use, s[:, j], 1.0), 0.0)
         q = np.where(use, 1.0 / np.where(use, s[:, j], 1.0), 0.0)
-        pad = np.zeros(n)
-        num = np.correlate(np.concatenate([y, pad]), g, "valid")[:n]  # Σ_i g_i y[m+i]
-        den = np.correlate(np.concatenate([q, pad]), g * g, "valid")[:n]
-        fits.append((g, np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)))
+        num = _signature_sums(y, g, rho)  # Σ_i g_i y[m+i]
+        den = _signature_sums(q, g * g, rho * rho)
+        delta = np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)
+        fits.append((g, rho, delta))
         after_n = use[::-1].cumsum()[::-1]  # used frames from m on
-        valid = (np.arange(n) > after) & (after_n >= min_after) & (den > 0)
+        valid = ((np.arange(n) > after) & (after_n >= min_after) & (den > 0)
+                 & (np.abs(delta) > least[j]))
         if not valid.any():
             continue
         score = np.where(valid, np.abs(num) / np.sqrt(np.where(den > 0, den, 1.0)
@@ -97,8 +107,19 @@ def _strongest_step(nu: FloatArray, s: FloatArray, a: FloatArray, gain: FloatArr
     if best is None:
         return None
     m = best[0]
-    # every axis's fitted step at m (a knock often moves two): what the next search is left
     fitted = np.zeros_like(nu)
-    for j, (g, delta) in enumerate(fits):
-        fitted[m:, j] = np.where(np.isfinite(nu[m:, j]), g[:n - m] * delta[m], 0.0)
+    for j, (g, rho, delta) in enumerate(fits):
+        shape = np.full(n - m, rho)
+        shape[:min(len(g), n - m)] = g[:n - m]
+        fitted[m:, j] = np.where(np.isfinite(nu[m:, j]), shape * delta[m], 0.0)
     return m, fitted
+
+
+def _signature_sums(y: FloatArray, g: FloatArray, tail: float) -> FloatArray:
+    """(n,) Σ_{k≥m} w_{k−m} y_k for every m, the weights ``g`` then ``tail`` for ever: a
+    short correlation and a suffix sum (the signature settles within a few frames; the full
+    correlation cost 30 ms a frame at 30 fps with a minute of history)."""
+    n, k = len(y), len(g)
+    head = np.correlate(np.concatenate([y, np.zeros(k)]), g, "valid")[:n]
+    suffix = np.concatenate([np.cumsum(y[::-1])[::-1], [0.0]])  # Σ_{i≥m} y_i
+    return head + tail * suffix[np.minimum(np.arange(n) + k, n)]

@@ -261,6 +261,8 @@ def test_bad_input_is_one_line_and_exit_2(knock, tmp_path, capsys, argv, message
     err = capsys.readouterr().err
     assert rc == 2, err
     assert message in err and "Traceback" not in err
+    # nothing left waiting: a reader blocked on a dead monitor thread aborted the process
+    assert not [t.name for t in threading.enumerate() if t.name.startswith("vipm-live")]
 
 
 @settings(max_examples=200, deadline=None)

@@ -163,10 +163,11 @@ def test_drifting_reason_states_the_statistic_and_the_deviation():
     o = seen[-1]
     share = round(100 * o.statistic[0])
     dev = math.degrees(o.estimate[0] - nominal.values[0])
+    # of the frames since the step at frame 100 (10.0 s), found in the innovations
+    span = f"{o.t - 10.0:.1f}"
     assert o.reason == (f"pitch drifting: the test stands at {share}% of its threshold "
-                        # since the step at frame 100, found in the innovations
-                        f"(DRIFTING from 50%); median deviation since 10.00 s {dev:+.2f}°, "
-                        f"tolerance 0.10°")
+                        f"(DRIFTING from 50%); median deviation of the {o.frame - 99} frames "
+                        f"over the last {span} s {dev:+.2f}°, tolerance 0.10°")
     assert 0.5 <= o.statistic[0] < 1.0
 
 

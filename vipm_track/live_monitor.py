@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vipm_track.filters.ekf_state import EkfConfig, FilterState
+from vipm_track.filters.monitor import event_dict
 from vipm_track.filters.monitor_online import OnlineMonitor, SpeedBuffer
 from vipm_track.filters.monitor_table import MONITOR_COLUMNS, MONITOR_TABLE, monitor_row
 from vipm_track.filters.monitor_types import MonitorOutput
@@ -141,13 +142,6 @@ class _Arrived:
     arrived: float
 
 
-def _bare_event(t: float | None, frame: int | None, state: str, reason: str) -> dict[str, Any]:
-    """An event of the watchdog's (no estimate behind it) with every key a monitor event has
-    (``DriftMonitor``'s; docs/formats.md), the ones it has no value for None."""
-    return {"t": t, "frame": frame, "state": state, "estimate": None, "interval95": None,
-            "filter_mount": None, "reason": reason}
-
-
 class LiveMonitor:
     """The online chain (module doc): estimator → EKF → drift monitor on a live stream.
 
@@ -221,6 +215,7 @@ class LiveMonitor:
         self._stop = threading.Event()
         self._drain = True
         self._thread: threading.Thread | None = None
+        self._ended = False  # the thread has left its loop (set under _cond, then notified)
         self.failure: BaseException | None = None
         self._clock: tuple[float, float] = (0.0, 0.0)
 
@@ -248,8 +243,7 @@ class LiveMonitor:
         nothing. False on ``timeout``."""
         with self._cond:
             return self._cond.wait_for(lambda: not self._fresh or self._stop.is_set()
-                                       or self._thread is None or not self._thread.is_alive(),
-                                       timeout)
+                                       or self._thread is None or self._ended, timeout)
 
     def push_speed(self, t: float, speed_mps: float) -> None:
         """A wheel-speed sample: ``t`` [s, the frames' clock], speed [m/s, a magnitude or
@@ -283,6 +277,7 @@ class LiveMonitor:
         """Start the monitor's thread (frames pushed before are kept)."""
         self._started_at = time.monotonic()
         self._clock = (time.monotonic(), time.process_time())
+        self._ended = False
         self._thread = threading.Thread(target=self._run, name="vipm-live-monitor", daemon=True)
         self._thread.start()
         return self
@@ -329,6 +324,7 @@ class LiveMonitor:
             self.failure = exc
         finally:
             with self._cond:  # a reader waiting in wait_taken() sees the thread has ended
+                self._ended = True
                 self._cond.notify_all()
 
     def _take(self, timeout: float) -> tuple[_Arrived, _Arrived] | None:
@@ -391,8 +387,8 @@ class LiveMonitor:
             self.on_row(LiveRow(m, state, out, result, b.image, row, latency))
         if self._watchdog_held and out.state != "HOLD":
             # the data returned after a watchdog HOLD: say what the monitor says now
-            event = dict(out.event) if out.event is not None else _bare_event(
-                m.t, m.frame, out.state, "")
+            event = dict(out.event) if out.event is not None else event_dict(
+                m.t, m.frame, out.state, "", out.estimate, out.interval95, out.mount)
             event["reason"] = f"data back; {out.reason}"
             self._announce(event)
         elif out.event is not None and out.state != self._reported:
@@ -417,8 +413,9 @@ class LiveMonitor:
             if reason and key not in self._holds:
                 self._holds[key] = reason
                 if self._reported != "HOLD":
-                    self._announce(_bare_event(self._now_t(now), self._state.frame, "HOLD",
-                                               reason))
+                    # the watchdog's own: no estimate behind it
+                    self._announce(event_dict(self._now_t(now), self._state.frame, "HOLD",
+                                              reason))
                     self._watchdog_held = True
             elif not reason:
                 self._holds.pop(key, None)
