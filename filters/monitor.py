@@ -89,6 +89,9 @@ class DriftMonitor:
         self._alarm_t = math.nan  # when RECALIBRATE was entered (s)
         self._hold_event: dict[str, Any] | None = None  # a HOLD not yet long enough to report
         self._change_at: int | None = None
+        # used-frame count just before the last step found of the change under way (None:
+        # none): the frames behind the new extrinsics start there at the earliest
+        self._step_at: int | None = None
         self._held = 0
         cfg = self.config
         self._body = BodyScale(cfg.body_noise(), cfg.body_window_s, cfg.body_min_pairs)
@@ -133,7 +136,7 @@ class DriftMonitor:
             self._change_at = int(core.s.onset[0])  # the statistics restarted at the alarm
             self._alarm_t = float(inp.t)
         elif base not in (RECALIBRATE, DRIFTING):
-            self._change_at = None
+            self._change_at = self._step_at = None
         state = STATES[code]
         stat = core.last_statistic[0].copy()
         estimate = interval = None
@@ -183,6 +186,8 @@ class DriftMonitor:
         a = ar1_coefficient(np.full(3, 1.0 / cfg.fps), core.body_tau(body_std))
         a_road = math.exp(-1.0 / (cfg.fps * cfg.road_tau_s))
         history = list(self._history)
+        if self._step_at is not None:  # a step found before stays found: no flip-flop back
+            start = self._step_at if start is None else max(start, self._step_at)
         since = next((i for i, h in enumerate(history) if start is None or h.used > start),
                      len(history))
         # the change time may be many frames off, and the camera may have moved again since:
@@ -201,6 +206,7 @@ class DriftMonitor:
                              np.nan_to_num(factor, nan=1.0), core.nominal.tolerances)
             if step > 0:
                 since = first + step
+                self._step_at = history[since].used - 1
         hist = history[since:]
         # the frames since the change began, however few (a median of frames from before it
         # is no estimate of where the camera went: the demo's DRIFTING, one frame after a +1°
