@@ -362,3 +362,14 @@ def test_shutter_assumed_status_quotes_the_results_file():
     shaking = next(abs(pitch(r[5]) - pitch(r[6])) for r in rows if r[0] == "car shaking")
     assert (f"| {warned}/{len(rows)}; off by {_range(off, '.2f')}° "
             f"(car shaking {shaking:.2f}°) |" in _status("shutter assumed"))
+
+
+def test_monitor_extrinsics_status_quotes_the_results_file():
+    rows = [r for r in _rows(RESULTS / "bench_monitor_estimates.md") if len(r) == 9
+            and r[0] != "case"]
+    steps = [r for r in rows if " step " in r[0] and "road" not in r[0]]
+    second = [r for r in rows if "more at" in r[0]]
+    at_alarm = [float(r[4].rstrip(" %")) for r in steps]
+    at_end = [float(r[7].rstrip(" %")) for r in second]
+    assert (f"| {_range(at_alarm, '.0f')} %; {_range(at_end, '.0f')} % |"
+            in _status("monitor's new extrinsics"))
