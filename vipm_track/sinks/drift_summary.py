@@ -216,14 +216,22 @@ def _step_time(table: Mapping[str, NDArray], t: NDArray, column: str, direction:
     last stepped in ``direction`` (``filters.mount_steps``) [s]; NaN where it shows no such
     step. A filter's mount follows a knock at its own pace: the halfway rule put a knock at
     8.0 s, flagged at 9.3 s, at 15.6 s."""
+    tx, x = _frame_series(table, t, column)
+    steps = [s for s in mount_steps(tx, x) if np.sign(s.step) == direction]
+    return steps[-1].onset_s if steps else NAN
+
+
+def _frame_series(table: Mapping[str, NDArray], t: NDArray, column: str,
+                  ) -> tuple[NDArray, NDArray]:
+    """The times [s] and values of ``column`` on the rows that have both (and say ``ok``
+    where the table has a status); empty where it has no such column."""
     if column not in table:
-        return NAN
+        return np.zeros(0), np.zeros(0)
     x = np.asarray(table[column], float)
     ok = np.isfinite(x) & np.isfinite(t)
     if "status" in table:
         ok &= np.asarray(table["status"]).astype(str) == "ok"
-    steps = [s for s in mount_steps(t[ok], x[ok]) if np.sign(s.step) == direction]
-    return steps[-1].onset_s if steps else NAN
+    return t[ok], x[ok]
 
 
 def _split_time(table: Mapping[str, NDArray], t: NDArray, column: str, direction: float,
@@ -233,13 +241,7 @@ def _split_time(table: Mapping[str, NDArray], t: NDArray, column: str, direction
     higher in ``direction`` [s, the first frame after it]; NaN otherwise. For drives too short
     for ``filters.mount_steps``' test (8 s): a 3.2-s knock in an 8-s drive was put at 7.8 s,
     where the filter's mount crossed halfway."""
-    if column not in table:
-        return NAN
-    x = np.asarray(table[column], float)
-    ok = np.isfinite(x) & np.isfinite(t)
-    if "status" in table:
-        ok &= np.asarray(table["status"]).astype(str) == "ok"
-    tx, x = t[ok], x[ok]
+    tx, x = _frame_series(table, t, column)
     n = len(x)
     if n < 6 or not untested_drive_note(tx):  # where the step test ran, its "none" stands
         return NAN
