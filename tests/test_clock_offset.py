@@ -111,11 +111,12 @@ def test_kitti_real_pairs(tmp_path, capsys):
         out = tmp_path / f"track_{offset}.csv"
         assert main([*common, "--clock-offset", offset, "--out", str(out)]) == 0
         heights[offset] = _final_height(out)
-    # The offset is found to ±21–23 ms; a 0.3 s offset moves the height by ~4.6 %, so 1σ of
-    # offset is ~0.35 % of height: measured 0.37 % and −0.56 % on two estimates tables
-    # (draws) of this drive, held to 1 % (~3σ)
+    # The offset is found to ±21–23 ms; a 0.3 s offset moves the EKF's height by 1.3 % on
+    # this table (4.6 % while a 2 °/s-per-√s yaw-rate walk gated turn exits' motion), held
+    # to 1 % here and to a fifth of the wrong offset's error
     assert heights["auto"] == pytest.approx(heights["0.3"], rel=0.01)
-    assert abs(heights["0"] / heights["0.3"] - 1) > 0.03
+    wrong = abs(heights["0"] / heights["0.3"] - 1)
+    assert wrong > 0.01 and abs(heights["auto"] / heights["0.3"] - 1) < 0.2 * wrong
     assert main(["smooth", "--estimates", "tests/data/kitti07_estimates.csv", "--height",
                  "1.65", "--speed-csv", str(speed), "--clock-offset", "auto", "--out",
                  str(tmp_path / "s.csv")]) == 0

@@ -107,7 +107,11 @@ def test_consistency_nees_nis_inside_bounds():
     con = consistency(runs, ests, [0, 1, 2, 3, 4])
     assert con.anees_bounds[0] <= con.anees <= con.anees_bounds[1]
     assert con.anis_bounds[0] <= con.anis <= con.anis_bounds[1]
-    assert con.anees_inside > 0.85 and con.anis_inside > 0.85
+    # the yaw rate walks at 8 °/s per √s for real turn exits (KITTI 07: 16 °/s lost in 0.5 s);
+    # this simulator's turns are smoother, so some windows' NIS fall below their bounds (85 %
+    # inside at 2 °/s per √s, 79 % now): on the cautious side, never above
+    assert con.anees_inside > 0.85 and con.anis_inside > 0.75
+    assert con.nis_pooled <= con.nis_pooled_bounds[1]
 
 
 def test_overconfident_measurements_fail_consistency():
