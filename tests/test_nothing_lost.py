@@ -484,11 +484,13 @@ def test_report_leaves_out_repeated_and_backward_rows_naming_them(tmp_path, caps
     assert "row 10 frame 7 (first row 9)" in err and "row 54 frame 3" in err
     text = (tmp_path / "rep" / "report.md").read_text()
     assert "(120 rows, frames 0–119)" in text
+    # every row but one out of order: no sequence of frames at all (a report of one row,
+    # exit 0, before), bad input naming the rows
     backwards = tmp_path / "backwards.csv"
     backwards.write_text("\n".join([lines[0], *lines[1:][::-1]]) + "\n")
     rc, err = _run(capsys, "report", backwards, "--out", tmp_path / "rep2")
-    assert rc == 0 and "119 rows have a frame out of order with the rows around it" in err
-    assert "(-" not in (tmp_path / "rep2" / "report.md").read_text()  # no negative span
+    assert rc == 2 and "119 of 120 rows repeat a frame or have a frame or time out of" in err
+    assert "119 rows have a frame out of order with the rows around it" in err
 
 
 def test_numbers_are_written_at_sensible_precision_with_one_line_ending(tmp_path, capsys):
