@@ -194,6 +194,9 @@ class DriftMonitor:
         # the frames after the last step, looked for from a second before the change time
         first = max(0, since - round(cfg.fps))
         window = history[first:]
+        # an axis without a frame since the step found below (height after the wheel speed
+        # stopped) keeps its estimate from the frames since the change time
+        fallback = history[since:]
         step = 0
         if window:
             # the errors' measured correlation and the road's modelled wander both run on in
@@ -205,7 +208,9 @@ class DriftMonitor:
                              np.median([h.gain for h in window], axis=0),
                              np.nan_to_num(factor, nan=1.0), core.nominal.tolerances)
             if step > 0:
-                since = first + step
+                # the first step of a change may lie in the lead-in (the change time late);
+                # a later one only moves the window forward
+                since = first + step if self._step_at is None else max(since, first + step)
                 self._step_at = history[since].used - 1
         hist = history[since:]
         # the frames since the change began, however few (a median of frames from before it
@@ -222,14 +227,20 @@ class DriftMonitor:
         half = np.full(3, np.nan)
         for j in range(3):
             ok = np.isfinite(dev[:, j])
+            if not ok.any() and fallback:
+                dev_j = np.array([h.dev for h in fallback])
+                var_j = np.array([h.var for h in fallback])
+                ok = np.isfinite(dev_j[:, j])
+            else:
+                dev_j, var_j = dev, var
             n = int(ok.sum())
             if n == 0:
                 continue
-            est[j] = float(np.median(dev[ok, j]))
-            mv = (mean_variance(body_std[j], a[j], float(np.mean(var[ok, j])), n)
+            est[j] = float(np.median(dev_j[ok, j]))
+            mv = (mean_variance(body_std[j], a[j], float(np.mean(var_j[ok, j])), n)
                   + mean_variance(core.road_std[j], a_road, 0.0, n))
             half[j] = 1.96 * math.sqrt(math.pi / 2.0 * mv)
-            data = batch_means(dev[ok, j])  # the data's own scatter, where wider
+            data = batch_means(dev_j[ok, j])  # the data's own scatter, where wider
             if data is not None:
                 half[j] = max(half[j], math.sqrt(math.pi / 2.0) * data.half_width95)
         value = core.nominal_values + est
@@ -279,16 +290,17 @@ class DriftMonitor:
                 span = f", 95 % {_fmt_dev(j, lo)} … {_fmt_dev(j, hi)}"
             over = (self._since_text(inp) if estimate is None or self._since_change else
                     f"of the last {self._estimate_frames} frames, from before the change")
-            settled = self._estimate_frames >= max(3, round(0.5 * self.config.fps))
-            if (estimate is not None and abs(dev) <= core.nominal.tolerances[j] and settled
-                    and self._since_change and self._estimate_from > self._alarm_t):
-                # latched, and half a second of frames since a step after the alarm reads
-                # within the tolerance: the camera was set back (or knocked back), as the new
-                # extrinsics say
+            if estimate is not None and abs(dev) <= core.nominal.tolerances[j]:
+                # latched, and the frames behind the new extrinsics read within the tolerance:
+                # "set back?" where half a second of them follows a step after the alarm
+                settled = self._estimate_frames >= max(3, round(0.5 * self.config.fps))
+                back = settled and self._since_change and self._estimate_from > self._alarm_t
                 return (f"{AXES[j]} changed beyond the tolerance {tol} (the test crossed its "
-                        f"threshold), and reads {_fmt_dev(j, dev)} from nominal again (median "
-                        f"{over}{span}): set back? RECALIBRATE clears after "
-                        f"{self.config.clear_after_s:g} s of frames without a warning")
+                        f"threshold), and reads {_fmt_dev(j, dev)} from nominal "
+                        f"{'again ' if back else ''}(median {over}{span})"
+                        + (f": set back? RECALIBRATE clears after "
+                           f"{self.config.clear_after_s:g} s of frames without a warning"
+                           if back else ""))
             text = (f"{AXES[j]} changed: {_fmt_dev(j, dev)} from nominal (median {over}"
                     f"{span}), beyond the tolerance {tol}: the test crossed its threshold")
             recent = float(core.s.ema[0, j])
@@ -307,7 +319,8 @@ class DriftMonitor:
     def _since_text(self, inp: MonitorInput) -> str:
         """How far back the new extrinsics reach, in seconds before this frame (a live
         camera's times are Unix times: "since 1764445123.40 s" said nothing)."""
-        return (f"of the {self._estimate_frames} frames over the last "
+        n = self._estimate_frames
+        return (f"of the {n} frame{'s' if n != 1 else ''} over the last "
                 f"{float(inp.t) - self._estimate_from:.1f} s")
 
     def _event(self, inp: MonitorInput, state: str, reason: str, estimate: FloatArray | None,

@@ -699,11 +699,13 @@ def test_new_extrinsics_follow_a_second_change_while_held(second, truth):
     assert abs(pitch - truth) < 0.1 and lo <= truth <= hi, (pitch, lo, hi)
 
 
-@pytest.mark.parametrize("seed", [1, 2, 5])
+@pytest.mark.parametrize("seed", [0, 1, 2, 3, 5])
 def test_a_told_roads_wander_makes_no_steps_of_the_new_extrinsics(seed):
     """A 1° knock on a road whose tilt wanders 0.4° (the monitor told: --road-std 0.4): the
     step search took the wander for steps and the reported pitch jumped by 0.5–0.9° from one
-    frame to the next while RECALIBRATE was held; it must stand out of the told wander."""
+    frame to the next while RECALIBRATE was held; it must stand out of the told wander, and a
+    step once found stays found (found, lost and found again, the pitch flipped between
+    0.75° and 1.06° off nominal from frame to frame)."""
     run = drive(60.0, seed=seed, changes=[MountChange(15.0, pitch_deg=1.0)],
                 road_std_deg=0.4, stop_probability=0.0)
     cfg = MonitorConfig.from_noise(run.config.noise, fps=FPS, road_std_deg=0.4, road_tau_s=2.0,
@@ -712,7 +714,8 @@ def test_a_told_roads_wander_makes_no_steps_of_the_new_extrinsics(seed):
                          config=cfg)
     held = [o for o in out if o.state == "RECALIBRATE"]
     pitch = np.degrees([o.estimate[0] for o in held])
-    assert len(held) > 100 and np.max(np.abs(np.diff(pitch))) < 0.2
+    jumps = np.abs(np.diff(pitch))
+    assert len(held) > 100 and np.count_nonzero(jumps > 0.2) <= 1, jumps[jumps > 0.2]
     assert not any("set back?" in o.reason for o in held)
     lo, hi = np.degrees(held[-1].interval95[0])
     assert lo <= 4.0 <= hi

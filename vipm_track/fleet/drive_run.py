@@ -108,6 +108,7 @@ def run_drive(spec: DriveSpec, out: str | Path, settings: FleetSettings,
     start = time.perf_counter()
     folder = drive_folder(out, spec.drive)
     base = {"drive": spec.drive, "vehicle": spec.vehicle, "started": spec.started}
+    rerun = False  # its outputs of an earlier run removed: this run's or none stand
     try:
         if spec.problem:
             raise InputError(spec.problem)
@@ -117,10 +118,14 @@ def run_drive(spec: DriveSpec, out: str | Path, settings: FleetSettings,
             return {**done, "skipped": True}
         # an earlier run's outputs go first: a drive that now stops part-way must not leave
         # tables that no done.json vouches for
+        rerun = True
         _remove_outputs(folder)
         row = {**base, **_process(spec, folder, settings, progress_topic), "input_hash": key}
     except Exception as exc:  # a failed drive is a row of the summary; the fleet goes on
-        _remove_outputs(folder)  # a file missing now, found before the step above: the same
+        if rerun or isinstance(exc, (InputError, NothingUsable, FileNotFoundError)):
+            # a drive that is no longer what it was (a file missing or broken now, found
+            # before the step above): the same; a passing read error leaves its outputs
+            _remove_outputs(folder)
         if isinstance(exc, (InputError, NothingUsable, OSError)):
             why = printable(exc, 500)
         else:
