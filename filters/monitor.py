@@ -5,9 +5,11 @@ The states are listed in ``filters.monitor_types``, the test behind them is expl
 ``filters.monitor_core``, the nominal calibration files are read by ``filters.nominal``.
 
 The new extrinsics reported with DRIFTING/RECALIBRATE are the nominal plus the median
-deviation since the estimated change time (the last time the alarming statistic was zero);
-the 95 % interval uses the long-run variance of a mean of n correlated frames (× π/2 for
-the median), or the frames' own batch-means scatter (``filters.long_run``) where wider.
+deviation of the frames after the last step of the mount (``filters.monitor_segments``,
+looked for from a second before the CUSUM's change time on; that change time where none
+stands out); the 95 % interval uses the long-run variance of a mean of n correlated frames
+(× π/2 for the median), or the frames' own batch-means scatter (``filters.long_run``) where
+wider. ``scripts/bench_monitor_estimates.py`` scores both against the truth.
 """
 
 from __future__ import annotations

@@ -69,10 +69,12 @@ computed at the nominal deviation Δ = 0 and the typical w) is set to
 
 INVALID uses a 1 s exponential average of the deviations (and the filter's mount estimate
 where given) against the physical limits. The new extrinsics reported with DRIFTING and
-RECALIBRATE are ``filters.monitor.DriftMonitor``'s, from the change time ``change_onset``
-estimates. CALIBRATED vouches for the mount: it is entered where the weighted mean of the u_k
-since the evidence began, ± ``calibrate_within_z`` of its standard errors (from the w_k), lies
-within the tolerance plus the smallest design shift (``calibrated_bound``).
+RECALIBRATE are ``filters.monitor.DriftMonitor``'s, from the last step found in the
+whitening filter's innovations (``last_whitening``; ``filters.monitor_segments``), else from
+the change time ``change_onset`` estimates. CALIBRATED vouches for the mount: it is entered
+where the weighted mean of the u_k since the evidence began, ± ``calibrate_within_z`` of its
+standard errors (from the w_k), lies within the tolerance plus the smallest design shift
+(``calibrated_bound``).
 
 Height is tested only on frames with a metric travel (wheel speed; see
 ``inputs_from_measurements``): h_k = h_assumed · d_wheel / ‖t_est‖ (CONVENTIONS.md, Scale).
