@@ -220,7 +220,7 @@ class DriftMonitor:
         # knock, reported -0.11°); the last frames where none has come since
         self._since_change = bool(hist)
         if not hist:
-            hist = history[-max(3, round(0.5 * cfg.fps)):]
+            hist = history[-self._half_second:]
         self._estimate_frames = len(hist)
         self._estimate_from = hist[0].t if hist else math.nan
         dev = np.array([h.dev for h in hist])
@@ -295,7 +295,7 @@ class DriftMonitor:
             if estimate is not None and abs(dev) <= core.nominal.tolerances[j]:
                 # latched, and the frames behind the new extrinsics read within the tolerance:
                 # "set back?" where half a second of them follows a step after the alarm
-                settled = self._estimate_frames >= max(3, round(0.5 * self.config.fps))
+                settled = self._estimate_frames >= self._half_second
                 back = settled and self._since_change and self._estimate_from > self._alarm_t
                 return (f"{AXES[j]} changed beyond the tolerance {tol} (the test crossed its "
                         f"threshold), and reads {_fmt_dev(j, dev)} from nominal "
@@ -317,6 +317,11 @@ class DriftMonitor:
         return (f"{AXES[j]} drifting: the test stands at {stat[j]:.0%} of its threshold "
                 f"(DRIFTING from {self.config.warn_enter:.0%}); median deviation {over} "
                 f"{_fmt_dev(j, dev)}, tolerance {tol}")
+
+    @property
+    def _half_second(self) -> int:
+        """Frames in half a second (at least 3): the fewest a median is read from."""
+        return max(3, round(0.5 * self.config.fps))
 
     def _since_text(self, inp: MonitorInput) -> str:
         """How far back the new extrinsics reach, in seconds before this frame (a live

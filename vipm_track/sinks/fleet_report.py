@@ -20,18 +20,21 @@ def started_instant(text: str) -> datetime | None:
     """A drive's ``started`` (ISO 8601: a date, or a date and time with or without a UTC
     offset) as a time zone-aware instant, one without an offset taken as UTC; None where
     it is no such time."""
-    try:
-        when = datetime.fromisoformat(str(text).strip())
-    except ValueError:
-        return None
-    return when if when.tzinfo is not None else when.replace(tzinfo=UTC)
+    when = _parsed(text)
+    return when if when is None or when.tzinfo is not None else when.replace(tzinfo=UTC)
 
 
 def _has_zone(text: str) -> bool:
+    when = _parsed(text)
+    return when is not None and when.tzinfo is not None
+
+
+def _parsed(text: str) -> datetime | None:
+    """``text`` as ISO 8601, as it says it (with or without a UTC offset); None if not."""
     try:
-        return datetime.fromisoformat(str(text).strip()).tzinfo is not None
+        return datetime.fromisoformat(str(text).strip())
     except ValueError:
-        return False
+        return None
 
 
 def by_vehicle(rows: Sequence[dict[str, Any]]) -> dict[str, list[dict[str, Any]]]:
