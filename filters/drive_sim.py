@@ -71,6 +71,11 @@ class DriveConfig:
     pitch_deg: float = 3.0
     roll_deg: float = 0.0
     yaw_offset_deg: float = 0.0
+    #: the camera's lever arms (``filters.lever_arm``): metres ahead of the point the
+    #: vehicle turns about, and above the axis its body rolls about (0: the camera moves as
+    #: the vehicle, the filters' model)
+    lever_arm_m: float = 0.0
+    roll_arm_m: float = 0.0
     mount_changes: tuple[MountChange, ...] = ()
     mount_random_walk: bool = True
     noise: NoiseParams = field(default_factory=NoiseParams)  # body shaking + mount walk truth
@@ -264,6 +269,8 @@ def _truth(
         yaw_m += np.radians(noise.mount_yaw_rw_deg_per_sqrt_s) * walk[:, 3]
     # body: AR(1) at the frame rate, started in its stationary distribution
     body = _gauss_markov(rng, n, 2, np.exp(-dt / noise.body_tau_s), np.radians(noise.body_std_deg))
+    # the body's roll about its axis sways the camera sideways; the road's tilt does not
+    sway = cfg.roll_arm_m * np.sin(body[:, 1])
     if cfg.road_std_deg > 0:
         body += _gauss_markov(rng, n, 2, np.exp(-dt / cfg.road_tau_s),
                               np.radians(cfg.road_std_deg))
@@ -284,12 +291,16 @@ def _truth(
     y = np.concatenate([[0.0], np.cumsum(0.5 * (vy[1:] + vy[:-1]) * dtf)])
     idx = np.arange(n) * _SUBSTEPS
     x, y, psi, v, omega = x[idx], y[idx], psi[idx], v[idx], omega[idx]
+    # the camera: ``lever_arm_m`` ahead (sin ψ, cos ψ) and ``sway`` right (cos ψ, −sin ψ)
+    # of the point the vehicle turns about (x, y)
+    cam_x = x + cfg.lever_arm_m * np.sin(psi) + sway * np.cos(psi)
+    cam_y = y + cfg.lever_arm_m * np.cos(psi) - sway * np.sin(psi)
     # true motion in G_{k-1} (heading ψ + yaw_m), metric
     tx = np.full(n, np.nan)
     tz = np.full(n, np.nan)
     yaw = np.full(n, np.nan)
     g = psi[:-1] + yaw_m[:-1]
-    dx, dy = np.diff(x), np.diff(y)
+    dx, dy = np.diff(cam_x), np.diff(cam_y)
     tx[1:] = np.cos(g) * dx - np.sin(g) * dy
     tz[1:] = np.sin(g) * dx + np.cos(g) * dy
     yaw[1:] = np.diff(psi)

@@ -47,6 +47,7 @@ from . import model as M
 from .body_scale import BodyScale, pair_change, pairs_to_start
 from .ekf_state import EkfConfig, FilterState
 from .heave import HeaveWidening
+from .lever_arm import LeverArm
 from .model import NoiseParams
 from .mount_change import MountChangeDetector
 from .row_correlation import PoseErrorCorrelation
@@ -86,11 +87,11 @@ class ExtrinsicsEKF:
     def __init__(self, config: EkfConfig | None = None, widen_pose: bool = True,
                  speed_series: SpeedSource | None = None, clock_offset_s: float = 0.0) -> None:
         """``widen_pose``: widen each state's pose σ by the pairs' error correlation and its
-        height σ by the body's heave (:meth:`step`); off where only the mount is read (it
-        costs a sixth of a step). ``speed_series`` (camera clock after ``clock_offset_s``):
-        the wheel speed the speeds given to :meth:`step` come from, whose distance between
-        a pair's frames measures the heave (``heave.HeaveWidening``); None: the speeds given
-        with the frames."""
+        height σ by the body's heave, and add the camera's lever arms to its lateral motion
+        (:meth:`step`); off where only the mount is read (it costs a sixth of a step).
+        ``speed_series`` (camera clock after ``clock_offset_s``): the wheel speed the speeds
+        given to :meth:`step` come from, whose distance between a pair's frames measures the
+        heave (``heave.HeaveWidening``); None: the speeds given with the frames."""
         self._cfg = config or EkfConfig()
         if self._cfg.height_m <= 0:
             raise ValueError(f"nominal height must be > 0, got {self._cfg.height_m}")
@@ -120,6 +121,7 @@ class ExtrinsicsEKF:
         self._correlation = PoseErrorCorrelation() if widen_pose else None
         self._heave = (HeaveWidening(self._cfg, speed_series, clock_offset_s) if widen_pose
                        else None)
+        self._lever = LeverArm(self._cfg.noise.lever_arm_std_m) if widen_pose else None
         #: mount steps found so far: (onset time s, axis 0 pitch / 1 roll, step rad)
         self.mount_changes: list[tuple[float, int, float]] = []
         h0 = self._cfg.height_m
@@ -143,14 +145,16 @@ class ExtrinsicsEKF:
         """Advance to frame time ``t`` (default: the measurement's) and apply the pair
         ``measurement`` (skipped unless ok) and the wheel ``speed`` (m/s; None/NaN: none).
         The state's pose σ is widened by the pairs' error correlation (``row_correlation``)
-        and its height σ by the body's heave (``heave``; the filter's own covariance is not)
-        unless the filter was made without."""
+        and its height σ by the body's heave (``heave``; the filter's own covariance is not),
+        and its lateral motion takes the camera's lever arm (``lever_arm``), unless the filter
+        was made without."""
         state = self._step(measurement, t, speed, frame)
-        if self._correlation is None or self._heave is None:
+        if self._correlation is None or self._heave is None or self._lever is None:
             return state
         state = self._correlation.widened(state, measurement)
-        return self._heave.widened(state, measurement,
-                                   math.nan if speed is None else float(speed))
+        state = self._heave.widened(state, measurement,
+                                    math.nan if speed is None else float(speed))
+        return self._lever.corrected(state, measurement)
 
     def _step(self, measurement: PairMeasurement | None, t: float | None, speed: float | None,
               frame: int | None) -> FilterState:

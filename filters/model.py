@@ -13,7 +13,8 @@ calibration means) and a **fast body** part (suspension, shaking):
 - planar motion: speed v (m/s, along the direction of travel), yaw rate ω (rad/s, > 0 turning
   right), both random walks; vehicle pose (x, y, ψ) in a world frame = the planar frame of the
   first frame: x to its right (G's x), y forward (G's z), heading ψ > 0 turning right
-  (CONVENTIONS.md signs). The camera's G origin moves with the vehicle (no lever arm).
+  (CONVENTIONS.md signs). The camera's G origin moves with the vehicle (no lever arm: the
+  filters' output adds the lever arms measured from the pairs, ``filters.lever_arm``).
 
 A pair measurement relates frames k-1 and k, so the state carries a *clone* of the previous
 frame's body and planar pose (stochastic cloning): ``transition`` copies the current part into
