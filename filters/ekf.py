@@ -50,7 +50,7 @@ from .heave import HeaveWidening
 from .lever_arm import LeverArm
 from .model import NoiseParams
 from .mount_change import MountChangeDetector
-from .row_correlation import PoseErrorCorrelation
+from .row_correlation import PairErrorCorrelation
 from .wheel_speed import SpeedSource, interpolate_speed
 
 FloatArray = NDArray[np.float64]
@@ -118,7 +118,7 @@ class ExtrinsicsEKF:
         #: pairs up to this time are in the body window already (the bootstrap's)
         self._body_seen_t = -math.inf
         self._mount_change = MountChangeDetector(cfg.mount_change)
-        self._correlation = PoseErrorCorrelation() if widen_pose else None
+        self._correlation = PairErrorCorrelation() if widen_pose else None
         self._heave = (HeaveWidening(self._cfg, speed_series, clock_offset_s) if widen_pose
                        else None)
         self._lever = LeverArm(self._cfg.noise.lever_arm_std_m) if widen_pose else None
@@ -144,17 +144,17 @@ class ExtrinsicsEKF:
     ) -> FilterState:
         """Advance to frame time ``t`` (default: the measurement's) and apply the pair
         ``measurement`` (skipped unless ok) and the wheel ``speed`` (m/s; None/NaN: none).
-        The state's pose σ is widened by the pairs' error correlation (``row_correlation``)
-        and its height σ by the body's heave (``heave``; the filter's own covariance is not),
-        and its lateral motion takes the camera's lever arm (``lever_arm``), unless the filter
-        was made without."""
+        The state's lateral motion takes the camera's lever arms (``lever_arm``), its pose and
+        motion σ are widened by the pairs' error correlation (``row_correlation``) and its
+        height σ by the body's heave (``heave``; the filter's own covariance is not), unless
+        the filter was made without."""
         state = self._step(measurement, t, speed, frame)
         if self._correlation is None or self._heave is None or self._lever is None:
             return state
+        state = self._lever.corrected(state, measurement)
         state = self._correlation.widened(state, measurement)
-        state = self._heave.widened(state, measurement,
-                                    math.nan if speed is None else float(speed))
-        return self._lever.corrected(state, measurement)
+        return self._heave.widened(state, measurement,
+                                   math.nan if speed is None else float(speed))
 
     def _step(self, measurement: PairMeasurement | None, t: float | None, speed: float | None,
               frame: int | None) -> FilterState:

@@ -42,6 +42,11 @@ class FilterConfig:
     speed_timeout_s: float = 1.0
 
 
+#: the statuses of a frame estimate whose filter did not apply the frame's pair (none, a
+#: late one, or the filter not started): its pair's residuals against it mean nothing
+NOT_APPLIED = ("predicted", "waiting")
+
+
 def _std(cov: FloatArray) -> FloatArray:
     return np.sqrt(np.clip(np.diag(cov), 0.0, None))
 

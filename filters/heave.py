@@ -79,6 +79,8 @@ class HeaveWidening:
         before — against that frame's estimate, which had not seen ``m`` (a filter's
         estimate after ``m`` has moved towards it); NaN without one. Frames in order."""
         t_before, v_before, h_before = self._last
+        if estimate.t <= t_before:  # a late pair, which the filter left out
+            return t_before, math.nan, math.nan
         v = float(speed) if speed is not None and math.isfinite(speed) else math.nan
         pose = estimate.pose
         self._last = (estimate.t, v, float(pose[2]) if pose is not None else math.nan)

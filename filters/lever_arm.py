@@ -37,15 +37,17 @@ from numpy.typing import NDArray
 from vipm_track.measurement import PairMeasurement
 
 from . import model as M
-from .filter_common import FrameEstimate
+from .filter_common import NOT_APPLIED, FrameEstimate
 
 FloatArray = NDArray[np.float64]
 Estimate = TypeVar("Estimate", bound=FrameEstimate)
 
-#: a pair whose lateral residual is further than this many σ from what the fit so far (or
-#: its prior) predicts does not enter it: a lateral outlier, or a pair the filter gated
+#: a pair whose lateral residual is further than this many σ from what the fit so far
+#: predicts does not enter it: a lateral outlier
 MAX_Z = 5.0
-#: the fewest pairs whose scatter about the fit scales its covariance (fewer: as stated)
+#: the fewest pairs whose scatter about the fit scales its covariance (fewer: as stated),
+#: and from which on the fit gates the pairs (before, one outlier among the first pairs that
+#: turn would set the arms and shut the good pairs out)
 MIN_PAIRS_FOR_SCATTER = 10
 
 
@@ -63,9 +65,12 @@ class LeverArm:
     and its pair; :meth:`corrected` gives an estimate's tx with the camera's slide added."""
 
     def __init__(self, prior_std_m: float) -> None:
-        if not prior_std_m > 0:
-            raise ValueError(f"prior_std_m must be > 0, got {prior_std_m}")
-        self._prior_info = np.eye(2) / float(prior_std_m) ** 2
+        """``prior_std_m``: the prior σ of each arm, metres; 0 holds both at 0 (the filters'
+        ``--lever-arm-std 0``: the camera moves as the vehicle)."""
+        if not prior_std_m >= 0:
+            raise ValueError(f"prior_std_m must be >= 0, got {prior_std_m}")
+        self.enabled = prior_std_m > 0
+        self._prior_info = np.eye(2) / (float(prior_std_m) ** 2 if self.enabled else 1.0)
         self._info = self._prior_info.copy()  # Σ x xᵀ/v + the prior's
         self._moment = np.zeros(2)  # Σ x r / v
         self._chi2_sum = 0.0  # Σ r²/v
@@ -80,18 +85,25 @@ class LeverArm:
     @property
     def covariance(self) -> FloatArray:
         """2×2 covariance of :attr:`arms_m`, widened by the pairs' scatter about the fit."""
-        cov = np.linalg.inv(self._info)
-        if self._pairs >= MIN_PAIRS_FOR_SCATTER:
-            # Σ (r − xᵀθ)²/v by the sums (the prior's share of the information taken out)
-            arms = self.arms_m
-            chi2 = (self._chi2_sum - arms @ self._moment
-                    - arms @ self._prior_info @ arms)
-            cov *= max(1.0, chi2 / (self._pairs - 2))
-        return cov
+        return np.linalg.inv(self._info) * self._scatter()
 
-    def observe(self, estimate: FrameEstimate, m: PairMeasurement | None) -> None:
-        """Take ``m``'s lateral residual against ``estimate`` (same frame) into the fit."""
-        if m is None or not m.ok or "motion" in estimate.gated:
+    def _scatter(self) -> float:
+        """The pairs' reduced χ² about the fit, at least 1 (1 before enough pairs)."""
+        if self._pairs < MIN_PAIRS_FOR_SCATTER:
+            return 1.0
+        # Σ (r − xᵀθ)²/v by the sums (the prior's share of the information taken out)
+        arms = self.arms_m
+        chi2 = self._chi2_sum - arms @ self._moment - arms @ self._prior_info @ arms
+        return max(1.0, chi2 / (self._pairs - 2))
+
+    def observe(self, estimate: FrameEstimate, m: PairMeasurement | None,
+                gate: LeverArm | None = None) -> None:
+        """Take ``m``'s lateral residual against ``estimate`` into the fit, where the filter
+        applied the pair (not gated, not late: a late pair's estimate is another frame's) and
+        it :meth:`fits` ``gate`` (default: this fit, from its ``MIN_PAIRS_FOR_SCATTER``-th
+        pair on)."""
+        if (not self.enabled or m is None or not m.ok or estimate.frame != m.frame
+                or estimate.status in NOT_APPLIED or "motion" in estimate.gated):
             return
         x = _regressors(estimate)
         height, tx = float(estimate.mount[2]), float(estimate.motion[0])
@@ -102,17 +114,27 @@ class LeverArm:
         scale = height / m.height_assumed  # the pair's tx at the assumed height → metres
         r = float(m.z[4]) * scale - tx
         v = var_pair * scale**2
-        if (r - x @ self.arms_m) ** 2 > MAX_Z**2 * (v + x @ self.covariance @ x):
+        if gate is not None:
+            if not gate.fits(r, x, v):
+                return
+        elif self._pairs >= MIN_PAIRS_FOR_SCATTER and not self.fits(r, x, v):
             return
         self._info += np.outer(x, x) / v
         self._moment += x * r / v
         self._chi2_sum += r * r / v
         self._pairs += 1
 
+    def fits(self, residual: float, x: FloatArray, var: float) -> bool:
+        """Whether a pair's lateral ``residual`` (m, stated variance ``var`` m², regressors
+        ``x``) is within ``MAX_Z`` σ of the fit, the pairs' scatter about it counted."""
+        scatter = self._scatter()
+        predicted = var * scatter + x @ np.linalg.inv(self._info) @ x * scatter
+        return (residual - x @ self.arms_m) ** 2 <= MAX_Z**2 * predicted
+
     def apply(self, estimate: Estimate) -> Estimate:
         """``estimate`` with L·sin Δψ + H·Δρ added to its tx, and their variance to tx's."""
         x = _regressors(estimate)
-        if x is None or not np.all(np.isfinite(estimate.motion)):
+        if not self.enabled or x is None or not np.all(np.isfinite(estimate.motion)):
             return estimate
         (ahead, above), cov_arms = self.arms_m, self.covariance
         yaw = float(estimate.motion[2])
@@ -138,8 +160,12 @@ class LeverArm:
 def corrected_drive(estimates: list[Estimate], measurements: dict[int, PairMeasurement],
                     prior_std_m: float) -> list[Estimate]:
     """A whole drive's estimates (a batch) with the slide of the fit over all its pairs;
-    ``measurements`` by frame."""
+    ``measurements`` by frame. Fitted twice: the second time every pair is gated against the
+    first fit, so that an outlier among the drive's first turning pairs is left out too."""
+    first = LeverArm(prior_std_m)
+    for e in estimates:
+        first.observe(e, measurements.get(e.frame))
     lever = LeverArm(prior_std_m)
     for e in estimates:
-        lever.observe(e, measurements.get(e.frame))
+        lever.observe(e, measurements.get(e.frame), gate=first)
     return [lever.apply(e) for e in estimates]

@@ -14,7 +14,7 @@ from .ekf import SpeedSource, speed_at
 from .fixed_lag import FixedLagSmoother
 from .heave import HeaveWidening
 from .lever_arm import LeverArm, corrected_drive
-from .row_correlation import PoseErrorCorrelation, widened_drive
+from .row_correlation import PairErrorCorrelation, widened_drive
 from .smoother import smooth_batch
 from .smoother_config import SmoothedFrame, SmootherConfig
 from .track import track_row
@@ -59,19 +59,20 @@ def smoothed_frames(
     speeds = speeds_at_frames(measurements, speed_series, clock_offset_s)
     by_frame = {m.frame: m for m in measurements}
     heave = HeaveWidening(cfg, speed_series, clock_offset_s)
-    # the pose σ widened by the pairs' error correlation (row_correlation), the height σ by
-    # the body's heave (heave) and the lever arm's slide added to the lateral motion
-    # (lever_arm): the batch's by the whole drive's correlation and lever arm and the heave
-    # about each frame, the fixed lag's by the pairs up to each frame
+    # the lever arms' slide added to the lateral motion (lever_arm), the pose and motion σ
+    # widened by the pairs' error correlation (row_correlation) and the height σ by the
+    # body's heave (heave): the batch's by the whole drive's arms and correlation and the
+    # heave about each frame, the fixed lag's by the pairs up to each frame
     lever_std = cfg.noise.lever_arm_std_m
     if cfg.lag_s == 0:
-        frames = widened_drive(smooth_batch(measurements, speeds, cfg, progress)[0], by_frame)
-        yield from corrected_drive(heave.widened_drive(frames, by_frame), by_frame, lever_std)
+        frames = smooth_batch(measurements, speeds, cfg, progress)[0]
+        frames = widened_drive(corrected_drive(frames, by_frame, lever_std), by_frame)
+        yield from heave.widened_drive(frames, by_frame)
         return
-    correlation, lever = PoseErrorCorrelation(), LeverArm(lever_std)
+    correlation, lever = PairErrorCorrelation(), LeverArm(lever_std)
     for f in _fixed_lag_frames(measurements, cfg, speeds, progress):
         m = by_frame.get(f.frame)
-        yield lever.corrected(heave.widened(correlation.widened(f, m), m), m)
+        yield heave.widened(correlation.widened(lever.corrected(f, m), m), m)
 
 
 def _fixed_lag_frames(measurements: Sequence[PairMeasurement], cfg: SmootherConfig,

@@ -120,8 +120,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=float,
         metavar="M",
         help="how far the camera may sit from the axle the vehicle turns about: a turning "
-        "pair's sideways motion gets that much more variance (default 2; 0 trusts the "
-        "no-side-slip model)",
+        "pair's sideways motion gets that much more variance, and the prior of the lever arms "
+        "fitted to the frames' sideways motion (default 2; 0 trusts the no-side-slip model)",
     )
     group.add_argument(
         "--no-std",
