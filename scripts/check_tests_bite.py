@@ -48,6 +48,7 @@ TABLE_TESTS = (
     "tests/test_kitti.py::test_stored_kitti_estimates_score_as_stated",
 )
 RENDER_TESTS = ("tests/test_render_independent.py",)
+LEVER_ARM_TESTS = ("tests/test_lever_arm.py", "tests/test_row_correlation.py")
 CHAIN_TESTS = ("tests/test_pair_chain.py", "tests/test_pipeline.py")
 
 
@@ -265,6 +266,44 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("table-reader-skips-row", "table writer", "off-by-one: the reader drops the first row",
            "vipm_track/table.py", "header = [h.strip() for h in next(reader)]",
            "header = [h.strip() for h in next(reader)]; next(reader, None)", TABLE_TESTS),
+    Mutant("lever-arm-sway-dropped", "filters' motion",
+           "dropped term: the camera's sway as the body rolls left out of its lateral motion",
+           "filters/lever_arm.py",
+           "roll_change = state[M.BODY_ROLL] - state[M.PREV_BODY_ROLL]",
+           "roll_change = 0.0 * state[M.BODY_ROLL]", LEVER_ARM_TESTS),
+    Mutant("lever-arm-fit-variance-dropped", "filters' motion",
+           "dropped term: the lever arms' own uncertainty not in the lateral motion's σ",
+           "filters/lever_arm.py", "cov[0, 0] += x @ cov_arms @ x", "cov[0, 0] += 0.0",
+           LEVER_ARM_TESTS),
+    Mutant("lever-arm-height-unscaled", "filters' motion",
+           "unit: the pair's lateral motion taken at the assumed height, not in metres",
+           "filters/lever_arm.py", "r = float(m.z[4]) * scale - tx", "r = float(m.z[4]) - tx",
+           LEVER_ARM_TESTS),
+    Mutant("lever-arm-batch-causal", "filters' motion",
+           "wrong fit: the batch's frames take the arms of the pairs up to each, not the drive's",
+           "filters/smoothing.py",
+           "frames = widened_drive(corrected_drive(frames, by_frame, lever_std), by_frame)",
+           "frames = widened_drive([LeverArm(lever_std).corrected(f, by_frame.get(f.frame)) "
+           "for f in frames], by_frame)", LEVER_ARM_TESTS),
+    Mutant("motion-sigma-not-widened", "filters' motion",
+           "dropped term: the frame's motion σ not widened by its pairs' error correlation",
+           "filters/row_correlation.py",
+           "out.update(motion_cov=estimate.motion_cov * np.outer(scale[2:], scale[2:]))",
+           "out.update(motion_cov=estimate.motion_cov)", LEVER_ARM_TESTS),
+    Mutant("monitor-step-search-off", "monitor",
+           "dropped step: the new extrinsics always the median since the CUSUM's change time",
+           "filters/monitor.py", "            if step > 0:\n", "            if False:\n",
+           (*MONITOR_TESTS, "tests/test_monitor_segments.py")),
+    Mutant("monitor-step-ignores-road", "monitor",
+           "dropped term: a told road's wander not counted against a step",
+           "filters/monitor.py",
+           "factor = core.s.corr_factor[0] * np.nanmedian([h.road for h in window], axis=0)",
+           "factor = core.s.corr_factor[0] * np.ones_like(window[0].road)",
+           (*MONITOR_TESTS, "tests/test_monitor_segments.py")),
+    Mutant("late-pair-in-heave", "filters' motion",
+           "guard dropped: a late pair's height residual taken against another frame's",
+           "filters/heave.py", "if estimate.t <= t_before:", "if False:",
+           ("tests/test_lever_arm.py", "tests/test_heave.py")),
 )
 
 
