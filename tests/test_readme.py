@@ -373,3 +373,17 @@ def test_monitor_extrinsics_status_quotes_the_results_file():
     at_end = [float(r[7].rstrip(" %")) for r in second]
     assert (f"| {_range(at_alarm, '.0f')} %; {_range(at_end, '.0f')} % |"
             in _status("monitor's new extrinsics"))
+
+
+def test_lateral_motion_status_quotes_the_results_file():
+    rows = {(r[0], r[1]): r for r in _rows(RESULTS / "bench_lateral_motion.md") if len(r) == 7}
+    batch, ekf = (rows[("KITTI 07 (3 tables)", f)] for f in ("batch", "EKF"))
+
+    def rms(cell: str) -> str:
+        return cell.split(" / ")[0]
+
+    def cover(cell: str) -> str:
+        return cell.split(" / ")[1]
+
+    assert (f"| {rms(batch[2])} / {rms(ekf[2])} mm ({rms(batch[4])} / {rms(ekf[4])}); "
+            f"{cover(batch[3])} / {cover(ekf[3])} % |" in _status("lateral motion per frame"))
