@@ -21,8 +21,10 @@ change over the pair (not the pair's own, whose error is tied to its tx's): a we
 least-squares fit with the prior N(0, ``lever_arm_std_m``²) on each, its covariance scaled
 up by the residuals' reduced χ² where the pairs scatter more than they state. The filter's
 tx becomes tx + L·sin Δψ + H·Δρ, its variance gains the fit's and the roll change's; the
-heading, the distance along it and the path are the filter's own. One fit per frame from the
-pairs so far (the EKF, the fixed lag) or one over the whole drive (the batch).
+heading, the vehicle's positions, the poses and the mount are the filter's own (a path
+chained from the frames' tx takes the slide). One fit per frame from the pairs so far (the
+EKF, the fixed lag) or one over the whole drive (the batch); a prior σ of 0 (``--lever-arm-std
+0``) holds both arms at 0.
 """
 
 from __future__ import annotations
