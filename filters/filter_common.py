@@ -9,6 +9,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from vipm_track.measurement import PairMeasurement
+
 from .model import NoiseParams
 from .mount_change import MountChangeConfig
 
@@ -91,3 +93,17 @@ class FrameEstimate:
     def motion_std(self) -> FloatArray:
         """1-σ of ``motion``."""
         return _std(self.motion_cov)
+
+
+def motion_residual(estimate: FrameEstimate, m: PairMeasurement
+                    ) -> tuple[FloatArray, FloatArray] | None:
+    """The pair's motion (tx, tz, yaw) less the estimate's, metres / rad, the pair's
+    translation taken from its assumed height to the estimate's, and the pair's variances
+    scaled alike; None where the filter did not apply the pair's motion (not ok, not applied,
+    gated) or a height is unknown."""
+    motion, height = estimate.motion, float(estimate.mount[2])
+    if (not m.ok or estimate.status in NOT_APPLIED or "motion" in estimate.gated
+            or motion is None or not height > 0 or not m.height_assumed > 0):
+        return None
+    scale = np.array([height / m.height_assumed] * 2 + [1.0])
+    return m.z[4:7] * scale - motion, np.diag(m.covariance)[4:7] * scale**2

@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 from vipm_track.measurement import PairMeasurement
 
 from . import model as M
-from .filter_common import NOT_APPLIED, FrameEstimate
+from .filter_common import FrameEstimate, motion_residual
 
 FloatArray = NDArray[np.float64]
 Estimate = TypeVar("Estimate", bound=FrameEstimate)
@@ -104,18 +104,14 @@ class LeverArm:
         applied the pair (not gated, not late: a late pair's estimate is another frame's) and
         it :meth:`fits` ``gate`` (default: this fit, from its ``MIN_PAIRS_FOR_SCATTER``-th
         pair on)."""
-        if (not self.enabled or m is None or not m.ok or estimate.frame != m.frame
-                or estimate.status in NOT_APPLIED or "motion" in estimate.gated):
+        if not self.enabled or m is None or estimate.frame != m.frame:
             return
-        x = _regressors(estimate)
-        height, tx = float(estimate.mount[2]), float(estimate.motion[0])
-        var_pair = float(m.covariance[4, 4])
-        if not (x is not None and math.isfinite(tx) and math.isfinite(height) and height > 0
-                and math.isfinite(var_pair) and var_pair > 0 and m.height_assumed > 0):
+        x, residual = _regressors(estimate), motion_residual(estimate, m)
+        if x is None or residual is None:
             return
-        scale = height / m.height_assumed  # the pair's tx at the assumed height → metres
-        r = float(m.z[4]) * scale - tx
-        v = var_pair * scale**2
+        r, v = float(residual[0][0]), float(residual[1][0])
+        if not (math.isfinite(r) and math.isfinite(v) and v > 0):
+            return
         if gate is not None:
             if not gate.fits(r, x, v):
                 return

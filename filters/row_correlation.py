@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 
 from vipm_track.measurement import PairMeasurement
 
-from .filter_common import NOT_APPLIED, FrameEstimate
+from .filter_common import NOT_APPLIED, FrameEstimate, motion_residual
 
 FloatArray = NDArray[np.float64]
 Estimate = TypeVar("Estimate", bound=FrameEstimate)
@@ -93,14 +93,11 @@ class PairErrorCorrelation:
         if (pose is not None and np.all(np.isfinite(pose[:2])) and np.all(np.isfinite(var))
                 and np.all(var > 0)):
             z[:2] = (m.z[2:4] - pose[:2]) / np.sqrt(var)
-        motion, height = estimate.motion, float(estimate.mount[2])
-        if (motion is not None and "motion" not in estimate.gated and height > 0
-                and m.height_assumed > 0):
-            scale = height / m.height_assumed  # the pair's motion at the assumed height → m
-            var = np.diag(m.covariance)[4:7] * [scale**2, scale**2, 1.0]
-            measured = m.z[4:7] * [scale, scale, 1.0]
+        residual = motion_residual(estimate, m)
+        if residual is not None:
+            r, var = residual
             with np.errstate(invalid="ignore", divide="ignore"):
-                z[2:] = np.where(var > 0, (measured - motion) / np.sqrt(var), np.nan)
+                z[2:] = np.where(var > 0, r / np.sqrt(var), np.nan)
         if np.any(np.isfinite(z)):
             self._residuals.append((m.frame, m.t, np.clip(z, -MAX_Z, MAX_Z)))
 
