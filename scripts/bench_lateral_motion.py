@@ -45,9 +45,8 @@ from vipm_track.filters.ekf import run_filter  # noqa: E402
 from vipm_track.filters.ekf_state import EkfConfig  # noqa: E402
 from vipm_track.filters.lever_arm import LeverArm  # noqa: E402
 from vipm_track.filters.model import NoiseParams  # noqa: E402
-from vipm_track.filters.smoother import smooth_batch  # noqa: E402
 from vipm_track.filters.smoother_config import SmootherConfig  # noqa: E402
-from vipm_track.filters.smoothing import smooth, speeds_at_frames  # noqa: E402
+from vipm_track.filters.smoothing import smooth  # noqa: E402
 from vipm_track.filters.wheel_speed import read_speed_csv  # noqa: E402
 from vipm_track.measurement import read_measurements  # noqa: E402
 from vipm_track.sim import PRESETS  # noqa: E402
@@ -76,14 +75,12 @@ def _filtered(ms, speed, preset: str, height_m: float | None = None) -> dict[str
     }
 
 
-def _arms(ms, speed, preset: str, height_m: float | None = None) -> np.ndarray:
-    """(L, H) and their σ, metres, from the batch's pairs."""
-    cfg = SmootherConfig(height_m=height_m or PRESETS[preset].height_m,
-                         noise=NoiseParams.for_preset(preset))
-    frames = smooth_batch(ms, speeds_at_frames(ms, speed), cfg)[0]
-    fit = LeverArm(cfg.noise.lever_arm_std_m)
+def _arms(batch_before: list, ms, preset: str) -> np.ndarray:
+    """(L, H) and their σ, metres, fitted to the batch's pairs against its frames without
+    the arms (the σ widening those frames carry is not read by the fit)."""
+    fit = LeverArm(NoiseParams.for_preset(preset).lever_arm_std_m)
     by_frame = {m.frame: m for m in ms}
-    for f in frames:
+    for f in batch_before:
         fit.observe(f, by_frame.get(f.frame))
     return np.concatenate([fit.arms_m, np.sqrt(np.diag(fit.covariance))])
 
@@ -94,7 +91,7 @@ def score(ms, speed, preset: str, truth_tx: dict[int, float], height_m: float | 
     now = _filtered(ms, speed, preset, height_m)
     with mock.patch.object(LeverArm, "apply", lambda self, estimate: estimate):
         before = _filtered(ms, speed, preset, height_m)
-    out: dict = {"arms": _arms(ms, speed, preset, height_m)}
+    out: dict = {"arms": _arms(before["batch"], ms, preset)}
     for name in FILTERS:
         rows = [(f.motion[0] - truth_tx[f.frame], np.sqrt(f.motion_cov[0, 0]),
                  b.motion[0] - truth_tx[f.frame], np.sqrt(b.motion_cov[0, 0]))
