@@ -304,6 +304,11 @@ MUTANTS: tuple[Mutant, ...] = (
            "guard dropped: a late pair's height residual taken against another frame's",
            "filters/heave.py", "if estimate.t <= t_before:", "if False:",
            ("tests/test_lever_arm.py", "tests/test_heave.py")),
+    Mutant("interrupted-chunk-runs-on", "nothing lost",
+           "stop request ignored: an interrupted chunk runs on and its pairs are lost",
+           "vipm_track/parallel.py", "        if _stop_requested is not None and "
+           "_stop_requested.is_set():\n            break", "        pass",
+           ("tests/test_pipeline.py",)),
 )
 
 

@@ -471,6 +471,65 @@ def test_an_interrupted_parallel_run_keeps_the_chunks_that_finished(tmp_path: Pa
     assert frames == [4, 5, 6, 7]
 
 
+class _SlowlyReadChunk(ArraySource):
+    """A chunk whose frames take 0.4 s each to read; reading frame 2 leaves a mark."""
+
+    marker: Path
+
+    def __iter__(self):
+        for frame in super().__iter__():
+            time.sleep(0.4)
+            if frame.index == 2:
+                self.marker.write_text("frame 2 read")
+            yield frame
+
+
+class _SlowlyReadSource(ArraySource):
+    marker: Path
+
+    def frames(self, position: int, count: int) -> ArraySource:
+        chunk = super().frames(position, count)
+        slow = _SlowlyReadChunk(chunk.images, chunk.t, chunk.description)
+        slow.first_index, slow.marker = chunk.first_index, self.marker
+        return slow
+
+
+def test_an_interrupted_parallel_run_keeps_the_pairs_of_running_chunks(tmp_path: Path) -> None:
+    """Interrupted while both chunks still run, a parallel run yields the pairs each had
+    estimated (in frame order, a gap after the first chunk's) before it passes the
+    interruption on, and ends within seconds."""
+    import signal
+
+    from vipm_track.parallel import run_chunked
+
+    source = _SlowlyReadSource([np.zeros((48, 64), np.uint8)] * 40, np.arange(40) * 0.1)
+    source.marker = tmp_path / "frame 2 read"
+    k = np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]])
+    rig = Rig(CameraModel(k, 64, 48), 0.7, DEFAULT_PITCH_DEG)
+    start = time.monotonic()
+
+    def interrupt(signum, frame):
+        if source.marker.exists() or time.monotonic() - start > 50:
+            raise KeyboardInterrupt
+        signal.setitimer(signal.ITIMER_REAL, 0.2)
+
+    previous = signal.signal(signal.SIGALRM, interrupt)
+    frames = []
+    try:
+        signal.setitimer(signal.ITIMER_REAL, 0.2)
+        with pytest.raises(KeyboardInterrupt):
+            for step in run_chunked(source, rig, None, True, 2, 20):
+                frames.append(step.frame)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+        stopped = time.monotonic()
+    assert stopped - start < 40  # a chunk's 20 frames take 8 s to read: it was not waited for
+    first, second = [f for f in frames if f < 20], [f for f in frames if f >= 20]
+    assert first[:3] == [0, 1, 2] and first == list(range(len(first))) and len(first) < 20
+    assert second and second == list(range(20, 20 + len(second))) and len(second) < 20
+
+
 def test_estimate_cli_bad_camera_file(cart_sequence: Path, tmp_path: Path,
                                       capsys: pytest.CaptureFixture) -> None:
     from vipm_track.cli import main

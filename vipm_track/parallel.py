@@ -17,7 +17,7 @@ from __future__ import annotations
 import multiprocessing
 import signal
 from collections.abc import Iterator
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor, wait
 from typing import TYPE_CHECKING
 
 from .allocator import keep_freed_memory
@@ -26,6 +26,8 @@ from .pipeline import SequenceStep, run_sequence
 from .workers import set_threads
 
 if TYPE_CHECKING:
+    from multiprocessing.synchronize import Event
+
     from .estimator_config import EstimatorConfig
     from .rig import Rig
     from .sources import FrameSource
@@ -34,6 +36,13 @@ if TYPE_CHECKING:
 DEFAULT_CHUNK_FRAMES = 500
 #: The fewest frames a chunk may hold.
 MIN_CHUNK_FRAMES = 2
+#: Interrupted, the longest wait (s) for the running chunks to hand back the pairs they have
+#: estimated (each stops after its current pair); a second Ctrl-C ends the wait at once.
+STOP_WAIT_S = 5.0
+
+#: Set in a worker process (``_start_worker``): the run was interrupted, a running chunk
+#: returns the steps it has.
+_stop_requested: Event | None = None
 
 
 def chunk_bounds(n_frames: int, chunk_frames: int) -> list[tuple[int, int]]:
@@ -52,8 +61,10 @@ def run_chunked(
     """The steps of :func:`run_sequence` over ``source``, from chunks of ``chunk_frames``
     frames run in ``workers`` processes (1: in this one), in frame order. A source of unknown
     length (a video whose container does not say) or of one chunk runs as one sequence.
-    Interrupted (KeyboardInterrupt: Ctrl-C, SIGTERM) while waiting on a chunk, it yields the
-    steps of the later chunks that have finished, then raises."""
+    Interrupted (KeyboardInterrupt: Ctrl-C, SIGTERM) while waiting on a chunk, it asks the
+    running chunks to stop after their current pair, waits up to :data:`STOP_WAIT_S` for
+    them, yields in frame order the steps of every chunk that finished or stopped (a gap
+    after each stopped one), then raises."""
     if chunk_frames < MIN_CHUNK_FRAMES:
         raise InputError(f"--chunk-frames must be >= {MIN_CHUNK_FRAMES}, got {chunk_frames}")
     bounds = chunk_bounds(len(source), chunk_frames)
@@ -66,8 +77,9 @@ def run_chunked(
         return
     context = multiprocessing.get_context("spawn")  # no forked OpenCV / numba thread pools
     # one correlation thread per process: the processes already share the cores
+    stop_requested = context.Event()
     pool = ProcessPoolExecutor(min(workers, len(bounds)), mp_context=context,
-                               initializer=_start_worker, initargs=(1,))
+                               initializer=_start_worker, initargs=(1, stop_requested))
     finished = False
     futures: list[Future[list[SequenceStep]]] = []
     waiting, sent = 0, 0  # the chunk whose steps come next, and how many of them went out
@@ -82,9 +94,14 @@ def run_chunked(
             waiting, sent = waiting + 1, 0
         finished = True
     except KeyboardInterrupt:
-        # Ctrl-C or SIGTERM while waiting on a chunk: the chunks that have already finished
-        # are not lost; their steps not yet out follow (in frame order, after a gap where the
-        # unfinished chunks were), then the interruption goes on
+        # Ctrl-C or SIGTERM while waiting on a chunk: nothing computed is lost. The chunks not
+        # started are dropped, the running ones hand back the pairs they have estimated, and
+        # the steps not yet out follow in frame order (a gap after each stopped chunk); then
+        # the interruption goes on. A second interrupt during the wait ends it (``finally``).
+        stop_requested.set()
+        for future in futures[waiting:]:
+            future.cancel()
+        wait(futures[waiting:], timeout=STOP_WAIT_S)
         for j, future in enumerate(futures[waiting:]):
             if future.done() and not future.cancelled() and future.exception() is None:
                 yield from future.result()[sent if j == 0 else 0:]
@@ -96,10 +113,13 @@ def run_chunked(
             _stop(pool)
 
 
-def _start_worker(threads: int) -> None:
+def _start_worker(threads: int, stop_requested: Event) -> None:
     """A worker process: ``threads`` correlation threads, freed memory kept for reuse
     (``allocator``: its chunks run on its first thread), and Ctrl-C left to the main process
-    (it ends the workers; a worker's own KeyboardInterrupt would only race with it)."""
+    (it sets ``stop_requested``, then ends the workers; a worker's own KeyboardInterrupt
+    would only race with it)."""
+    global _stop_requested
+    _stop_requested = stop_requested
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     keep_freed_memory()
     set_threads(threads)
@@ -125,8 +145,15 @@ def run_chunk(
     position: int,
     count: int,
 ) -> list[SequenceStep]:
-    """The steps of the ``count`` frames from ``position`` on (run in a worker process)."""
+    """The steps of the ``count`` frames from ``position`` on (run in a worker process); the
+    first of them only, up to the pair it was estimating, where the run was interrupted."""
+    steps: list[SequenceStep] = []
+    if _stop_requested is not None and _stop_requested.is_set():
+        return steps
     overlap = 1 if position > 0 else 0
     chunk = source.frames(position - overlap, count + overlap)
-    return list(run_sequence(chunk, rig, config, tracking,
-                             continuation=position > 0))[overlap:]
+    for step in run_sequence(chunk, rig, config, tracking, continuation=position > 0):
+        steps.append(step)
+        if _stop_requested is not None and _stop_requested.is_set():
+            break
+    return steps[overlap:]
