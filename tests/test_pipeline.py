@@ -497,7 +497,10 @@ class _SlowlyReadSource(ArraySource):
 def test_an_interrupted_parallel_run_keeps_the_pairs_of_running_chunks(tmp_path: Path) -> None:
     """Interrupted while both chunks still run, a parallel run yields the pairs each had
     estimated (in frame order, a gap after the first chunk's) before it passes the
-    interruption on, and ends within seconds."""
+    interruption on, and ends within seconds; also where the SIGTERM went to the whole
+    process group (a service stopped), the workers too."""
+    import multiprocessing
+    import os
     import signal
 
     from vipm_track.parallel import run_chunked
@@ -510,6 +513,8 @@ def test_an_interrupted_parallel_run_keeps_the_pairs_of_running_chunks(tmp_path:
 
     def interrupt(signum, frame):
         if source.marker.exists() or time.monotonic() - start > 50:
+            for worker in multiprocessing.active_children():
+                os.kill(worker.pid, signal.SIGTERM)
             raise KeyboardInterrupt
         signal.setitimer(signal.ITIMER_REAL, 0.2)
 

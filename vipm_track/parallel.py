@@ -116,11 +116,13 @@ def run_chunked(
 def _start_worker(threads: int, stop_requested: Event) -> None:
     """A worker process: ``threads`` correlation threads, freed memory kept for reuse
     (``allocator``: its chunks run on its first thread), and Ctrl-C left to the main process
-    (it sets ``stop_requested``, then ends the workers; a worker's own KeyboardInterrupt
-    would only race with it)."""
+    (it sets ``stop_requested``, then ends the workers), also SIGTERM sent to the whole
+    process group (a service stopped): a worker that died or raised at once would lose the
+    pairs its chunk has estimated."""
     global _stop_requested
     _stop_requested = stop_requested
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     keep_freed_memory()
     set_threads(threads)
 
@@ -132,7 +134,7 @@ def _stop(pool: ProcessPoolExecutor) -> None:
     pool.shutdown(wait=False, cancel_futures=True)
     for process in workers:
         if process.is_alive():
-            process.terminate()
+            process.kill()  # they ignore SIGTERM
     for process in workers:
         process.join(timeout=5)
 
