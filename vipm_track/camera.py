@@ -70,7 +70,9 @@ class CameraModel:
     distortion: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
 
     def __post_init__(self) -> None:
-        k = np.asarray(self.k, dtype=float)
+        # contiguous: OpenCV 5's USAC estimators (findEssentialMat with MAGSAC++) return
+        # nothing for a strided matrix, such as KITTI's K read as a view of its P
+        k = np.ascontiguousarray(self.k, dtype=float)
         object.__setattr__(self, "k", k)
         object.__setattr__(self, "distortion", np.asarray(self.distortion, dtype=float).ravel())
         if k.shape != (3, 3):

@@ -5,10 +5,10 @@ expansion) lies in the road plane: with roll φ the travel direction d in the ca
 satisfies ``d · n_C = 0`` for the road normal ``n_C = (sin φ cos θ, cos φ cos θ, sin θ)``,
 which gives the pitch θ for any yaw of the camera against the motion (:func:`travel_pitch`).
 The direction of each pair comes from the essential matrix of tracked corners
-(``cv2.findEssentialMat`` with RANSAC, ``cv2.recoverPose``) — the whole static scene, not the
+(``cv2.findEssentialMat`` with MAGSAC++, ``cv2.recoverPose``) — the whole static scene, not the
 ground alone, so it needs no ground model and no nominal pose: it is what a cold start of a
 forward-looking camera can rest on. Vehicles in lanes beside or ahead move parallel to us;
-their flow radiates from the same focus of expansion, and what crosses it is RANSAC's
+their flow radiates from the same focus of expansion, and what crosses it is the robust fit's
 outliers. A single pair's direction scatters by ~0.7° in pitch on real frames (the body
 pitches on its suspension); :func:`pitch_from_travel` takes the median of several and
 requires them to agree.
@@ -32,8 +32,12 @@ MAX_CORNERS = 2000
 CORNER_SPACING_PX = 7
 #: a corner whose backward track misses its start by more than this is dropped [px]
 ROUND_TRIP_PX = 0.5
-#: RANSAC threshold of the essential matrix [px]
+#: inlier threshold of the essential matrix's robust fit [px]
 EPIPOLAR_PX = 0.5
+#: the essential matrix's robust fit: MAGSAC++ (a robust score, the inliers' model optimised
+#: locally) halves a pair's scatter against plain RANSAC on KITTI 07 and the traffic renders
+#: (``scripts/results/bench_travel_direction.md``)
+ESSENTIAL_METHOD = cv2.USAC_MAGSAC
 #: fewer essential-matrix inliers than this leave a pair's direction unknown
 MIN_INLIERS = 60
 #: corners that move less than this carry no direction (a car ahead at our speed) [px]
@@ -112,11 +116,13 @@ def travels_over(images: Iterable[tuple[int, NDArray]], camera: CameraModel,
 
 
 def pair_travel(before: NDArray, image: NDArray, camera: CameraModel,
-                frames: tuple[int, int] = (0, 1)) -> PairTravel | None:
+                frames: tuple[int, int] = (0, 1), method: int = ESSENTIAL_METHOD
+                ) -> PairTravel | None:
     """The direction of travel between two grey images of ``camera`` (as read: distorted
-    points are undistorted); None where too few corners fit one essential matrix."""
+    points are undistorted); None where too few corners fit one essential matrix.
+    ``method``: ``cv2.findEssentialMat``'s robust fit."""
     tracks = _tracks(_grey_u8(before), _grey_u8(image))
-    return None if tracks is None else _direction(*tracks, camera, frames)
+    return None if tracks is None else _direction(*tracks, camera, frames, method)
 
 
 def _tracks(prev: NDArray[np.uint8], curr: NDArray[np.uint8]
@@ -136,7 +142,7 @@ def _tracks(prev: NDArray[np.uint8], curr: NDArray[np.uint8]
 
 
 def _direction(a: NDArray[np.float64], b: NDArray[np.float64], camera: CameraModel,
-               frames: tuple[int, int]) -> PairTravel | None:
+               frames: tuple[int, int], method: int = ESSENTIAL_METHOD) -> PairTravel | None:
     """The pair's travel from its tracked corners ``a`` → ``b`` [px, as read]."""
     moved = np.linalg.norm(b - a, axis=1) >= MIN_FLOW_PX
     if np.count_nonzero(moved) < MIN_INLIERS:
@@ -144,7 +150,7 @@ def _direction(a: NDArray[np.float64], b: NDArray[np.float64], camera: CameraMod
     a, b = a[moved], b[moved]
     if camera.has_distortion:
         a, b = camera.undistort_points(a), camera.undistort_points(b)
-    e, mask = cv2.findEssentialMat(a, b, camera.k, cv2.RANSAC, 0.999, EPIPOLAR_PX)
+    e, mask = cv2.findEssentialMat(a, b, camera.k, method, 0.999, EPIPOLAR_PX)
     if e is None or e.shape != (3, 3):
         return None  # several solutions stacked: a degenerate (planar or static) view
     inliers, r, t, _ = cv2.recoverPose(e, a, b, camera.k, mask=mask)
