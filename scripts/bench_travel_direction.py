@@ -1,6 +1,6 @@
 """The direction of travel of single pairs (the cold start's evidence for a forward camera's
 pitch, ``vipm_track/travel_direction.py``) against the truth, with the essential matrix fitted
-by MAGSAC++ (the default) and by plain RANSAC (OpenCV's) in the same run.
+by plain RANSAC (OpenCV's; the default) and by MAGSAC++ in the same run.
 
 Truth: on the renders, the camera centre's displacement from frame a to frame b in frame
 a's camera frame, from ``gt.csv`` (planar motions composed, the height change, frame a's
@@ -41,7 +41,7 @@ from vipm_track.table import read_table  # noqa: E402
 from vipm_track.travel_direction import AGREE_DEG, pair_travel, travel_pitch  # noqa: E402
 
 KITTI = ROOT.parent / "shared" / "data" / "kitti07"
-METHODS = {"MAGSAC++ (default)": cv2.USAC_MAGSAC, "RANSAC": cv2.RANSAC}
+METHODS = {"RANSAC (default)": cv2.RANSAC, "MAGSAC++": cv2.USAC_MAGSAC}
 MIN_CHORD_M = 0.3
 
 
