@@ -34,7 +34,11 @@ from bench_traffic import SCENES  # noqa: E402  (the same rendered scenes)
 
 from vipm_track.camera import CameraModel, load_camera  # noqa: E402
 from vipm_track.cli import main as cli_main  # noqa: E402
-from vipm_track.geometry import rotation_ground_from_camera  # noqa: E402
+from vipm_track.geometry import (  # noqa: E402
+    PlanarMotion,
+    compose_motion,
+    rotation_ground_from_camera,
+)
 from vipm_track.kitti import read_poses  # noqa: E402
 from vipm_track.sources import open_source  # noqa: E402
 from vipm_track.table import read_table  # noqa: E402
@@ -58,13 +62,12 @@ def render_truth(seq: Path, steps: tuple[int, ...]) -> list[tuple[int, int, np.n
     out = []
     for step in steps:
         for a in range(n - step):
-            origin, heading = np.zeros(3), 0.0
+            motion = PlanarMotion(0.0, 0.0, 0.0)  # G_a → G_k
             for k in range(a + 1, a + step + 1):
-                c, s = math.cos(heading), math.sin(heading)
-                tx, tz = float(gt["tx_m"][k]), float(gt["tz_m"][k])
-                origin += np.array([c * tx + s * tz, 0.0, -s * tx + c * tz])
-                heading += math.radians(float(gt["yaw_deg"][k]))
-            d_g = origin + np.array([0.0, -(gt["height_m"][a + step] - gt["height_m"][a]), 0.0])
+                motion = compose_motion(motion, PlanarMotion(
+                    float(gt["tx_m"][k]), float(gt["tz_m"][k]), math.radians(gt["yaw_deg"][k])))
+            rise = gt["height_m"][a + step] - gt["height_m"][a]
+            d_g = np.array([motion.tx, -rise, motion.tz])
             if np.linalg.norm(d_g) < MIN_CHORD_M:
                 continue
             pitch, roll = math.radians(gt["pitch_deg"][a]), math.radians(gt["roll_deg"][a])

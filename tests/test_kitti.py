@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import re
 from pathlib import Path
 
 import numpy as np
@@ -102,9 +101,8 @@ def test_a_given_pitch_the_travel_contradicts_is_questioned(tmp_path, capsys, pi
     assert rc == 0
     err = capsys.readouterr().err
     assert (f"--pitch {float(pitch):g}° but the direction of travel" in err) == warned, err
-    if warned:  # the travel's pitch: 0.5° (MAGSAC++ 0.6°; KITTI's poses 0.65°)
-        found = re.search(r"puts the camera at pitch (-?[0-9.]+)°", err)
-        assert found and 0.4 <= float(found.group(1)) <= 0.9, err
+    if warned:
+        assert "puts the camera at pitch 0.5°" in err
 
 
 #: ``vipm-track estimate`` on all 160 frames of KITTI 07 with the options above (seed 0),

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -434,39 +435,49 @@ class _FirstChunkSlowSource(ArraySource):
         return marked
 
 
-def test_an_interrupted_parallel_run_keeps_the_chunks_that_finished(tmp_path: Path) -> None:
-    """Interrupted while the first chunk still runs, a parallel run yields the steps of the
-    later chunk that finished before it passes the interruption on: nothing computed is
-    lost."""
+def _interrupted_parallel_run(source: ArraySource, chunk_frames: int,
+                              ready: Callable[[], bool], poll_s: float,
+                              before_interrupt: Callable[[], None] = lambda: None,
+                              ) -> tuple[list[int], float]:
+    """The frames a two-process ``run_chunked`` over ``source`` yields before Ctrl-C (a
+    KeyboardInterrupt from SIGALRM, polled every ``poll_s`` s, once ``ready()`` or after
+    50 s; ``before_interrupt`` runs just before it), and the run's seconds."""
     import signal
-    import time
 
     from vipm_track.parallel import run_chunked
 
-    source = _FirstChunkSlowSource([np.zeros((48, 64), np.uint8)] * 8, np.arange(8) * 0.1)
-    source.marker = tmp_path / "second chunk done"
     k = np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]])
     rig = Rig(CameraModel(k, 64, 48), 0.7, DEFAULT_PITCH_DEG)
     start = time.monotonic()
 
     def interrupt(signum, frame):
-        # a second after the second chunk's run is over (its result is back by then), or
-        # after 50 s anyway
-        seen = source.marker.exists() and source.marker.stat().st_mtime < time.time() - 1
-        if seen or time.monotonic() - start > 50:
+        if ready() or time.monotonic() - start > 50:
+            before_interrupt()
             raise KeyboardInterrupt
-        signal.setitimer(signal.ITIMER_REAL, 0.5)
+        signal.setitimer(signal.ITIMER_REAL, poll_s)
 
     previous = signal.signal(signal.SIGALRM, interrupt)
     frames = []
     try:
-        signal.setitimer(signal.ITIMER_REAL, 0.5)
+        signal.setitimer(signal.ITIMER_REAL, poll_s)
         with pytest.raises(KeyboardInterrupt):
-            for step in run_chunked(source, rig, None, True, 2, 4):
+            for step in run_chunked(source, rig, None, True, 2, chunk_frames):
                 frames.append(step.frame)
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, previous)
+    return frames, time.monotonic() - start
+
+
+def test_an_interrupted_parallel_run_keeps_the_chunks_that_finished(tmp_path: Path) -> None:
+    """Interrupted while the first chunk still runs, a parallel run yields the steps of the
+    later chunk that finished before it passes the interruption on: nothing computed is
+    lost."""
+    source = _FirstChunkSlowSource([np.zeros((48, 64), np.uint8)] * 8, np.arange(8) * 0.1)
+    source.marker = tmp_path / "second chunk done"
+    # a second after the second chunk's run is over (its result is back by then)
+    frames, _ = _interrupted_parallel_run(source, 4, lambda: source.marker.exists() and
+                                          source.marker.stat().st_mtime < time.time() - 1, 0.5)
     assert source.marker.exists()
     assert frames == [4, 5, 6, 7]
 
@@ -503,33 +514,16 @@ def test_an_interrupted_parallel_run_keeps_the_pairs_of_running_chunks(tmp_path:
     import os
     import signal
 
-    from vipm_track.parallel import run_chunked
-
     source = _SlowlyReadSource([np.zeros((48, 64), np.uint8)] * 40, np.arange(40) * 0.1)
     source.marker = tmp_path / "frame 2 read"
-    k = np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]])
-    rig = Rig(CameraModel(k, 64, 48), 0.7, DEFAULT_PITCH_DEG)
-    start = time.monotonic()
 
-    def interrupt(signum, frame):
-        if source.marker.exists() or time.monotonic() - start > 50:
-            for worker in multiprocessing.active_children():
-                os.kill(worker.pid, signal.SIGTERM)
-            raise KeyboardInterrupt
-        signal.setitimer(signal.ITIMER_REAL, 0.2)
+    def sigterm_to_the_workers() -> None:
+        for worker in multiprocessing.active_children():
+            os.kill(worker.pid, signal.SIGTERM)
 
-    previous = signal.signal(signal.SIGALRM, interrupt)
-    frames = []
-    try:
-        signal.setitimer(signal.ITIMER_REAL, 0.2)
-        with pytest.raises(KeyboardInterrupt):
-            for step in run_chunked(source, rig, None, True, 2, 20):
-                frames.append(step.frame)
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, previous)
-        stopped = time.monotonic()
-    assert stopped - start < 40  # a chunk's 20 frames take 8 s to read: it was not waited for
+    frames, seconds = _interrupted_parallel_run(source, 20, source.marker.exists, 0.2,
+                                                sigterm_to_the_workers)
+    assert seconds < 40  # a chunk's 20 frames take 8 s to read: it was not waited for
     first, second = [f for f in frames if f < 20], [f for f in frames if f >= 20]
     assert first[:3] == [0, 1, 2] and first == list(range(len(first))) and len(first) < 20
     assert second and second == list(range(20, 20 + len(second))) and len(second) < 20
