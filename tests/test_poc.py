@@ -16,6 +16,7 @@ from vipm_track.poc import (
     patch_spectra,
     phase_correlate,
 )
+from vipm_track.poc_kernels import crop_centre_and_window
 
 TEXTURES = Path(__file__).resolve().parents[1] / "data" / "textures"
 NOISE = 2.0  # grey levels
@@ -191,6 +192,21 @@ def test_crop_patches_matches_slices_and_flags_patches_leaving_the_image() -> No
     assert np.isnan(patches[2:]).all()
     square = crop_patches(image, centres[:1], 9)
     np.testing.assert_array_equal(square[0], image[26:35, 36:45])
+
+
+def test_patches_that_cannot_be_correlated_are_prepared_as_zeros() -> None:
+    # the batch is allocated without zeroing it: a patch leaving the image or holding a NaN
+    # must still come out as zeros, not as whatever the memory held before
+    image = np.full((64, 64), 50.0, np.float32)
+    image[40, 40] = np.nan
+    corners = np.array([[0, 0], [60, 0], [32, 32], [8, 8]], np.int64)  # ok, out, NaN, ok
+    win = np.ones((16, 16), np.float32)
+    for _ in range(5):
+        np.full((4, 16, 16), 7.0, np.float32)  # freed memory with something in it
+        out, usable = crop_centre_and_window(image, corners, win)
+        np.testing.assert_array_equal(usable, [True, False, False, True])
+        assert not out[1:3].any()
+        assert not out[[0, 3]].any()  # a flat patch less its mean
 
 
 def test_match_patches_recovers_a_large_shift_with_offsets() -> None:
