@@ -313,6 +313,11 @@ MUTANTS: tuple[Mutant, ...] = (
            "vipm_track/parallel.py", "        if _stop_requested is not None and "
            "_stop_requested.is_set():\n            break", "        pass",
            ("tests/test_pipeline.py",)),
+    Mutant("crop-batch-unzeroed", "estimator",
+           "zeroing dropped: a patch leaving the image keeps whatever its memory held",
+           "vipm_track/poc_kernels.py", "            out[k] = 0.0\n            continue\n"
+           "        total = 0.0", "            continue\n        total = 0.0",
+           ("tests/test_poc.py",)),
 )
 
 
