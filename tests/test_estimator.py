@@ -352,14 +352,15 @@ def test_turning_pair_is_as_accurate_as_a_straight_one():
 
 def test_a_car_in_a_tight_slow_turn_keeps_its_pose():
     # KITTI 07's wrong `ok` rows lie in its slow corners (3° of yaw per 0.3 m: docs/traffic.md,
-    # "Where KITTI 07's wrong ok rows are"); on a flat ground the same turn is measured
-    # within the accuracy of a straight drive, so those rows' errors are the corner's view.
+    # "Where KITTI 07's wrong ok rows are"), 1.5-4° off; on a flat ground the same turn,
+    # tracked from a nominal pitch 1° below the truth (as KITTI's travel-found nominal sits),
+    # stays within 0.3°.
     p = PRESETS["car"]
     traj = make_trajectory("turn", 6, fps=10.0, preset=p, seed=3, speed=3.0, amplitude=3.75)
     assert np.degrees(traj.motion(3).yaw) == pytest.approx(3.0, abs=0.05)
     texture, cam = preset_texture(p), p.camera()
     imgs = [render_trajectory_frame(texture, cam, traj, k) for k in range(6)]
-    est = TwoFrameEstimator(Rig(cam, float(traj.height[0]), p.pitch_deg))
+    est = TwoFrameEstimator(Rig(cam, float(traj.height[0]), p.pitch_deg - 1.0))
     result = None
     for k in range(1, 6):
         result = est.estimate(imgs[k - 1], imgs[k], PairGuess.from_previous(result), 0.1)

@@ -196,17 +196,21 @@ def test_crop_patches_matches_slices_and_flags_patches_leaving_the_image() -> No
 
 def test_patches_that_cannot_be_correlated_are_prepared_as_zeros() -> None:
     # the batch is allocated without zeroing it: a patch leaving the image or holding a NaN
-    # must still come out as zeros, not as whatever the memory held before
-    image = np.full((64, 64), 50.0, np.float32)
+    # must still come out as zeros, not as whatever the memory held before — here the
+    # kernel's own freed output of the call before, whose usable patches sat where this
+    # call's unusable ones are
+    image = np.add.outer(np.arange(64.0), 3.0 * np.arange(64.0)).astype(np.float32)
     image[40, 40] = np.nan
-    corners = np.array([[0, 0], [60, 0], [32, 32], [8, 8]], np.int64)  # ok, out, NaN, ok
+    ok, out, nan = [0, 0], [60, 0], [32, 32]
     win = np.ones((16, 16), np.float32)
-    for _ in range(5):
-        np.full((4, 16, 16), 7.0, np.float32)  # freed memory with something in it
-        out, usable = crop_centre_and_window(image, corners, win)
-        np.testing.assert_array_equal(usable, [True, False, False, True])
-        assert not out[1:3].any()
-        assert not out[[0, 3]].any()  # a flat patch less its mean
+    for k in range(6):
+        corners = np.array([ok, out, nan, ok] if k % 2 else [out, ok, ok, nan], np.int64)
+        usable_expected = np.array([c == ok for c in corners.tolist()])
+        patches, usable = crop_centre_and_window(image, corners, win)
+        np.testing.assert_array_equal(usable, usable_expected)
+        assert not patches[~usable].any()
+        expected = image[:16, :16] - image[:16, :16].mean()
+        np.testing.assert_allclose(patches[usable], [expected] * 2, atol=1e-4)
 
 
 def test_match_patches_recovers_a_large_shift_with_offsets() -> None:
