@@ -78,6 +78,20 @@ def run(argv: list[str]) -> tuple[str, float]:
     return "vipm-track " + shlex.join(argv), time.perf_counter() - t0
 
 
+def scene_folder(out: Path, scene: str, seed: int) -> Path:
+    """The folder of ``out`` that :func:`render_scene` renders ``scene`` with ``seed`` into."""
+    return out / f"{''.join(c if c.isalnum() else '_' for c in scene)}_{seed}"
+
+
+def render_scene(out: Path, scene: str, seed: int, frames: int) -> tuple[Path, str]:
+    """Render ``SCENES[scene]`` with ``seed`` into its :func:`scene_folder`; the folder and
+    the command line."""
+    seq = scene_folder(out, scene, seed)
+    cmd, _ = run(["simulate", "--preset", "car", "--frames", str(frames), "--seed", str(seed),
+                  "--out", str(seq), *SCENES[scene]])
+    return seq, cmd
+
+
 def _normal(pitch_deg: np.ndarray, roll_deg: np.ndarray) -> np.ndarray:
     """Road normal in the camera frame, (n, 3)."""
     return np.array([rotation_ground_from_camera(math.radians(p), math.radians(r))[1]
@@ -341,12 +355,9 @@ def main() -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     rows: list[tuple[str, dict]] = []
     commands: list[str] = []
-    for scene, options in SCENES.items():
+    for scene in SCENES:
         for seed in range(args.seeds):
-            slug = "".join(c if c.isalnum() else "_" for c in scene)
-            seq = args.out / f"{slug}_{seed}"
-            cmd, _ = run(["simulate", "--preset", "car", "--frames", str(args.frames),
-                          "--seed", str(seed), "--out", str(seq), *options])
+            seq, cmd = render_scene(args.out, scene, seed, args.frames)
             commands.append(cmd)
             truth = read_table(seq / "gt.csv")
             height = float(np.nanmedian(truth["height_m"]))

@@ -30,10 +30,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from bench_traffic import SCENES  # noqa: E402  (the same rendered scenes)
+from bench_traffic import SCENES, render_scene, scene_folder  # noqa: E402
 
 from vipm_track.camera import CameraModel, load_camera  # noqa: E402
-from vipm_track.cli import main as cli_main  # noqa: E402
 from vipm_track.geometry import (  # noqa: E402
     PlanarMotion,
     compose_motion,
@@ -127,12 +126,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     runs: list[tuple[str, list[np.ndarray], CameraModel, list]] = []
-    for scene, options in SCENES.items():
+    for scene in SCENES:
         for seed in range(args.seeds):
-            seq = args.out / f"{''.join(c if c.isalnum() else '_' for c in scene)}_{seed}"
+            seq = scene_folder(args.out, scene, seed)
             if not (seq / "gt.csv").exists():
-                cli_main(["simulate", "--preset", "car", "--frames", str(args.frames), "--seed",
-                          str(seed), "--out", str(seq), *options])
+                render_scene(args.out, scene, seed, args.frames)
             runs.append((f"{scene} (seed {seed})", _grey(seq / "images"),
                          load_camera(seq / "camera.yaml"), render_truth(seq, (1, 2, 3))))
     if KITTI.is_dir():
