@@ -37,6 +37,7 @@ from vipm_track.sim import (
 )
 from vipm_track.stage_context import pose_prior
 from vipm_track.static_content import noise_sigma, on_static, static_pixels, static_share
+from vipm_track.traffic import Vehicle
 
 
 @cache
@@ -350,23 +351,48 @@ def test_turning_pair_is_as_accurate_as_a_straight_one():
         errors[False]["pitch"] + errors[False]["roll"]), errors
 
 
-def test_a_car_in_a_tight_slow_turn_keeps_its_pose():
+def _corner_lots(radius_m: float, kerb_m: float) -> list[Vehicle]:
+    """Pavement lots ``kerb_m`` high round a right turn of ``radius_m`` from world heading 0
+    (start at the origin, the new road along world x at z = radius_m): the two lots beyond
+    the new road, which the camera looks across in mid-turn, and the near one on the left.
+    Our lane is centred on the path, the roads 7 m wide."""
+    right, left = 1.75, 5.25
+    far = radius_m + left
+    lots = ((right, right + 25.0, far, far + 25.0), (-left - 25.0, -left, far, far + 25.0),
+            (-left - 25.0, -left, -25.0, radius_m - right))
+    return [Vehicle(i, "car", "parked", (x0 + x1) / 2, (z0 + z1) / 2, 0.0, z1 - z0, x1 - x0,
+                    kerb_m, texture="brick", gain=0.9, offset=10.0, look_seed=i)
+            for i, (x0, x1, z0, z1) in enumerate(lots)]
+
+
+@pytest.mark.parametrize("frames, kerb_m, bound_deg", [((0, 6), 0.0, 0.4), ((12, 18), 0.15, 0.6)])
+def test_a_car_in_a_tight_slow_turn_keeps_its_pose(frames, kerb_m, bound_deg):
     # KITTI 07's wrong `ok` rows lie in its slow corners (3° of yaw per 0.3 m: docs/traffic.md,
-    # "Where KITTI 07's wrong ok rows are"), 1.5-4° off; on a flat ground the same turn,
-    # tracked from a nominal pitch 1° below the truth (as KITTI's travel-found nominal sits),
-    # stays within 0.3°.
+    # "Where KITTI 07's wrong ok rows are"), 1.5-4° off; the same turn, tracked from a nominal
+    # pitch 1° below the truth (as KITTI's travel-found nominal sits), stays within 0.4° on a
+    # flat ground (measured 0.24°) and within 0.6° (0.43°) in mid-turn, looking across a
+    # corner's pavement 0.15 m high: a plane parallel to the road whose patches move 11 %
+    # faster than the road's must not tilt the fit.
     p = PRESETS["car"]
-    traj = make_trajectory("turn", 6, fps=10.0, preset=p, seed=3, speed=3.0, amplitude=3.75)
+    traj = make_trajectory("turn", frames[1], fps=10.0, preset=p, seed=3, speed=3.0,
+                           amplitude=3.75)
     assert np.degrees(traj.motion(3).yaw) == pytest.approx(3.0, abs=0.05)
+    radius = 3.0 / np.radians(3.75 * p.turn_rate_dps)
+    lots = _corner_lots(radius, kerb_m) if kerb_m else None
     texture, cam = preset_texture(p), p.camera()
-    imgs = [render_trajectory_frame(texture, cam, traj, k) for k in range(6)]
+    imgs = {k: render_trajectory_frame(texture, cam, traj, k, traffic=lots)
+            for k in range(*frames)}
+    if lots:  # the pavement covers a quarter of the image below its centre
+        flat = render_trajectory_frame(texture, cam, traj, frames[0])
+        covered = (imgs[frames[0]] != flat)[cam.height // 2:]
+        assert covered.mean() > 0.2, covered.mean()
     est = TwoFrameEstimator(Rig(cam, float(traj.height[0]), p.pitch_deg - 1.0))
     result = None
-    for k in range(1, 6):
+    for k in range(frames[0] + 1, frames[1]):
         result = est.estimate(imgs[k - 1], imgs[k], PairGuess.from_previous(result), 0.1)
         assert result.ok, (k, result.reason)
         errors = _errors(traj, k, result.pose_prev, result.pose_curr, result.motion)
-        assert errors["pitch"] < 0.4 and errors["roll"] < 0.4, (k, errors)
+        assert errors["pitch"] < bound_deg and errors["roll"] < bound_deg, (k, errors)
         assert errors["yaw"] < 0.05, (k, errors)
         assert errors["dist_mm"] < 0.02 * 1e3 * traj.motion(k).distance, (k, errors)
 
