@@ -22,6 +22,7 @@ frames' road camber explains as well as the camera, so the nominal roll stays 0 
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, NamedTuple
@@ -45,12 +46,25 @@ from .travel_direction import (
 )
 
 if TYPE_CHECKING:
+    from collections.abc import Iterable, Iterator
+
+    from numpy.typing import NDArray
+
     from .camera import CameraModel
     from .estimator_config import EstimatorConfig
     from .pair_result import PairResult
     from .rig import Rig
-    from .sources import FrameSource
+    from .sources import Frame, FrameSource
 
+#: pairs the direction of travel is measured on, spread over the search's frames as the pairs
+#: that give the roll are (``_spread_pairs``): the mount's pose, not the body's when the drive
+#: starts (pulling away, the body squats; KITTI 07's first 15 pairs, in its first corner,
+#: 0.46°, spread over its 160 frames 0.76°)
+TRAVEL_PAIRS = 15
+#: frames a stretch needs for its pair to be spread (fewer: the pairs one after another)
+MIN_STRETCH = 3
+#: a stretch's pair may run on into the next: this many stretches in all (a slow start)
+STRETCHES_BRIDGED = 2
 #: cold-start pitches tried when the rig's fails [deg], steep to level
 CANDIDATE_PITCHES_DEG: tuple[float, ...] = (75.0, 40.0, 25.0, 12.0, 5.0, 1.0)
 #: a found roll within this of level is the road's camber over the first frames, not the
@@ -171,7 +185,8 @@ def search_nominal_pose(
             if travel is None:
                 travel = travel_pitch_over(source, camera, max_frames)
             if travel.determined:
-                return _from_travel(rig, config, pairs[i:i + confirm_pairs],
+                spread = _spread_pairs(source, camera, confirm_pairs, max_frames)
+                return _from_travel(rig, config, spread or pairs[i:i + confirm_pairs],
                                     travel, source, max_frames)
             # "no motion" included: the view moved (``moving_pairs``), so the default
             # start's patches sat on what did not (a level camera's sky)
@@ -204,20 +219,60 @@ def search_nominal_pose(
 
 def travel_pitch_over(source: FrameSource, camera: CameraModel, max_frames: int,
                       roll: float = 0.0) -> TravelPitch:
-    """The pitch against the direction of travel (``travel_direction``) over the first
-    ``max_frames`` readable frames of ``source``, with ``roll`` [rad]."""
-    def images():
-        for n, frame in enumerate(source):
-            if n >= max_frames:
-                return
-            try:
-                image = None if frame.image is None else prepare_image(frame, camera)
-            except ValueError:
-                image = None
-            if image is not None:
-                yield frame.index, image
+    """The pitch against the direction of travel (``travel_direction``) with ``roll`` [rad],
+    over ``TRAVEL_PAIRS`` pairs spread over the first ``max_frames`` frames of ``source``
+    (:func:`_stretches`; one after another from the start where they are too few to
+    spread): the mount's pitch, not the body's over the drive's first second."""
+    parts = _stretches(source, TRAVEL_PAIRS, max_frames)
+    if parts is None:
+        window = itertools.islice(source, max_frames)
+        return pitch_from_travel(travels_over(_prepared(window, camera), camera, TRAVEL_PAIRS),
+                                 roll)
+    travels = [t for part in parts for t in travels_over(_prepared(part, camera), camera, 1)]
+    return pitch_from_travel(travels, roll)
 
-    return pitch_from_travel(travels_over(images(), camera), roll)
+
+def _spread_pairs(source: FrameSource, camera: CameraModel, count: int, max_frames: int
+                  ) -> list[MovingPair] | None:
+    """Up to ``count`` pairs in which the view moves, one from each of the stretches of
+    :func:`_stretches`; None where they are too few to spread."""
+    parts = _stretches(source, count, max_frames)
+    if parts is None:
+        return None
+    return [p for part in parts for p in moving_pairs(part, camera, 1, len(part))]
+
+
+def _stretches(source: FrameSource, count: int, max_frames: int) -> list[FrameSource] | None:
+    """``count`` parts of the first ``max_frames`` frames of ``source``, starting evenly
+    spread, each running on into the next (up to ``STRETCHES_BRIDGED`` stretches: a pair
+    taken from its start may need more frames where the view moves slowly); None where a
+    stretch would be shorter than ``MIN_STRETCH`` frames or the source cannot be split."""
+    try:
+        window = min(len(source), max_frames)
+        stretch = window // count
+        if stretch < MIN_STRETCH:
+            return None
+        return [source.frames(start, min(STRETCHES_BRIDGED * stretch, window - start))
+                for start in range(0, stretch * count, stretch)]
+    except NotImplementedError:  # (a FrameSource of an application's own)
+        return None
+
+
+def _prepared(frames: Iterable[Frame], camera: CameraModel) -> Iterator[tuple[int, NDArray]]:
+    """``(index, image)`` of the readable ``frames`` as the estimator takes them."""
+    for frame in frames:
+        image = _prepared_image(frame, camera)
+        if image is not None:
+            yield frame.index, image
+
+
+def _prepared_image(frame: Frame, camera: CameraModel) -> NDArray | None:
+    """The frame's image as the estimator takes it; None where it has none or the wrong
+    size."""
+    try:
+        return None if frame.image is None else prepare_image(frame, camera)
+    except ValueError:
+        return None
 
 
 def _from_travel(
@@ -404,10 +459,7 @@ def moving_pairs(
     for n, frame in enumerate(source):
         if n >= max_frames or len(out) >= max_pairs:
             break
-        try:
-            image = None if frame.image is None else prepare_image(frame, camera)
-        except ValueError:
-            image = None
+        image = _prepared_image(frame, camera)
         current = None if image is None else (frame.index, image, noise_sigma(image), frame.t)
         if current is not None and prev is not None and n - 1 >= next_n and not stands_still(
                 prev[1], image, (prev[2], current[2])):
