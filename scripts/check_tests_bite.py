@@ -318,6 +318,10 @@ MUTANTS: tuple[Mutant, ...] = (
            "vipm_track/poc_kernels.py", "            out[k] = 0.0\n            continue\n"
            "        total = 0.0", "            continue\n        total = 0.0",
            ("tests/test_poc.py",)),
+    Mutant("nominal-travel-first-pairs", "estimator",
+           "the cold start's travel and ground fit from the drive's first pairs, not spread",
+           "vipm_track/nominal_search.py", "MIN_STRETCH = 3\n", "MIN_STRETCH = 10**9\n",
+           ("tests/test_nominal_search.py",)),
 )
 
 
