@@ -322,6 +322,15 @@ MUTANTS: tuple[Mutant, ...] = (
            "the cold start's travel and ground fit from the drive's first pairs, not spread",
            "vipm_track/nominal_search.py", "MIN_STRETCH = 3\n", "MIN_STRETCH = 10**9\n",
            ("tests/test_nominal_search.py",)),
+    Mutant("nominal-ground-fit-first-pairs", "estimator",
+           "the spread travel checked against a ground fit on the drive's first pairs",
+           "vipm_track/nominal_search.py",
+           "spread = spread_pairs(source, camera, confirm_pairs, max_frames)",
+           "spread = pairs[i:i + confirm_pairs]", ("tests/test_nominal_search.py",)),
+    Mutant("nominal-stretches-not-bridged", "estimator",
+           "a stretch's travel pair cannot run on into the next (a slow start loses it)",
+           "vipm_track/nominal_search.py", "STRETCHES_BRIDGED = 2\n", "STRETCHES_BRIDGED = 1\n",
+           ("tests/test_nominal_search.py",)),
 )
 
 

@@ -365,12 +365,13 @@ def _corner_lots(radius_m: float, kerb_m: float) -> list[Vehicle]:
             for i, (x0, x1, z0, z1) in enumerate(lots)]
 
 
-@pytest.mark.parametrize("frames, kerb_m, bound_deg", [((0, 6), 0.0, 0.4), ((12, 18), 0.15, 0.6)])
+@pytest.mark.parametrize("frames, kerb_m, bound_deg",
+                         [((0, 6), 0.0, 0.4), ((12, 18), 0.0, 0.4), ((12, 18), 0.15, 0.6)])
 def test_a_car_in_a_tight_slow_turn_keeps_its_pose(frames, kerb_m, bound_deg):
     # KITTI 07's wrong `ok` rows lie in its slow corners (3° of yaw per 0.3 m: docs/traffic.md,
     # "Where KITTI 07's wrong ok rows are"), 1.5-4° off; the same turn, tracked from a nominal
-    # pitch 1° below the truth (as KITTI's travel-found nominal sits), stays within 0.4° on a
-    # flat ground (measured 0.24°) and within 0.6° (0.43°) in mid-turn, looking across a
+    # pitch 1° below the truth, stays within 0.4° on a flat ground (measured 0.24° as it
+    # enters the turn, 0.23° in mid-turn) and within 0.6° (0.43°) in mid-turn looking across a
     # corner's pavement 0.15 m high: a plane parallel to the road whose patches move 11 %
     # faster than the road's must not tilt the fit.
     p = PRESETS["car"]
@@ -382,7 +383,7 @@ def test_a_car_in_a_tight_slow_turn_keeps_its_pose(frames, kerb_m, bound_deg):
     texture, cam = preset_texture(p), p.camera()
     imgs = {k: render_trajectory_frame(texture, cam, traj, k, traffic=lots)
             for k in range(*frames)}
-    if lots:  # the pavement covers a quarter of the image below its centre
+    if lots:  # the pavement covers a fifth of the image below its centre or more
         flat = render_trajectory_frame(texture, cam, traj, frames[0])
         covered = (imgs[frames[0]] != flat)[cam.height // 2:]
         assert covered.mean() > 0.2, covered.mean()

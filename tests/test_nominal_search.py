@@ -12,7 +12,12 @@ import pytest
 from tests.conftest import shared_data
 from vipm_track.camera import load_camera
 from vipm_track.estimator_config import EstimatorConfig
-from vipm_track.nominal_search import search_nominal_pose, travel_pitch_over
+from vipm_track.nominal_search import (
+    TRAVEL_PAIRS,
+    _stretches,
+    search_nominal_pose,
+    travel_pitch_over,
+)
 from vipm_track.rig import DEFAULT_PITCH_DEG, Rig
 from vipm_track.sim import (
     PRESETS,
@@ -21,7 +26,7 @@ from vipm_track.sim import (
     render_trajectory_frame,
     simulate_sequence,
 )
-from vipm_track.sources import Frame, FrameSource, open_source
+from vipm_track.sources import ArraySource, Frame, FrameSource, open_source
 
 
 def _rig(camera, preset) -> Rig:
@@ -255,8 +260,7 @@ def test_a_travel_pitch_that_sees_no_ground_leaves_the_pose_undetermined():
     camera = CameraModel(np.array([[5000.0, 0, 200], [0, 5000.0, 150], [0, 0, 1]]), 400, 300)
     rig = Rig(camera, 1.5, DEFAULT_PITCH_DEG)
     travel = TravelPitch(-5.0, 6, 6, 0.1)
-    found = _from_travel(rig, EstimatorConfig(), [SimpleNamespace(frames=(0, 1))], travel,
-                         None, 10)
+    found = _from_travel(rig, EstimatorConfig(), [SimpleNamespace(frames=(0, 1))], travel)
     assert not found.determined
     assert found.undetermined.startswith("at the direction of travel's pitch -5.0° the region")
 
@@ -308,3 +312,19 @@ def test_the_travel_pitch_is_the_mounts_not_the_first_seconds():
     found = search_nominal_pose(source, _rig(preset.camera(), preset), EstimatorConfig())
     assert found is not None and found.determined, found
     assert abs(found.pitch_deg - mount) < 0.6, found.line()
+
+
+@pytest.mark.parametrize("frames, starts, length", [
+    (100, list(range(0, 90, 6)), 12),   # 15 stretches of 6 frames, each read into the next
+    (400, list(range(0, 300, 20)), 40),  # only the first 300 frames (the search's window)
+    (44, None, None),                    # stretches under 3 frames: none
+])
+def test_travel_stretches_start_evenly_and_run_into_the_next(frames, starts, length):
+    source = ArraySource(np.zeros((frames, 4, 4), np.uint8), np.arange(frames) / 10.0)
+    parts = _stretches(source, TRAVEL_PAIRS, 300)
+    if starts is None:
+        assert parts is None
+        return
+    assert [p.first_index for p in parts] == starts
+    window = min(frames, 300)
+    assert [len(p) for p in parts] == [min(length, window - s) for s in starts]

@@ -40,6 +40,7 @@ from .travel_direction import (
     AGREE_DEG,
     MAX_OFF_AXIS_DEG,
     MIN_AGREEING_SHARE,
+    MIN_PAIRS,
     TravelPitch,
     pitch_from_travel,
     travels_over,
@@ -57,9 +58,8 @@ if TYPE_CHECKING:
     from .sources import Frame, FrameSource
 
 #: pairs the direction of travel is measured on, spread over the search's frames as the pairs
-#: that give the roll are (``_spread_pairs``): the mount's pose, not the body's when the drive
-#: starts (pulling away, the body squats; KITTI 07's first 15 pairs, in its first corner,
-#: 0.46°, spread over its 160 frames 0.76°)
+#: that give the roll are (:func:`spread_pairs`): the mount's pose, not the body's when the
+#: drive starts (docs/traffic.md, "The nominal from pairs spread over the drive")
 TRAVEL_PAIRS = 15
 #: frames a stretch needs for its pair to be spread (fewer: the pairs one after another)
 MIN_STRETCH = 3
@@ -119,7 +119,7 @@ class NominalSearch:
         frames = f"frames {self.frames[0]}-{self.frames[1]}"
         if self.travel is not None and self.travel.determined:
             return (f"no --pitch given; the direction of travel over {self.travel.pairs} "
-                    f"pairs (frames from {self.frames[0]}) puts the camera at pitch "
+                    f"pairs spread over the drive's first frames puts the camera at pitch "
                     f"{self.pitch_deg:.1f}° ({self.travel.agreeing} pairs within "
                     f"{AGREE_DEG:g}°) and the ground fit from there at roll "
                     f"{self.measured_roll_deg:.1f}° (median of {self.pairs} pairs); nominal "
@@ -185,9 +185,10 @@ def search_nominal_pose(
             if travel is None:
                 travel = travel_pitch_over(source, camera, max_frames)
             if travel.determined:
-                spread = _spread_pairs(source, camera, confirm_pairs, max_frames)
-                return _from_travel(rig, config, spread or pairs[i:i + confirm_pairs],
-                                    travel, source, max_frames)
+                spread = spread_pairs(source, camera, confirm_pairs, max_frames)
+                if len(spread) < confirm_pairs // 2:  # a drive standing most of its window
+                    spread = pairs[i:i + confirm_pairs]
+                return _from_travel(rig, config, spread, travel)
             # "no motion" included: the view moved (``moving_pairs``), so the default
             # start's patches sat on what did not (a level camera's sky)
             # each start alone first; stepped off its pitch only where none converges
@@ -220,25 +221,31 @@ def search_nominal_pose(
 def travel_pitch_over(source: FrameSource, camera: CameraModel, max_frames: int,
                       roll: float = 0.0) -> TravelPitch:
     """The pitch against the direction of travel (``travel_direction``) with ``roll`` [rad],
-    over ``TRAVEL_PAIRS`` pairs spread over the first ``max_frames`` frames of ``source``
-    (:func:`_stretches`; one after another from the start where they are too few to
-    spread): the mount's pitch, not the body's over the drive's first second."""
+    over up to ``TRAVEL_PAIRS`` pairs spread over the first ``max_frames`` frames of
+    ``source``, one from each of :func:`_stretches`: the mount's pitch, not the body's over
+    the drive's first second. Where the stretches are too short to spread, or too few of
+    them give a pair (a slow short drive), the pairs one after another from the start."""
     parts = _stretches(source, TRAVEL_PAIRS, max_frames)
-    if parts is None:
-        window = itertools.islice(source, max_frames)
-        return pitch_from_travel(travels_over(_prepared(window, camera), camera, TRAVEL_PAIRS),
-                                 roll)
-    travels = [t for part in parts for t in travels_over(_prepared(part, camera), camera, 1)]
-    return pitch_from_travel(travels, roll)
+    if parts is not None:
+        spread = pitch_from_travel(
+            [t for part in parts for t in travels_over(_prepared(part, camera), camera, 1)],
+            roll)
+        if spread.pairs >= MIN_PAIRS:
+            return spread
+    window = itertools.islice(source, max_frames)
+    return pitch_from_travel(travels_over(_prepared(window, camera), camera, TRAVEL_PAIRS),
+                             roll)
 
 
-def _spread_pairs(source: FrameSource, camera: CameraModel, count: int, max_frames: int
-                  ) -> list[MovingPair] | None:
-    """Up to ``count`` pairs in which the view moves, one from each of the stretches of
-    :func:`_stretches`; None where they are too few to spread."""
+def spread_pairs(source: FrameSource, camera: CameraModel, count: int, max_frames: int
+                 ) -> list[MovingPair]:
+    """Up to ``count`` pairs of ``source`` in which the view moves, spread over its first
+    ``max_frames`` frames: the first of each of :func:`_stretches` (or, where they are too
+    short or the source cannot be split, :func:`moving_pairs` a stride apart)."""
     parts = _stretches(source, count, max_frames)
     if parts is None:
-        return None
+        stride = max(1, min(len(source), max_frames) // max(count, 1))
+        return moving_pairs(source, camera, count, max_frames, stride)
     return [p for part in parts for p in moving_pairs(part, camera, 1, len(part))]
 
 
@@ -246,7 +253,9 @@ def _stretches(source: FrameSource, count: int, max_frames: int) -> list[FrameSo
     """``count`` parts of the first ``max_frames`` frames of ``source``, starting evenly
     spread, each running on into the next (up to ``STRETCHES_BRIDGED`` stretches: a pair
     taken from its start may need more frames where the view moves slowly); None where a
-    stretch would be shorter than ``MIN_STRETCH`` frames or the source cannot be split."""
+    stretch would be shorter than ``MIN_STRETCH`` frames or the source cannot be split. Each
+    part is read from its own start (a seek in a video; a bag skips the messages before it),
+    at most ``STRETCHES_BRIDGED`` times the window's frames in all."""
     try:
         window = min(len(source), max_frames)
         stretch = window // count
@@ -276,8 +285,7 @@ def _prepared_image(frame: Frame, camera: CameraModel) -> NDArray | None:
 
 
 def _from_travel(
-    rig: Rig, config: EstimatorConfig, pairs: list[MovingPair],
-    travel: TravelPitch, source: FrameSource, max_frames: int,
+    rig: Rig, config: EstimatorConfig, pairs: list[MovingPair], travel: TravelPitch,
 ) -> NominalSearch:
     """The nominal pose of a camera whose pitch the direction of travel gave: the roll of
     the ground fit started from that pitch (level), the pitch again with that roll. Not
@@ -317,7 +325,7 @@ def _from_travel(
                         f"walls taken for the ground?)")
     if undetermined:
         return replace(search, undetermined=undetermined)
-    with_roll = travel_pitch_over(source, rig.camera, max_frames, math.radians(search.roll_deg)) \
+    with_roll = pitch_from_travel(list(travel.travels), math.radians(search.roll_deg)) \
         if search.roll_deg else travel
     return replace(search, pitch_deg=round(with_roll.pitch_deg, 1), travel=with_roll)
 

@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .estimator import TwoFrameEstimator
-from .nominal_search import MovingPair, moving_pairs
+from .nominal_search import MovingPair, spread_pairs
 from .pair_chain import estimate_pair
 from .pair_result import STATUS_OK
 
@@ -114,8 +114,7 @@ def spread_moving_pairs(
     """Up to ``scan_pairs`` pairs of ``source`` in which the view moves, spread over its first
     ``max_frames`` frames, and their median frame interval [s]; None where there is none (or
     no positive interval)."""
-    stride = max(1, min(len(source), max_frames) // max(scan_pairs, 1))
-    pairs = moving_pairs(source, rig.camera, scan_pairs, max_frames, stride)
+    pairs = spread_pairs(source, rig.camera, scan_pairs, max_frames)
     if not pairs:
         return None
     interval = float(np.median([p.interval_s for p in pairs]))

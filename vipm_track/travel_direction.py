@@ -82,6 +82,9 @@ class TravelPitch:
     off_axis_deg: float = math.nan  # median angle of all pairs' directions off the axis
     #: every pair's direction (camera frame; those off the axis included)
     directions: tuple[NDArray[np.float64], ...] = ()
+    #: the pairs it was taken over (None: no direction), for :func:`pitch_from_travel` at
+    #: another roll
+    travels: tuple[PairTravel | None, ...] = ()
 
 
     @property
@@ -183,7 +186,7 @@ def pitch_from_travel(travels: list[PairTravel | None], roll: float = 0.0) -> Tr
     if not forward:
         return TravelPitch(math.nan, 0, 0, math.nan,
                            f"no pair of {len(travels)} gave a forward direction of travel",
-                           median_off, tuple(tr.direction for tr in known))
+                           median_off, tuple(tr.direction for tr in known), tuple(travels))
     pitches = np.degrees([travel_pitch(tr.direction, roll) for tr in forward])
     median = float(np.median(pitches))
     agreeing = int(np.count_nonzero(np.abs(pitches - median) <= AGREE_DEG))
@@ -200,7 +203,7 @@ def pitch_from_travel(travels: list[PairTravel | None], roll: float = 0.0) -> Tr
                   f"{PITCH_RANGE_DEG[0]:g}° to {PITCH_RANGE_DEG[1]:g}° of a camera that sees "
                   "the ground")
     return TravelPitch(median, len(forward), agreeing, spread, reason, median_off,
-                       tuple(tr.direction for tr in known))
+                       tuple(tr.direction for tr in known), tuple(travels))
 
 
 def _grey_u8(image: NDArray) -> NDArray[np.uint8]:

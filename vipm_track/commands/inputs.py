@@ -257,8 +257,9 @@ GIVEN_PITCH_TOLERANCE_DEG = 2.0
 
 
 def warn_given_pitch(args: argparse.Namespace, source: FrameSource, rig: Rig) -> None:
-    """Where ``--pitch`` was given: a warning on stderr if the direction of travel over the
-    first frames (``nominal_search.travel_pitch_over``) puts the camera at another pitch. A
+    """Where ``--pitch`` was given: a warning on stderr if the direction of travel over pairs
+    spread over the first 300 frames (``nominal_search.travel_pitch_over``) puts the camera at
+    another pitch. A
     level camera's rows follow the nominal pose they start from (KITTI 07 with ``--pitch -5``:
     every pair ``ok`` at −5.1 ± 1.2°, travel +78 %). Called after a run (its first row is
     not delayed)."""
@@ -276,7 +277,7 @@ def warn_given_pitch(args: argparse.Namespace, source: FrameSource, rig: Rig) ->
     if abs(off) <= GIVEN_PITCH_TOLERANCE_DEG + 3.0 * se:
         return
     print(f"vipm-track: warning: --pitch {args.pitch:g}° but the direction of travel over "
-          f"{travel.pairs} pairs of the first frames puts the camera at pitch "
+          f"{travel.pairs} pairs spread over the drive's first frames puts the camera at pitch "
           f"{travel.pitch_deg:.1f}° ({travel.agreeing} pairs within {AGREE_DEG:g}°): a "
           "level camera's rows follow the nominal pose they start from, their pitch and "
           f"travel with it ({off:+.1f}° here); check --pitch, or leave it out to take the "
