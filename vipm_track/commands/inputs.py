@@ -259,10 +259,9 @@ GIVEN_PITCH_TOLERANCE_DEG = 2.0
 def warn_given_pitch(args: argparse.Namespace, source: FrameSource, rig: Rig) -> None:
     """Where ``--pitch`` was given: a warning on stderr if the direction of travel over pairs
     spread over the first 300 frames (``nominal_search.travel_pitch_over``) puts the camera at
-    another pitch. A
-    level camera's rows follow the nominal pose they start from (KITTI 07 with ``--pitch -5``:
-    every pair ``ok`` at −5.1 ± 1.2°, travel +78 %). Called after a run (its first row is
-    not delayed)."""
+    another pitch. A level camera's rows follow the nominal pose they start from (KITTI 07
+    with ``--pitch -5``: every pair ``ok`` at −5.1 ± 1.2°, travel +78 %). Called after a run
+    (its first row is not delayed)."""
     if getattr(args, "pitch", None) is None:
         return
     from ..nominal_search import LEVEL_PITCH_DEG, travel_pitch_over
