@@ -80,8 +80,6 @@ class TravelPitch:
     spread_deg: float
     reason: str = ""
     off_axis_deg: float = math.nan  # median angle of all pairs' directions off the axis
-    #: every pair's direction (camera frame; those off the axis included)
-    directions: tuple[NDArray[np.float64], ...] = ()
     #: the pairs it was taken over (None: no direction), for :func:`pitch_from_travel` at
     #: another roll
     travels: tuple[PairTravel | None, ...] = ()
@@ -90,6 +88,12 @@ class TravelPitch:
     @property
     def determined(self) -> bool:
         return not self.reason
+
+    @property
+    def directions(self) -> tuple[NDArray[np.float64], ...]:
+        """Every pair's direction that was found (camera frame; those off the axis
+        included)."""
+        return tuple(tr.direction for tr in self.travels if tr is not None)
 
 
 def travels_over(images: Iterable[tuple[int, NDArray]], camera: CameraModel,
@@ -186,7 +190,7 @@ def pitch_from_travel(travels: list[PairTravel | None], roll: float = 0.0) -> Tr
     if not forward:
         return TravelPitch(math.nan, 0, 0, math.nan,
                            f"no pair of {len(travels)} gave a forward direction of travel",
-                           median_off, tuple(tr.direction for tr in known), tuple(travels))
+                           median_off, tuple(travels))
     pitches = np.degrees([travel_pitch(tr.direction, roll) for tr in forward])
     median = float(np.median(pitches))
     agreeing = int(np.count_nonzero(np.abs(pitches - median) <= AGREE_DEG))
@@ -203,7 +207,7 @@ def pitch_from_travel(travels: list[PairTravel | None], roll: float = 0.0) -> Tr
                   f"{PITCH_RANGE_DEG[0]:g}° to {PITCH_RANGE_DEG[1]:g}° of a camera that sees "
                   "the ground")
     return TravelPitch(median, len(forward), agreeing, spread, reason, median_off,
-                       tuple(tr.direction for tr in known), tuple(travels))
+                       tuple(travels))
 
 
 def _grey_u8(image: NDArray) -> NDArray[np.uint8]:
