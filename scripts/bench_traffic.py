@@ -33,6 +33,11 @@ and roll 0.8–1.25, distance median ≤ 2 % and p95 ≤ 8 %, yaw ≤ 0.05° med
 pairs ok, the smoother's mount within 0.1° pitch / 0.15° roll.
 
     python scripts/bench_traffic.py [--frames 60] [--seeds 2] [--no-kitti] [--out out/bench_traffic]
+
+``--preset kitti`` renders KITTI's own camera (1241×376, level, 1.65 m, 10 fps) in slow
+dense traffic instead (``KITTI_RIG_SCENES``; results ``bench_traffic_kitti_rig.md``): the
+camera of the real drives the project is measured on, whose short view a vehicle ahead
+fills.
 """
 
 from __future__ import annotations
@@ -52,6 +57,7 @@ sys.path.insert(0, str(ROOT))
 from vipm_track.cli import main as cli_main  # noqa: E402
 from vipm_track.geometry import rotation_ground_from_camera  # noqa: E402
 from vipm_track.kitti import read_poses  # noqa: E402
+from vipm_track.sim import PRESETS  # noqa: E402
 from vipm_track.table import read_table  # noqa: E402
 from vipm_track.travel_direction import travel_pitch  # noqa: E402
 
@@ -67,6 +73,16 @@ SCENES: dict[str, list[str]] = {
     "mixed traffic, 12 m/s, shaking": ["--traffic", "mix", "--profile", "shaking"],
     "light traffic, 12 m/s, turn": ["--traffic", "light", "--profile", "turn"],
 }
+#: scenes of KITTI's camera (``--preset kitti``), each with and without --pitch
+KITTI_RIG_SCENES: dict[str, list[str]] = {
+    "dense city traffic, 2.5 m/s, body still": ["--traffic", "dense", "--profile", "static",
+                                                "--speed", "2.5"],
+    "dense city traffic, 2 m/s, gradual": ["--traffic", "dense", "--profile", "gradual",
+                                           "--speed", "2"],
+    "dense city traffic, 1 m/s, gradual": ["--traffic", "dense", "--profile", "gradual",
+                                           "--speed", "1"],
+}
+PRESET_SCENES = {"car": SCENES, "kitti": KITTI_RIG_SCENES}
 
 
 def run(argv: list[str]) -> tuple[str, float]:
@@ -83,12 +99,13 @@ def scene_folder(out: Path, scene: str, seed: int) -> Path:
     return out / f"{''.join(c if c.isalnum() else '_' for c in scene)}_{seed}"
 
 
-def render_scene(out: Path, scene: str, seed: int, frames: int) -> tuple[Path, str]:
-    """Render ``SCENES[scene]`` with ``seed`` into its :func:`scene_folder`; the folder and
-    the command line."""
+def render_scene(out: Path, scene: str, seed: int, frames: int, preset: str = "car",
+                 ) -> tuple[Path, str]:
+    """Render the ``preset``'s scene (``PRESET_SCENES``) with ``seed`` into its
+    :func:`scene_folder`; the folder and the command line."""
     seq = scene_folder(out, scene, seed)
-    cmd, _ = run(["simulate", "--preset", "car", "--frames", str(frames), "--seed", str(seed),
-                  "--out", str(seq), *SCENES[scene]])
+    cmd, _ = run(["simulate", "--preset", preset, "--frames", str(frames), "--seed", str(seed),
+                  "--out", str(seq), *PRESET_SCENES[preset][scene]])
     return seq, cmd
 
 
@@ -345,23 +362,31 @@ def main() -> int:
     parser.add_argument("--frames", type=int, default=60)
     parser.add_argument("--seeds", type=int, default=2)
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "bench_traffic")
-    parser.add_argument("--results", type=Path,
-                        default=ROOT / "scripts" / "results" / "bench_traffic.md")
+    parser.add_argument("--preset", choices=sorted(PRESET_SCENES), default="car",
+                        help="the rendered camera and its scenes (module doc)")
+    parser.add_argument("--results", type=Path, default=None,
+                        help="results file (default scripts/results/bench_traffic.md, "
+                        "bench_traffic_kitti_rig.md with --preset kitti)")
     parser.add_argument("--no-kitti", action="store_true")
     parser.add_argument("--kitti-seeds", type=int, default=3,
                         help="subset-sampler seeds of the KITTI 07 runs (each seed is a draw: "
                         "the filters' numbers move across them by more than most changes do)")
     args = parser.parse_args()
+    if args.results is None:
+        name = "bench_traffic.md" if args.preset == "car" else "bench_traffic_kitti_rig.md"
+        args.results = ROOT / "scripts" / "results" / name
     args.out.mkdir(parents=True, exist_ok=True)
+    rig = PRESETS[args.preset]
     rows: list[tuple[str, dict]] = []
     commands: list[str] = []
-    for scene in SCENES:
+    for scene in PRESET_SCENES[args.preset]:
         for seed in range(args.seeds):
-            seq, cmd = render_scene(args.out, scene, seed, args.frames)
+            seq, cmd = render_scene(args.out, scene, seed, args.frames, args.preset)
             commands.append(cmd)
             truth = read_table(seq / "gt.csv")
             height = float(np.nanmedian(truth["height_m"]))
-            for label, extra in (("no --pitch", []), ("--pitch", ["--pitch", "3"])):
+            for label, extra in (("no --pitch", []),
+                                 ("--pitch", ["--pitch", f"{rig.pitch_deg:g}"])):
                 est_csv = args.out / f"{seq.name}_{'pitch' if extra else 'nopitch'}.csv"
                 cmd, _ = run(["estimate", "--images", str(seq / "images"), "--camera",
                               str(seq / "camera.yaml"), "--height", repr(height), *extra,
@@ -390,7 +415,8 @@ def main() -> int:
                 rows.append((f"KITTI 07 (seed {seed}, {label})", m))
                 print(rows[-1], flush=True)
     text = ["# Forward cameras in traffic (scripts/bench_traffic.py)", "",
-            f"{args.frames} frames per render, car preset (1280×720, pitch 3°, 1.5 m), "
+            f"{args.frames} frames per render, {rig.name} preset ({rig.width}×{rig.height}, "
+            f"pitch {rig.pitch_deg:g}°, {rig.height_m:g} m, {rig.fps:g} fps), "
             f"seeds 0–{args.seeds - 1}; KITTI 07 with the subset sampler's seeds "
             f"0–{args.kitti_seeds - 1} (`--subset-seed`: each a draw of the same drive). "
             "KITTI's poses give no pose against the road: its "

@@ -331,6 +331,11 @@ MUTANTS: tuple[Mutant, ...] = (
            "a stretch's travel pair cannot run on into the next (a slow start loses it)",
            "vipm_track/nominal_search.py", "STRETCHES_BRIDGED = 2\n", "STRETCHES_BRIDGED = 1\n",
            ("tests/test_nominal_search.py",)),
+    Mutant("nominal-scattered-travel-ignored", "estimator",
+           "a ground fit far from travel whose pairs scatter is taken for the camera's pose",
+           "vipm_track/nominal_search.py",
+           "    return _off_axis_travel(search, travel) or _off_travel_pitch(search, travel)",
+           "    return _off_axis_travel(search, travel)", ("tests/test_nominal_search.py",)),
 )
 
 

@@ -106,6 +106,9 @@ PRESETS: dict[str, Preset] = {
     "cart": Preset("cart", 800, 600, 729.0, 45.0, 0.7, 10.0, 1.2, 15.0, "gravel", 0.0015, 24),
     # Forward-looking dashcam: 1280×720, f ≈ 900 px, h ≈ 1.5 m, pitch 3°, 5–20 m/s.
     "car": Preset("car", 1280, 720, 900.0, 3.0, 1.5, 20.0, 12.0, 8.0, "gravel", 0.008, 24),
+    # KITTI's grey camera: 1241×376, f ≈ 718 px, h 1.65 m, near level (1°), 10 fps, town speed;
+    # wide and short, so a vehicle ahead fills much of its ground
+    "kitti": Preset("kitti", 1241, 376, 718.0, 1.0, 1.65, 10.0, 8.0, 8.0, "gravel", 0.008, 24),
 }
 
 

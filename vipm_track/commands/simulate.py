@@ -27,8 +27,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(simulated wheel speed: 50 Hz, 0.5 % noise, 0.01 km/h steps).",
     )
     p.add_argument("--preset", choices=sorted(PRESETS), default="cart",
-                   help="rig: cart (800×600, h 0.7 m, pitch 45°, 10 fps) or car (1280×720, "
-                   "h 1.5 m, pitch 3°, 20 fps)")
+                   help="rig: cart (800×600, h 0.7 m, pitch 45°, 10 fps), car (1280×720, "
+                   "h 1.5 m, pitch 3°, 20 fps) or kitti (1241×376, h 1.65 m, pitch 1°, 10 fps)")
     p.add_argument("--frames", type=int, required=True, metavar="N", help="number of frames")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--seed", type=whole_number(0), default=0,
