@@ -414,17 +414,22 @@ def main() -> int:
                 m.update(filtered)
                 rows.append((f"KITTI 07 (seed {seed}, {label})", m))
                 print(rows[-1], flush=True)
-    text = ["# Forward cameras in traffic (scripts/bench_traffic.py)", "",
+    kitti_ran = any(name.startswith("KITTI 07") for name, _ in rows)
+    title = ("Forward cameras in traffic (scripts/bench_traffic.py)" if args.preset == "car"
+             else f"Forward cameras in traffic: the {args.preset} preset's camera "
+             f"(scripts/bench_traffic.py --preset {args.preset})")
+    about_kitti = (
+        f"; KITTI 07 with the subset sampler's seeds 0–{args.kitti_seeds - 1} "
+        "(`--subset-seed`: each a draw of the same drive). KITTI's poses give no pose against "
+        "the road: its pitch truth is the pitch at which the poses' direction of travel "
+        "(frames k±5) lies in the ground plane; its roll truth the summed roll changes plus a "
+        "4-s median of what the estimate rows say beyond them (their slow roll error does not "
+        "show); the same truth for the `track` and `smooth` columns. KITTI's mount pitch: "
+        "against the median pitch truth." if kitti_ran else ".")
+    text = [f"# {title}", "",
             f"{args.frames} frames per render, {rig.name} preset ({rig.width}×{rig.height}, "
             f"pitch {rig.pitch_deg:g}°, {rig.height_m:g} m, {rig.fps:g} fps), "
-            f"seeds 0–{args.seeds - 1}; KITTI 07 with the subset sampler's seeds "
-            f"0–{args.kitti_seeds - 1} (`--subset-seed`: each a draw of the same drive). "
-            "KITTI's poses give no pose against the road: its "
-            "pitch truth is the pitch at which the poses' direction of travel (frames k±5) "
-            "lies in the ground plane; its roll truth the summed roll changes plus a 4-s "
-            "median of what the estimate rows say beyond them (their slow roll error does not "
-            "show); the same truth for the `track` and `smooth` columns. KITTI's mount pitch: "
-            "against the median pitch truth.",
+            f"seeds 0–{args.seeds - 1}{about_kitti}",
             "", "The two-frame rows (`estimate`):", "", *table(rows, ROW_COLUMNS), "",
             "The filters on them (`track`, `smooth`, `smooth --motion-given-pose`; z: the "
             "error over the filter's stated standard deviation):", "",

@@ -338,6 +338,12 @@ def test_other_status_rows_quote_the_results_files():
     assert (f"| {cells(given, 9, '.2f')} / {cells(given, 10, '.2f')}; "
             f"{cells(kitti_filtered, 9, '.2f')} / {cells(kitti_filtered, 10, '.2f')} |"
             in _status("traffic, filter σ"))
+    rows_text, filters_text = (RESULTS / "bench_traffic_kitti_rig.md").read_text().split(
+        "The filters on them", 1)
+    kitti_rig = [r for r in _text_rows(rows_text) if len(r) == 17 and r[0] != "run"]
+    smoothed = [int(r[5]) for r in _text_rows(filters_text) if len(r) == 17 and r[0] != "run"]
+    assert (f"| {cells(kitti_rig, 2, 'd')} ({cells(kitti_rig, 3, 'd')}); "
+            f"{_range(smoothed, 'd')} |" in _status("traffic, KITTI's camera"))
     ours = next(r for r in _rows(RESULTS / "bench_realtime.md") if r[0] == "vipm-track (ours)")
     assert f"| {ours[1]}; {ours[3]} |" in _status("speed, real frames")
     fleet = {r[0]: r for r in _rows(RESULTS / "bench_fleet.md") if len(r) == 6}
