@@ -42,6 +42,7 @@ from .travel_direction import (
     MIN_AGREEING_SHARE,
     MIN_PAIRS,
     TravelPitch,
+    median_standard_error,
     pitch_from_travel,
     travels_over,
 )
@@ -310,8 +311,9 @@ def _from_travel(
     pitches = np.degrees([p.pitch for p in poses])
     ground_pitch = float(np.median(pitches))
     # the body pitches on its suspension from pair to pair: the median of a few pairs is
-    # only as sure as their scatter says (1.25 · 1.48 MAD / √n: its standard error)
-    ground_se = 1.86 * float(np.median(np.abs(pitches - ground_pitch))) / math.sqrt(len(poses))
+    # only as sure as their scatter says
+    ground_se = median_standard_error(float(np.median(np.abs(pitches - ground_pitch))),
+                                      len(poses))
     roll = math.degrees(float(np.median([p.roll for p in poses])))
     search = NominalSearch(round(travel.pitch_deg, 1), round(roll, 1),
                            round(travel.pitch_deg, 1), rig.pitch_deg, frames,
@@ -365,14 +367,13 @@ def _off_travel_pitch(search: NominalSearch, travel: TravelPitch) -> str:
     not determine one: enough pairs gave a forward direction (``MIN_PAIRS``) but their
     pitches scattered (a body pitching over the drive), and the fit's pitch lies further from
     their median, at the fit's roll, than ``GROUND_AGREE_DEG`` and three standard errors of
-    that median. In slow dense traffic the ground fit settles on vehicles (a level camera
-    at 1 m/s found at pitch −5.3°, roll 3.9°, against the travel's −0.2° and the truth's
-    0.5°, 0.5°: every row `ok` and 5° off)."""
+    that median. Scattered, the travel still bounds the pitch, and in slow dense traffic the
+    ground fit can settle on the vehicles (docs/traffic.md, "KITTI's camera in slow dense
+    traffic")."""
     at_roll = pitch_from_travel(list(travel.travels), math.radians(search.measured_roll_deg))
     if at_roll.pairs < MIN_PAIRS or not math.isfinite(at_roll.pitch_deg):
         return ""
-    # the median's standard error from the pairs' scatter (1.25 · 1.48 MAD / √n)
-    tolerance = GROUND_AGREE_DEG + 3.0 * 1.86 * at_roll.spread_deg / math.sqrt(at_roll.pairs)
+    tolerance = GROUND_AGREE_DEG + 3.0 * at_roll.standard_error_deg
     if abs(search.pitch_deg - at_roll.pitch_deg) <= tolerance:
         return ""
     return (f"the ground fit found pitch {search.pitch_deg:.1f}°, roll "

@@ -90,6 +90,11 @@ class TravelPitch:
         return not self.reason
 
     @property
+    def standard_error_deg(self) -> float:
+        """The standard error of :attr:`pitch_deg`, the pairs' median, from their scatter."""
+        return median_standard_error(self.spread_deg, self.pairs)
+
+    @property
     def directions(self) -> tuple[NDArray[np.float64], ...]:
         """Every pair's direction that was found (camera frame; those off the axis
         included)."""
@@ -170,6 +175,12 @@ def _direction(a: NDArray[np.float64], b: NDArray[np.float64], camera: CameraMod
         centre = -centre
     rotation = math.degrees(float(np.linalg.norm(cv2.Rodrigues(r)[0])))
     return PairTravel(frames, centre, int(inliers), rotation)
+
+
+def median_standard_error(mad: float, n: int) -> float:
+    """The standard error of the median of ``n`` values whose median absolute deviation from
+    it is ``mad`` (1.25 · 1.48 MAD / √n, as for a normal scatter); inf for none."""
+    return 1.86 * mad / math.sqrt(n) if n > 0 else math.inf
 
 
 def travel_pitch(direction: NDArray, roll: float = 0.0) -> float:

@@ -271,9 +271,8 @@ def warn_given_pitch(args: argparse.Namespace, source: FrameSource, rig: Rig) ->
     # a steep camera's rows find its pitch from any start: only a level one's follow it
     if not travel.determined or min(travel.pitch_deg, rig.pitch_deg) >= LEVEL_PITCH_DEG:
         return
-    se = 1.86 * travel.spread_deg / math.sqrt(travel.pairs)  # the median's (1.25 × 1.48 MAD)
     off = rig.pitch_deg - travel.pitch_deg
-    if abs(off) <= GIVEN_PITCH_TOLERANCE_DEG + 3.0 * se:
+    if abs(off) <= GIVEN_PITCH_TOLERANCE_DEG + 3.0 * travel.standard_error_deg:
         return
     print(f"vipm-track: warning: --pitch {args.pitch:g}° but the direction of travel over "
           f"{travel.pairs} pairs spread over the drive's first frames puts the camera at pitch "
