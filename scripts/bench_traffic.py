@@ -398,7 +398,8 @@ def main() -> int:
                 m.update(filtered)
                 rows.append((f"{scene} (seed {seed}, {label})", m))
                 print(rows[-1], flush=True)
-    if not args.no_kitti and KITTI.is_dir():
+    # KITTI 07 is the same drive whatever the rendered camera: with the car's renders only
+    if args.preset == "car" and not args.no_kitti and KITTI.is_dir():
         truth = kitti_truth()
         poses = read_poses(KITTI / "poses.txt")
         for seed in range(args.kitti_seeds):

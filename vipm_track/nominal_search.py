@@ -319,7 +319,7 @@ def _from_travel(
                            round(travel.pitch_deg, 1), rig.pitch_deg, frames,
                            len(poses), travel=travel)
     undetermined = _implausible_roll(search, rig, config)
-    tolerance = GROUND_AGREE_DEG + 3.0 * ground_se
+    tolerance = _ground_tolerance(ground_se)
     if not undetermined and abs(ground_pitch - travel.pitch_deg) > tolerance:
         undetermined = (f"the ground fit's pitch {ground_pitch:.1f}° (median of {len(poses)} "
                         f"pairs) disagrees with the direction of travel's "
@@ -366,20 +366,28 @@ def _off_travel_pitch(search: NominalSearch, travel: TravelPitch) -> str:
     """Why the ground fit's pitch is not the camera's although the direction of travel did
     not determine one: enough pairs gave a forward direction (``MIN_PAIRS``) but their
     pitches scattered (a body pitching over the drive), and the fit's pitch lies further from
-    their median, at the fit's roll, than ``GROUND_AGREE_DEG`` and three standard errors of
-    that median. Scattered, the travel still bounds the pitch, and in slow dense traffic the
-    ground fit can settle on the vehicles (docs/traffic.md, "KITTI's camera in slow dense
-    traffic")."""
+    their median, at the fit's roll, than :func:`_ground_tolerance` allows. Scattered, the
+    travel still bounds the pitch, and in slow dense traffic the ground fit can settle on the
+    vehicles (docs/traffic.md, "KITTI's camera in slow dense traffic"). Pairs that agree on
+    a pitch no camera that sees the ground has (``pitch_from_travel``) are no evidence."""
     at_roll = pitch_from_travel(list(travel.travels), math.radians(search.measured_roll_deg))
-    if at_roll.pairs < MIN_PAIRS or not math.isfinite(at_roll.pitch_deg):
+    scattered = at_roll.agreeing < MIN_AGREEING_SHARE * at_roll.pairs
+    if at_roll.pairs < MIN_PAIRS or not (scattered or at_roll.determined):
         return ""
-    tolerance = GROUND_AGREE_DEG + 3.0 * at_roll.standard_error_deg
+    tolerance = _ground_tolerance(at_roll.standard_error_deg)
     if abs(search.pitch_deg - at_roll.pitch_deg) <= tolerance:
         return ""
+    why = at_roll.reason or f"{at_roll.agreeing} of them agree at that roll"
     return (f"the ground fit found pitch {search.pitch_deg:.1f}°, roll "
             f"{search.measured_roll_deg:.1f}°, but the direction of travel over "
             f"{at_roll.pairs} pairs puts the pitch at {at_roll.pitch_deg:.1f}° (more than "
-            f"{tolerance:.1f}° apart; {travel.reason}): vehicles or walls taken for the ground?")
+            f"{tolerance:.1f}° apart; {why}): vehicles or walls taken for the ground?")
+
+
+def _ground_tolerance(travel_se_deg: float) -> float:
+    """How far [deg] the ground fit's pitch may lie from a pitch of the direction of travel
+    whose standard error is ``travel_se_deg`` [deg]: ``GROUND_AGREE_DEG`` and three of it."""
+    return GROUND_AGREE_DEG + 3.0 * travel_se_deg
 
 
 def _few_settled(search: NominalSearch, tried: int) -> str:

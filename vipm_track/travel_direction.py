@@ -179,7 +179,8 @@ def _direction(a: NDArray[np.float64], b: NDArray[np.float64], camera: CameraMod
 
 def median_standard_error(mad: float, n: int) -> float:
     """The standard error of the median of ``n`` values whose median absolute deviation from
-    it is ``mad`` (1.25 · 1.48 MAD / √n, as for a normal scatter); inf for none."""
+    it is ``mad`` (1.25 · 1.48 MAD / √n, as for a normal scatter), in ``mad``'s unit; inf
+    for none."""
     return 1.86 * mad / math.sqrt(n) if n > 0 else math.inf
 
 
