@@ -373,10 +373,11 @@ def main() -> int:
                         "the filters' numbers move across them by more than most changes do)")
     args = parser.parse_args()
     if args.results is None:
-        name = "bench_traffic.md" if args.preset == "car" else "bench_traffic_kitti_rig.md"
+        name = ("bench_traffic.md" if args.preset == "car"
+                else f"bench_traffic_{args.preset}_rig.md")
         args.results = ROOT / "scripts" / "results" / name
     args.out.mkdir(parents=True, exist_ok=True)
-    rig = PRESETS[args.preset]
+    camera_preset = PRESETS[args.preset]
     rows: list[tuple[str, dict]] = []
     commands: list[str] = []
     for scene in PRESET_SCENES[args.preset]:
@@ -386,7 +387,7 @@ def main() -> int:
             truth = read_table(seq / "gt.csv")
             height = float(np.nanmedian(truth["height_m"]))
             for label, extra in (("no --pitch", []),
-                                 ("--pitch", ["--pitch", f"{rig.pitch_deg:g}"])):
+                                 ("--pitch", ["--pitch", f"{camera_preset.pitch_deg:g}"])):
                 est_csv = args.out / f"{seq.name}_{'pitch' if extra else 'nopitch'}.csv"
                 cmd, _ = run(["estimate", "--images", str(seq / "images"), "--camera",
                               str(seq / "camera.yaml"), "--height", repr(height), *extra,
@@ -428,8 +429,9 @@ def main() -> int:
         "show); the same truth for the `track` and `smooth` columns. KITTI's mount pitch: "
         "against the median pitch truth." if kitti_ran else ".")
     text = [f"# {title}", "",
-            f"{args.frames} frames per render, {rig.name} preset ({rig.width}×{rig.height}, "
-            f"pitch {rig.pitch_deg:g}°, {rig.height_m:g} m, {rig.fps:g} fps), "
+            f"{args.frames} frames per render, {camera_preset.name} preset "
+            f"({camera_preset.width}×{camera_preset.height}, pitch {camera_preset.pitch_deg:g}°, "
+            f"{camera_preset.height_m:g} m, {camera_preset.fps:g} fps), "
             f"seeds 0–{args.seeds - 1}{about_kitti}",
             "", "The two-frame rows (`estimate`):", "", *table(rows, ROW_COLUMNS), "",
             "The filters on them (`track`, `smooth`, `smooth --motion-given-pose`; z: the "

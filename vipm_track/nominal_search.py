@@ -371,8 +371,7 @@ def _off_travel_pitch(search: NominalSearch, travel: TravelPitch) -> str:
     vehicles (docs/traffic.md, "KITTI's camera in slow dense traffic"). Pairs that agree on
     a pitch no camera that sees the ground has (``pitch_from_travel``) are no evidence."""
     at_roll = pitch_from_travel(list(travel.travels), math.radians(search.measured_roll_deg))
-    scattered = at_roll.agreeing < MIN_AGREEING_SHARE * at_roll.pairs
-    if at_roll.pairs < MIN_PAIRS or not (scattered or at_roll.determined):
+    if at_roll.pairs < MIN_PAIRS or not (at_roll.scattered or at_roll.determined):
         return ""
     tolerance = _ground_tolerance(at_roll.standard_error_deg)
     if abs(search.pitch_deg - at_roll.pitch_deg) <= tolerance:

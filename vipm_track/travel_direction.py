@@ -90,6 +90,12 @@ class TravelPitch:
         return not self.reason
 
     @property
+    def scattered(self) -> bool:
+        """Whether too few of the pairs agree with their median pitch
+        (:func:`too_few_agree`)."""
+        return too_few_agree(self.agreeing, self.pairs)
+
+    @property
     def standard_error_deg(self) -> float:
         """The standard error of :attr:`pitch_deg`, the pairs' median, from their scatter."""
         return median_standard_error(self.spread_deg, self.pairs)
@@ -177,6 +183,12 @@ def _direction(a: NDArray[np.float64], b: NDArray[np.float64], camera: CameraMod
     return PairTravel(frames, centre, int(inliers), rotation)
 
 
+def too_few_agree(agreeing: int, pairs: int) -> bool:
+    """Whether ``agreeing`` of ``pairs`` pitches within ``AGREE_DEG`` of their median are fewer
+    than ``MIN_AGREEING_SHARE`` of them: the pairs' directions disagree."""
+    return agreeing < MIN_AGREEING_SHARE * pairs
+
+
 def median_standard_error(mad: float, n: int) -> float:
     """The standard error of the median of ``n`` values whose median absolute deviation from
     it is ``mad`` (1.25 · 1.48 MAD / √n, as for a normal scatter), in ``mad``'s unit; inf
@@ -210,7 +222,7 @@ def pitch_from_travel(travels: list[PairTravel | None], roll: float = 0.0) -> Tr
     reason = ""
     if len(forward) < MIN_PAIRS:
         reason = f"{len(forward)} of {len(travels)} pairs gave a direction (need {MIN_PAIRS})"
-    elif agreeing < MIN_AGREEING_SHARE * len(forward):
+    elif too_few_agree(agreeing, len(forward)):
         reason = (f"the pairs' directions disagree: {agreeing} of {len(forward)} within "
                   f"{AGREE_DEG:g}° of their median pitch {median:.1f}°")
     elif not PITCH_RANGE_DEG[0] <= median <= PITCH_RANGE_DEG[1]:
