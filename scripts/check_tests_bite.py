@@ -336,6 +336,18 @@ MUTANTS: tuple[Mutant, ...] = (
            "vipm_track/nominal_search.py",
            "    return _off_axis_travel(search, travel) or _off_travel_pitch(search, travel)",
            "    return _off_axis_travel(search, travel)", ("tests/test_nominal_search.py",)),
+    Mutant("tracking-never-restarts-from-nominal", "estimator",
+           "a tracked pose that wandered into a wrong basin is kept",
+           "vipm_track/pair_chain.py",
+           "    chosen, dropped = (other, result) if better else (result, other)",
+           "    chosen, dropped = (result, other)",
+           ("tests/test_traffic_verdicts.py", "tests/test_pair_chain.py")),
+    Mutant("second-start-spread-ignored", "estimator",
+           "a pair whose two starts found two minima states the one it keeps as sure",
+           "vipm_track/pair_chain.py",
+           "    chosen.covariance = chosen.covariance + np.outer(d, d)",
+           "    chosen.covariance = chosen.covariance",
+           ("tests/test_traffic_verdicts.py", "tests/test_pair_chain.py")),
 )
 
 

@@ -10,18 +10,20 @@ import numpy as np
 import pytest
 
 from vipm_track.cli import main
-from vipm_track.displacement_model import unpack
+from vipm_track.displacement_model import pack, unpack
 from vipm_track.estimator_config import EstimatorConfig
 from vipm_track.measurement import read_measurements
 from vipm_track.pair_chain import (
+    CLEARLY_MORE_PATCHES,
     MOTION_HORIZON_S,
     PairChain,
     PairVelocity,
+    from_the_nominal_too,
     motion_conflict,
     pair_velocity,
     predict_guess,
 )
-from vipm_track.pair_result import STATUS_IMPLAUSIBLE_MOTION, PairResult
+from vipm_track.pair_result import STATUS_IMPLAUSIBLE_MOTION, PairGuess, PairResult
 
 DATA = Path(__file__).parent / "data"
 
@@ -58,7 +60,8 @@ def _stored(path: Path) -> tuple[list[PairResult], np.ndarray]:
 def _chain(results, config=None, **options) -> tuple[PairChain, _Replay]:
     config = config or EstimatorConfig()
     estimator = _Replay(results, config)
-    return PairChain(estimator, retry_cold=False,
+    # a replay answers each pair once: no second start from the nominal
+    return PairChain(estimator, retry_cold=False, wander_deg=math.inf,
                      max_acceleration_mps2=config.max_acceleration_mps2, **options), estimator
 
 
@@ -66,6 +69,63 @@ def _chain_statuses(results, t, config=None) -> list[str]:
     chain, _ = _chain(results, config)
     return [chain.estimate(None, None, t[i + 1], t[i + 1] - t[i])[0].status
             for i in range(len(results))]
+
+
+class _Starts:
+    """Stands in for the estimator in :func:`from_the_nominal_too`: its nominal pose, and one
+    stored answer to the second start."""
+
+    def __init__(self, answer: PairResult) -> None:
+        self.nominal = _result([0.02, 0.0, 0.02, 0.0, 0, 1, 0]).pose_curr
+        self.answer = answer
+        self.guesses: list = []
+
+    def estimate(self, prev, curr, guess=None, frame_interval_s=None):
+        self.guesses.append(guess)
+        return self.answer
+
+
+def _with_patches(z, patches: int, seconds: float) -> PairResult:
+    result = _result(z, np.eye(7) * 1e-6)
+    result.stages = [type("Stage", (), {"inliers": np.ones(patches, bool)})()]
+    result.timings = {"total": seconds}
+    return result
+
+
+@pytest.mark.parametrize("patches", [34, 32])  # of 30 kept by the tracked start
+def test_a_wandered_pose_is_started_from_the_nominal_and_uncertain_by_the_two(patches):
+    tracked_z = [0.08, -0.03, 0.08, -0.03, 0.0, 0.20, 0.001]  # 4.6° from a nominal of 1.1°
+    nominal_z = [0.02, 0.0, 0.021, 0.0, 0.0, 0.25, 0.0]
+    tracked = _with_patches(tracked_z, 30, 0.05)
+    starts = _Starts(_with_patches(nominal_z, patches, 0.04))
+    guess = PairGuess(tracked.pose_prev, tracked.pose_curr, tracked.motion)
+    kept = from_the_nominal_too(starts, None, None, guess, tracked, 0.1)
+    # the second start holds frame k-1 to the nominal pose, with the tracked motion
+    (start,) = starts.guesses
+    assert start.pose_prev == starts.nominal and start.pose_curr == starts.nominal
+    assert start.motion == tracked.motion
+    clearly_more = patches >= CLEARLY_MORE_PATCHES * 30
+    assert kept is (starts.answer if clearly_more else tracked)
+    d = np.array(tracked_z) - np.array(nominal_z)
+    np.testing.assert_allclose(kept.covariance, np.eye(7) * 1e-6 + np.outer(d, d), atol=1e-12)
+    assert kept.timings["total"] == pytest.approx(0.09)
+    np.testing.assert_allclose(pack(kept.pose_prev, kept.pose_curr, kept.motion),
+                               nominal_z if clearly_more else tracked_z)
+
+
+def test_a_pose_near_the_nominal_or_a_failed_second_start_leaves_the_pair_as_tracked():
+    near = _with_patches([0.05, 0.0, 0.05, 0.0, 0.0, 0.2, 0.0], 30, 0.05)  # 1.7° off
+    starts = _Starts(_with_patches([0.02, 0.0, 0.02, 0.0, 0.0, 0.2, 0.0], 60, 0.04))
+    guess = PairGuess(near.pose_prev, near.pose_curr, near.motion)
+    assert from_the_nominal_too(starts, None, None, guess, near, 0.1) is near
+    assert starts.guesses == [] and near.timings == {"total": 0.05}
+    wandered = _with_patches([0.02, 0.06, 0.02, 0.06, 0.0, 0.2, 0.0], 30, 0.05)  # roll 3.4°
+    starts = _Starts(_result(None, status="did not converge"))
+    starts.answer.timings = {"total": 0.04}
+    kept = from_the_nominal_too(starts, None, None, guess, wandered, 0.1)
+    assert kept is wandered and len(starts.guesses) == 1
+    np.testing.assert_array_equal(kept.covariance, np.eye(7) * 1e-6)
+    assert kept.timings["total"] == pytest.approx(0.09)
 
 
 def test_fast_shaking_car_loses_exactly_its_wrong_ok_rows():

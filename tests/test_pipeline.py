@@ -45,7 +45,10 @@ class _Result:
 
 
 class _FakeEstimator:
-    """Reports the mean-brightness change as tz; fails where the images are equal."""
+    """Reports the mean-brightness change as tz at its nominal pose; fails where the images
+    are equal."""
+
+    nominal = GroundPose(0.5, 0.0, 1.0)
 
     def __init__(self) -> None:
         self.guesses: list = []
@@ -54,7 +57,7 @@ class _FakeEstimator:
         self.guesses.append(guess)
         d = float(curr.mean()) - float(prev.mean())
         status = "ok" if d != 0 else "too few inliers"
-        return _Result(status, PlanarMotion(0.0, d / 100.0, 0.0), GroundPose(0.5, 0.0, 1.0))
+        return _Result(status, PlanarMotion(0.0, d / 100.0, 0.0), self.nominal)
 
 
 def _folder(tmp_path: Path, values: list[int | None], size=(40, 30)) -> Path:

@@ -2,7 +2,9 @@
 
 :class:`PairChain` is what the sequence runner (``pipeline.run_sequence``) and the live
 monitor share: it seeds a pair from the last ``ok`` one (tracking: :func:`predict_guess`),
-tries a tracked pair that fails once more cold, and holds every ``ok`` pair to the
+starts a tracked pair whose pose wandered far from the nominal once more from the nominal
+(:func:`from_the_nominal_too`), tries a tracked pair that fails once more cold, and holds
+every ``ok`` pair to the
 vehicle's physics: its mean velocity on the ground may differ from the reference pair's
 (the last ``ok`` pair that agreed with the one before it, within :data:`MOTION_HORIZON_S`)
 by no more than the largest acceleration allows over the time between them, plus three
@@ -24,8 +26,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .displacement_model import pack
 from .estimator import PreparedPair, TwoFrameEstimator
-from .pair_result import FloatArray, PairGuess, mark_failed
+from .pair_result import FloatArray, PairGuess, add_timings, mark_failed
 from .statuses import ESTIMATOR_ERROR, STATUS_IMPLAUSIBLE_MOTION
 
 if TYPE_CHECKING:
@@ -43,6 +46,14 @@ _SIGMAS = 3.0
 MIN_INTERVAL_STD_S = 1.4e-3
 #: frame intervals whose scatter measures the timestamps' jitter
 _INTERVALS_KEPT = 30
+#: a tracked pose further than this from the nominal pose [deg] is also started from the
+#: nominal: tracking can carry the pose into a wrong basin (vehicles alongside taken for the
+#: ground), from which the gate around its guess keeps it
+WANDER_DEG = 2.0
+#: the nominal start replaces the tracked one where it keeps this many times the patches:
+#: a clear margin, as the nominal's hold pulls its pose towards the nominal, which is the
+#: truth only where the body is still
+CLEARLY_MORE_PATCHES = 1.1
 #: indices of tx and tz in ``PairResult.covariance`` (``measurement`` order)
 _TRAVEL = slice(4, 6)
 
@@ -67,6 +78,46 @@ def estimate_pair(
         return estimator.estimate(prev, curr, guess, frame_interval_s)
     except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
         return _FailedResult(f"{ESTIMATOR_ERROR}: {type(exc).__name__}: {exc}"[:200])
+
+
+def from_the_nominal_too(
+    estimator: TwoFrameEstimator, prev: NDArray, curr: NDArray, guess: PairGuess,
+    result: PairResult, frame_interval_s: float, prepared: PreparedPair | None = None,
+    wander_deg: float = WANDER_DEG,
+) -> PairResult:
+    """``result``, a pair tracked from ``guess``, checked against the same pair started again
+    from the estimator's nominal pose where the tracked pose wandered more than
+    ``wander_deg`` from it in pitch or roll (otherwise ``result`` as it is).
+
+    The second start holds frame k-1 to the nominal pose as tracking holds it to its guess
+    (started from the nominal without the hold, the fit inherits the tracked travel, which
+    pitch trades against, and lands back where tracking was). Where it keeps
+    :data:`CLEARLY_MORE_PATCHES` times the tracked start's patches in its last stage, it is
+    the pair's result. Either way the two starts' difference is added to the result's
+    covariance: two minima that the pair's patches do not tell apart leave its pose
+    uncertain by their distance (as the stages' scatter does within a start). The returned
+    result's timings hold both starts'."""
+    if result.pose_curr is None or not math.isfinite(wander_deg):
+        return result
+    nominal = estimator.nominal
+    if max(abs(result.pose_curr.pitch - nominal.pitch),
+            abs(result.pose_curr.roll - nominal.roll)) <= math.radians(wander_deg):
+        return result
+    held = dataclasses.replace(guess, pose_prev=nominal, pose_curr=nominal)
+    other = estimate_pair(estimator, prev, curr, held, frame_interval_s, prepared)
+    if other.status != "ok":
+        add_timings(result, other)
+        return result
+    # patches kept in the last stage, the evidence each start has
+    kept_other, kept_tracked = (int(r.stages[-1].inliers.sum()) if r.stages else 0
+                                for r in (other, result))
+    better = kept_other >= CLEARLY_MORE_PATCHES * kept_tracked
+    chosen, dropped = (other, result) if better else (result, other)
+    add_timings(chosen, dropped)
+    d = (pack(chosen.pose_prev, chosen.pose_curr, chosen.motion)
+         - pack(dropped.pose_prev, dropped.pose_curr, dropped.motion))
+    chosen.covariance = chosen.covariance + np.outer(d, d)
+    return chosen
 
 
 @dataclass
@@ -137,13 +188,17 @@ class PairChain:
     ``tracking``: seed a pair from the last ``ok`` one ending where it starts (or, with
     ``track_within_s``, ending at most that long before its end: frames may be dropped).
     ``retry_cold``: try a tracked pair that fails once more cold. ``max_acceleration_mps2``:
-    the bound on the motion between pairs (inf: none).
+    the bound on the motion between pairs (inf: none). ``wander_deg``: a tracked pose further
+    than this from the nominal is also started from the nominal (:func:`from_the_nominal_too`;
+    inf: never).
     """
 
     def __init__(self, estimator: TwoFrameEstimator, tracking: bool = True,
                  retry_cold: bool = True, track_within_s: float | None = None,
-                 max_acceleration_mps2: float = math.inf) -> None:
+                 max_acceleration_mps2: float = math.inf,
+                 wander_deg: float = WANDER_DEG) -> None:
         self.estimator = estimator
+        self.wander_deg = wander_deg
         self.tracking = tracking
         self.retry_cold = retry_cold
         self.track_within_s = track_within_s
@@ -164,6 +219,9 @@ class PairChain:
         before) and whether the returned result was seeded by tracking."""
         guess = self._guess(t, dt)
         result = estimate_pair(self.estimator, prev, curr, guess, dt, prepared)
+        if guess is not None and result.status == "ok":
+            result = from_the_nominal_too(self.estimator, prev, curr, guess, result, dt,
+                                          prepared, self.wander_deg)
         if guess is not None and result.status != "ok" and self.retry_cold:
             result = estimate_pair(self.estimator, prev, curr, None, dt, prepared)
             guess = None
