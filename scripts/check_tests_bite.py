@@ -345,9 +345,14 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("second-start-spread-ignored", "estimator",
            "a pair whose two starts found two minima states the one it keeps as sure",
            "vipm_track/pair_chain.py",
-           "    chosen.covariance = chosen.covariance + np.outer(d, d)",
-           "    chosen.covariance = chosen.covariance",
+           "    spread = np.outer(d, d)",
+           "    spread = np.zeros((7, 7))",
            ("tests/test_traffic_verdicts.py", "tests/test_pair_chain.py")),
+    Mutant("chain-without-second-start", "estimator",
+           "the chain never starts a wandered tracked pair from the nominal",
+           "vipm_track/pair_chain.py",
+           '        if guess is not None and result.status == "ok":',
+           "        if False:", ("tests/test_pair_chain.py", "tests/test_pipeline.py")),
 )
 
 

@@ -3,6 +3,7 @@ and the speed bound, on the stored rows of real runs and on made-up speeds."""
 
 from __future__ import annotations
 
+import copy
 import math
 from pathlib import Path
 
@@ -16,12 +17,14 @@ from vipm_track.measurement import read_measurements
 from vipm_track.pair_chain import (
     CLEARLY_MORE_PATCHES,
     MOTION_HORIZON_S,
+    RECHECK_AFTER_PAIRS,
     PairChain,
     PairVelocity,
     from_the_nominal_too,
     motion_conflict,
     pair_velocity,
     predict_guess,
+    wandered,
 )
 from vipm_track.pair_result import STATUS_IMPLAUSIBLE_MOTION, PairGuess, PairResult
 
@@ -71,61 +74,99 @@ def _chain_statuses(results, t, config=None) -> list[str]:
             for i in range(len(results))]
 
 
-class _Starts:
-    """Stands in for the estimator in :func:`from_the_nominal_too`: its nominal pose, and one
-    stored answer to the second start."""
+class _Camera:
+    """Stands in for a level camera's estimator: its nominal pose and settings; a start held
+    to the nominal pose gets (a copy of) ``second``, every other start ``tracked``."""
 
-    def __init__(self, answer: PairResult) -> None:
+    def __init__(self, tracked: PairResult, second: PairResult,
+                 config: EstimatorConfig | None = None) -> None:
         self.nominal = _result([0.02, 0.0, 0.02, 0.0, 0, 1, 0]).pose_curr
-        self.answer = answer
+        self.config = config or EstimatorConfig(pose_prior_deg=2.0)
+        self.tracked, self.second = tracked, second
         self.guesses: list = []
 
     def estimate(self, prev, curr, guess=None, frame_interval_s=None):
         self.guesses.append(guess)
-        return self.answer
+        held = guess is not None and guess.pose_prev == self.nominal
+        return copy.deepcopy(self.second if held else self.tracked)
+
+    @property
+    def second_starts(self) -> int:
+        return sum(g is not None and g.pose_prev == self.nominal for g in self.guesses)
 
 
-def _with_patches(z, patches: int, seconds: float) -> PairResult:
-    result = _result(z, np.eye(7) * 1e-6)
+def _with_patches(z, patches: int, seconds: float, status: str = "ok") -> PairResult:
+    result = _result(z, np.eye(7) * 1e-6, status=status)
     result.stages = [type("Stage", (), {"inliers": np.ones(patches, bool)})()]
     result.timings = {"total": seconds}
     return result
 
 
-@pytest.mark.parametrize("patches", [34, 32])  # of 30 kept by the tracked start
+WANDERED_Z = [0.08, -0.03, 0.08, -0.03, 0.0, 0.20, 0.001]  # 4.6° from a nominal of 1.1°
+NOMINAL_Z = [0.02, 0.0, 0.021, 0.0, 0.0, 0.25, 0.0]
+
+
+@pytest.mark.parametrize("patches", [34, 33, 32])  # of 30 kept by the tracked start
 def test_a_wandered_pose_is_started_from_the_nominal_and_uncertain_by_the_two(patches):
-    tracked_z = [0.08, -0.03, 0.08, -0.03, 0.0, 0.20, 0.001]  # 4.6° from a nominal of 1.1°
-    nominal_z = [0.02, 0.0, 0.021, 0.0, 0.0, 0.25, 0.0]
-    tracked = _with_patches(tracked_z, 30, 0.05)
-    starts = _Starts(_with_patches(nominal_z, patches, 0.04))
+    tracked = _with_patches(WANDERED_Z, 30, 0.05)
+    camera = _Camera(tracked, _with_patches(NOMINAL_Z, patches, 0.04))
+    assert wandered(camera, tracked)
     guess = PairGuess(tracked.pose_prev, tracked.pose_curr, tracked.motion)
-    kept = from_the_nominal_too(starts, None, None, guess, tracked, 0.1)
+    kept, spread = from_the_nominal_too(camera, None, None, guess, tracked, 0.1)
     # the second start holds frame k-1 to the nominal pose, with the tracked motion
-    (start,) = starts.guesses
-    assert start.pose_prev == starts.nominal and start.pose_curr == starts.nominal
+    (start,) = camera.guesses
+    assert start.pose_prev == camera.nominal and start.pose_curr == camera.nominal
     assert start.motion == tracked.motion
     clearly_more = patches >= CLEARLY_MORE_PATCHES * 30
-    assert kept is (starts.answer if clearly_more else tracked)
-    d = np.array(tracked_z) - np.array(nominal_z)
+    assert (kept is tracked) != clearly_more
+    d = np.array(WANDERED_Z) - np.array(NOMINAL_Z)
+    np.testing.assert_allclose(spread, np.outer(d, d), atol=1e-12)
     np.testing.assert_allclose(kept.covariance, np.eye(7) * 1e-6 + np.outer(d, d), atol=1e-12)
     assert kept.timings["total"] == pytest.approx(0.09)
     np.testing.assert_allclose(pack(kept.pose_prev, kept.pose_curr, kept.motion),
-                               nominal_z if clearly_more else tracked_z)
+                               NOMINAL_Z if clearly_more else WANDERED_Z)
 
 
 def test_a_pose_near_the_nominal_or_a_failed_second_start_leaves_the_pair_as_tracked():
     near = _with_patches([0.05, 0.0, 0.05, 0.0, 0.0, 0.2, 0.0], 30, 0.05)  # 1.7° off
-    starts = _Starts(_with_patches([0.02, 0.0, 0.02, 0.0, 0.0, 0.2, 0.0], 60, 0.04))
-    guess = PairGuess(near.pose_prev, near.pose_curr, near.motion)
-    assert from_the_nominal_too(starts, None, None, guess, near, 0.1) is near
-    assert starts.guesses == [] and near.timings == {"total": 0.05}
-    wandered = _with_patches([0.02, 0.06, 0.02, 0.06, 0.0, 0.2, 0.0], 30, 0.05)  # roll 3.4°
-    starts = _Starts(_result(None, status="did not converge"))
-    starts.answer.timings = {"total": 0.04}
-    kept = from_the_nominal_too(starts, None, None, guess, wandered, 0.1)
-    assert kept is wandered and len(starts.guesses) == 1
+    rolled = _with_patches([0.02, 0.06, 0.02, 0.06, 0.0, 0.2, 0.0], 30, 0.05)  # roll 3.4°
+    camera = _Camera(near, _with_patches(None, 0, 0.04, status="did not converge"))
+    assert not wandered(camera, near) and wandered(camera, rolled)
+    assert not wandered(camera, rolled, math.inf)
+    guess = PairGuess(rolled.pose_prev, rolled.pose_curr, rolled.motion)
+    kept, spread = from_the_nominal_too(camera, None, None, guess, rolled, 0.1)
+    assert kept is rolled and spread is None and len(camera.guesses) == 1
     np.testing.assert_array_equal(kept.covariance, np.eye(7) * 1e-6)
     assert kept.timings["total"] == pytest.approx(0.09)
+    # without the pose prior (a steep camera's default) nothing holds a start to the nominal,
+    # and a second start would land where tracking was
+    assert not wandered(_Camera(near, near, EstimatorConfig(pose_prior_deg=0.0)), rolled)
+
+
+def test_the_chain_starts_a_wandered_tracked_pair_from_the_nominal_and_carries_its_spread():
+    camera = _Camera(_with_patches(WANDERED_Z, 30, 0.05), _with_patches(NOMINAL_Z, 40, 0.05))
+    chain = PairChain(camera, retry_cold=False)
+    first, _ = chain.estimate(None, None, 0.1, 0.1)
+    assert camera.second_starts == 0 and first.ok  # a cold pair has no second start
+    second, tracked = chain.estimate(None, None, 0.2, 0.1)
+    assert tracked and camera.second_starts == 1
+    np.testing.assert_allclose(pack(second.pose_prev, second.pose_curr, second.motion),
+                               NOMINAL_Z)
+    # where the second start keeps the tracked pose (a camera knocked further than the
+    # wander from its nominal: the held start only pulled), the next wandered pairs carry
+    # its spread without one; the pair after them is checked again
+    camera.second = _with_patches(NOMINAL_Z, 30, 0.05)
+    chain = PairChain(camera, retry_cold=False)
+    camera.guesses.clear()
+    rows = [chain.estimate(None, None, 0.1 * (k + 1), 0.1)[0]
+            for k in range(RECHECK_AFTER_PAIRS + 3)]
+    d = np.array(WANDERED_Z) - np.array(NOMINAL_Z)
+    for row in rows[1:]:
+        np.testing.assert_allclose(pack(row.pose_prev, row.pose_curr, row.motion), WANDERED_Z)
+        np.testing.assert_allclose(row.covariance, np.eye(7) * 1e-6 + np.outer(d, d),
+                                   atol=1e-12)
+    assert camera.second_starts == 2  # pairs 2 and RECHECK_AFTER_PAIRS + 3
+    assert camera.guesses[-1].pose_prev == camera.nominal
 
 
 def test_fast_shaking_car_loses_exactly_its_wrong_ok_rows():

@@ -4,8 +4,8 @@
 monitor share: it seeds a pair from the last ``ok`` one (tracking: :func:`predict_guess`),
 starts a tracked pair whose pose wandered far from the nominal once more from the nominal
 (:func:`from_the_nominal_too`), tries a tracked pair that fails once more cold, and holds
-every ``ok`` pair to the
-vehicle's physics: its mean velocity on the ground may differ from the reference pair's
+every ``ok`` pair to the vehicle's physics: its mean velocity on the ground may differ
+from the reference pair's
 (the last ``ok`` pair that agreed with the one before it, within :data:`MOTION_HORIZON_S`)
 by no more than the largest acceleration allows over the time between them, plus three
 standard deviations of the change (the travel's, and the frame times' jitter). A pair
@@ -54,6 +54,10 @@ WANDER_DEG = 2.0
 #: a clear margin, as the nominal's hold pulls its pose towards the nominal, which is the
 #: truth only where the body is still
 CLEARLY_MORE_PATCHES = 1.1
+#: where a second start kept the tracked pose, the next wandered pairs up to this many take
+#: its spread without one of their own: a camera knocked (or given a ``--pitch``) further
+#: than ``WANDER_DEG`` from its nominal would otherwise pay a second fit on every pair
+RECHECK_AFTER_PAIRS = 4
 #: indices of tx and tz in ``PairResult.covariance`` (``measurement`` order)
 _TRAVEL = slice(4, 6)
 
@@ -80,34 +84,42 @@ def estimate_pair(
         return _FailedResult(f"{ESTIMATOR_ERROR}: {type(exc).__name__}: {exc}"[:200])
 
 
+def wandered(estimator: TwoFrameEstimator, result: PairResult,
+             wander_deg: float = WANDER_DEG) -> bool:
+    """Whether an ``ok`` pair's pose lies more than ``wander_deg`` from the estimator's nominal
+    pose in pitch or roll, where the estimator has a pose prior to hold a second start with
+    (:func:`from_the_nominal_too`; a steep camera's default has none, and without the hold a
+    second start lands where tracking was)."""
+    if result.pose_curr is None or not math.isfinite(wander_deg):
+        return False
+    nominal, config = estimator.nominal, estimator.config
+    return (max(abs(result.pose_curr.pitch - nominal.pitch),
+                abs(result.pose_curr.roll - nominal.roll)) > math.radians(wander_deg)
+            and bool(config.pose_prior_deg and config.track_prior_deg))
+
+
 def from_the_nominal_too(
     estimator: TwoFrameEstimator, prev: NDArray, curr: NDArray, guess: PairGuess,
     result: PairResult, frame_interval_s: float, prepared: PreparedPair | None = None,
-    wander_deg: float = WANDER_DEG,
-) -> PairResult:
-    """``result``, a pair tracked from ``guess``, checked against the same pair started again
-    from the estimator's nominal pose where the tracked pose wandered more than
-    ``wander_deg`` from it in pitch or roll (otherwise ``result`` as it is).
+) -> tuple[PairResult, FloatArray | None]:
+    """``result``, a pair tracked from ``guess`` whose pose :func:`wandered`, checked against
+    the same pair started again from the estimator's nominal pose; the pair's result and the
+    spread added to its covariance (None where the second start failed).
 
     The second start holds frame k-1 to the nominal pose as tracking holds it to its guess
     (started from the nominal without the hold, the fit inherits the tracked travel, which
     pitch trades against, and lands back where tracking was). Where it keeps
     :data:`CLEARLY_MORE_PATCHES` times the tracked start's patches in its last stage, it is
-    the pair's result. Either way the two starts' difference is added to the result's
-    covariance: two minima that the pair's patches do not tell apart leave its pose
+    the pair's result. Either way the two starts' difference d is added to the result's
+    covariance (d dᵀ): two minima that the pair's patches do not tell apart leave its pose
     uncertain by their distance (as the stages' scatter does within a start). The returned
     result's timings hold both starts'."""
-    if result.pose_curr is None or not math.isfinite(wander_deg):
-        return result
     nominal = estimator.nominal
-    if max(abs(result.pose_curr.pitch - nominal.pitch),
-            abs(result.pose_curr.roll - nominal.roll)) <= math.radians(wander_deg):
-        return result
     held = dataclasses.replace(guess, pose_prev=nominal, pose_curr=nominal)
     other = estimate_pair(estimator, prev, curr, held, frame_interval_s, prepared)
     if other.status != "ok":
         add_timings(result, other)
-        return result
+        return result, None
     # patches kept in the last stage, the evidence each start has
     kept_other, kept_tracked = (int(r.stages[-1].inliers.sum()) if r.stages else 0
                                 for r in (other, result))
@@ -116,8 +128,9 @@ def from_the_nominal_too(
     add_timings(chosen, dropped)
     d = (pack(chosen.pose_prev, chosen.pose_curr, chosen.motion)
          - pack(dropped.pose_prev, dropped.pose_curr, dropped.motion))
-    chosen.covariance = chosen.covariance + np.outer(d, d)
-    return chosen
+    spread = np.outer(d, d)
+    chosen.covariance = chosen.covariance + spread
+    return chosen, spread
 
 
 @dataclass
@@ -190,7 +203,8 @@ class PairChain:
     ``retry_cold``: try a tracked pair that fails once more cold. ``max_acceleration_mps2``:
     the bound on the motion between pairs (inf: none). ``wander_deg``: a tracked pose further
     than this from the nominal is also started from the nominal (:func:`from_the_nominal_too`;
-    inf: never).
+    inf: never); where that start kept the tracked pose, the next
+    :data:`RECHECK_AFTER_PAIRS` wandered pairs take its spread instead.
     """
 
     def __init__(self, estimator: TwoFrameEstimator, tracking: bool = True,
@@ -207,6 +221,8 @@ class PairChain:
         self._reference: PairVelocity | None = None
         self._rejected: PairVelocity | None = None
         self._intervals: deque[float] = deque(maxlen=_INTERVALS_KEPT)
+        # the last second start's spread while it is carried, and for how many more pairs
+        self._carried: tuple[FloatArray, int] | None = None
 
     def break_tracking(self) -> None:
         """The next pair does not follow the last one (a frame could not be used): start it
@@ -220,8 +236,9 @@ class PairChain:
         guess = self._guess(t, dt)
         result = estimate_pair(self.estimator, prev, curr, guess, dt, prepared)
         if guess is not None and result.status == "ok":
-            result = from_the_nominal_too(self.estimator, prev, curr, guess, result, dt,
-                                          prepared, self.wander_deg)
+            result = self._second_start(prev, curr, guess, result, dt, prepared)
+        else:
+            self._carried = None
         if guess is not None and result.status != "ok" and self.retry_cold:
             result = estimate_pair(self.estimator, prev, curr, None, dt, prepared)
             guess = None
@@ -231,6 +248,25 @@ class PairChain:
             self._hold_to_physics(result, t, dt)
         self._last_ok = (result, dt, t) if result.status == "ok" else None
         return result, guess is not None
+
+    def _second_start(self, prev: NDArray, curr: NDArray, guess: PairGuess,
+                      result: PairResult, dt: float, prepared: PreparedPair | None,
+                      ) -> PairResult:
+        """A tracked ``ok`` pair after :func:`from_the_nominal_too` where its pose wandered,
+        or with the spread carried from the last one (class doc)."""
+        if not wandered(self.estimator, result, self.wander_deg):
+            self._carried = None
+            return result
+        if self._carried is not None and self._carried[1] > 0:
+            spread, left = self._carried
+            self._carried = (spread, left - 1)
+            result.covariance = result.covariance + spread
+            return result
+        kept, spread = from_the_nominal_too(self.estimator, prev, curr, guess, result, dt,
+                                            prepared)
+        self._carried = (None if kept is not result or spread is None
+                         else (spread, RECHECK_AFTER_PAIRS))
+        return kept
 
     def _guess(self, t: float, dt: float) -> PairGuess | None:
         if not self.tracking or self._last_ok is None:
