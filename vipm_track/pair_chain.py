@@ -5,10 +5,10 @@ monitor share: it seeds a pair from the last ``ok`` one (tracking: :func:`predic
 starts a tracked pair whose pose wandered far from the nominal once more from the nominal
 (:func:`from_the_nominal_too`), tries a tracked pair that fails once more cold, and holds
 every ``ok`` pair to the vehicle's physics: its mean velocity on the ground may differ
-from the reference pair's
-(the last ``ok`` pair that agreed with the one before it, within :data:`MOTION_HORIZON_S`)
-by no more than the largest acceleration allows over the time between them, plus three
-standard deviations of the change (the travel's, and the frame times' jitter). A pair
+from the reference pair's (the last ``ok`` pair that agreed with the one before it, within
+:data:`MOTION_HORIZON_S`) by no more than the largest acceleration allows over the time
+between them, plus three standard deviations of the change (the travel's, and the frame
+times' jitter). A pair
 beyond it gets status ``implausible motion``: a cold start, which knows nothing of the
 pairs before it, can lock onto another minimum of the patch field (docs/usage.md). A pair
 that agrees with the one rejected before it is taken, and becomes the reference: two pairs
