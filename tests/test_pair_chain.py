@@ -39,6 +39,9 @@ class _Replay:
         self.config = config
         self.guesses: list = []
 
+    def prepare_images(self, prev, curr):
+        return None
+
     def estimate(self, prev, curr, guess=None, frame_interval_s=None):
         self.guesses.append(guess)
         return next(self.results)
@@ -84,9 +87,14 @@ class _Camera:
         self.config = config or EstimatorConfig(pose_prior_deg=2.0)
         self.tracked, self.second = tracked, second
         self.guesses: list = []
+        self.prepared: list = []  # what each start was given, made by ``prepare_images``
 
-    def estimate(self, prev, curr, guess=None, frame_interval_s=None):
+    def prepare_images(self, prev, curr):
+        return object()
+
+    def estimate(self, prev, curr, guess=None, frame_interval_s=None, prepared=None):
         self.guesses.append(guess)
+        self.prepared.append(prepared)
         held = guess is not None and guess.pose_prev == self.nominal
         return copy.deepcopy(self.second if held else self.tracked)
 
@@ -150,6 +158,10 @@ def test_the_chain_starts_a_wandered_tracked_pair_from_the_nominal_and_carries_i
     assert camera.second_starts == 0 and first.ok  # a cold pair has no second start
     second, tracked = chain.estimate(None, None, 0.2, 0.1)
     assert tracked and camera.second_starts == 1
+    # both starts of a pair read the images prepared once (a live camera's frames come
+    # unprepared), each pair its own
+    first_pair, *both_starts = camera.prepared
+    assert both_starts[0] is both_starts[1] is not first_pair is not None
     np.testing.assert_allclose(pack(second.pose_prev, second.pose_curr, second.motion),
                                NOMINAL_Z)
     # where the second start keeps the tracked pose (a camera knocked further than the

@@ -164,8 +164,7 @@ class TwoFrameEstimator:
         # a rolling shutter without the pair's interval fails before the images are read
         self._shutter_readout_frames(frame_interval_s)
         if prepared is None:
-            prepared = self.prepare_pair(self._frame(prev_img, "previous frame"),
-                                         self._frame(curr_img, "current frame"))
+            prepared = self.prepare_images(prev_img, curr_img)
         prev, curr = prepared.prev.image, prepared.curr.image
         context = self.stage_context(prev, curr, guess, frame_interval_s, prepared.static)
         prepared_s = time.perf_counter() - t_start
@@ -334,6 +333,13 @@ class TwoFrameEstimator:
         """The :class:`PreparedPair` of two prepared frames; touches no state."""
         return PreparedPair(prev, curr, self._static(prev.image, curr.image,
                                                      (prev.noise, curr.noise)))
+
+    def prepare_images(self, prev_img: NDArray, curr_img: NDArray) -> PreparedPair:
+        """:meth:`prepare_pair` of two grey or BGR images of the camera's size; the last
+        frame prepared is reused where it is ``prev_img`` (tracking: the pair before's
+        current frame)."""
+        return self.prepare_pair(self._frame(prev_img, "previous frame"),
+                                 self._frame(curr_img, "current frame"))
 
     def prepare(self, image: NDArray, name: str) -> NDArray[np.float32]:
         """Grey float32 undistorted image; the last one is cached (tracking reuses it)."""

@@ -84,6 +84,16 @@ def estimate_pair(
         return _FailedResult(f"{ESTIMATOR_ERROR}: {type(exc).__name__}: {exc}"[:200])
 
 
+def prepare_images(estimator: TwoFrameEstimator, prev: NDArray, curr: NDArray
+                   ) -> PreparedPair | None:
+    """:meth:`TwoFrameEstimator.prepare_images`, or None where the images cannot be prepared
+    (:func:`estimate_pair` then reports why, as a failed result)."""
+    try:
+        return estimator.prepare_images(prev, curr)
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+        return None
+
+
 def wandered(estimator: TwoFrameEstimator, result: PairResult,
              wander_deg: float = WANDER_DEG) -> bool:
     """Whether an ``ok`` pair's pose lies more than ``wander_deg`` from the estimator's nominal
@@ -234,6 +244,9 @@ class PairChain:
         """The pair of ``prev`` and ``curr`` (a frame ending at ``t``, ``dt`` [s] after the one
         before) and whether the returned result was seeded by tracking."""
         guess = self._guess(t, dt)
+        if prepared is None:
+            # once for every start of this pair (a second start, a cold retry)
+            prepared = prepare_images(self.estimator, prev, curr)
         result = estimate_pair(self.estimator, prev, curr, guess, dt, prepared)
         if guess is not None and result.status == "ok":
             result = self._second_start(prev, curr, guess, result, dt, prepared)
