@@ -39,7 +39,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
 
 from .displacement_model import N_PARAMS, DisplacementModel
 from .geometry import PlanarMotion, compose_motion, invert_motion
@@ -85,6 +84,9 @@ def fit_lm(
                                     REFIT_TOLERANCE, REFIT_TOLERANCE)
         x = xs[0]
         return x, bool(converged[0]), model.jacobian(x, idx), model.residuals(x, idx), n + 2
+    # imported here: only a rolling shutter's fit needs it, and it costs a start-up 0.2 s
+    from scipy.optimize import least_squares
+
     res = least_squares(
         model.residuals,
         np.asarray(x0, dtype=float),

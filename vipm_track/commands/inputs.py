@@ -15,7 +15,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from vipm_track.filters.speed_decoder import decode_can_log
 from vipm_track.filters.wheel_speed import SpeedSeries, read_speed_csv
 
 from ..camera import CameraModel, load_camera
@@ -92,6 +91,9 @@ def speed_from_args(args: argparse.Namespace, progress: bool = True,
     else:
         if not dbc:
             raise InputError(f"--can {log} needs --dbc DBC to decode it")
+        # imported here: cantools and python-can cost every other command's start 0.2 s
+        from vipm_track.filters.speed_decoder import decode_can_log
+
         series, _ = decode_can_log(log, dbc, signals, combine=getattr(args, "combine", "mean"),
                                    channel=getattr(args, "can_channel", None), scale=scale,
                                    progress=progress)
