@@ -353,6 +353,11 @@ MUTANTS: tuple[Mutant, ...] = (
            "vipm_track/pair_chain.py",
            '        if guess is not None and result.status == "ok":',
            "        if False:", ("tests/test_pair_chain.py", "tests/test_pipeline.py")),
+    Mutant("chain-prepares-each-start", "estimator",
+           "a live camera's pair is prepared again for its second start or cold retry",
+           "vipm_track/pair_chain.py",
+           "            prepared = prepare_images(self.estimator, prev, curr)",
+           "            prepared = None", ("tests/test_pair_chain.py",)),
 )
 
 
