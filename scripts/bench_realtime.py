@@ -169,6 +169,11 @@ def scored(est: dict, data: Path) -> dict:
             "yaw_deg": float(np.nanmedian(np.abs(yaw))) if yaw.size else math.nan}
 
 
+def _lines(path: Path) -> int:
+    """Lines written to ``path`` so far (0 before it exists)."""
+    return path.read_text().count("\n") if path.exists() else 0
+
+
 def startup(data: Path, repeats: int) -> dict[str, float]:
     """Median wall seconds of ``vipm-track --help``, of ``estimate`` up to its first pair's
     row (the table's rows are flushed one at a time: the file is polled every 5 ms) and of
@@ -185,20 +190,23 @@ def startup(data: Path, repeats: int) -> dict[str, float]:
             out["--help"].append(time.perf_counter() - t0)
             table.unlink(missing_ok=True)
             t0 = time.perf_counter()
-            run = subprocess.Popen([*exe, "estimate", "--images", str(data / "image_0"),
-                                    "--height", str(HEIGHT_M), "--pitch", str(PITCH_DEG),
-                                    "--max-frames", "2", "--out", str(table)],
-                                   env=env, stdout=subprocess.DEVNULL,
-                                   stderr=subprocess.DEVNULL)
-            first_row = None
-            while run.poll() is None:
-                # header, frame 0 ("first frame"), frame 1: the first pair
-                if first_row is None and table.exists() and table.read_text().count("\n") >= 3:
-                    first_row = time.perf_counter() - t0
-                time.sleep(0.005)
-            ended = time.perf_counter() - t0
-            if run.returncode != 0:
-                raise RuntimeError(f"estimate exited with {run.returncode}")
+            log = Path(tmp) / "stderr.txt"
+            with log.open("w") as stderr:
+                run = subprocess.Popen([*exe, "estimate", "--images", str(data / "image_0"),
+                                        "--height", str(HEIGHT_M), "--pitch", str(PITCH_DEG),
+                                        "--max-frames", "2", "--out", str(table)],
+                                       env=env, stdout=subprocess.DEVNULL, stderr=stderr)
+                first_row = None
+                while run.poll() is None:
+                    # header, frame 0 ("first frame"), frame 1: the first pair
+                    if first_row is None and _lines(table) >= 3:
+                        first_row = time.perf_counter() - t0
+                    time.sleep(0.005)
+                ended = time.perf_counter() - t0
+            if run.returncode != 0 or _lines(table) < 3:
+                raise RuntimeError(f"estimate exited with {run.returncode}, "
+                                   f"{_lines(table)} lines written: {log.read_text()[-500:]}")
+            # a row written in the last poll's interval counts at the exit
             out["estimate, first pair's row"].append(ended if first_row is None else first_row)
             out["estimate --max-frames 2, to its exit"].append(ended)
     return {k: statistics.median(v) for k, v in out.items()}

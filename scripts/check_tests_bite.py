@@ -358,6 +358,12 @@ MUTANTS: tuple[Mutant, ...] = (
            "vipm_track/pair_chain.py",
            "            prepared = prepare_images(self.estimator, prev, curr)",
            "            prepared = None", ("tests/test_pair_chain.py",)),
+    Mutant("cold-retry-prepares-again", "estimator",
+           "a live camera's failed tracked pair is prepared again for its cold retry",
+           "vipm_track/pair_chain.py",
+           "            result = estimate_pair(self.estimator, prev, curr, None, dt, prepared)",
+           "            result = estimate_pair(self.estimator, prev, curr, None, dt)",
+           ("tests/test_pair_chain.py",)),
 )
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -38,9 +39,6 @@ class _Replay:
         self.results = iter(results)
         self.config = config
         self.guesses: list = []
-
-    def prepare_images(self, prev, curr):
-        return None
 
     def estimate(self, prev, curr, guess=None, frame_interval_s=None):
         self.guesses.append(guess)
@@ -179,6 +177,40 @@ def test_the_chain_starts_a_wandered_tracked_pair_from_the_nominal_and_carries_i
                                    atol=1e-12)
     assert camera.second_starts == 2  # pairs 2 and RECHECK_AFTER_PAIRS + 3
     assert camera.guesses[-1].pose_prev == camera.nominal
+
+
+class _FailsWhenTracked:
+    """A level camera whose tracked starts fail and whose cold starts succeed; preparing a
+    pair takes 20 ms."""
+
+    def __init__(self) -> None:
+        self.nominal = _result([0.02, 0.0, 0.02, 0.0, 0, 1, 0]).pose_curr
+        self.config = EstimatorConfig(pose_prior_deg=2.0)
+        self.prepared: list = []
+        self.pairs_prepared = 0
+
+    def prepare_images(self, prev, curr):
+        self.pairs_prepared += 1
+        time.sleep(0.02)
+        return object()
+
+    def estimate(self, prev, curr, guess=None, frame_interval_s=None, prepared=None):
+        self.prepared.append(prepared)
+        if guess is None:
+            return _with_patches(NOMINAL_Z, 30, 0.05)
+        return _with_patches(None, 0, 0.04, status="did not converge")
+
+
+def test_a_pair_is_prepared_once_for_its_cold_retry_and_the_time_counted():
+    camera = _FailsWhenTracked()
+    chain = PairChain(camera)
+    chain.estimate(None, None, 0.1, 0.1)
+    retried, tracked = chain.estimate(None, None, 0.2, 0.1)
+    assert retried.ok and not tracked and camera.pairs_prepared == 2
+    first_pair, tracked_start, cold_retry = camera.prepared
+    assert tracked_start is cold_retry is not first_pair is not None
+    # the pair's time holds its preparation, as where the estimator prepares it itself
+    assert retried.timings["total"] >= 0.05 + 0.02
 
 
 def test_fast_shaking_car_loses_exactly_its_wrong_ok_rows():

@@ -53,9 +53,6 @@ class _FakeEstimator:
     def __init__(self) -> None:
         self.guesses: list = []
 
-    def prepare_images(self, prev, curr):
-        return None
-
     def estimate(self, prev, curr, guess=None, frame_interval_s=None):
         self.guesses.append(guess)
         d = float(curr.mean()) - float(prev.mean())

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from collections import deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -86,11 +87,17 @@ def estimate_pair(
 
 def prepare_images(estimator: TwoFrameEstimator, prev: NDArray, curr: NDArray
                    ) -> PreparedPair | None:
-    """:meth:`TwoFrameEstimator.prepare_images`, or None where the images cannot be prepared
-    (:func:`estimate_pair` then reports why, as a failed result)."""
+    """:meth:`TwoFrameEstimator.prepare_images`, or None: where the estimator has no such
+    method (a stand-in estimates from the images alone), where it reads no images (without
+    a nominal pose every pair fails first) and where the images cannot be prepared (the
+    estimator meets that again and reports it)."""
+    prepare = getattr(estimator, "prepare_images", None)
+    if prepare is None or getattr(getattr(estimator, "config", None), "nominal_undetermined",
+                                  ""):
+        return None
     try:
-        return estimator.prepare_images(prev, curr)
-    except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+        return prepare(prev, curr)
+    except Exception:  # the estimator's own path meets it again and reports it
         return None
 
 
@@ -244,9 +251,13 @@ class PairChain:
         """The pair of ``prev`` and ``curr`` (a frame ending at ``t``, ``dt`` [s] after the one
         before) and whether the returned result was seeded by tracking."""
         guess = self._guess(t, dt)
+        preparing_s = 0.0
         if prepared is None:
             # once for every start of this pair (a second start, a cold retry)
+            started = time.perf_counter()
             prepared = prepare_images(self.estimator, prev, curr)
+            if prepared is not None:
+                preparing_s = time.perf_counter() - started
         result = estimate_pair(self.estimator, prev, curr, guess, dt, prepared)
         if guess is not None and result.status == "ok":
             result = self._second_start(prev, curr, guess, result, dt, prepared)
@@ -255,6 +266,8 @@ class PairChain:
         if guess is not None and result.status != "ok" and self.retry_cold:
             result = estimate_pair(self.estimator, prev, curr, None, dt, prepared)
             guess = None
+        if preparing_s:  # as the estimator counts a pair it prepares itself
+            result.timings["total"] = result.timings.get("total", 0.0) + preparing_s
         if math.isfinite(dt) and dt > 0:
             self._intervals.append(dt)
         if result.status == "ok":
