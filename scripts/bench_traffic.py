@@ -18,7 +18,9 @@ roll error does not show. One truth per run, for the rows and the filters alike.
   (``pitch − prev_pitch``, exact on KITTI too);
 - z RMS: error over the stated standard deviation (pitch and roll; their change within the
   pair, whose variance comes from the full covariance the table holds);
-- travel distance error (median, p95, % of the true distance) and yaw error (median);
+- travel distance error (median, p95, % of the true distance) and yaw error (median); the
+  distance's z RMS (its error over its stated standard deviation, from the travel's
+  covariance) and the ``ok`` rows whose distance is more than 10 % and 3σ off;
 - the median stated standard deviation of the ok rows' pitch and roll, and the share of
   ok rows whose 3σ is within 1.5° in both (σ ≤ 0.5°): what a row can promise;
 - in a second table, the filters on the same estimates, the online filter (``track``) and
@@ -205,6 +207,21 @@ def distance_errors_pct(table: dict, rows: np.ndarray, truth: dict, truth_rows: 
     return 100.0 * np.abs(dist - true[moving]) / true[moving]
 
 
+def distance_z(table: dict, rows: np.ndarray, truth: dict, truth_rows: np.ndarray
+               ) -> np.ndarray:
+    """The travel distance's error over its stated standard deviation (from tx, tz, their σ
+    and correlation) for the rows of :func:`distance_errors_pct`, in its order."""
+    true = np.hypot(truth["tx_m"][truth_rows], truth["tz_m"][truth_rows])
+    moving = np.isfinite(true) & (true > 0.01)
+    r = rows[moving]
+    tx, tz = table["tx_m"][r], table["tz_m"][r]
+    dist = np.hypot(tx, tz)
+    sx, sz = table["tx_std_m"][r], table["tz_std_m"][r]
+    var = (tx**2 * sx**2 + tz**2 * sz**2
+           + 2 * tx * tz * table["corr_tx__tz"][r] * sx * sz) / dist**2
+    return (dist - true[moving]) / np.sqrt(var)
+
+
 def score(est: dict, truth: dict, poses: np.ndarray | None = None
           ) -> tuple[dict[str, float], dict[str, np.ndarray] | None]:
     """The run's numbers (module doc) for the frames of ``truth`` that move, and KITTI's
@@ -246,8 +263,12 @@ def score(est: dict, truth: dict, poses: np.ndarray | None = None
     out["confident_wrong_ok"] = float(np.count_nonzero(confident))
     out["normal_err_mean_deg"] = normal_error_deg(est["pitch_deg"][r], est["roll_deg"][r], true)
     pct = distance_errors_pct(est, r, truth, t)
+    z = distance_z(est, r, truth, t)
     out["dist_median_pct"] = float(np.median(pct))
     out["dist_p95_pct"] = float(np.percentile(pct, 95))
+    out["dist_z_rms"] = float(np.sqrt(np.mean(z**2)))
+    # confidently wrong travel: more than 10 % and three of its own σ off
+    out["dist_confident_wrong"] = float(np.count_nonzero((pct > 10.0) & (np.abs(z) > 3)))
     out["yaw_median_deg"] = float(np.median(np.abs(est["yaw_deg"][r] - truth["yaw_deg"][t])))
     return out, kitti
 
@@ -325,6 +346,8 @@ ROW_COLUMNS = [
     ("pitch_std_median_deg", "σ pitch med °", "{:.2f}"),
     ("roll_std_median_deg", "σ roll med °", "{:.2f}"),
     ("sharp_ok_pct", "ok with σ ≤ 0.5° %", "{:.0f}"),
+    ("dist_z_rms", "z dist", "{:.2f}"),
+    ("dist_confident_wrong", "dist > 10 % and > 3σ", "{:.0f}"),
 ]
 #: the filters' table (``track``; ``smooth``; ``smooth --motion-given-pose``)
 FILTER_COLUMNS = [
