@@ -308,7 +308,7 @@ def test_other_status_rows_quote_the_results_files():
     assert f"| {caught} of {total} |" in _status("tests")
     rows_text, filters_text = (RESULTS / "bench_traffic.md").read_text().split(
         "The filters on them", 1)
-    traffic = [r for r in _text_rows(rows_text) if len(r) == 17 and r[0] != "run"]
+    traffic = [r for r in _text_rows(rows_text) if len(r) == 19 and r[0] != "run"]
     filtered = [r for r in _text_rows(filters_text) if len(r) == 17 and r[0] != "run"]
     def kitti_rows(rows: list[list[str]]) -> list[list[str]]:
         """KITTI 07's rows without --pitch, one per subset seed (each a draw)."""
@@ -340,7 +340,7 @@ def test_other_status_rows_quote_the_results_files():
             in _status("traffic, filter σ"))
     rows_text, filters_text = (RESULTS / "bench_traffic_kitti_rig.md").read_text().split(
         "The filters on them", 1)
-    kitti_rig = [r for r in _text_rows(rows_text) if len(r) == 17 and r[0] != "run"]
+    kitti_rig = [r for r in _text_rows(rows_text) if len(r) == 19 and r[0] != "run"]
     smoothed = [int(r[5]) for r in _text_rows(filters_text) if len(r) == 17 and r[0] != "run"]
     assert (f"| {cells(kitti_rig, 2, 'd')} ({cells(kitti_rig, 3, 'd')}); "
             f"{_range(smoothed, 'd')} |" in _status("traffic, KITTI's camera"))
