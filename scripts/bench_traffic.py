@@ -197,12 +197,18 @@ def normal_error_deg(pitch_deg: np.ndarray, roll_deg: np.ndarray,
     return float(np.degrees(np.mean(np.arccos(cos))))
 
 
+def _moving(truth: dict, truth_rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The true travel distance [m] of ``truth_rows`` of ``truth`` and which of them move
+    (more than 1 cm)."""
+    true = np.hypot(truth["tx_m"][truth_rows], truth["tz_m"][truth_rows])
+    return true, np.isfinite(true) & (true > 0.01)
+
+
 def distance_errors_pct(table: dict, rows: np.ndarray, truth: dict, truth_rows: np.ndarray
                         ) -> np.ndarray:
     """Travel distance error [% of the true distance] of ``rows`` of ``table`` whose true
     travel (``truth_rows`` of ``truth``) is more than 1 cm."""
-    true = np.hypot(truth["tx_m"][truth_rows], truth["tz_m"][truth_rows])
-    moving = np.isfinite(true) & (true > 0.01)
+    true, moving = _moving(truth, truth_rows)
     dist = np.hypot(table["tx_m"][rows], table["tz_m"][rows])[moving]
     return 100.0 * np.abs(dist - true[moving]) / true[moving]
 
@@ -211,8 +217,7 @@ def distance_z(table: dict, rows: np.ndarray, truth: dict, truth_rows: np.ndarra
                ) -> np.ndarray:
     """The travel distance's error over its stated standard deviation (from tx, tz, their σ
     and correlation) for the rows of :func:`distance_errors_pct`, in its order."""
-    true = np.hypot(truth["tx_m"][truth_rows], truth["tz_m"][truth_rows])
-    moving = np.isfinite(true) & (true > 0.01)
+    true, moving = _moving(truth, truth_rows)
     r = rows[moving]
     tx, tz = table["tx_m"][r], table["tz_m"][r]
     dist = np.hypot(tx, tz)
