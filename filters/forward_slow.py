@@ -31,7 +31,13 @@ SLOW_SHARE_WARNING = 0.1
 
 def is_level(pitch_deg: float) -> bool:
     """A forward-looking camera near the horizontal (the estimator's level defaults)."""
-    return bool(pitch_deg < LEVEL_MAX_PITCH_DEG)
+    return bool(level_pitches(np.asarray(pitch_deg)))
+
+
+def level_pitches(pitch_deg: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """:func:`is_level` of each pitch [deg] (NaN is not level)."""
+    with np.errstate(invalid="ignore"):
+        return np.asarray(pitch_deg, dtype=float) < LEVEL_MAX_PITCH_DEG
 
 
 def slow_pairs(z: NDArray[np.float64], height_assumed: NDArray[np.float64],

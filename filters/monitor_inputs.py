@@ -33,7 +33,13 @@ from vipm_track.measurement import PairMeasurement
 from .body_scale import pair_change
 from .ekf import ExtrinsicsEKF, speed_at
 from .ekf_state import EkfConfig
-from .forward_slow import MIN_TRAVEL_FRAC_FORWARD, SLOW_FORWARD, is_level, slow_pairs
+from .forward_slow import (
+    MIN_TRAVEL_FRAC_FORWARD,
+    SLOW_FORWARD,
+    is_level,
+    level_pitches,
+    slow_pairs,
+)
 from .monitor import DriftMonitor
 from .monitor_types import MonitorConfig, MonitorInput, MonitorOutput
 from .nominal import NominalCalibration
@@ -123,7 +129,10 @@ def input_arrays(
         inl = np.asarray(inliers)
         reason[(inl > 0) & (inl < min_inliers)] = "too few inliers"
     reason[still & (reason == "")] = "standstill"
-    reason[slow_pairs(z, h0, min_travel_frac_forward) & (reason == "")] = SLOW_FORWARD
+    # judged by the pair's own pitch, not the nominal's: a camera tens of degrees from a
+    # level nominal (another camera's file) is no slow forward camera but a wrong mount
+    slow = slow_pairs(z, h0, min_travel_frac_forward) & level_pitches(np.degrees(z[:, 2]))
+    reason[slow & (reason == "")] = SLOW_FORWARD
     failed = ~ok
     reason[failed] = np.where(status[failed] == "ok", "no estimate", status[failed])
     pose = np.stack([z[:, 2], z[:, 3], height], axis=1)

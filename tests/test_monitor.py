@@ -584,6 +584,21 @@ def test_a_steep_camera_is_judged_at_any_speed():
     assert Counter(o.state for o in outs)["CALIBRATED"] > len(outs) / 2
 
 
+def test_a_level_nominal_does_not_hold_a_steep_camera_as_slow():
+    """A cart's camera (45°, 0.7 m) monitored against a car's nominal file (3°, 1.5 m): its
+    pairs travel under a quarter of the nominal height, and the monitor held every frame as
+    "slow for a forward camera" (HOLD throughout, exit 0). Slowness is judged by each pair's
+    own pitch: the frames are judged, and the camera 42° off is INVALID."""
+    level = NominalCalibration(pitch_deg=3.0, roll_deg=0.0, height_m=1.5)
+    run = simulate_drive(DriveConfig.preset("cart", duration_s=20.0, mount_random_walk=False,
+                                            stop_probability=0.0), seed=4)
+    _, outs = monitor_measurements(run.measurements, level, run.speed)
+    states = Counter(o.state for o in outs)
+    assert SLOW_FORWARD not in {o.reason for o in outs}
+    assert states["INVALID"] > len(outs) / 2, states
+    assert any("exceeds the limit" in o.reason for o in outs if o.state == "INVALID")
+
+
 def test_the_drive_summary_says_when_a_forward_camera_drove_slowly():
     from vipm_track.filters.forward_slow import slow_drive_note
 

@@ -821,3 +821,31 @@ def test_first_frames_of_another_size_fail_the_run_only_where_five_do(tmp_path, 
     statuses = [s.status for s in steps]
     assert all(s.startswith("wrong image size 320×240") for s in statuses[:4])
     assert statuses[4] == "first frame" and statuses[5:] == ["ok"] * 3
+
+
+def test_estimates_in_other_units_are_named(tmp_path: Path) -> None:
+    """A table in nanoseconds or millimetres (one converted by hand) went through: speeds of
+    1e-9 or 1,200 m/s, a 1e300 m travel wrecking the filters' sums. The reader names them."""
+    from vipm_track.measurement import measurement_row
+    from vipm_track.table import ESTIMATE_COLUMNS, write_table
+
+    rng = np.random.default_rng(3)
+    t = np.arange(20) * 0.1
+    ms = [PairMeasurement(k, t[k], np.r_[rng.normal(0, 0.01, 4), 0.01, 0.5, 0.001],
+                          np.eye(7) * 1e-6, 1.5) for k in range(1, 20)]
+    rows = [measurement_row(m) for m in ms]
+
+    def read(edit) -> list[PairMeasurement]:
+        path = tmp_path / "est.csv"
+        write_table(path, [edit(dict(r), i) for i, r in enumerate(rows)], ESTIMATE_COLUMNS)
+        return read_measurements(path)
+
+    assert len(read(lambda r, i: r)) == 19  # 5 m/s, 0.1 s apart: fine
+    with pytest.raises(InputError, match=r"consecutive frames are 1e\+08 s apart .*seconds"):
+        read(lambda r, i: {**r, "t": r["t"] * 1e9})
+    with pytest.raises(InputError, match=r"travel 500.1 m per frame 0.1 s apart, 5001 m/s"):
+        read(lambda r, i: {**r, "tz_m": r["tz_m"] * 1000, "tx_m": r["tx_m"] * 1000})
+    with pytest.raises(InputError, match=r"row 7 \(frame 6\): tz_m = 1e\+300 is not a travel"):
+        read(lambda r, i: {**r, "tz_m": 1e300} if i == 5 else r)
+    # one fast row among slow ones is not a unit: only medians decide
+    assert len(read(lambda r, i: {**r, "tz_m": 500.0} if i == 5 else r)) == 19

@@ -48,8 +48,15 @@ class PairMeasurement:
 
     @cached_property
     def ok(self) -> bool:
-        """Usable: status ``ok`` and every value of ``z`` finite (read once, then kept)."""
-        return self.status == "ok" and bool(np.isfinite(self.z).all())
+        """Usable: status ``ok`` and all its numbers there (read once, then kept)."""
+        return self.status == "ok" and self.has_numbers
+
+    @cached_property
+    def has_numbers(self) -> bool:
+        """Every value of ``z``, its variances and the assumed height are finite (a table's
+        empty cells are NaN): without the height the travel has no scale."""
+        return bool(np.isfinite(self.z).all() and np.isfinite(np.diag(self.covariance)).all()
+                    and math.isfinite(self.height_assumed))
 
     @property
     def std(self) -> NDArray[np.float64]:
@@ -89,7 +96,8 @@ def measurements_from_table(
     std_all = _stack_in_radians(columns, _STD_COLUMNS)
     # without a status column a row is a measurement where it has all its numbers (a first
     # frame has none: it is not an "ok" row missing them)
-    complete = np.isfinite(z_all).all(axis=1) & np.isfinite(std_all).all(axis=1)
+    complete = (np.isfinite(z_all).all(axis=1) & np.isfinite(std_all).all(axis=1)
+                & np.isfinite(np.asarray(columns["height_m"], dtype=float)))
     status = columns.get("status", np.where(complete, "ok", MISSING_NUMBERS).astype(object))
     # a standard deviation of zero makes a filter's measurement exact (a singular system in
     # the smoother); a negative one is no standard deviation
@@ -101,6 +109,8 @@ def measurements_from_table(
                          f"{int(frames[row])}): {name} = {columns[name][row]} is not a "
                          "standard deviation (must be > 0)")
     _check_ranges(columns, frames, source)
+    _check_units(frames, np.asarray(columns["t"], dtype=float), z_all,
+                 (np.asarray(status) == "ok") & complete, source)
     inliers = columns.get("inliers", np.zeros(n))
     out = []
     for i in range(n):
@@ -126,6 +136,41 @@ _ANGLE_LIMITS_DEG = {"prev_pitch_deg": 90.0, "pitch_deg": 90.0, "prev_roll_deg":
                      "roll_deg": 180.0, "yaw_deg": 180.0}
 
 
+#: no pair travels further: its two views of the ground would not overlap [m]
+_MAX_TRAVEL_M = 1000.0
+#: a median speed beyond this is no vehicle's: the table's travel or times are in other units
+#: (millimetres, nanoseconds) [m/s]
+_MAX_SPEED_MPS = 100.0
+#: consecutive frames further apart than this (median) are no camera's: times not in seconds
+_MAX_FRAME_INTERVAL_S = 3600.0
+
+
+def _check_units(frames: NDArray, t: NDArray, z: NDArray, usable: NDArray,
+                 source: str) -> None:
+    """An :class:`InputError` where the table's times or travel are plainly not in seconds and
+    metres: consecutive frames more than an hour apart, or usable pairs faster than
+    ``_MAX_SPEED_MPS`` (medians, so one odd row does not decide)."""
+    with np.errstate(invalid="ignore"):
+        step = np.diff(t)
+        consecutive = (np.diff(frames) == 1) & (step > 0)
+    if not consecutive.any():
+        return
+    interval = float(np.median(step[consecutive]))
+    if interval > _MAX_FRAME_INTERVAL_S:
+        raise InputError(f"{source}: t: consecutive frames are {interval:.4g} s apart (median); "
+                         "t must be in seconds")
+    moving = consecutive & usable[1:]
+    if not moving.any():
+        return
+    travel = np.hypot(z[1:, 4], z[1:, 5])[moving]
+    speed = float(np.median(travel / step[moving]))
+    if speed > _MAX_SPEED_MPS:
+        raise InputError(
+            f"{source}: tx_m, tz_m: the usable pairs travel {float(np.median(travel)):.4g} m "
+            f"per frame {float(np.median(step[moving])):.4g} s apart, {speed:.4g} m/s "
+            f"(medians) at the table's height_m; travel must be in metres and t in seconds")
+
+
 def _check_ranges(columns: dict[str, NDArray], frames: NDArray, source: str) -> None:
     """An :class:`InputError` naming row, frame and column for a number no estimate can have:
     an infinite value, an angle beyond ``_ANGLE_LIMITS_DEG``, a height that is not > 0 (empty
@@ -141,7 +186,8 @@ def _check_ranges(columns: dict[str, NDArray], frames: NDArray, source: str) -> 
                 bad |= values <= 0.0
                 rule = "a height > 0"
             else:
-                rule = "a finite distance"
+                bad |= np.abs(values) > _MAX_TRAVEL_M
+                rule = f"a travel within ±{_MAX_TRAVEL_M:g} m"
         if bad.any():
             row = int(np.flatnonzero(bad)[0])
             raise InputError(f"{source}: row {row + first_data_row(source)} (frame "
@@ -320,8 +366,7 @@ def in_sequence(
     missing, unknown = [], []
     for i in keep:
         m = measurements[i]
-        if m.status == "ok" and not (np.isfinite(m.z).all()
-                                     and np.isfinite(np.diag(m.covariance)).all()):
+        if m.status == "ok" and not m.has_numbers:
             missing.append((i + first_row, m.frame))
             m = replace(m, status=MISSING_NUMBERS)
         elif not is_known(m.status):
