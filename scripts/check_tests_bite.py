@@ -364,6 +364,25 @@ MUTANTS: tuple[Mutant, ...] = (
            "            result = estimate_pair(self.estimator, prev, curr, None, dt, prepared)",
            "            result = estimate_pair(self.estimator, prev, curr, None, dt)",
            ("tests/test_pair_chain.py",)),
+    Mutant("table-height-not-checked", "table",
+           "an ok row without its assumed height is fed to the filters (the batch smoother's "
+           "system indeterminate)",
+           "vipm_track/measurement.py",
+           "                    and math.isfinite(self.height_assumed))",
+           "                    and True)",
+           ("tests/test_nothing_lost.py", "tests/test_pipeline.py")),
+    Mutant("table-units-not-checked", "table",
+           "a table in nanoseconds or millimetres is read as seconds and metres",
+           "vipm_track/measurement.py",
+           "    if not consecutive.any():\n        return\n    interval",
+           "    if True:\n        return\n    interval",
+           ("tests/test_pipeline.py",)),
+    Mutant("monitor-slow-by-nominal", "monitor",
+           "a steep camera against a level nominal is held as a slow forward camera",
+           "filters/monitor_inputs.py",
+           "slow_pairs(z, h0, min_travel_frac_forward) & level_pitches(np.degrees(z[:, 2]))",
+           "slow_pairs(z, h0, min_travel_frac_forward)",
+           ("tests/test_monitor.py",)),
 )
 
 
