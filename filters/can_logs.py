@@ -128,7 +128,8 @@ class LogRecords:
     def __init__(self, path: str | Path, on_bad: Callable[[int, str], None]) -> None:
         self.path = Path(path)
         if not self.path.is_file():
-            raise InputError(f"{self.path}: CAN log not found")
+            raise InputError(f"{self.path}: " + ("a folder, not a CAN log" if self.path.is_dir()
+                                                 else "CAN log not found"))
         self.suffix = log_suffix(self.path)
         self.kind = "line" if self.suffix in TEXT_READERS else "frame"
         self.on_bad = on_bad

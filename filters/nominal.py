@@ -13,7 +13,7 @@ import yaml
 from numpy.typing import NDArray
 
 from vipm_track.camera import CameraModel
-from vipm_track.errors import InputError, yaml_error_line
+from vipm_track.errors import InputError, InvalidYaml, parse_yaml
 from vipm_track.rig import MAX_ANGLE_DEG, Rig, plausible_angle
 
 FloatArray = NDArray[np.float64]
@@ -100,11 +100,11 @@ def load_nominal(path: str | Path) -> NominalCalibration:
     if not path.is_file():
         raise InputError(f"{path}: nominal calibration file not found")
     try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+        doc = parse_yaml(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: not a text file (byte {exc.start}: {exc.reason})") from exc
-    except yaml.YAMLError as exc:
-        raise InputError(f"{path}: {yaml_error_line(exc)}") from None
+    except InvalidYaml as exc:
+        raise InputError(f"{path}: {exc}") from None
     if not isinstance(doc, dict):
         raise InputError(f"{path}: expected a mapping with pitch_deg, roll_deg, height_m")
     known = ("pitch_deg", "roll_deg", "height_m", "tolerances", "limits")

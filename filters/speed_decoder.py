@@ -577,11 +577,19 @@ def decode_bus(bus, dbc: str | Path | cantools.database.can.Database,
                ) -> tuple[SpeedSeries, DecodeSummary]:
     """Speed series decoded live from a python-can ``bus`` (e.g. ``can.Bus(interface=
     "virtual", channel=...)``), message by message; ``on_sample(t, speed_mps)`` is called for
-    each sample as it arrives. Stops as :func:`iter_bus` says."""
+    each sample as it arrives. Stops as :func:`iter_bus` says, or at an interrupt (Ctrl-C),
+    keeping the samples decoded before it (``summary.interrupted`` set; the interrupt goes
+    on where there are none, as :func:`decode_can_log`'s)."""
     decoder = SpeedDecoder(dbc, signals, combine=combine, channel=channel, scale=scale,
                            source=f"bus {getattr(bus, 'channel_info', bus)}")
-    for msg in iter_bus(bus, duration, max_messages, idle_timeout):
-        sample = decoder.feed(msg)
-        if sample is not None and on_sample is not None:
-            on_sample(*sample)
-    return decoder.series(), decoder.summary
+    try:
+        for msg in iter_bus(bus, duration, max_messages, idle_timeout):
+            sample = decoder.feed(msg)
+            if sample is not None and on_sample is not None:
+                on_sample(*sample)
+    except KeyboardInterrupt:
+        decoder.summary.interrupted = True
+    series = decoder.series()
+    if decoder.summary.interrupted and len(series) == 0:
+        raise KeyboardInterrupt
+    return series, decoder.summary

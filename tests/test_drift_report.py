@@ -228,6 +228,27 @@ def test_kitti_poses_bad_line_named(tmp_path: Path) -> None:
         kitti_truth_table(path)
     write_table(tmp_path / "gt.csv", [{"frame": 0, "t": 0.0, "pitch_deg": 1.0}])
     assert not is_kitti_poses(tmp_path / "gt.csv")
+    # its times.txt: a bad line is named (a bare float() gave a traceback), and one time per
+    # pose is needed (a short file dropped the times, and with them the check of the clock)
+    path.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n" * 3)
+    (tmp_path / "times.txt").write_text("0.0\ngarbage\n0.2\n")
+    with pytest.raises(InputError, match=r"times.txt: line 2: not a timestamp in seconds"):
+        kitti_truth_table(path)
+    (tmp_path / "times.txt").write_text("0.0\n0.1\n")
+    with pytest.raises(InputError, match=r"times.txt: 2 times for the 3 poses"):
+        kitti_truth_table(path)
+    (tmp_path / "times.txt").write_text("0.0\n0.1\n0.2\n")
+    assert list(kitti_truth_table(path)["t"]) == [0.1, 0.2]
+
+
+def test_a_truth_without_times_is_said_to_be_matched_by_frame(tmp_path: Path, capsys) -> None:
+    """KITTI poses without a times.txt cannot be checked against the table's clock: a cart's
+    table was scored against KITTI 07's poses without a word. Now the report says so."""
+    poses = tmp_path / "poses.txt"
+    poses.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n" * 200)
+    assert main(["report", str(DATA / "knock_cart_est.csv"), "--gt", str(poses),
+                 "--out", str(tmp_path / "r")]) == 0
+    assert "poses.txt: no times (a times.txt beside it)" in capsys.readouterr().err
 
 
 @settings(max_examples=60, deadline=None)

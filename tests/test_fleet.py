@@ -193,6 +193,7 @@ def test_cli(drives, cluster, tmp_path, capsys):
     (b"vehicle: van1\ncolour: red\n", "unknown key(s) ['colour']; expected 'vehicle' and/or"),
     (b"vehicle: \xff\n", "not a text file (byte 9"),
     (b"started: monday\n", "started 'monday' is no ISO 8601 date or time"),
+    (b"started: 2024-02-30\n", "not valid YAML (day is out of range for month)"),
 ])
 def test_a_bad_drive_yaml_is_that_drives_problem(tmp_path, content, why):
     """A drive.yaml that cannot be read makes its drive a failed row; the other drives and
@@ -216,6 +217,25 @@ def one_drive(tmp_path) -> Path:
     """A folder of one (empty) drive: enough for the fleet to get to its cluster."""
     (tmp_path / "drives" / "x").mkdir(parents=True)
     return tmp_path / "drives"
+
+
+def test_relative_paths_reach_the_workers_absolute(one_drive, tmp_path, monkeypatch):
+    """A scheduler's workers run in their own folders: DRIVES and --out given relative to
+    this one made every drive fail there ("No such file or directory: 'drives/x/...'")."""
+    from vipm_track.fleet import cluster
+
+    seen = {}
+
+    def fake_run(specs, out, settings, **kwargs):
+        seen.update(specs=specs, out=out)
+        return []
+
+    monkeypatch.setattr(cluster, "run_fleet", fake_run)
+    (one_drive / "x" / "camera.yaml").write_text("")
+    monkeypatch.chdir(tmp_path)
+    assert main(["fleet", "drives", "--out", "o", "--quiet"]) == 1
+    assert seen["out"] == tmp_path / "o"
+    assert seen["specs"][0].camera == tmp_path / "drives" / "x" / "camera.yaml"
 
 
 @pytest.mark.parametrize(("address", "why"), [

@@ -299,6 +299,33 @@ def test_run_live_is_callable_with_plain_arguments_fast(knock, tmp_path):
     assert Path(out).read_text().endswith("\n")
 
 
+def test_a_signal_while_closing_loses_nothing(knock, tmp_path, monkeypatch):
+    """``timeout -s INT`` signals the process, then its group: the second signal landed in
+    the closing writes and lost the Parquet table and the summary. They are held now."""
+    import os
+    import signal
+
+    from vipm_track import live_run
+    from vipm_track.camera import load_camera
+    from vipm_track.filters.nominal import load_nominal
+
+    close = live_run.TableWriter.close
+
+    def signalled_close(self):
+        os.kill(os.getpid(), signal.SIGINT)  # arrives while the table is being closed
+        close(self)
+
+    monkeypatch.setattr(live_run.TableWriter, "close", signalled_close)
+    out = tmp_path / "held.csv"
+    nominal = load_nominal(knock["nominal"])
+    stats = live_run.run_live(str(knock["video"]),
+                              nominal.rig(load_camera(knock["folder"] / "camera.yaml")),
+                              nominal, out, stdout=io.StringIO(), quiet=True, parquet=True,
+                              max_frames=8)
+    assert stats.processed == 7
+    assert len(read_table(out.with_suffix(".parquet"))["frame"]) == 7
+
+
 def test_a_camera_that_does_not_fit_the_video_is_named_at_once(knock, tmp_path, capsys):
     """Every frame was HOLD 'wrong image size' and the run ended with exit 0."""
     from conftest import CAR_CAMERA_YAML

@@ -117,6 +117,9 @@ def test_nominal_round_trip(tmp_path):
         ("pitch_deg: 3\nroll_deg: 0\nheight_m: 1.5\ntolerances: {pitch: 1}\n", "pitch"),
         ("[1, 2]\n", "mapping"),
         ("pitch_deg: [3\n", r"bad.yaml: line 2, column 1: not valid YAML \(.*\)$"),
+        # a date PyYAML cannot build raised a bare ValueError out of its loader
+        ("pitch_deg: 2024-13-45\nroll_deg: 0\nheight_m: 1.5\n",
+         r"bad.yaml: not valid YAML \(month must be in 1..12\)$"),
         ("pitch_deg: 450\nroll_deg: 0\nheight_m: 1.5\n", "pitch_deg must be within ±90°, got 450"),
         ("pitch_deg: 3\nroll_deg: 0\nheight_m: 1.5\ntolerance: {pitch_deg: 1}\n",
          r"unknown key\(s\) \['tolerance'\]; expected .*'tolerances'"),

@@ -213,17 +213,21 @@ def test_feed_equals_feed_many_across_messages(dbc, messages):
         np.testing.assert_allclose(mixed.series().speed_mps, batch.speed_mps, rtol=1e-12)
 
 
-def test_virtual_bus_streams_speed_to_frame_times(data, messages, ref_wheels, ref_gnss):
+def _over_a_virtual_bus(data, part, on_sample):
+    """``decode_bus`` of the messages ``part`` sent on a fresh virtual bus."""
     channel = f"vipm-{uuid.uuid4().hex}"
-    part = [m for m in messages if m.timestamp < messages[0].timestamp + 3.0]
-    received: list[tuple[float, float]] = []
     with can.Bus(interface="virtual", channel=channel, preserve_timestamps=True) as tx, \
             can.Bus(interface="virtual", channel=channel) as rx:
         for msg in part:
             tx.send(msg)
-        series, summary = decode_bus(rx, data / "toyota_2017.dbc", channel=channel,
-                                     max_messages=len(part), idle_timeout=0.5,
-                                     on_sample=lambda t, v: received.append((t, v)))
+        return decode_bus(rx, data / "toyota_2017.dbc", channel=channel,
+                          max_messages=len(part), idle_timeout=0.5, on_sample=on_sample)
+
+
+def test_virtual_bus_streams_speed_to_frame_times(data, messages, ref_wheels, ref_gnss):
+    part = [m for m in messages if m.timestamp < messages[0].timestamp + 3.0]
+    received: list[tuple[float, float]] = []
+    series, summary = _over_a_virtual_bus(data, part, lambda t, v: received.append((t, v)))
     assert summary.frames == len(part) and summary.bad == 0
     assert len(received) == len(series) > 200
     n = len(series)
@@ -235,6 +239,21 @@ def test_virtual_bus_streams_speed_to_frame_times(data, messages, ref_wheels, re
     assert aligned.valid[1:].all() and not aligned.valid[0]
     gnss = ref_gnss["gnss_ins_speed_mps"][1:frames.size]
     assert np.median(np.abs(aligned.speed_mps[1:] - gnss)) < 0.2
+
+
+def test_an_interrupted_bus_keeps_what_it_decoded(data, messages):
+    """Ctrl-C while listening to a bus threw every decoded sample away (``can-speed --bus``
+    wrote nothing); like a log's, they are kept and the interrupt is said."""
+    part = [m for m in messages if m.timestamp < messages[0].timestamp + 2.0]
+
+    def interrupt_at_100(t, v):
+        if len(received) == 100:
+            raise KeyboardInterrupt
+        received.append((t, v))
+
+    received: list[tuple[float, float]] = []
+    series, summary = _over_a_virtual_bus(data, part, interrupt_at_100)
+    assert summary.interrupted and len(series) == 101 and len(received) == 100
 
 
 def test_virtual_bus_speed_streams_into_the_ekf_and_makes_height_observable(dbc):

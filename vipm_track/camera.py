@@ -18,7 +18,7 @@ import numpy as np
 import yaml
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import InputError, printable, yaml_error_line
+from .errors import InputError, InvalidYaml, parse_yaml, printable
 from .text_files import read_text
 
 PINHOLE_MODELS = ("plumb_bob", "rational_polynomial", "none")
@@ -233,11 +233,9 @@ def _kitti_image_size(folder: Path) -> tuple[int, int] | None:
 
 def _read_ros_yaml(path: Path, text: str) -> CameraModel:
     try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise CameraFileError(path, yaml_error_line(exc)) from None
-    except (ValueError, TypeError, OverflowError) as exc:  # e.g. a date YAML cannot build
-        raise CameraFileError(path, f"not valid YAML ({printable(exc)})") from None
+        doc = parse_yaml(text)
+    except InvalidYaml as exc:
+        raise CameraFileError(path, str(exc)) from None
     if not isinstance(doc, dict):
         raise CameraFileError(path, "expected a YAML mapping (ROS camera_info)")
     _check_keys(path, doc, ROS_KEYS, "")

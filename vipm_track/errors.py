@@ -48,6 +48,25 @@ def yaml_error_line(exc: Exception) -> str:
     return f"{where}not valid YAML ({printable(problem)})"
 
 
+class InvalidYaml(InputError):
+    """A YAML text that does not parse, or holds a value YAML cannot build; the message is
+    the problem only (the caller names the file)."""
+
+
+def parse_yaml(text: str) -> object:
+    """``yaml.safe_load(text)``, any failure an :class:`InvalidYaml`: a syntax error (with its
+    line and column) or a value PyYAML cannot build (a date such as 2024-13-45 raises a
+    plain ``ValueError`` inside it)."""
+    import yaml  # only the commands that read YAML files pay for it
+
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise InvalidYaml(yaml_error_line(exc)) from None
+    except (ValueError, TypeError, OverflowError) as exc:
+        raise InvalidYaml(f"not valid YAML ({printable(exc)})") from None
+
+
 def interrupted_in(exc: BaseException) -> bool:
     """Whether ``exc`` carries a Ctrl-C / SIGTERM: a KeyboardInterrupt that arrived inside a
     compiled kernel comes back as a ``SystemError`` whose cause or context it is."""

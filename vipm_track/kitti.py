@@ -122,7 +122,11 @@ def kitti_truth_table(path: str | Path, pitch_deg: float = KITTI_PITCH_DEG,
     }
     times = path.with_name("times.txt")
     if times.is_file():
-        t = np.array([float(v) for v in times.read_text().split()], dtype=float)
-        if t.size >= n + 1:
-            table["t"] = t[1 : n + 1]
+        from .sources import read_times
+
+        t = read_times(times)
+        if t.size < n + 1:
+            raise InputError(f"{times}: {t.size} times for the {n + 1} poses of {path}; "
+                             "it needs one line per pose")
+        table["t"] = t[1 : n + 1]
     return table

@@ -24,7 +24,7 @@ from vipm_track.filters.track import track_row
 from vipm_track.filters.wheel_speed import SpeedSeries
 
 from . import json_text
-from .errors import InputError
+from .errors import InputError, interrupts_held
 from .estimator_config import EstimatorConfig
 from .live_monitor import LIVE_COLUMNS, LIVE_TABLE, LiveMonitor, LiveRow, LiveStats
 from .live_sources import (
@@ -192,33 +192,45 @@ def run_live(
     except KeyboardInterrupt:
         interrupted = True
     finally:
-        stop.set()
-        # the readers first: a thread of OpenCV's still reading at exit aborts the process
-        for thread in (reader, replay and replay.thread, bus_reader):
-            if thread is not None and thread.is_alive():
-                thread.join(5.0)
-        try:
-            stats = monitor.stop(drain=not interrupted)
-        finally:
-            writer.close()
-            if events_file is not None:
-                events_file.close()
-            if sink is not None:
-                sink.finish()
+        # held: a second Ctrl-C (``timeout`` signals the process and then its group) cut
+        # the closing writes short and lost the Parquet file and the summary; the drain
+        # is one pair at most
+        with interrupts_held():
+            stop.set()
+            # the readers first: a thread of OpenCV's still reading at exit aborts the process
+            for thread in (reader, replay and replay.thread, bus_reader):
+                if thread is not None and thread.is_alive():
+                    thread.join(5.0)
+            try:
+                stats = monitor.stop(drain=not interrupted)
+            finally:
+                writer.close()
+                if events_file is not None:
+                    events_file.close()
+                if sink is not None:
+                    sink.finish()
     if not quiet:
-        print(f"vipm-track live: {out}: {stats.line()}", file=sys.stderr)
-        for line in reader.stats.errors:
-            print(f"  {line}", file=sys.stderr)
-        if decoder is not None:
-            for line in decoder.summary.lines():
-                print(f"  {line}", file=sys.stderr)
-        if stats.first_recalibrate is not None:
-            f = stats.first_recalibrate
-            print(f"first RECALIBRATE at t={f['t']:.2f} s (frame {f['frame']}): {f['reason']}",
-                  file=sys.stderr)
+        with interrupts_held():
+            _print_summary(out, stats, reader, decoder)
     if interrupted:
         raise KeyboardInterrupt
     return stats
+
+
+def _print_summary(out: str | Path, stats: LiveStats, reader: FrameReader,
+                   decoder: SpeedDecoder | None) -> None:
+    """The run's summary on stderr: its counts, the frames that could not be read, the wheel
+    speed's decoding and the first RECALIBRATE."""
+    print(f"vipm-track live: {out}: {stats.line()}", file=sys.stderr)
+    for line in reader.stats.errors:
+        print(f"  {line}", file=sys.stderr)
+    if decoder is not None:
+        for line in decoder.summary.lines():
+            print(f"  {line}", file=sys.stderr)
+    if stats.first_recalibrate is not None:
+        f = stats.first_recalibrate
+        print(f"first RECALIBRATE at t={f['t']:.2f} s (frame {f['frame']}): {f['reason']}",
+              file=sys.stderr)
 
 
 __all__ = ["run_live"]

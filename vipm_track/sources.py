@@ -277,7 +277,7 @@ class ImageFolderSource(FrameSource):
         else:
             raise SourceError(
                 f"{self.folder}: no times.txt in the folder or its parent; "
-                "pass --fps to time the frames"
+                "pass --fps to time the frames (a fleet manifest: its fps column)"
             )
         if start >= len(files):
             raise SourceError(

@@ -69,8 +69,9 @@ def run(args: argparse.Namespace) -> int:
     if drives.is_dir() and drives in Path(args.out).resolve().parents:
         raise InputError(f"--out {args.out}: inside the DRIVES folder {args.drives}, where the "
                          "next run would take it for a drive; give a folder outside it")
-    out = check_output_dir(args.out)
-    specs = find_drives(args.drives)
+    # absolute: the workers of a --scheduler may run in another folder
+    out = check_output_dir(args.out).absolute()
+    specs = [spec.absolute() for spec in find_drives(args.drives)]
     settings = FleetSettings(vehicle=args.vehicle, lag_s=args.lag,
                              chunk_frames=args.chunk_frames, marginals=not args.no_std,
                              image_topic=args.image_topic,

@@ -14,13 +14,11 @@ from __future__ import annotations
 
 import csv
 import hashlib
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
-import yaml
-
 from ..bag_source import BAG_SUFFIXES, is_bag
-from ..errors import InputError, os_error_line, printable, yaml_error_line
+from ..errors import InputError, InvalidYaml, os_error_line, parse_yaml, printable
 from ..sinks.fleet_report import started_instant
 from ..sources import IMAGE_SUFFIXES
 
@@ -61,6 +59,12 @@ class DriveSpec:
                 if f.name == "images" and (value.parent / "times.txt").is_file():
                     files.append(value.parent / "times.txt")
         return sorted(set(files))
+
+    def absolute(self) -> DriveSpec:
+        """This drive with every path absolute: a Dask worker started in another folder
+        reads the same files."""
+        return replace(self, **{f.name: getattr(self, f.name).absolute() for f in fields(self)
+                                if isinstance(getattr(self, f.name), Path)})
 
     def input_hash(self, settings: str) -> str:
         """BLAKE2b of this drive's input files (names and contents) and of ``settings``:
@@ -134,13 +138,13 @@ def _drive_yaml(path: Path) -> dict:
     if not path.is_file():
         return {}
     try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+        doc = parse_yaml(path.read_text(encoding="utf-8"))
     except OSError as exc:
         raise InputError(os_error_line(exc, str(path))) from None
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: not a text file (byte {exc.start}: {exc.reason})") from None
-    except yaml.YAMLError as exc:
-        raise InputError(f"{path}: {yaml_error_line(exc)}") from None
+    except InvalidYaml as exc:
+        raise InputError(f"{path}: {exc}") from None
     if not isinstance(doc, dict):
         raise InputError(f"{path}: expected a mapping with 'vehicle' and/or 'started'")
     unknown = sorted(str(k) for k in set(doc) - {"vehicle", "started"})

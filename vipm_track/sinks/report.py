@@ -143,6 +143,9 @@ def write_report(
     relative = gt is not None and is_kitti_poses(gt)  # only pitch/roll changes are truth
     if truth is not None:
         check_same_drive(est, truth, track, Path(gt))
+        if "t" not in truth and notes is not None:
+            notes.append(f"{gt}: no times (a times.txt beside it): its frames are taken as the "
+                         f"table's by their numbers, unchecked against {track}'s clock")
         lacking = [c for c, *_ in POSE_PANELS + MOTION_PANELS
                    if c in est and not has_finite(truth, c)
                    and not (relative and c in RELATIVE_ONLY)]
