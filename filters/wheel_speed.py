@@ -37,6 +37,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from vipm_track.errors import InputError, printable
 from vipm_track.increasing import kept_around, left_out_between
+from vipm_track.measurement import MAX_SPEED_MPS
 from vipm_track.table import read_text, write_columns_csv
 
 #: Rules combining several speed signals into one speed (rows: samples, columns: signals).
@@ -304,11 +305,6 @@ def align_to_frames(series: SpeedSeries, frame_times: ArrayLike, clock_offset: f
     gaps = gaps[(gaps[:, 1] >= ft.min()) & (gaps[:, 0] <= ft.max())]
     return AlignedSpeed(ft, speed, np.isfinite(speed), gaps, float(shifted.clock_offset),
                         n_before=int((ft < t0).sum()), n_after=int((ft > t1).sum()))
-
-
-#: a speed.csv sample beyond this is a corrupt row, not a vehicle's speed [m/s] (360 km/h;
-#: one of 1e9 m/s was taken and interpolated into the frames)
-MAX_SPEED_MPS = 100.0
 
 
 def read_speed_csv(path: str | Path) -> SpeedSeries:

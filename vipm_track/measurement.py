@@ -138,9 +138,9 @@ _ANGLE_LIMITS_DEG = {"prev_pitch_deg": 90.0, "pitch_deg": 90.0, "prev_roll_deg":
 
 #: no pair travels further: its two views of the ground would not overlap [m]
 _MAX_TRAVEL_M = 1000.0
-#: a median speed beyond this is no vehicle's: the table's travel or times are in other units
-#: (millimetres, nanoseconds) [m/s]
-_MAX_SPEED_MPS = 100.0
+#: no vehicle's speed (360 km/h) [m/s]: beyond it a table's travel or times are in other
+#: units (millimetres, nanoseconds), a speed sample is a corrupt row
+MAX_SPEED_MPS = 100.0
 #: consecutive frames further apart than this (median) are no camera's: times not in seconds
 _MAX_FRAME_INTERVAL_S = 3600.0
 
@@ -149,7 +149,7 @@ def _check_units(frames: NDArray, t: NDArray, z: NDArray, usable: NDArray,
                  source: str) -> None:
     """An :class:`InputError` where the table's times or travel are plainly not in seconds and
     metres: consecutive frames more than an hour apart, or usable pairs faster than
-    ``_MAX_SPEED_MPS`` (medians, so one odd row does not decide)."""
+    ``MAX_SPEED_MPS`` (medians, so one odd row does not decide)."""
     with np.errstate(invalid="ignore"):
         step = np.diff(t)
         consecutive = (np.diff(frames) == 1) & (step > 0)
@@ -164,7 +164,7 @@ def _check_units(frames: NDArray, t: NDArray, z: NDArray, usable: NDArray,
         return
     travel = np.hypot(z[1:, 4], z[1:, 5])[moving]
     speed = float(np.median(travel / step[moving]))
-    if speed > _MAX_SPEED_MPS:
+    if speed > MAX_SPEED_MPS:
         raise InputError(
             f"{source}: tx_m, tz_m: the usable pairs travel {float(np.median(travel)):.4g} m "
             f"per frame {float(np.median(step[moving])):.4g} s apart, {speed:.4g} m/s "
