@@ -401,6 +401,20 @@ MUTANTS: tuple[Mutant, ...] = (
            "    specs = [spec.absolute() for spec in find_drives(args.drives)]",
            "    specs = find_drives(args.drives)",
            ("tests/test_fleet.py::test_relative_paths_reach_the_workers_absolute",)),
+    Mutant("fleet-dataset-every-folder", "table",
+           "the fleet's dataset serves every done drive folder in OUT, an earlier run's too",
+           "vipm_track/fleet/cluster.py",
+           '               if r["status"] == "ok" and r["drive"] is not None]',
+           '               if r["drive"] is not None] + list(out.glob("drive=*"))',
+           ("tests/test_fleet.py::test_the_dataset_serves_the_last_runs_drives",)),
+    Mutant("failed-drive-folder-kept", "table",
+           "a drive that failed leaves its empty partition folder",
+           "vipm_track/fleet/drive_run.py",
+           "    with contextlib.suppress(OSError):  # absent, or holding the user's own files\n"
+           "        folder.rmdir()",
+           "    with contextlib.suppress(OSError):  # absent, or holding the user's own files\n"
+           "        pass",
+           ("tests/test_fleet.py::test_drives_ok_and_broken_ones_are_rows",)),
 )
 
 

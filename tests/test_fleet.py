@@ -89,6 +89,8 @@ def test_drives_ok_and_broken_ones_are_rows(fleet, drives):
     assert rows["bad_yaml"]["status"] == (
         f"error: {drives / 'bad_yaml' / 'drive.yaml'}: line 2, column 1: not valid YAML "
         "(expected the node content, but found '<stream end>')")
+    # a drive that failed leaves no partition folder, empty or not
+    assert sorted(p.name for p in out.glob("drive=*")) == ["drive=a", "drive=b", "drive=c_bag"]
     assert abs(rows["a"]["mount_pitch_deg"] - 45.0) < 0.05
     assert abs(rows["b"]["mount_pitch_deg"] - 46.0) < 0.05
     lo, hi = rows["a"]["mount_pitch_ci95_low_deg"], rows["a"]["mount_pitch_ci95_high_deg"]
@@ -471,7 +473,26 @@ def test_a_drive_that_now_fails_leaves_no_tables(fleet, drives, cluster, tmp_pat
     # a drive's tables without its done.json (stopped part-way) are not served either
     (again / "drive=a" / "done.json").unlink()
     table = fleet_dataset(again, "smoothed").to_table().to_pandas()
-    assert "a" not in set(table["drive"].astype(str))
+    assert table.empty  # no drive left to serve: not even a schema
+
+
+def test_the_dataset_serves_the_last_runs_drives(fleet, drives, cluster, tmp_path):
+    """OUT reused for a run of drive a alone: b's and c_bag's folders of the run before, done
+    and all, stay on disk but are not this fleet's (its summary has one row); the dataset
+    served all three."""
+    out, _ = fleet
+    again, root = tmp_path / "out", tmp_path / "drives"
+    shutil.copytree(out, again)
+    shutil.copytree(drives / "a", root / "a")
+    rows = run_fleet(find_drives(root), again, SETTINGS, scheduler=cluster.scheduler_address,
+                     progress=False)
+    assert [r["drive"] for r in rows] == ["a"] and rows[0]["status"] == "ok"
+    assert (again / "drive=b" / "done.json").is_file()
+    for table in ("estimates", "smoothed", "monitor"):
+        served = fleet_dataset(again, table).to_table().to_pandas()
+        assert set(served["drive"].astype(str)) == {"a"} and len(served) == 12
+    with pytest.raises(InputError, match=r"no fleet_summary\.parquet"):
+        fleet_dataset(tmp_path / "drives")
 
 
 def test_drive_names_with_percent_signs_stay_apart(drives, cluster, tmp_path):

@@ -365,12 +365,24 @@ def _float(value: Any) -> float | None:
 
 
 def fleet_dataset(out: str | Path, table: str = "smoothed") -> ds.Dataset:
-    """One table (``estimates``, ``smoothed`` or ``monitor``) of every finished drive of a
-    fleet's OUT (its ``done.json`` written: not a drive that failed or was interrupted
-    part-way) as a pyarrow dataset with the hive partition column ``drive``."""
+    """One table (``estimates``, ``smoothed`` or ``monitor``) of every drive that is ``ok``
+    in OUT's ``fleet_summary.parquet`` (the last run's drives: a folder that an earlier run
+    with other drives left in OUT is not served) and whose ``done.json`` is written (not a
+    drive that failed or was interrupted part-way), as a pyarrow dataset with the hive
+    partition column ``drive``. InputError where OUT holds no fleet summary."""
     out = Path(out)
-    files = sorted(str(p) for p in out.glob(f"drive=*/{table}.parquet")
-                   if (p.parent / DONE_FILE).is_file())
+    summary = out / "fleet_summary.parquet"
+    try:
+        rows = pq.read_table(summary, columns=["drive", "status"]).to_pylist()
+    except FileNotFoundError:
+        raise InputError(f"{out}: no fleet_summary.parquet here (not the --out of a fleet "
+                         "run, or no drive of it has finished yet)") from None
+    except (OSError, pa.ArrowException, KeyError) as exc:
+        raise InputError(f"{summary}: not a fleet summary ({printable(exc, 200)})") from None
+    folders = [drive_folder(out, r["drive"]) for r in rows
+               if r["status"] == "ok" and r["drive"] is not None]
+    files = sorted(str(f / f"{table}.parquet") for f in folders
+                   if (f / DONE_FILE).is_file() and (f / f"{table}.parquet").is_file())
     return ds.dataset(files, format="parquet", partitioning="hive",
                       partition_base_dir=str(out))
 

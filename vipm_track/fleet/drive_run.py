@@ -141,10 +141,13 @@ def run_drive(spec: DriveSpec, out: str | Path, settings: FleetSettings,
 
 
 def _remove_outputs(folder: Path) -> None:
-    """What a run of the drive wrote into ``folder``, its done file first."""
+    """What a run of the drive wrote into ``folder``, its done file first; then the folder
+    itself where nothing else is in it (a drive that failed leaves no empty partition)."""
     for name in (DONE_FILE, *OUTPUT_FILES):
         with contextlib.suppress(OSError):
             (folder / name).unlink(missing_ok=True)
+    with contextlib.suppress(OSError):  # absent, or holding the user's own files
+        folder.rmdir()
 
 
 def _worker() -> str:
