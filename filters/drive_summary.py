@@ -62,6 +62,9 @@ def summarize_mount(
     residual = _pose_residuals(good, measurements)
     out["duration_s"] = float(t[-1] - t[0])
     steps = mount_steps_in(mount[:, :2], std[:, :2])
+    if not np.isfinite(std[:, :2]).any() and step_test is not None and measurements:
+        # no σ (``--no-std``): where the batch's own test on the pairs let the mount jump
+        steps = _pairs_steps(t, measurements, step_test)
     if steps:  # a mean across a knock is neither mount: the mount since the last one
         out["mount_steps"] = [{"t": float(t[k]),
                                "pitch_deg": math.degrees(mount[k, 0] - mount[k - 1, 0]),
@@ -120,6 +123,19 @@ def summarize_mount(
             if note:
                 out["pairs_trend"] = note
     return out
+
+
+def _pairs_steps(t: FloatArray, measurements: Sequence[PairMeasurement],
+                 step_test: StepTestConfig) -> list[int]:
+    """Indices into the frames at times ``t`` [s] where the step test on the usable pairs'
+    angles (``mount_steps``, the batch's, pitch or roll) puts a step of the mount."""
+    if not step_test.enabled:
+        return []
+    t_pairs, angles = usable_angles(measurements)
+    onsets = {s.onset_s for axis in (0, 1)
+              for s in mount_steps(t_pairs, angles[:, axis], step_test)}
+    found = {int(np.searchsorted(t, onset)) for onset in onsets}
+    return sorted(k for k in found if 0 < k < len(t))
 
 
 #: a step of the smoothed mount between two frames beyond this many of its σ, and beyond

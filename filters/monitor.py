@@ -266,11 +266,17 @@ class DriftMonitor:
             mean, half = _mean_so_far(core)
             bound = core.calibrated_bound()
             j = int(np.nanargmax(np.abs(mean) + half - bound))
+            within = (f"{_fmt_dev(j, bound[j], sign=False)} (the tolerance "
+                      f"{_fmt_dev(j, core.nominal.tolerances[j], sign=False)} and the "
+                      "smallest change tested)")
+            if abs(mean[j]) - half[j] > bound[j]:
+                # the interval lies beyond the bound: said so, not "not shown within" it
+                return (f"collecting evidence ({evidence} usable frames): the mean deviation "
+                        f"so far, {_fmt_mean(j, mean, half)}, lies beyond {within}; the "
+                        "change test, set for its false-alarm rate, has not confirmed a "
+                        "change yet")
             return (f"collecting evidence ({evidence} usable frames): the mean deviation so "
-                    f"far, {_fmt_mean(j, mean, half)}, is not shown within "
-                    f"{_fmt_dev(j, bound[j], sign=False)} yet (the tolerance "
-                    f"{_fmt_dev(j, core.nominal.tolerances[j], sign=False)} and the smallest "
-                    "change tested)")
+                    f"far, {_fmt_mean(j, mean, half)}, is not shown within {within} yet")
         if code == CALIBRATED:
             # what the test can say: it has not found a change; one less than its smallest
             # design shift beyond the tolerance takes long to find (a 0.3° knock against a

@@ -483,6 +483,9 @@ class BatchInfo:
     initial_error: float
     final_error: float
     timings: dict[str, float]
+    #: an interrupt came while the marginals were computed: the frames are the converged
+    #: estimate without their covariances
+    marginals_interrupted: bool = False
 
 
 def _batch_graph(
@@ -600,21 +603,22 @@ def smooth_batch(
             bar.total = bar.n
             bar.refresh()
             bar.close()
-    # the marginals are those of the graph linearised at the estimate (gtsam.Marginals'
-    # definition; ``block_marginals`` reads them in O(n))
-    lin = graph.linearize(values) if cfg.marginals else None
     timings["optimize"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    if cfg.marginals:
-        sigma, cross = block_marginals(lin, len(ms))
-    norms = block_norms(pairs, values)
     n_kept = len(ms)
     states = states_of(values, n_kept)
+    covs = np.full((n_kept, M.STATE_DIM, M.STATE_DIM), np.nan)
+    interrupted = False
     if cfg.marginals:
-        covs = state_covariances(states, sigma, cross)
-    else:
-        covs = np.full((n_kept, M.STATE_DIM, M.STATE_DIM), np.nan)
+        try:
+            # the marginals are those of the graph linearised at the estimate
+            # (gtsam.Marginals' definition; ``block_marginals`` reads them in O(n))
+            sigma, cross = block_marginals(graph.linearize(values), len(ms))
+            covs = state_covariances(states, sigma, cross)
+        except KeyboardInterrupt:  # the estimate has converged: it is kept, without its σ
+            interrupted = True
+    norms = block_norms(pairs, values)
     statuses, gated, reasons, stills = [], [], [], []
     for k, m in enumerate(ms):
         status, g = _status(m, norms.get(k), cfg)
@@ -633,7 +637,7 @@ def smooth_batch(
             j += 1
         else:
             out.append(_skipped(m, f"time {m.t} not after the previous frame's"))
-    return out, BatchInfo(iters, e0, e1, timings)
+    return out, BatchInfo(iters, e0, e1, timings, interrupted)
 
 
 def optimize(

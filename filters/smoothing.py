@@ -65,9 +65,11 @@ def smoothed_frames(
     # heave about each frame, the fixed lag's by the pairs up to each frame
     lever_std = cfg.noise.lever_arm_std_m
     if cfg.lag_s == 0:
-        frames = smooth_batch(measurements, speeds, cfg, progress)[0]
+        frames, info = smooth_batch(measurements, speeds, cfg, progress)
         frames = widened_drive(corrected_drive(frames, by_frame, lever_std), by_frame)
         yield from heave.widened_drive(frames, by_frame)
+        if info.marginals_interrupted:
+            raise MarginalsInterrupted
         return
     correlation, lever = PairErrorCorrelation(), LeverArm(lever_std)
     for f in _fixed_lag_frames(measurements, cfg, speeds, progress):
@@ -87,6 +89,14 @@ def _fixed_lag_frames(measurements: Sequence[PairMeasurement], cfg: SmootherConf
     for m, v in it:
         yield from sm.step(m, float(v))
     yield from sm.finish()
+
+
+class MarginalsInterrupted(KeyboardInterrupt):
+    """An interrupt while the batch computed its marginals, after every frame was yielded:
+    the converged estimate, its standard deviations empty."""
+
+    def __str__(self) -> str:
+        return "interrupted while computing the standard deviations: their columns are empty"
 
 
 def smoothed_rows(

@@ -112,6 +112,9 @@ def test_kitti_calib_takes_the_size_of_the_frames_it_is_used_on(tmp_path, capsys
     ({"camera_matrix": {"data": [729.0, 0, 400, 0, -729, 300, 0, 0, 1]}}, "camera_matrix"),
     ({"camera_matrix": {"data": [729.0, 0, 5000.5, 0, 729, 300, 0, 0, 1]}}, "camera_matrix"),
     ({"camera_matrix": {"data": [729.0, 0, 400, 0, 729, -3, 0, 0, 1]}}, "camera_matrix"),
+    # not an intrinsic matrix: K[2,2] of 2 gave `ok` rows 8–17° off at a 0.01° std
+    ({"camera_matrix": {"data": [729.0, 0, 400, 0, 729, 300, 0, 0, 2]}}, "camera_matrix"),
+    ({"camera_matrix": {"data": [729.0, 0, 400, 0.5, 729, 300, 0, 0, 1]}}, "camera_matrix"),
     ({"image_width": 0}, "image_width"),
     ({"distortion_model": "fancy"}, "distortion_model"),
     ({"distortion_coefficients": {"data": [0.1, 0.2, 0.3]}}, "distortion_coefficients"),
@@ -152,6 +155,19 @@ def test_other_file_errors(tmp_path):
     fs.release()
     with pytest.raises(CameraFileError, match="'camera_matrix'"):
         load_camera(cvfile)
+    # OpenCV's reader: a NaN or inf coefficient, and a K with a skewed last row
+    for dist, k, field in (([np.nan, 0, 0, 0, 0], K, "distortion_coefficients"),
+                           ([np.inf, 0, 0, 0, 0], K, "distortion_coefficients"),
+                           ([0.0] * 5, K + np.array([[0, 0, 0], [0, 0, 0], [0.1, 0, 0]]),
+                            "camera_matrix")):
+        fs = cv2.FileStorage(str(cvfile), cv2.FILE_STORAGE_WRITE)
+        fs.write("image_width", 800)
+        fs.write("image_height", 600)
+        fs.write("camera_matrix", np.asarray(k, float))
+        fs.write("distortion_coefficients", np.array([dist], float))
+        fs.release()
+        with pytest.raises(CameraFileError, match=f"'{field}'"):
+            load_camera(cvfile)
 
 
 def test_check_image_size_mismatch():
@@ -167,6 +183,8 @@ def test_model_validation():
         CameraModel(np.diag([-1.0, 1.0, 1.0]), 10, 10)
     with pytest.raises(ValueError, match="3×3"):
         CameraModel(np.eye(2), 10, 10)
+    with pytest.raises(ValueError, match="last row be 0 0 1"):
+        CameraModel(K * 2, 800, 600)
     with pytest.raises(ValueError, match="unknown distortion model"):
         CameraModel(K, 800, 600, "kannala")
 

@@ -121,6 +121,11 @@ def test_report_window_and_cli(tmp_path: Path, capsys: pytest.CaptureFixture) ->
     assert "(start)" in cells[2] and cells[6] == "no change"
     # no tolerance, so no probability of being beyond it (it said > 99.9 % for no change)
     assert cells[4] == "–" and cells[5] == "–"
+    # a title with markup is text in the page, as in its <title> (it went into the <h1> raw)
+    assert main(["report", str(DATA / "knock_cart_smoothed.csv"), "--out", str(tmp_path),
+                 "--title", "KL <b>x</b> & y", "--html"]) == 0
+    page = (tmp_path / "report.html").read_text()
+    assert "<b>x</b>" not in page and page.count("KL &lt;b&gt;x&lt;/b&gt; &amp; y") == 2
     assert main(["report", str(DATA / "knock_cart_smoothed.csv"), "--out", str(tmp_path),
                  "--max-frames", "0"]) == 2
     assert "--max-frames" in capsys.readouterr().err

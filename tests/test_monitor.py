@@ -498,6 +498,9 @@ def test_cli_monitor_rows_saying_ok_have_their_numbers(cli_inputs):
         (["--false-alarms-per-hour", "1e12"], "at most one per frame"),
         (["--road-std", "-0.5"], "--road-std"),
         (["--road-tau", "0"], "--road-tau"),
+        # 1e200 overflowed into CALIBRATED on a knocked camera; 1e300 a NaN traceback
+        (["--road-std", "1e200"], "--road-std must be in [0, 10] degrees, got 1e+200"),
+        (["--road-tau", "1e300"], "--road-tau must be in (0, 3600] seconds, got 1e+300"),
     ],
 )
 def test_cli_monitor_errors_exit_2(cli_inputs, capsys, extra, message):
@@ -737,3 +740,29 @@ def test_a_told_roads_wander_makes_no_steps_of_the_new_extrinsics(seed):
     assert not any("set back?" in o.reason for o in held)
     lo, hi = np.degrees(held[-1].interval95[0])
     assert lo <= 4.0 <= hi
+
+
+def test_an_interval_beyond_the_bound_is_said_to_be_beyond_it(tmp_path, capsys):
+    """A cart 1° steeper than its nominal: while the change test collects, the mean deviation
+    +1.04° ± 0.62° lay wholly beyond the 0.25° bound, and the reason said it was "not shown
+    within 0.25° yet"."""
+    import re
+
+    from vipm_track.cli import main
+    from vipm_track.table import read_table
+
+    nominal = tmp_path / "nominal.yaml"
+    nominal.write_text("pitch_deg: 44.0\nroll_deg: 0.0\nheight_m: 0.7\n")
+    out = tmp_path / "m.csv"
+    assert main(["monitor", "--estimates", str(DATA / "cart_shaking_est.csv"), "--nominal",
+                 str(nominal), "--out", str(out), "--quiet"]) == 0
+    said = {"beyond": 0, "within": 0}
+    for reason in read_table(out)["reason"]:
+        found = re.search(r"so far, pitch ([+-][\d.]+)° ± ([\d.]+)°, (lies beyond|is not shown "
+                          r"within) ([\d.]+)°", str(reason))
+        if found:
+            mean, half, words, bound = found.groups()
+            beyond = abs(float(mean)) - float(half) > float(bound)
+            assert words == ("lies beyond" if beyond else "is not shown within"), reason
+            said["beyond" if beyond else "within"] += 1
+    assert said["beyond"] >= 1, said

@@ -6,11 +6,13 @@ import math
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
 from tests.conftest import shared_data
-from vipm_track.camera import load_camera
+from vipm_track.camera import load_camera, write_ros_yaml
+from vipm_track.cli import main
 from vipm_track.estimator_config import EstimatorConfig
 from vipm_track.nominal_search import (
     TRAVEL_PAIRS,
@@ -362,3 +364,24 @@ def test_travel_stretches_start_evenly_and_run_into_the_next(frames, starts, len
     assert [p.first_index for p in parts] == starts
     window = min(frames, 300)
     assert [len(p) for p in parts] == [min(length, window - s) for s in starts]
+
+
+def test_a_search_that_finds_nothing_says_why(tmp_path, capsys):
+    """Frames of noise move (every pixel changes) but no start converges on them: the search
+    returned None, as for a camera at the default pitch, and the run failed every pair
+    without a word about the search."""
+    preset = replace(PRESETS["cart"], width=240, height=180, fx=218.0)
+    camera = preset.camera()
+    rng = np.random.default_rng(0)
+    (tmp_path / "images").mkdir()
+    for k in range(4):
+        cv2.imwrite(str(tmp_path / "images" / f"{k:06d}.png"),
+                    rng.integers(0, 255, (180, 240), dtype=np.uint8))
+    write_ros_yaml(camera, tmp_path / "camera.yaml")
+    rc = main(["estimate", "--images", str(tmp_path / "images"), "--height", "0.7",
+               "--readout-time", "0", "--fps", "10", "--out", str(tmp_path / "e.csv"),
+               "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 1 and "the nominal pose was not found: no cold start (from 60°" in err, err
+    assert "converged on the pairs of frames 0-1 (" in err
+    assert "the run starts from the default pitch 60° (give --pitch/--roll" in err

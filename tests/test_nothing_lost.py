@@ -162,6 +162,31 @@ def test_sigterm_during_batch_smoothing_writes_the_measurements_with_a_status(
     assert "interrupted" in json.loads(out.with_suffix(".summary.json").read_text())["status"]
 
 
+def test_ctrl_c_while_the_batch_computes_its_marginals_keeps_the_estimate(
+        tmp_path, capsys, est, monkeypatch):
+    """The solve had converged (its bar full) when Ctrl-C came: every frame was written
+    "interrupted: not smoothed" and the summary lost its mount. The estimate is now kept,
+    its std columns empty, and the run still ends interrupted (exit 130)."""
+    import vipm_track.filters.smoother
+
+    def stopped(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(vipm_track.filters.smoother, "block_marginals", stopped)
+    out = tmp_path / "s.csv"
+    rc, err = _run(capsys, "smooth", "--estimates", est, "--height", "1.65", "--out", out,
+                   "--quiet")
+    assert rc == 130 and "interrupted" in err
+    table = read_table(out)
+    assert len(table["frame"]) == 120 and "interrupted: not smoothed" not in set(table["status"])
+    assert np.isfinite(table["pitch_deg"]).sum() > 100
+    assert np.isnan(table["pitch_std_deg"]).all()
+    summary = json.loads(out.with_suffix(".summary.json").read_text())
+    assert summary["status"] == ("interrupted: all 120 frames smoothed; interrupted while "
+                                 "computing the standard deviations: their columns are empty")
+    assert abs(summary["pitch"]["mean"] - np.nanmedian(table["pitch_deg"])) < 0.5
+
+
 def test_fixed_lag_rows_are_on_disk_as_they_leave_the_window(tmp_path, capsys, est, monkeypatch):
     from vipm_track.filters.fixed_lag import FixedLagSmoother
 
@@ -808,15 +833,17 @@ def test_two_outputs_that_are_one_file_are_refused(tmp_path, capsys, est):
 
 
 def test_a_run_that_fails_before_its_first_row_leaves_an_earlier_table(tmp_path, capsys):
-    """A camera that does not fit the images is found at the first frame; the table at --out
-    (an earlier run's) had already been cut to its header."""
+    """A camera that does not fit the images (found before the run, naming the camera file;
+    at the first frame before that): the table at --out (an earlier run's) had already been
+    cut to its header."""
     images = _tiny_images(tmp_path)  # 8×8 frames, a 1280×720 camera
     out = tmp_path / "keep.csv"
     out.write_text("frame,t\n0,0.0\n1,0.1\n")
     before = out.read_bytes()
     rc, err = _run(capsys, "estimate", "--images", images, "--height", "1.5", "--pitch", "3",
                    "--readout-time", "0", "--out", out)
-    assert rc == 2 and "but the camera model is" in err
+    assert rc == 2 and "the camera is 1280×720 px but the frames of" in err
+    assert "are 8×8 px: is it their camera?" in err
     assert out.read_bytes() == before
 
 

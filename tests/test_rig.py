@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import pytest
 from hypothesis import given, settings
@@ -35,14 +36,18 @@ CART = PRESETS["cart"]  # the paper's rig, 45° down, 0.7 m up
     ("pitch_deg", 450.0, "rig: pitch_deg must be a number of degrees within ±90, got 450"),
     ("roll_deg", math.inf, "rig: roll_deg must be a number of degrees within ±90, got inf"),
     ("roll_deg", -90.5, "rig: roll_deg must be a number of degrees within ±90, got -90.5"),
-    ("readout_s", -0.01, "rig: readout_s must be a number of seconds >= 0, got -0.01"),
-    ("readout_s", math.nan, "rig: readout_s must be a number of seconds >= 0"),
-    ("readout_s", True, "rig: readout_s must be a number of seconds >= 0"),
+    ("readout_s", -0.01, "rig: readout_s must be a number of seconds in [0, 1], got -0.01"),
+    ("readout_s", math.nan, "rig: readout_s must be a number of seconds in [0, 1]"),
+    ("readout_s", True, "rig: readout_s must be a number of seconds in [0, 1]"),
+    ("readout_s", 5.0, "rig: readout_s must be a number of seconds in [0, 1], got 5.0"),
+    # a path or nothing failed later inside the run with an AttributeError
+    ("camera", None, "rig: camera must be a CameraModel (camera.load_camera(PATH)), got None"),
+    ("camera", "calib.txt", "rig: camera must be a CameraModel"),
 ])
 def test_bad_rig_names_the_field(field: str, value: object, message: str) -> None:
     fields = {"camera": CAR.camera(), "height_m": 1.5, "pitch_deg": 3.0, "roll_deg": 0.0,
               "readout_s": 0.0}
-    with pytest.raises(InputError, match="^" + message.replace("(", r"\(").replace(".", r"\.")):
+    with pytest.raises(InputError, match="^" + re.escape(message)):
         Rig(**{**fields, field: value})
 
 
@@ -92,3 +97,28 @@ def test_resolve_gives_level_defaults_for_a_level_rig_and_steep_ones_for_a_steep
     assert resolve(config, level.with_height(0.5).with_readout(0.03)) == on_level
     # what the config sets is kept
     assert resolve(EstimatorConfig(refinements=3), steep).refinements == 3
+
+
+@pytest.mark.parametrize(("fields", "message"), [
+    # a float count ran the first pair, then failed inside the refinement
+    ({"refinements": 1.5}, "refinements=1.5 (expected int | None)"),
+    ({"refinements": 100}, "invalid refinements=100"),
+    # a string is true: 'no' ran with vertical motion
+    ({"vertical_motion": "no"}, "vertical_motion='no' (expected bool | None)"),
+    ({"grid": (11.0, 9)}, "grid=(11.0, 9) (expected tuple[int, int])"),
+    ({"inlier_px_ipm": "2"}, "inlier_px_ipm='2' (expected float)"),
+])
+def test_a_config_field_of_the_wrong_type_is_named(fields: dict, message: str) -> None:
+    with pytest.raises(InputError, match=re.escape(message)):
+        EstimatorConfig(**fields)
+
+
+def test_numpy_scalars_are_numbers_and_resolve_names_what_it_got() -> None:
+    import numpy as np
+
+    config = EstimatorConfig(refinements=np.int64(2), vertical_motion=np.bool_(False),
+                             grid=(np.int64(5), 4), inlier_px_ipm=np.float32(2.0))
+    assert config.refinements == 2
+    with pytest.raises(InputError, match="resolve needs an EstimatorConfig and a Rig, got "
+                                         "NoneType and Rig"):
+        resolve(None, Rig(CAR.camera(), 1.5, 3.0))  # type: ignore[arg-type]

@@ -77,6 +77,18 @@ def test_bad_times_lines(tmp_path: Path) -> None:
         read_times(path)
     path.write_text("# comment\n1.5e-1\n\n2.0e-1 extra\n")
     np.testing.assert_allclose(read_times(path), [0.15, 0.2])
+    # "index time": read by the first field, every frame was 1 s after the one before
+    path.write_text("0 0.0\n1 0.1\n")
+    with pytest.raises(SourceError, match="line 1: 2 numbers on the line, which is the time"):
+        read_times(path)
+
+
+def test_a_video_without_frames_is_named_so(tmp_path: Path) -> None:
+    """A container with no frame was four rows of unreadable frames."""
+    path = tmp_path / "empty.avi"
+    _write_video(path, 0, 10.0)
+    with pytest.raises(SourceError, match=r"empty\.avi: the video has no frame OpenCV can"):
+        open_source(video=path)
 
 
 @pytest.mark.parametrize(

@@ -45,6 +45,17 @@ OPENCV_CALIBRATION_KEYS = (
 )
 
 
+def intrinsic_matrix_problem(k: NDArray) -> str | None:
+    """What is wrong with a 3×3 intrinsic matrix's fixed entries (lower triangle 0, last row
+    ``0 0 1``), else None: the estimator reads fx, fy, cx, cy alone, so any other value there
+    would go unnoticed and every pose would come out wrong."""
+    fixed = np.array([k[1, 0], k[2, 0], k[2, 1], k[2, 2] - 1.0])
+    if np.all(np.abs(fixed) <= 1e-9):
+        return None
+    return ("is not an intrinsic matrix: its second row must start with 0 and its last row "
+            f"be 0 0 1, got {k[1, 0]:g} and {k[2, 0]:g} {k[2, 1]:g} {k[2, 2]:g}")
+
+
 class CameraFileError(InputError):
     """A camera file is missing, unreadable or has a wrong field; the message names both."""
 
@@ -77,6 +88,8 @@ class CameraModel:
         object.__setattr__(self, "distortion", np.asarray(self.distortion, dtype=float).ravel())
         if k.shape != (3, 3):
             raise ValueError(f"camera matrix must be 3×3, got shape {k.shape}")
+        if (problem := intrinsic_matrix_problem(k)) is not None:
+            raise ValueError(problem)
         if not (k[0, 0] > 0 and k[1, 1] > 0):
             raise ValueError(f"focal lengths must be > 0, got fx={k[0, 0]}, fy={k[1, 1]}")
         if self.width <= 0 or self.height <= 0:
@@ -347,6 +360,12 @@ def _matrix(doc: dict, name: str, path: Path, shape: tuple[int, int] | None) -> 
 def _build(
     path: Path, k: NDArray, width: int, height: int, model: str, dist: NDArray, k_field: str
 ) -> CameraModel:
+    if not np.all(np.isfinite(k)):
+        raise CameraFileError(path, "contains non-finite values", k_field)
+    if not np.all(np.isfinite(dist)):
+        raise CameraFileError(path, "contains non-finite values", "distortion_coefficients")
+    if (problem := intrinsic_matrix_problem(k)) is not None:
+        raise CameraFileError(path, problem, k_field)
     if not (k[0, 0] > 0 and k[1, 1] > 0):
         raise CameraFileError(
             path, f"focal lengths must be > 0, got fx={k[0, 0]}, fy={k[1, 1]}", k_field

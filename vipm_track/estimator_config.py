@@ -222,6 +222,11 @@ class EstimatorConfig:
     keep_images: bool = False
 
     def __post_init__(self) -> None:
+        wrong_type = [f"{f.name}={getattr(self, f.name)!r} (expected {f.type})"
+                      for f in dataclasses.fields(self)
+                      if not _of_type(getattr(self, f.name), str(f.type))]
+        if wrong_type:
+            raise InputError("estimator config: " + ", ".join(wrong_type))
         checks = {
             "grid": len(self.grid) == 2 and min(self.grid) >= 2,
             "patch_image": self.patch_image >= 16,
@@ -231,7 +236,7 @@ class EstimatorConfig:
             "n_subsets": self.n_subsets >= 0,
             "subset_fraction": 0.0 < self.subset_fraction <= 1.0,
             "refine_subsets": self.refine_subsets >= 0,
-            "refinements": self.refinements is None or self.refinements >= 0,
+            "refinements": self.refinements is None or 0 <= self.refinements <= MAX_REFINEMENTS,
             "coarse_scale": self.coarse_scale >= 1,
             "min_inliers": self.min_inliers >= 4,
             "inlier_px_image": self.inlier_px_image > 0,
@@ -257,6 +262,39 @@ class EstimatorConfig:
             raise InputError(
                 "estimator config: invalid " + ", ".join(f"{b}={getattr(self, b)!r}" for b in bad)
             )
+
+
+#: the most virtual-IPM refinements a pair may be given (each is a full stage)
+MAX_REFINEMENTS = 10
+
+_NUMBER = (int, float, np.integer, np.floating)
+
+
+def _of_type(value: object, annotation: str) -> bool:
+    """Whether ``value`` is of a config field's type (its annotation, as written): a bool
+    where one is meant (``vertical_motion='no'`` ran as true), an integer where a count is
+    (a 1.5 refinement failed after the first pair), a number where a size is."""
+    options = [a.strip() for a in annotation.split("|")]
+    kinds = {"bool": (bool, np.bool_), "int": (int, np.integer), "float": _NUMBER}
+    if value is None:  # (a type this check does not know may hold None: RoiSpec does)
+        return "None" in options or not all(o in kinds or o.startswith("tuple[")
+                                            for o in options)
+    for option in options:
+        if option in kinds:
+            if isinstance(value, kinds[option]) and (
+                    option == "bool" or not isinstance(value, (bool, np.bool_))):
+                return True
+        elif option.startswith("tuple[int"):
+            if isinstance(value, tuple) and all(
+                    isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in value):
+                return True
+        elif option.startswith("tuple[float"):
+            if isinstance(value, tuple) and all(
+                    isinstance(v, _NUMBER) and not isinstance(v, bool) for v in value):
+                return True
+        elif option != "None":  # a type this check does not know: the field's own check
+            return True
+    return False
 
 
 def with_camera_defaults(config: EstimatorConfig, level: bool) -> EstimatorConfig:
@@ -295,4 +333,7 @@ def resolve(config: EstimatorConfig, rig: Rig) -> EstimatorConfig:
     set to the level or steep camera's default at the rig's nominal pose
     (:func:`camera_kind`, :func:`with_camera_defaults`). ``TwoFrameEstimator`` runs exactly
     this."""
+    if not isinstance(config, EstimatorConfig) or not isinstance(rig, Rig):
+        raise InputError(f"resolve needs an EstimatorConfig and a Rig, got "
+                         f"{type(config).__name__} and {type(rig).__name__}")
     return with_camera_defaults(config, camera_kind(rig)[1])

@@ -135,6 +135,20 @@ class NominalSearch:
                 f"--pitch/--roll to set it)")
 
 
+@dataclass(frozen=True)
+class NominalNotFound:
+    """No start converged on the first pairs that move: the run goes from the rig's pose,
+    which says so (``reason``: the frames tried and how each start failed)."""
+
+    reason: str
+    default_pitch_deg: float
+
+    def line(self) -> str:
+        return (f"no --pitch given and the nominal pose was not found: {self.reason}; the run "
+                f"starts from the default pitch {self.default_pitch_deg:g}° (give "
+                "--pitch/--roll: about 0-5° for a forward camera)")
+
+
 class MovingPair(NamedTuple):
     """Two consecutive frames in which the view moved: indices, prepared images, and the
     time between them [s]."""
@@ -153,7 +167,7 @@ def search_nominal_pose(
     max_frames: int = 300,
     max_failed_pairs: int = 3,
     confirm_pairs: int = 6,
-) -> NominalSearch | None:
+) -> NominalSearch | NominalNotFound | None:
     """Find a nominal pose on the first ``max_pairs`` pairs of ``source`` in which the view
     moves, within its first ``max_frames`` frames, started from ``rig`` (module doc; a drive
     that starts standing is searched from where it moves).
@@ -162,16 +176,16 @@ def search_nominal_pose(
     on up to ``confirm_pairs`` pairs from there (``_settle``): a single pair's pitch is noisy
     (±1° on KITTI's first frames), and a forward camera's pose prior pulls each cold start
     towards its nominal. None where the rig's pitch converges within
-    ``SETTLE_PITCH_DEG`` of itself on the first pair with motion (nothing to change), or where
-    no start converges on ``max_failed_pairs`` pairs (the run then goes from ``rig`` and
-    reports its failures). A pair the default start calls "no motion" although the view
-    moved is a failing pair; one that every start calls so (traffic past a standing
-    vehicle) is skipped."""
+    ``SETTLE_PITCH_DEG`` of itself on the first pair with motion (nothing to change) or where
+    no pair moves; :class:`NominalNotFound` where no start converges on ``max_failed_pairs``
+    pairs (the run then goes from ``rig``). A pair the default start calls "no motion"
+    although the view moved is a failing pair; one that every start calls so (traffic past
+    a standing vehicle) is skipped."""
     camera = rig.camera
     pairs = moving_pairs(source, camera, max_pairs, max_frames)
     # the default start alone: a forward camera fails from 60° however its pitch is stepped
     default = TwoFrameEstimator(rig, config_with(config, cold_pitch_steps_deg=()))
-    failed = 0
+    failed: list[str] = []  # each failing pair: its frames and the default start's status
     travel: TravelPitch | None = None
     for i, pair in enumerate(pairs):
         starts: list[tuple[float, PairResult]] = []
@@ -198,7 +212,7 @@ def search_nominal_pose(
                 starts, stepped = _converging_starts(rig, config, pair, stepped=True), True
             if not starts and result.status == STATUS_NO_MOTION:
                 continue  # nothing moved in any start's view either: traffic past a standing car
-            failed += 1
+            failed.append(f"{pair.frames[0]}-{pair.frames[1]} ({result.status})")
             found = starts[0] if starts else None
         if found is not None:
             settled_on = pairs[i:i + confirm_pairs]
@@ -214,9 +228,14 @@ def search_nominal_pose(
                     if not retry.undetermined:
                         return retry
             return search
-        if failed >= max_failed_pairs:
+        if len(failed) >= max_failed_pairs:
             break
-    return None
+    if not failed:
+        return None
+    return NominalNotFound(
+        f"no cold start (from {rig.pitch_deg:g}°, the other starts"
+        f"{'' if travel is None or travel.determined else ', the direction of travel'}) "
+        f"converged on the pairs of frames {', '.join(failed)}", rig.pitch_deg)
 
 
 def travel_pitch_over(source: FrameSource, camera: CameraModel, max_frames: int,

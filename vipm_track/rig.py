@@ -30,6 +30,9 @@ PITCH_RANGE_DEG = (-10.0, 90.0)
 #: the largest pitch or roll of a camera against the ground [deg]: straight down, or on its
 #: side (a pitch of 450° is a typing error, not a camera)
 MAX_ANGLE_DEG = 90.0
+#: the longest rolling-shutter readout [s]: a frame read over more than a second is no
+#: video camera's
+MAX_READOUT_S = 1.0
 
 
 def plausible_angle(deg: float) -> bool:
@@ -60,6 +63,9 @@ class Rig:
     readout_s: float = 0.0
 
     def __post_init__(self) -> None:
+        if not isinstance(self.camera, CameraModel):
+            raise InputError(f"rig: camera must be a CameraModel (camera.load_camera(PATH)), "
+                             f"got {self.camera!r:.80}")
         checks = (
             ("height_m", _finite(self.height_m) and self.height_m > 0,
              "must be a positive number of metres"),
@@ -67,8 +73,8 @@ class Rig:
              f"must be a number of degrees within ±{MAX_ANGLE_DEG:g}"),
             ("roll_deg", plausible_angle(self.roll_deg),
              f"must be a number of degrees within ±{MAX_ANGLE_DEG:g}"),
-            ("readout_s", _finite(self.readout_s) and self.readout_s >= 0,
-             "must be a number of seconds >= 0"),
+            ("readout_s", _finite(self.readout_s) and 0 <= self.readout_s <= MAX_READOUT_S,
+             f"must be a number of seconds in [0, {MAX_READOUT_S:g}]"),
         )
         for name, ok, why in checks:
             if not ok:

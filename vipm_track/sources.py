@@ -209,8 +209,15 @@ def read_times(path: str | Path, expected: int | None = None) -> NDArray[np.floa
         text = line.split("#", 1)[0].strip()
         if not text:
             continue
+        fields = text.split()
+        if any(_is_number(f) for f in fields[1:]):
+            # "index time" lines read by their first field timed every frame 1 s apart; a
+            # note after the time (a file name) is no second candidate
+            raise SourceError(f"{path}: line {lineno}: {len(fields)} numbers on the line, "
+                              f"which is the time? One timestamp in seconds per line: "
+                              f"'{printable(text, 60)}'")
         try:
-            value = float(text.split()[0])
+            value = float(fields[0])
         except ValueError as exc:
             raise SourceError(
                 f"{path}: line {lineno}: not a timestamp in seconds: '{printable(text, 60)}'"
@@ -230,6 +237,14 @@ def read_times(path: str | Path, expected: int | None = None) -> NDArray[np.floa
             "times.txt needs one line per image"
         )
     return np.asarray(values, dtype=np.float64)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 _SAID: set[str] = set()
@@ -332,6 +347,9 @@ class VideoSource(FrameSource):
         try:
             self.container_fps = float(capture.get(cv2.CAP_PROP_FPS) or 0.0)
             count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+            # a container without frames read as rows of unreadable frames
+            if not capture.grab():
+                raise SourceError(f"{self.path}: the video has no frame OpenCV can read")
         finally:
             capture.release()
         self.fps = fps

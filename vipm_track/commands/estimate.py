@@ -63,15 +63,20 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..runs import estimate_sequence
     from ..sources import open_source
-    from .inputs import warn_given_pitch, warn_readout_stake, with_searched_setup
+    from .inputs import (
+        CAMERA_NOT_FOUND,
+        load_frames_camera,
+        warn_given_pitch,
+        warn_readout_stake,
+        with_searched_setup,
+    )
 
     out = check_output(args.out, args.parquet)
     columns = choose_columns(ESTIMATE_TABLE, args.columns)
     check_rerun_output(args)
     check_images_folder(args)
     if not args.camera and not args.bag:
-        raise InputError("--camera not given and no camera.yaml or calib.txt beside the "
-                         "images (or a --video): give --camera CAMERA.yaml")
+        raise InputError(CAMERA_NOT_FOUND)
     height = check_height(args.height)
     if args.bag:
         from ..bag_source import BagSource, read_bag_camera
@@ -79,9 +84,7 @@ def run(args: argparse.Namespace) -> int:
         camera = (load_camera(args.camera) if args.camera
                   else read_bag_camera(args.bag, args.camera_info_topic))
     else:
-        from ..sources import first_frame_size
-
-        camera = load_camera(args.camera, first_frame_size(args.images, args.video))
+        camera = load_frames_camera(args.camera, args.images, args.video)
     # bad options are named before the input is read
     config, rig = build_config(args, camera), build_rig(args, camera, height)
     if args.bag:

@@ -15,8 +15,8 @@ from numpy.typing import NDArray
 
 from ..camera import CameraModel
 from ..errors import InputError
-from ..estimator_config import REFINEMENT_WEIGHTING
-from ..rig import DEFAULT_PITCH_DEG, PITCH_RANGE_DEG, Rig
+from ..estimator_config import MAX_REFINEMENTS, REFINEMENT_WEIGHTING
+from ..rig import DEFAULT_PITCH_DEG, MAX_READOUT_S, PITCH_RANGE_DEG, Rig
 from ..text_files import read_text
 from .common import seconds_or_auto
 from .option_types import whole_number
@@ -32,9 +32,37 @@ REFINEMENT_WEIGHTS: dict[str, dict[str, object]] = {
 REFINEMENT_RESOLUTION: dict[str, int] = {"full": 0, "half": 1}
 
 
+#: dest → option of every estimator and parallel option, with its default: with
+#: ``--estimates`` none of them is used (:func:`check_no_estimating_options`)
+ESTIMATING_OPTIONS: dict[str, tuple[str, Any]] = {}
+
+
+class _Recorded:
+    """An argument group whose options are recorded in :data:`ESTIMATING_OPTIONS`."""
+
+    def __init__(self, group: argparse._ArgumentGroup) -> None:
+        self._group = group
+
+    def add_argument(self, *flags: str, **kwargs: Any) -> argparse.Action:
+        action = self._group.add_argument(*flags, **kwargs)
+        ESTIMATING_OPTIONS[action.dest] = (action.option_strings[0], action.default)
+        return action
+
+
+def check_no_estimating_options(args: argparse.Namespace) -> None:
+    """InputError naming the estimator options given with ``--estimates``: the table's rows
+    are taken as they are, and a ``--max-roll 1`` meant to drop rows did nothing, silently."""
+    given = [flag for dest, (flag, default) in ESTIMATING_OPTIONS.items()
+             if getattr(args, dest, default) != default]
+    if given:
+        raise InputError(f"{', '.join(given)}: estimator options, for --images/--video; "
+                         "with --estimates the table's rows are taken as they are (drop "
+                         f"{'them' if len(given) > 1 else 'it'}, or estimate again)")
+
+
 def add_estimator_options(parser: argparse.ArgumentParser) -> None:
     """Estimator options shared by ``estimate``, ``demo`` and the benchmarks."""
-    group = parser.add_argument_group("estimator")
+    group = _Recorded(parser.add_argument_group("estimator"))
     group.add_argument("--roi", metavar="x0,y0,x1,y1|FILE",
                        help="where the ground is: a pixel rectangle x0,y0,x1,y1, a polygon "
                        "file (x y per line) or a mask image (non-zero = ground); "
@@ -109,7 +137,7 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
 
 def add_parallel_options(parser: argparse.ArgumentParser) -> None:
     """``--workers``, ``--chunk-frames``: a long recording estimated in parallel chunks."""
-    group = parser.add_argument_group("parallel (long recordings)")
+    group = _Recorded(parser.add_argument_group("parallel (long recordings)"))
     group.add_argument("--workers", type=int, default=1, metavar="N",
                        help="processes that estimate chunks of the recording in parallel "
                        "(default 1: one sequential run); results depend on --chunk-frames, "
@@ -153,8 +181,9 @@ def build_config(args: argparse.Namespace, camera: CameraModel):
     from ..pipeline import config_with
 
     grid = parse_grid(args.grid) if args.grid else None
-    if args.refinements is not None and not 0 <= args.refinements <= 10:
-        raise InputError(f"--refinements must be between 0 and 10, got {args.refinements}")
+    if args.refinements is not None and not 0 <= args.refinements <= MAX_REFINEMENTS:
+        raise InputError(f"--refinements must be between 0 and {MAX_REFINEMENTS}, got "
+                         f"{args.refinements}")
     if args.patch_size is not None and (args.patch_size < 32 or args.patch_size % 16):
         raise InputError(f"--patch-size must be a multiple of 16, >= 32, got {args.patch_size}")
     max_roll = _angle(getattr(args, "max_roll", None), "--max-roll", 0.1, 90.0)
@@ -197,8 +226,9 @@ def build_rig(
     readout = getattr(args, "readout_time", None)
     if readout is None or readout == "auto":
         readout = 0.0
-    if not (math.isfinite(readout) and 0 <= readout <= 1):
-        raise InputError(f"--readout-time must be in [0, 1] seconds, got {readout}")
+    if not (math.isfinite(readout) and 0 <= readout <= MAX_READOUT_S):
+        raise InputError(f"--readout-time must be in [0, {MAX_READOUT_S:g}] seconds, got "
+                         f"{readout}")
     return Rig(camera, height,
                next(p for p in (pitch, pitch_deg, DEFAULT_PITCH_DEG) if p is not None),
                next(r for r in (roll, roll_deg, 0.0) if r is not None), float(readout))

@@ -119,6 +119,7 @@ def speed_on_camera_clock(
     if getattr(args, "clock_offset", 0.0) != "auto":
         check_speed_overlap(speed, [m.t for m in measurements], strict=True)
         warn_speed_sign(speed, measurements)
+        warn_speed_fit(speed, measurements)
         return speed, None
     from vipm_track.filters.clock_offset import estimate_clock_offset
 
@@ -130,7 +131,18 @@ def speed_on_camera_clock(
               file=sys.stderr)
     shifted = speed.shifted(fit.offset_s)
     warn_speed_sign(shifted, measurements)
+    warn_speed_fit(shifted, measurements)
     return shifted, fit
+
+
+def warn_speed_fit(speed: SpeedSeries, measurements: list[PairMeasurement]) -> None:
+    """Warn (stderr, ``--quiet`` or not) where the wheel speed does not fit the pairs' travel:
+    the height it implies, its clock (``filters.speed_check``). The filters' gates would
+    reject its pairs one by one and keep a confident height."""
+    from vipm_track.filters.speed_check import speed_fit_notes
+
+    for note in speed_fit_notes(measurements, speed):
+        print(f"vipm-track: warning: {note}", file=sys.stderr)
 
 
 def warn_speed_sign(speed: SpeedSeries, measurements: list[PairMeasurement]) -> None:
@@ -220,10 +232,13 @@ def with_searched_nominal(
     does not determine the pose, ``config`` says so (``nominal_undetermined``); unchanged
     otherwise. Says so on stderr unless ``--quiet``. Call it only where the user gave no
     ``--pitch`` (nor a nominal calibration)."""
-    from ..nominal_search import search_nominal_pose
+    from ..nominal_search import NominalNotFound, search_nominal_pose
 
     found = search_nominal_pose(source, rig, config)
     if found is None:
+        return rig, config
+    if isinstance(found, NominalNotFound):  # said --quiet or not: every pair may fail
+        print(f"vipm-track: warning: {found.line()}", file=sys.stderr)
         return rig, config
     if not found.determined:
         print(f"vipm-track: warning: {found.line()}", file=sys.stderr)
@@ -245,12 +260,62 @@ def with_searched_setup(
     ``search_pose`` (no ``--pitch``: :func:`with_searched_nominal`) and the rolling shutter's
     readout (:func:`with_searched_readout`, from that nominal pose); where both were searched
     and the readout found is not the rig's, the nominal pose is searched again under it."""
+    check_readout_within_frames(source, rig)
     searched = with_searched_nominal(args, source, rig, config) if search_pose else (rig, config)
     with_readout = with_searched_readout(args, source, *searched)
     unchanged = searched[0] is rig and searched[1] is config
     if unchanged or with_readout.readout_s == searched[0].readout_s:
         return with_readout, searched[1]
     return with_searched_nominal(args, source, rig.with_readout(with_readout.readout_s), config)
+
+
+#: the message where neither --camera nor a camera file beside the images is there
+CAMERA_NOT_FOUND = ("--camera not given: give --camera CAMERA.yaml (a camera.yaml or calib.txt "
+                    "is found beside --images, not beside a --video)")
+
+
+def load_frames_camera(path: str, images: str | None, video: str | None) -> CameraModel:
+    """The camera file at ``path`` for the frames of ``images`` or ``video`` (a KITTI
+    calib.txt takes their size); InputError naming the file where its image size is not
+    theirs (said at the first frame before, without naming the camera file)."""
+    from ..sources import first_frame_size
+
+    size = first_frame_size(images, video)
+    camera = load_camera(path, size)
+    if size is not None and size != (camera.width, camera.height):
+        raise InputError(f"{path}: the camera is {camera.width}×{camera.height} px but the "
+                         f"frames of {images or video} are {size[0]}×{size[1]} px: is it "
+                         "their camera?")
+    off = (abs(camera.cx / camera.width - 0.5), abs(camera.cy / camera.height - 0.5))
+    if max(off) > OFF_CENTRE_WARNING:
+        # a KITTI calib.txt has no size to refuse: another camera's file on these frames
+        # gave `ok` rows 4-7° off at σ 0.007°
+        print(f"vipm-track: warning: {path}: the principal point ({camera.cx:g}, "
+              f"{camera.cy:g}) lies {100 * max(off):.0f} % of the image from the centre of "
+              f"the {camera.width}×{camera.height} frames: is it their camera?",
+              file=sys.stderr)
+    return camera
+
+
+#: a principal point further than this share of the image's width or height from its centre
+#: is questioned (calibrated lenses: a few per cent; a cropped image's may be more)
+OFF_CENTRE_WARNING = 0.2
+
+
+def check_readout_within_frames(source: FrameSource, rig: Rig) -> None:
+    """InputError where the rig's rolling-shutter readout is longer than the recording's
+    first frame interval: a sensor reads a frame out within its interval, and every pair
+    of such a run "did not converge" without saying why."""
+    if not rig.readout_s:
+        return
+    try:
+        times = [frame.t for frame in source.frames(0, 2)]
+    except NotImplementedError:  # a stream: its frames are read once, by the run
+        return
+    if len(times) == 2 and 0 < times[1] - times[0] < rig.readout_s:
+        raise InputError(f"--readout-time {rig.readout_s:g} s is longer than the frame "
+                         f"interval of {source.description} ({times[1] - times[0]:g} s between "
+                         "its first two frames): a rolling shutter reads a frame out within it")
 
 
 #: a given nominal pitch this far from the direction of travel's (beyond 3 of its standard
@@ -342,17 +407,16 @@ def estimate_stream(
     the caller's nominal and is not searched. The options are checked and the source opened
     here, before the first measurement is asked for (so a bad option stops the command
     before it writes anything)."""
-    from ..sources import first_frame_size, open_source
+    from ..sources import open_source
     from .estimator_options import parallel_settings
 
     check_images_folder(args)
     if not args.camera:
-        raise InputError("--images/--video need --camera CAMERA.yaml (none found beside the "
-                         "images)")
+        raise InputError(CAMERA_NOT_FOUND)
     parallel = parallel_settings(args)
     search_pose = rig is None and getattr(args, "pitch", None) is None
     if rig is None or config is None:
-        camera = load_camera(args.camera, first_frame_size(args.images, args.video))
+        camera = load_frames_camera(args.camera, args.images, args.video)
         built_rig, built_config = estimator_setup(args, camera, height)
         rig, config = rig or built_rig, config or built_config
     frame_window([], int, getattr(args, "start", 0), getattr(args, "max_frames", None))
@@ -413,6 +477,9 @@ def measurements_from_args(
     if len(given) != 1:
         raise InputError(ONE_INPUT + (f" (got --{' --'.join(given)})" if given else ""))
     if args.estimates:
+        from .estimator_options import check_no_estimating_options
+
+        check_no_estimating_options(args)
         args.input_notes = []
         measurements = read_estimates(args.estimates, args.input_notes)
         measurements = frame_window(measurements, lambda m: m.frame,

@@ -22,7 +22,7 @@ from .common import (
 )
 from .estimator_options import add_estimator_options
 from .inputs import estimator_setup, load_speed
-from .monitor import add_monitor_test_options
+from .monitor import add_monitor_test_options, check_monitor_test_options
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -89,12 +89,11 @@ def run(args: argparse.Namespace) -> int:
     if args.events:
         check_writable(args.events, "--events")
     check_rerun_output(args)
-    for name in ("camera_timeout", "speed_timeout", "false_alarms_per_hour", "road_tau"):
+    for name in ("camera_timeout", "speed_timeout"):
         value = getattr(args, name)
         if not (math.isfinite(value) and value > 0):
             raise InputError(f"--{name.replace('_', '-')} must be > 0, got {value}")
-    if not (math.isfinite(args.road_std) and args.road_std >= 0):
-        raise InputError(f"--road-std must be >= 0 degrees, got {args.road_std}")
+    check_monitor_test_options(args)
     if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
         raise InputError(f"--fps must be a positive number of frames per second, got {args.fps}")
     if args.duration is not None and not args.duration > 0:

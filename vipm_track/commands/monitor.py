@@ -77,6 +77,24 @@ def add_monitor_test_options(parser: argparse.ArgumentParser) -> None:
                         help="time constant of that tilt (default 2)")
 
 
+#: the largest slow road tilt and time constant the drift test takes [deg, s]: beyond them
+#: no road tilts, and --road-std 1e200 overflowed into a CALIBRATED verdict
+MAX_ROAD_STD_DEG = 10.0
+MAX_ROAD_TAU_S = 3600.0
+
+
+def check_monitor_test_options(args: argparse.Namespace) -> None:
+    """InputError naming the first of :func:`add_monitor_test_options`' values out of range."""
+    if not (math.isfinite(args.false_alarms_per_hour) and args.false_alarms_per_hour > 0):
+        raise InputError(f"--false-alarms-per-hour must be > 0, got {args.false_alarms_per_hour}")
+    if not (math.isfinite(args.road_std) and 0 <= args.road_std <= MAX_ROAD_STD_DEG):
+        raise InputError(f"--road-std must be in [0, {MAX_ROAD_STD_DEG:g}] degrees, got "
+                         f"{args.road_std}")
+    if not (math.isfinite(args.road_tau) and 0 < args.road_tau <= MAX_ROAD_TAU_S):
+        raise InputError(f"--road-tau must be in (0, {MAX_ROAD_TAU_S:g}] seconds, got "
+                         f"{args.road_tau}")
+
+
 def run(args: argparse.Namespace) -> int:
     from vipm_track.filters.ekf_state import EkfConfig
     from vipm_track.filters.monitor_inputs import frame_rate, monitor_frames
@@ -94,12 +112,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.nominal}: not a text file (undecodable byte at offset "
                          f"{exc.start}); a nominal calibration is YAML") from None
     height = check_height(nominal_height(args.height, nominal.height_m, args.nominal))
-    if not (math.isfinite(args.false_alarms_per_hour) and args.false_alarms_per_hour > 0):
-        raise InputError(f"--false-alarms-per-hour must be > 0, got {args.false_alarms_per_hour}")
-    if not (math.isfinite(args.road_std) and args.road_std >= 0):
-        raise InputError(f"--road-std must be >= 0 degrees, got {args.road_std}")
-    if not (math.isfinite(args.road_tau) and args.road_tau > 0):
-        raise InputError(f"--road-tau must be > 0 seconds, got {args.road_tau}")
+    check_monitor_test_options(args)
     # the camera is needed only to estimate from images (inputs.estimate_stream says so)
     camera = load_camera(args.camera) if args.camera else None
     speed = load_speed(args)

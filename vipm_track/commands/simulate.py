@@ -8,6 +8,7 @@ import sys
 import numpy as np
 
 from ..errors import InputError
+from ..measurement import MAX_SPEED_MPS
 from ..render import Effects
 from ..rig import MAX_ANGLE_DEG
 from ..sim import PRESETS, PROFILES, clear_earlier_run, make_trajectory, simulate_sequence
@@ -38,8 +39,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="ground texture (default: the preset's); corridor = weak texture")
     p.add_argument("--fps", type=number(0, above=True), default=None,
                    help="frame rate [Hz] (default: preset)")
-    p.add_argument("--speed", type=number(0), default=None,
-                   help="speed [m/s], >= 0 (default: preset)")
+    p.add_argument("--speed", type=number(0, MAX_SPEED_MPS), default=None,
+                   help=f"speed [m/s], 0 to {MAX_SPEED_MPS:g} (default: preset)")
     p.add_argument("--amplitude", type=number(0), default=1.0,
                    help="scale of the profile's pose changes / turn rate, >= 0 (default 1)")
     p.add_argument("--traffic", choices=LEVELS, nargs="?", const="mix", default=None,

@@ -146,23 +146,27 @@ def build_config(args: argparse.Namespace):
     if not 0.5 < args.loss_probability < 1.0:
         raise InputError(f"--loss-probability must be in (0.5, 1), got {args.loss_probability}")
     noise = NoiseParams.for_preset(args.vehicle)
-    # (option, NoiseParams field, value, zero allowed)
+    # (option, NoiseParams field, value, zero allowed, the largest a vehicle could need: beyond
+    # it the solver's information underflows and it failed with a traceback, not an answer)
     options = [
-        ("--mount-angle-rw", "mount_angle_rw_deg_per_sqrt_s", args.mount_angle_rw, False),
-        ("--mount-height-rw", "mount_height_rw_m_per_sqrt_s", args.mount_height_rw, False),
-        ("--body-tau", "body_tau_s", args.body_tau, False),
-        ("--body-std", "body_std_deg", args.body_std, False),
-        ("--lever-arm-std", "lever_arm_std_m", args.lever_arm_std, True),
+        ("--mount-angle-rw", "mount_angle_rw_deg_per_sqrt_s", args.mount_angle_rw, False, 10.0),
+        ("--mount-height-rw", "mount_height_rw_m_per_sqrt_s", args.mount_height_rw, False, 1.0),
+        ("--body-tau", "body_tau_s", args.body_tau, False, 3600.0),
+        ("--body-std", "body_std_deg", args.body_std, False, 45.0),
+        ("--lever-arm-std", "lever_arm_std_m", args.lever_arm_std, True, 100.0),
     ]
-    for flag, _, value, zero_ok in options:
+    for flag, _, value, zero_ok, most in options:
         if value is None:
             continue
-        if not (math.isfinite(value) and (value > 0 or (zero_ok and value == 0))):
-            what = "a number >= 0" if zero_ok else "a positive number"
-            raise InputError(f"{flag} must be {what}, got {value}")
-    noise = replace(noise, **{field: v for _, field, v, _ in options if v is not None})
-    if not (math.isfinite(args.body_window) and args.body_window >= 0):
-        raise InputError(f"--body-window must be a number >= 0, got {args.body_window}")
+        if not (math.isfinite(value) and (value > 0 or (zero_ok and value == 0))
+                and value <= most):
+            what = "a number in [0, " if zero_ok else "a positive number up to "
+            raise InputError(f"{flag} must be {what}{most:g}{']' if zero_ok else ''}, got "
+                             f"{value}")
+    noise = replace(noise, **{field: v for _, field, v, _, _ in options if v is not None})
+    if not (math.isfinite(args.body_window) and 0 <= args.body_window <= 3600):
+        raise InputError(f"--body-window must be a number of seconds in [0, 3600], got "
+                         f"{args.body_window}")
     return SmootherConfig(
         height_m=height,
         noise=noise,
@@ -216,10 +220,12 @@ def run(args: argparse.Namespace) -> int:
                     writer.write(row)
                     frames.append(f)
                     rows.append(row)
-            except KeyboardInterrupt:
+            except KeyboardInterrupt as stop:
                 # from here on a second Ctrl-C would cut the rest of the table and the summary
                 held.enter_context(interrupts_held())
                 interrupted = _write_interrupted(writer, measurements, frames, rows)
+                if str(stop):  # the batch's estimate kept, without its σ
+                    interrupted = f"{interrupted}; {stop}"
         if sink is not None:
             log_filter_run(sink, measurements, rows, "smoothed")
             sink.finish()
@@ -273,6 +279,8 @@ def _write_interrupted(writer, measurements, frames: list, rows: list[dict]) -> 
         row["status"] = NOT_SMOOTHED
         writer.write(row)
         rows.append(row)
+    if done == len(measurements):
+        return f"interrupted: all {done} frames smoothed"
     return (f"interrupted: {done} of {len(measurements)} frames smoothed, the rest written "
             f"with status '{NOT_SMOOTHED}'")
 

@@ -23,7 +23,11 @@ from .common import (
     check_rerun_output,
     frame_window,
 )
-from .estimator_options import add_estimator_options, add_parallel_options
+from .estimator_options import (
+    add_estimator_options,
+    add_parallel_options,
+    check_no_estimating_options,
+)
 from .inputs import (
     check_speed_overlap,
     estimate_stream,
@@ -88,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
     elif args.estimates:
         if args.images or args.video:
             raise InputError("give --estimates or --images/--video, not both")
+        check_no_estimating_options(args)
         measurements = frame_window(read_estimates(args.estimates),
                                     lambda m: m.frame, args.start, args.max_frames,
                                     args.estimates)

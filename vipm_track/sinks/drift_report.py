@@ -201,7 +201,8 @@ def write_html(markdown: str, out: Path, path: Path) -> Path:
     with the images embedded as data URIs: a single file to mail or attach."""
     from markdown_it import MarkdownIt
 
-    body = MarkdownIt("commonmark").enable("table").render(markdown)
+    # raw HTML off: a title, a file or a drive name with markup in it is shown as text
+    body = MarkdownIt("commonmark", {"html": False}).enable("table").render(markdown)
 
     def embed(match: re.Match) -> str:
         image = out / html.unescape(match.group(1))
