@@ -321,14 +321,6 @@ def test_report_gt_through_the_cli(cart: Path, tmp_path: Path) -> None:
     assert float(cells[7]) == pytest.approx(err.max(), abs=5.1e-5)
 
 
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
 # --- packaging -------------------------------------------------------------------------------
 
 

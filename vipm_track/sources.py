@@ -240,6 +240,7 @@ def read_times(path: str | Path, expected: int | None = None) -> NDArray[np.floa
 
 
 def _is_number(text: str) -> bool:
+    """Whether ``text`` reads as a float."""
     try:
         float(text)
     except ValueError:
