@@ -18,6 +18,7 @@ from .mount_change import short_drive_note
 from .mount_steps import (
     StepTestConfig,
     mount_steps,
+    pairs_steps,
     trend_statistic,
     untested_drive_note,
     usable_angles,
@@ -213,12 +214,9 @@ def _unfollowed_step_note(measurements: Sequence[PairMeasurement],
     test; each step into ``summary["pairs_steps"]``) and the smoothed mount did not step with
     it: a fixed-lag smoother's mount follows a small knock over tens of seconds, so its mean
     and interval held neither mount (45.4 [45.26, 45.57] for 45° then 46°, no warning)."""
-    t, angles = usable_angles(measurements)
-    found = [(s.onset_s, name, s.step) for i, name in enumerate(("pitch", "roll"))
-             for s in mount_steps(t, angles[:, i])]
+    found = pairs_steps(*usable_angles(measurements))
     if not found:
         return ""
-    found.sort()
     summary["pairs_steps"] = [{"t": at, "axis": name, "step_deg": math.degrees(step)}
                               for at, name, step in found]
     said = ", ".join(f"{name} stepped {math.degrees(step):+.2f}° at {at:.2f} s"

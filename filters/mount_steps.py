@@ -178,6 +178,14 @@ def _best_split(x: FloatArray, t: FloatArray, cfg: StepTestConfig) -> MountStep 
     return MountStep(float(t[k + 1]), statistic, float(x[k + 1:b].mean() - x[a:k + 1].mean()))
 
 
+def pairs_steps(t: FloatArray, angles: FloatArray, cfg: StepTestConfig | None = None,
+                ) -> list[tuple[float, str, float]]:
+    """(onset [s], ``pitch`` or ``roll``, step [rad]) of each step :func:`mount_steps` finds
+    in the usable pairs' pitch and roll (``t`` [s], ``angles`` (n, 2) [rad]), in time order."""
+    return sorted((s.onset_s, name, s.step) for i, name in enumerate(("pitch", "roll"))
+                  for s in mount_steps(t, angles[:, i], cfg))
+
+
 def usable_angles(ms: Sequence[PairMeasurement]) -> tuple[FloatArray, FloatArray]:
     """Times [s] and (n, 2) angles of their current frame (pitch, roll; rad) of the usable
     pairs: the series the step and drift tests look at."""

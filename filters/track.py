@@ -107,10 +107,13 @@ def track(
     measurements: Iterable[PairMeasurement],
     speed_series: SpeedSource | None = None,
     config: EkfConfig | None = None,
+    ekf: ExtrinsicsEKF | None = None,
 ) -> Iterator[tuple[FilterState, PairMeasurement, float | None]]:
     """Filter a stream of measurements (one per frame), yielding (state, measurement, speed
-    applied) per frame; speeds are taken from ``speed_series`` (camera clock) at frame times."""
-    ekf = ExtrinsicsEKF(config, speed_series=speed_series)
+    applied) per frame; speeds are taken from ``speed_series`` (camera clock) at frame times.
+    ``ekf``: the filter to run (its ``mount_changes`` are then the caller's to read), else
+    one made from ``config``."""
+    ekf = ekf or ExtrinsicsEKF(config, speed_series=speed_series)
     for m in measurements:
         v = None
         if speed_series is not None:

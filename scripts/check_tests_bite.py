@@ -459,6 +459,13 @@ MUTANTS: tuple[Mutant, ...] = (
            "    if given:\n        raise InputError(",
            "    if given and False:\n        raise InputError(",
            ("tests/test_option_checks.py",)),
+    Mutant("track-unfollowed-step-silent", "ekf",
+           "a knock the EKF's change test missed goes without a word",
+           "filters/mount_change.py",
+           "    if not missed:\n        return \"\"",
+           "    if True:\n        return \"\"",
+           ("tests/test_ekf.py::"
+            "test_track_warns_of_a_step_its_mount_change_test_did_not_find",)),
 )
 
 

@@ -64,10 +64,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from vipm_track.filters.ekf import ExtrinsicsEKF
     from vipm_track.filters.ekf_state import EkfConfig
     from vipm_track.filters.forward_slow import slow_share_note
     from vipm_track.filters.model import NoiseParams
-    from vipm_track.filters.mount_change import short_drive_note
+    from vipm_track.filters.mount_change import short_drive_note, unfollowed_steps_note
     from vipm_track.filters.track import TRACK_TABLE, track, write_track
 
     out = check_output(args.out, args.parquet)
@@ -108,7 +109,8 @@ def run(args: argparse.Namespace) -> int:
     frame_times: list[float] = []
     usable = _Usable()
     stream = _noting_times(stream, frame_times, usable)
-    steps = log_track_steps(sink, track(stream, speed, config))
+    ekf = ExtrinsicsEKF(config, speed_series=speed)
+    steps = log_track_steps(sink, track(stream, speed, config, ekf))
     if not args.quiet:
         from ..progress import progress_bar
 
@@ -122,7 +124,10 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
     times = [t for t in frame_times if math.isfinite(t)]
     for note in (short_drive_note(times[-1] - times[0]) if len(times) > 1 else "",
-                 slow_share_note(np.array(usable.pitch_deg), np.array(usable.slow))):
+                 slow_share_note(np.array(usable.pitch_deg), np.array(usable.slow)),
+                 unfollowed_steps_note(np.array(usable.t), np.radians(np.column_stack(
+                     [usable.pitch_deg, usable.roll_deg]).reshape(-1, 2)),
+                     ekf.mount_changes)):
         if note:  # said under --quiet too: the mount intervals do not cover it
             print(f"vipm-track track: warning: {note}", file=sys.stderr)
     source = args.estimates or args.images or args.video
@@ -143,11 +148,13 @@ def run(args: argparse.Namespace) -> int:
 
 @dataclass
 class _Usable:
-    """The usable pairs seen: each one's pitch [deg] and whether it was slow
-    (``forward_slow``)."""
+    """The usable pairs seen: each one's pitch [deg], whether it was slow
+    (``forward_slow``), its time [s] and roll [deg]."""
 
     pitch_deg: list[float] = field(default_factory=list)
     slow: list[bool] = field(default_factory=list)
+    t: list[float] = field(default_factory=list)
+    roll_deg: list[float] = field(default_factory=list)
 
 
 def _noting_times(stream: Iterator[PairMeasurement], times: list[float], usable: _Usable,
@@ -159,6 +166,8 @@ def _noting_times(stream: Iterator[PairMeasurement], times: list[float], usable:
     for m in stream:
         times.append(m.t)
         if m.ok:
+            usable.t.append(m.t)
+            usable.roll_deg.append(math.degrees(m.z[3]))
             usable.pitch_deg.append(math.degrees(m.z[2]))
             usable.slow.append(bool(slow_pairs(m.z[None, :], np.array([m.height_assumed]))[0]))
         yield m
