@@ -90,6 +90,7 @@ class DriftMonitor:
         self._estimate_from = math.nan  # time of the first frame behind the last _estimate (s)
         self._alarm_t = math.nan  # when RECALIBRATE was entered (s)
         self._hold_event: dict[str, Any] | None = None  # a HOLD not yet long enough to report
+        self._announced_off: set[int] = set()  # axes RECALIBRATE's events have read off
         self._change_at: int | None = None
         # used-frame count just before the last step found of the change under way (None:
         # none): the frames behind the new extrinsics start there at the earliest
@@ -147,6 +148,11 @@ class DriftMonitor:
             estimate, interval = self._estimate(start)
         reason = self._reason(code, base, inp, stat, estimate, interval)
         event = self._debounced_event(inp, state, reason, estimate, interval)
+        off = self._axes_off(interval) if state == "RECALIBRATE" else set()
+        if event is None and off - self._announced_off and self._reported == "RECALIBRATE":
+            # held RECALIBRATE, and another axis now reads off too: said, not only tabled
+            event = self._event(inp, state, reason, estimate, interval)
+        self._announced_off = off | (self._announced_off if state == "RECALIBRATE" else set())
         self._state = state
         return MonitorOutput(
             frame=inp.frame, t=float(inp.t), state=state, reason=reason, statistic=stat,
@@ -311,6 +317,12 @@ class DriftMonitor:
                            if back else ""))
             text = (f"{AXES[j]} changed: {_fmt_dev(j, dev)} from nominal (median {over}"
                     f"{span}), beyond the tolerance {tol}: the test crossed its threshold")
+            for k in sorted(self._axes_off(interval) - {j}):
+                # a second change while the first is held (a knock after a height change)
+                lo, hi = interval[k] - core.nominal_values[k]  # type: ignore[index]
+                text += (f"; {AXES[k]} reads off too: 95 % {_fmt_dev(k, lo)} … "
+                         f"{_fmt_dev(k, hi)}, beyond its tolerance "
+                         f"{_fmt_dev(k, core.nominal.tolerances[k], sign=False)}")
             recent = float(core.s.ema[0, j])
             if abs(recent) <= core.nominal.tolerances[j]:
                 # latched: the camera may have been set back (or knocked back) since
@@ -323,6 +335,17 @@ class DriftMonitor:
         return (f"{AXES[j]} drifting: the test stands at {stat[j]:.0%} of its threshold "
                 f"(DRIFTING from {self.config.warn_enter:.0%}); median deviation {over} "
                 f"{_fmt_dev(j, dev)}, tolerance {tol}")
+
+    def _axes_off(self, interval: FloatArray | None) -> set[int]:
+        """Axes whose new extrinsics' 95 % ``interval`` lies wholly beyond the nominal's
+        tolerance (none without an interval)."""
+        if interval is None:
+            return set()
+        dev = interval - self.core.nominal_values[:, None]
+        tol = np.asarray(self.core.nominal.tolerances, dtype=float)
+        with np.errstate(invalid="ignore"):
+            beyond = (dev[:, 0] > tol) | (dev[:, 1] < -tol)
+        return {int(k) for k in np.flatnonzero(beyond)}
 
     @property
     def _half_second(self) -> int:

@@ -766,3 +766,29 @@ def test_an_interval_beyond_the_bound_is_said_to_be_beyond_it(tmp_path, capsys):
             assert words == ("lies beyond" if beyond else "is not shown within"), reason
             said["beyond" if beyond else "within"] += 1
     assert said["beyond"] >= 1, said
+
+
+def test_a_second_change_while_recalibrate_is_held_is_said(tmp_path):
+    """The knocked cart (pitch +1° at 7.2 s) against a nominal 3 cm too high: RECALIBRATE for
+    the height at once, and the knock then showed only in the new-pitch columns — no event,
+    and every reason spoke of the height alone."""
+    import json
+
+    from vipm_track.cli import main
+    from vipm_track.table import read_table
+
+    nominal = tmp_path / "nominal.yaml"
+    nominal.write_text("pitch_deg: 45.0\nroll_deg: 0.0\nheight_m: 0.73\ntolerances:\n"
+                       "  pitch_deg: 0.2\n  roll_deg: 0.2\n  height_m: 0.005\n")
+    out, events = tmp_path / "m.csv", tmp_path / "e.jsonl"
+    assert main(["monitor", "--estimates", str(DATA / "knock_cart_est.csv"), "--nominal",
+                 str(nominal), "--speed-csv", str(DATA / "knock_cart_speed.csv"), "--events",
+                 str(events), "--out", str(out), "--quiet"]) == 0
+    said = [json.loads(line) for line in events.read_text().splitlines()]
+    assert [e["state"] for e in said] == ["UNCALIBRATED", "RECALIBRATE", "RECALIBRATE"]
+    assert said[1]["reason"].startswith("height changed") and "too" not in said[1]["reason"]
+    assert "; pitch reads off too: 95 % +0." in said[2]["reason"]
+    assert 7.2 < said[2]["t"] < 9.5  # the knock at 7.2 s
+    table = read_table(out)
+    before = np.asarray(table["t"]) < 7.2
+    assert not any("reads off too" in str(r) for r in np.asarray(table["reason"])[before])
