@@ -466,6 +466,12 @@ MUTANTS: tuple[Mutant, ...] = (
            "    if True:\n        return \"\"",
            ("tests/test_ekf.py::"
             "test_track_warns_of_a_step_its_mount_change_test_did_not_find",)),
+    Mutant("monitor-second-axis-unsaid", "monitor",
+           "a second axis off while RECALIBRATE is held is neither said nor announced",
+           "filters/monitor.py",
+           "        off = self._axes_off(interval) if state == \"RECALIBRATE\" else set()",
+           "        off = set()",
+           ("tests/test_monitor.py::test_a_second_change_while_recalibrate_is_held_is_said",)),
 )
 
 

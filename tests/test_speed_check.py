@@ -82,3 +82,19 @@ def test_the_filters_say_it(car, tmp_path, capsys, command):
     err = capsys.readouterr().err
     assert rc == 0, err
     assert "kmh.csv: over 118 moving pairs the wheels travel 3.60× what the images do" in err
+
+
+def test_a_standing_wheel_speed_is_not_called_missing(car, tmp_path, capsys):
+    """Wheels at 0 m/s under moving images: the monitor said "give wheel speed" although one
+    was given; it now names the speed, and the scale check says 0.00× first."""
+    _, speed = car
+    zero = tmp_path / "zero.csv"
+    write_speed_csv(_speed(speed, factor=0.0), zero)
+    nominal = tmp_path / "nominal.yaml"
+    nominal.write_text("pitch_deg: 3.0\nroll_deg: 0.0\nheight_m: 1.5\n")
+    assert main(["monitor", "--estimates", str(DATA / "car_sway_est.csv"), "--speed-csv",
+                 str(zero), "--nominal", str(nominal), "--out", str(tmp_path / "m.csv")]) == 0
+    err = capsys.readouterr().err
+    assert "the wheels travel 0.00× what the images do" in err
+    assert "height not tested: no frame had a metric travel (the wheel speed given says the " \
+           "vehicle stood or had no sample at every moving pair)" in err

@@ -164,9 +164,11 @@ def run(args: argparse.Namespace) -> int:
             print(f"first RECALIBRATE at t={flagged.t:.2f} s (frame {flagged.frame}): "
                   f"{flagged.reason}", file=sys.stderr)
         if not any(math.isfinite(o.deviation[2]) for o in outputs):
-            print("height not tested: no frame had a metric travel (give wheel speed: "
-                  "--speed-csv or --can); the tables' height columns repeat the nominal "
-                  f"{nominal.height_m:g} m", file=sys.stderr)
+            why = ("the wheel speed given says the vehicle stood or had no sample at every "
+                   "moving pair" if speed is not None else
+                   "give wheel speed: --speed-csv or --can")
+            print(f"height not tested: no frame had a metric travel ({why}); the tables' "
+                  f"height columns repeat the nominal {nominal.height_m:g} m", file=sys.stderr)
     if getattr(args, "interrupted_at", None) is not None:
         raise KeyboardInterrupt
     return 0
