@@ -149,10 +149,14 @@ class DriftMonitor:
         reason = self._reason(code, base, inp, stat, estimate, interval)
         event = self._debounced_event(inp, state, reason, estimate, interval)
         off = self._axes_off(interval) if state == "RECALIBRATE" else set()
-        if event is None and off - self._announced_off and self._reported == "RECALIBRATE":
+        if self._reported != "RECALIBRATE":
+            self._announced_off = set()
+        elif event is not None:  # the alarm's own event: its axis, and what reads off now
+            self._announced_off = off | {int(core.s.alarm_axis[0])}
+        elif off - self._announced_off:
             # held RECALIBRATE, and another axis now reads off too: said, not only tabled
             event = self._event(inp, state, reason, estimate, interval)
-        self._announced_off = off | (self._announced_off if state == "RECALIBRATE" else set())
+            self._announced_off |= off
         self._state = state
         return MonitorOutput(
             frame=inp.frame, t=float(inp.t), state=state, reason=reason, statistic=stat,
