@@ -37,6 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from .mount_steps import pairs_steps
+
 FloatArray = NDArray[np.float64]
 
 
@@ -68,8 +70,6 @@ def unfollowed_steps_note(t: NDArray[np.float64], angles: NDArray[np.float64],
     there (``changes``: ``ExtrinsicsEKF.mount_changes``, (onset s, axis, step rad)): a knock
     before the test's yardstick is measured, taken up by the body state, left the mount 7.7σ
     from the camera's new one on a cart (45.53 ± 0.06° for 46°, no warning). Empty if none."""
-    from .mount_steps import pairs_steps
-
     axes = {"pitch": 0, "roll": 1}
     missed = [(at, name, step) for at, name, step in pairs_steps(t, angles)
               if not any(axis == axes[name] and abs(onset - at) <= FOLLOWED_WITHIN_S
