@@ -19,6 +19,7 @@ from .mount_steps import (
     StepTestConfig,
     mount_steps,
     pairs_steps,
+    steps_text,
     trend_statistic,
     untested_drive_note,
     usable_angles,
@@ -219,9 +220,7 @@ def _unfollowed_step_note(measurements: Sequence[PairMeasurement],
         return ""
     summary["pairs_steps"] = [{"t": at, "axis": name, "step_deg": math.degrees(step)}
                               for at, name, step in found]
-    said = ", ".join(f"{name} stepped {math.degrees(step):+.2f}° at {at:.2f} s"
-                     for at, name, step in found)
-    return (f"the pairs' {said}: this smoother's mount did not follow at once (a "
+    return (f"the pairs' {steps_text(found)}: this smoother's mount did not follow at once (a "
             "fixed-lag window follows a small knock over tens of seconds): its mean and "
             "interval may hold neither mount; the batch smoother (no --lag) splits the drive "
             "at the step")

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .mount_steps import pairs_steps
+from .mount_steps import pairs_steps, steps_text
 
 FloatArray = NDArray[np.float64]
 
@@ -76,12 +76,10 @@ def unfollowed_steps_note(t: NDArray[np.float64], angles: NDArray[np.float64],
                          for onset, axis, _ in changes)]
     if not missed:
         return ""
-    said = ", ".join(f"{name} stepped {math.degrees(step):+.2f}° at {at:.2f} s"
-                     for at, name, step in missed)
-    return (f"the pairs' {said}, which the filter's mount-change test did not find (it is "
-            "fully sensitive only after a drive's first seconds): the mount and its interval "
-            "after it may hold neither mount; the batch smoother (`smooth`) splits the drive "
-            "at the step")
+    return (f"the pairs' {steps_text(missed)}, which the filter's mount-change test did "
+            "not find (it is fully sensitive only after a drive's first seconds): the mount "
+            "and its interval after it may hold neither mount; the batch smoother (`smooth`) "
+            "splits the drive at the step")
 
 
 def short_drive_note(seconds: float, cfg: MountChangeConfig | None = None) -> str:

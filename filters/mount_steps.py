@@ -36,6 +36,7 @@ KITTI 07's rows up to 4.5 (a turn's body roll), knocks 5–6 before their step i
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -184,6 +185,12 @@ def pairs_steps(t: FloatArray, angles: FloatArray, cfg: StepTestConfig | None = 
     in the usable pairs' pitch and roll (``t`` [s], ``angles`` (n, 2) [rad]), in time order."""
     return sorted((s.onset_s, name, s.step) for i, name in enumerate(("pitch", "roll"))
                   for s in mount_steps(t, angles[:, i], cfg))
+
+
+def steps_text(steps: Sequence[tuple[float, str, float]]) -> str:
+    """``pitch stepped +1.00° at 3.20 s, …``: :func:`pairs_steps`' steps for a warning."""
+    return ", ".join(f"{name} stepped {math.degrees(step):+.2f}° at {at:.2f} s"
+                     for at, name, step in steps)
 
 
 def usable_angles(ms: Sequence[PairMeasurement]) -> tuple[FloatArray, FloatArray]:
