@@ -133,10 +133,8 @@ def _pairs_steps(t: FloatArray, measurements: Sequence[PairMeasurement],
     angles (``mount_steps``, the batch's, pitch or roll) puts a step of the mount."""
     if not step_test.enabled:
         return []
-    t_pairs, angles = usable_angles(measurements)
-    onsets = {s.onset_s for axis in (0, 1)
-              for s in mount_steps(t_pairs, angles[:, axis], step_test)}
-    found = {int(np.searchsorted(t, onset)) for onset in onsets}
+    found = {int(np.searchsorted(t, onset))
+             for onset, _, _ in pairs_steps(*usable_angles(measurements), step_test)}
     return sorted(k for k in found if 0 < k < len(t))
 
 

@@ -45,18 +45,20 @@ def speed_scale(measurements: Sequence[PairMeasurement], speed: SpeedSeries,
     t1 = np.array([m.t for _, m in usable])
     travel = np.array([np.hypot(m.z[4], m.z[5]) for _, m in usable])  # m at the assumed height
     h0 = np.array([m.height_assumed for _, m in usable])
-    distance = np.abs(wheel_distance(speed.t, speed.speed_mps, t1)
-                      - wheel_distance(speed.t, speed.speed_mps, t0))
+    ends = wheel_distance(speed.t, speed.speed_mps, np.concatenate([t0, t1]))
+    distance = np.abs(ends[len(t0):] - ends[:len(t0)])
     keep = np.isfinite(distance) & (travel >= MIN_TRAVEL_FRAC * h0)
     if not keep.any():
         return float("nan"), 0
     return float(np.median(distance[keep] / travel[keep])), int(keep.sum())
 
 
-def speed_fit_notes(measurements: Sequence[PairMeasurement], speed: SpeedSeries) -> list[str]:
+def speed_fit_notes(measurements: Sequence[PairMeasurement], speed: SpeedSeries,
+                    check_clock: bool = True) -> list[str]:
     """Warnings (one line each; none where the speed fits): the height the speed puts the
     camera at beyond ``HEIGHT_SCALE_WARNING`` times the assumed one (or below its inverse),
-    and a clock offset the travel fits better than the speed's own times
+    and, with ``check_clock`` (off for a speed already shifted by that fit), a clock offset
+    the travel fits better than the speed's own times
     (``clock_offset.estimate_clock_offset``, where the drive's speed changes enough to fix
     one)."""
     notes = []
@@ -70,6 +72,8 @@ def speed_fit_notes(measurements: Sequence[PairMeasurement], speed: SpeedSeries)
             f"do at the assumed {assumed:g} m, which puts the camera {scale * assumed:.3f} m "
             "above the ground: the speed likely belongs to another drive, has another unit "
             "(km/h: 3.6×) or scale (--speed-scale), or stands still while the images move")
+    if not check_clock:
+        return notes
     try:
         fit = estimate_clock_offset(measurements, speed)
     except InputError:  # a steady speed, too few pairs: nothing to fix an offset by

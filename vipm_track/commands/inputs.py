@@ -131,17 +131,18 @@ def speed_on_camera_clock(
               file=sys.stderr)
     shifted = speed.shifted(fit.offset_s)
     warn_speed_sign(shifted, measurements)
-    warn_speed_fit(shifted, measurements)
+    warn_speed_fit(shifted, measurements, check_clock=False)  # its clock: the fit's
     return shifted, fit
 
 
-def warn_speed_fit(speed: SpeedSeries, measurements: list[PairMeasurement]) -> None:
+def warn_speed_fit(speed: SpeedSeries, measurements: list[PairMeasurement],
+                   check_clock: bool = True) -> None:
     """Warn (stderr, ``--quiet`` or not) where the wheel speed does not fit the pairs' travel:
-    the height it implies, its clock (``filters.speed_check``). The filters' gates would
-    reject its pairs one by one and keep a confident height."""
+    the height it implies, its clock unless ``check_clock`` is off (``filters.speed_check``).
+    The filters' gates would reject its pairs one by one and keep a confident height."""
     from vipm_track.filters.speed_check import speed_fit_notes
 
-    for note in speed_fit_notes(measurements, speed):
+    for note in speed_fit_notes(measurements, speed, check_clock):
         print(f"vipm-track: warning: {note}", file=sys.stderr)
 
 
