@@ -343,6 +343,10 @@ def test_manifest(drives, tmp_path):
     manifest.write_text("drive,fps\nx,fast\n")
     with pytest.raises(InputError, match="line 2: column fps"):
         find_drives(manifest)
+    manifest.write_text("drive,fps\nx,1e-9\n")
+    with pytest.raises(InputError, match=r"line 2: column fps must be a number of frames per "
+                       r"second in \[0.1, 1000\], got 1e-09"):
+        find_drives(manifest)
     manifest.write_text("drive,started\nx,2024-05-01\ny,02/05/2024\n")
     with pytest.raises(InputError, match="line 3: column started: started '02/05/2024' is no"):
         find_drives(manifest)

@@ -875,7 +875,7 @@ def test_live_refuses_a_frame_rate_that_is_not_positive(tmp_path, capsys, nomina
     rc, err = _run(capsys, "live", "--video", tmp_path / "none.avi", "--camera",
                    tmp_path / "cam.yaml", "--nominal", nominal, "--fps", "-5",
                    "--out", tmp_path / "live.csv")
-    assert rc == 2 and "--fps must be a positive number of frames per second, got -5" in err
+    assert rc == 2 and "--fps must be a number of frames per second in [0.1, 1000], got -5" in err
 
 
 def test_a_second_ctrl_c_does_not_cut_what_the_first_left_to_write(tmp_path, capsys, est,

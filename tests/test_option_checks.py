@@ -68,8 +68,8 @@ def no_rendering(monkeypatch):
 
 @pytest.mark.parametrize(("option", "value", "expected"), [
     ("--seed", "-1", "a whole number >= 0"),
-    ("--fps", "nan", "a finite number > 0"),
-    ("--fps", "0", "a finite number > 0"),
+    ("--fps", "nan", "a frame rate in [0.1, 1000]"),
+    ("--fps", "0", "a frame rate in [0.1, 1000]"),
     ("--speed", "nan", "a number in [0, 100]"),
     ("--speed", "-1", "a number in [0, 100]"),
     ("--speed", "1e6", "a number in [0, 100]"),  # speed.csv refuses it as a corrupt row

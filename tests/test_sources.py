@@ -97,7 +97,12 @@ def test_a_video_without_frames_is_named_so(tmp_path: Path) -> None:
         ({}, "exactly one input"),
         ({"images": "/no/such/folder"}, "image folder not found"),
         ({"video": "/no/such/video.mp4"}, "video file not found"),
-        ({"images": ".", "fps": -1.0}, "--fps must be a positive"),
+        ({"images": ".", "fps": -1.0}, r"--fps must be a number of frames per second in \[0.1, "
+         r"1000\], got -1"),
+        # a frame every 30 years timed a drive as standing; a megahertz one as a rocket
+        ({"images": ".", "fps": 1e-9}, "got 1e-09"),
+        ({"images": ".", "fps": 1e6}, "got 1e"),
+        ({"images": ".", "fps": float("nan")}, "got nan"),
         ({"images": ".", "start": -1}, "--start must be >= 0"),
         ({"images": ".", "max_frames": 0}, "--max-frames must be >= 1"),
     ],

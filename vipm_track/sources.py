@@ -80,6 +80,19 @@ class FrameSource:
         raise NotImplementedError(f"{type(self).__name__} cannot be split into chunks")
 
 
+FPS_RANGE_HZ = (0.1, 1000.0)
+"""Frame rates a vehicle camera's timestamps may be made from: slower than 0.1 Hz no two
+frames share the ground at driving speeds, faster than 1 kHz no camera this serves runs."""
+
+
+def fps_problem(fps: float) -> str | None:
+    """Why ``fps`` [Hz] cannot time frames (completes "--fps must be ..."), or ``None``."""
+    low, high = FPS_RANGE_HZ
+    if math.isfinite(fps) and low <= fps <= high:
+        return None
+    return f"a number of frames per second in [{low:g}, {high:g}], got {fps:g}"
+
+
 def open_source(
     images: str | Path | None = None,
     video: str | Path | None = None,
@@ -100,8 +113,8 @@ def open_source(
     """
     if (images is None) == (video is None):
         raise SourceError("give exactly one input: an image folder (--images) or a video (--video)")
-    if fps is not None and not (math.isfinite(fps) and fps > 0):
-        raise SourceError(f"--fps must be a positive number of frames per second, got {fps}")
+    if fps is not None and (problem := fps_problem(fps)):
+        raise SourceError(f"--fps must be {problem}")
     if start < 0:
         raise SourceError(f"--start must be >= 0, got {start}")
     if max_frames is not None and max_frames < 1:

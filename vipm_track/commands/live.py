@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     from vipm_track.filters.nominal import load_nominal
 
     from ..live_run import run_live
-    from ..sources import first_frame_size
+    from ..sources import first_frame_size, fps_problem
     from .monitor import nominal_height
     from .rerun_options import sink_from_args
 
@@ -94,8 +94,8 @@ def run(args: argparse.Namespace) -> int:
         if not (math.isfinite(value) and value > 0):
             raise InputError(f"--{name.replace('_', '-')} must be > 0, got {value}")
     check_monitor_test_options(args)
-    if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
-        raise InputError(f"--fps must be a positive number of frames per second, got {args.fps}")
+    if args.fps is not None and (problem := fps_problem(args.fps)):
+        raise InputError(f"--fps must be {problem}")
     if args.duration is not None and not args.duration > 0:
         raise InputError(f"--duration must be > 0 seconds, got {args.duration}")
     try:

@@ -12,6 +12,7 @@ from ..measurement import MAX_SPEED_MPS
 from ..render import Effects
 from ..rig import MAX_ANGLE_DEG
 from ..sim import PRESETS, PROFILES, clear_earlier_run, make_trajectory, simulate_sequence
+from ..sources import FPS_RANGE_HZ
 from ..texture import TEXTURES
 from ..traffic import LEVELS
 from .common import check_output_dir
@@ -37,8 +38,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--profile", choices=PROFILES, default="static", help="pose/motion profile")
     p.add_argument("--texture", choices=sorted(TEXTURES), default=None,
                    help="ground texture (default: the preset's); corridor = weak texture")
-    p.add_argument("--fps", type=number(0, above=True), default=None,
-                   help="frame rate [Hz] (default: preset)")
+    p.add_argument("--fps", type=number(*FPS_RANGE_HZ, what="frame rate"), default=None,
+                   help=f"frame rate [Hz], {FPS_RANGE_HZ[0]:g} to {FPS_RANGE_HZ[1]:g} "
+                   "(default: preset)")
     p.add_argument("--speed", type=number(0, MAX_SPEED_MPS), default=None,
                    help=f"speed [m/s], 0 to {MAX_SPEED_MPS:g} (default: preset)")
     p.add_argument("--amplitude", type=number(0), default=1.0,

@@ -20,7 +20,7 @@ from pathlib import Path
 from ..bag_source import BAG_SUFFIXES, is_bag
 from ..errors import InputError, InvalidYaml, os_error_line, parse_yaml, printable
 from ..sinks.fleet_report import started_instant
-from ..sources import IMAGE_SUFFIXES
+from ..sources import IMAGE_SUFFIXES, fps_problem
 
 VIDEO_SUFFIXES: frozenset[str] = frozenset({".mp4", ".avi", ".mkv", ".mov", ".webm", ".m4v"})
 CAN_SUFFIXES: frozenset[str] = frozenset({".log", ".asc", ".blf", ".trc", ".mf4"})
@@ -226,9 +226,9 @@ def read_manifest(path: Path) -> list[DriveSpec]:
                 fps = float(row["fps"])
             except ValueError:
                 fps = float("nan")
-            if not (fps > 0 and fps < float("inf")):
-                raise InputError(f"{path}: line {lineno}: column fps: a positive number is "
-                                 f"needed, got {printable(row['fps'], 60)!r}")
+            if problem := fps_problem(fps):
+                raise InputError(f"{path}: line {lineno}: column fps must be {problem} "
+                                 f"({printable(row['fps'], 60)!r})")
         if row.get("started"):
             check_started(row["started"], f"{path}: line {lineno}: column started")
         paths = {k: (path.parent / v) for k, v in row.items()
