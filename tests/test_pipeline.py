@@ -151,6 +151,10 @@ def test_parse_grid_and_roi(tmp_path: Path) -> None:
     polygon.write_text("# x y\n0 29\n39 29\n20 10\n")
     tri = parse_roi(str(polygon), CAMERA)
     assert tri[28, 20] and not tri[5, 20] and not tri[12, 2]
+    polygon.write_text("0 29\n39 29\n20 10\n60 40\n")  # drawn on a larger image: was clipped
+    with pytest.raises(InputError, match=r"road.txt: line 4: vertex \(60, 40\) lies off the "
+                       r"camera image: need 0 <= x <= 40 and 0 <= y <= 30"):
+        parse_roi(str(polygon), CAMERA)
     polygon.write_text("0 29\n39 29\n")
     with pytest.raises(InputError, match="at least 3 vertices"):
         parse_roi(str(polygon), CAMERA)

@@ -301,9 +301,14 @@ def _polygon_mask(path: Path, shape: tuple[int, int]) -> NDArray[np.bool_]:
         if not text:
             continue
         try:
-            vertices.append([float(text[0]), float(text[1])])
+            x, y = float(text[0]), float(text[1])
         except (ValueError, IndexError) as exc:
             raise InputError(f"--roi {path}: line {lineno}: expected 'x y' in pixels") from exc
+        # as for the rectangle: a vertex off the image is a polygon drawn on another size
+        if not (0 <= x <= shape[1] and 0 <= y <= shape[0]):
+            raise InputError(f"--roi {path}: line {lineno}: vertex ({x:g}, {y:g}) lies off the "
+                             f"camera image: need 0 <= x <= {shape[1]} and 0 <= y <= {shape[0]}")
+        vertices.append([x, y])
     if len(vertices) < 3:
         raise InputError(f"--roi {path}: a polygon needs at least 3 vertices, got {len(vertices)}")
     mask = np.zeros(shape, np.uint8)
