@@ -19,7 +19,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
-from vipm_track.errors import InputError
+from vipm_track.errors import InputError, InterruptFlag, interrupts_deferred
 
 from .can_decode import MessageDecoder, SignalSpec, load_dbc, parse_signal_specs
 from .can_logs import LogRecords
@@ -404,15 +404,29 @@ class SpeedDecoder:
         interrupt (Ctrl-C) stops the reading too: the frames read before it are decoded and
         ``summary.interrupted`` is set."""
         batches: dict[int, tuple[list[float], list[bytes], list[int], list[int]]] = {}
+        # an interrupt raised between next() and the appends, or in the decode at the end,
+        # lost every frame read (a partial batch); noted instead, it ends the loop cleanly
+        with interrupts_deferred() as interrupt:
+            self._read(iter(messages), batches, interrupt, progress, resume)
+            t, v = self._process(batches)
+        return SpeedSeries(t, v, source=self.summary.source, signals=self.signal_names,
+                           scale=self.scale, summary=self.summary)
+
+    def _read(self, iterator: Iterator, batches: dict, interrupt: InterruptFlag,
+              progress: bool, resume: Callable[[], Iterator] | None) -> None:
+        """Screen messages into ``batches`` until the end, an unreadable record without
+        ``resume``, or an interrupt (``summary.interrupted``)."""
         seq = 0
-        iterator = iter(messages)
         bar = _progress(progress, self.summary.source)
         while True:
+            if interrupt.requested:
+                self.summary.interrupted = True
+                break
             try:
                 msg = next(iterator)
             except StopIteration:
                 break
-            except KeyboardInterrupt:
+            except KeyboardInterrupt:  # off the main thread, interrupts still raise
                 self.summary.interrupted = True
                 break
             except InputError:  # the log cannot be opened at all: nothing to go on with
@@ -441,9 +455,6 @@ class SpeedDecoder:
         if bar is not None:
             bar.update(self.summary.frames - bar.n)
             bar.close()
-        t, v = self._process(batches)
-        return SpeedSeries(t, v, source=self.summary.source, signals=self.signal_names,
-                           scale=self.scale, summary=self.summary)
 
     def _flush(self) -> None:
         if self._pending_t:

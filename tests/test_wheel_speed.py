@@ -4,6 +4,7 @@ accounting, streaming (virtual bus) = batch decoding, time alignment, CSV and CL
 from __future__ import annotations
 
 import argparse
+import signal
 import uuid
 from pathlib import Path
 
@@ -257,6 +258,45 @@ def test_an_interrupted_bus_keeps_what_it_decoded(data, messages):
     except KeyboardInterrupt:
         pytest.fail("the interrupt went on with the 100 decoded samples")
     assert summary.interrupted and len(series) == 101 and len(received) == 100
+
+
+class _InterruptedRead(can.Message):
+    """A frame whose payload read delivers a Ctrl-C: the interrupt lands after next(), in the
+    loop's body, where ``can-speed`` lost every frame read before it."""
+
+    armed = False
+
+    @property
+    def data(self):
+        if self.armed:
+            self.armed = False  # once: the message's own checks read it too
+            signal.raise_signal(signal.SIGINT)
+        return self._data
+
+    @data.setter
+    def data(self, value):
+        self._data = value
+
+
+@pytest.mark.parametrize("at", [5000, 15000])
+def test_an_interrupt_between_reads_keeps_what_was_read(dbc, messages, at):
+    part = list(messages[:20000])
+    wanted = [i for i, m in enumerate(part) if m.arbitration_id == 0xAA and i >= at][0]
+    m = part[wanted]
+    part[wanted] = _InterruptedRead(timestamp=m.timestamp, arbitration_id=m.arbitration_id,
+                                    data=m.data, channel=m.channel, is_extended_id=False)
+    part[wanted].armed = True
+    whole = SpeedDecoder(dbc).feed_many(messages[:20000])
+    decoder = SpeedDecoder(dbc)
+    try:
+        series = decoder.feed_many(part)
+    except KeyboardInterrupt:
+        pytest.fail("the interrupt went on with every frame read before it")
+    assert decoder.summary.interrupted and decoder.summary.frames == wanted + 1
+    kept = whole.t <= m.timestamp
+    assert 0.2 * at / 20000 * len(whole) < len(series) == kept.sum()
+    np.testing.assert_array_equal(series.t, whole.t[kept])
+    np.testing.assert_array_equal(series.speed_mps, whole.speed_mps[kept])
 
 
 def test_virtual_bus_speed_streams_into_the_ekf_and_makes_height_observable(dbc):

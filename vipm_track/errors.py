@@ -8,6 +8,7 @@ import signal
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 
 
 class InputError(ValueError):
@@ -94,6 +95,37 @@ def interrupts_held() -> Iterator[None]:
         signal.signal(sig, signal.SIG_IGN)
     try:
         yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+@dataclass
+class InterruptFlag:
+    """Set by :func:`interrupts_deferred` when Ctrl-C or SIGTERM arrives."""
+
+    requested: bool = False
+
+
+@contextmanager
+def interrupts_deferred() -> Iterator[InterruptFlag]:
+    """Ctrl-C and SIGTERM noted on the yielded flag, not raised, while the block runs: a loop
+    that checks ``flag.requested`` between its steps stops where its state is whole (an
+    interrupt raised mid-step could leave half of it). The handlers are restored after; from
+    a thread other than the main one the flag stays unset and interrupts raise as before."""
+    flag = InterruptFlag()
+    if threading.current_thread() is not threading.main_thread():
+        yield flag
+        return
+
+    def note(signum: int, frame: object) -> None:
+        flag.requested = True
+
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    for sig in previous:
+        signal.signal(sig, note)
+    try:
+        yield flag
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
