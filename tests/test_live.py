@@ -129,6 +129,41 @@ def test_pushed_frames_camera_stops_and_resumes(knock):
     assert monitor.state().state != "HOLD"
 
 
+def test_a_wheel_speed_that_never_came_is_no_data_back(knock):
+    """The wheel speed silent from the start: the watchdog's HOLD stands until it comes (a
+    pair judged after the HOLD said "data back" for speed that never came); then data back."""
+    from vipm_track.camera import load_camera
+    from vipm_track.filters.nominal import load_nominal
+    from vipm_track.live_monitor import LiveMonitor
+
+    events: list[dict] = []
+    nominal = load_nominal(knock["nominal"])
+    monitor = LiveMonitor(nominal.rig(load_camera(knock["folder"] / "camera.yaml")),
+                          nominal, expect_speed=True, speed_timeout_s=0.3,
+                          on_event=events.append)
+    images = [cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) for f in knock["files"][:30]]
+    gt = np.genfromtxt(knock["folder"] / "speed.csv", delimiter=",", names=True)
+    silent = []
+    with monitor:
+        for k, image in enumerate(images):
+            t = 0.1 * k
+            if k >= 18:  # the speed comes, from frame 18 on
+                for ts, v in zip(gt["t"], gt["speed_mps"], strict=True):
+                    if t - 0.1 < ts <= t:
+                        monitor.push_speed(float(ts), float(v))
+            monitor.push_frame(image, t)
+            assert monitor.wait_taken(5.0)
+            time.sleep(0.1)
+            if k == 15:
+                silent = list(events)
+    holds = [i for i, e in enumerate(silent) if e["state"] == "HOLD"]
+    assert holds and "no wheel speed" in silent[holds[0]]["reason"]
+    assert all(e["state"] == "HOLD" for e in silent[holds[0]:]), silent
+    assert not any(e["reason"].startswith("data back") for e in silent), silent
+    back = [e for e in events[len(silent):] if e["reason"].startswith("data back")]
+    assert back and back[0]["frame"] >= 18 and back[0]["state"] != "HOLD"
+
+
 def test_virtual_bus_replays_the_rav4_log_at_its_pace():
     """3 s of the real RAV4 log sent on a python-can virtual bus at the log's pace: the live
     reader decodes the same speeds as the log decoder, at the log's spacing; the bus falling
@@ -297,6 +332,27 @@ def test_run_live_is_callable_with_plain_arguments_fast(knock, tmp_path):
     assert stats.seen == 20 and stats.processed == 19 and stats.dropped == 0
     assert "UNCALIBRATED" in stdout.getvalue()
     assert Path(out).read_text().endswith("\n")
+
+
+def test_a_video_with_nothing_usable_exits_1(knock, tmp_path, capsys):
+    """A blank video, or one frame: every pair 'no texture' (or none) exited 0 where
+    ``monitor`` on the same frames exits 1; the one-frame summary printed 'latency p50 nan'."""
+    blank = tmp_path / "blank.avi"
+    writer = cv2.VideoWriter(str(blank), cv2.VideoWriter_fourcc(*"MJPG"), 10, (320, 240))
+    for _ in range(6):
+        writer.write(np.full((240, 320, 3), 128, np.uint8))
+    writer.release()
+    one = tmp_path / "one.avi"
+    writer = cv2.VideoWriter(str(one), cv2.VideoWriter_fourcc(*"MJPG"), 10, (320, 240))
+    writer.write(cv2.imread(str(knock["files"][0])))
+    writer.release()
+    for video, counts in ((blank, "no texture × 5"), (one, "no pair of frames")):
+        rc = main(["live", "--video", str(video), "--camera", str(knock["folder"] / "camera.yaml"),
+                   "--nominal", str(knock["nominal"]), "--out", str(tmp_path / "live.csv")])
+        err = capsys.readouterr().err
+        assert rc == 1 and f"nothing usable: {tmp_path / 'live.csv'}: no pair gave an estimate " \
+            f"({counts})" in err, err
+        assert "nan" not in err
 
 
 def test_a_signal_while_closing_loses_nothing(knock, tmp_path, monkeypatch):

@@ -99,6 +99,8 @@ class LiveStats:
     rejected: int = 0
     latencies: list[float] = field(default_factory=list)
     states: Counter = field(default_factory=Counter)
+    #: the processed pairs' statuses (``ok`` or why not)
+    statuses: Counter = field(default_factory=Counter)
     wall_s: float = 0.0
     cpu_s: float = 0.0
     #: seconds from the last frame's arrival to the end of the run (the last rows written)
@@ -122,9 +124,10 @@ class LiveStats:
     def line(self) -> str:
         """One-line summary: frames seen / processed / dropped, latency, CPU share."""
         rate = self.processed / self.wall_s if self.wall_s > 0 else float("nan")
+        latency = (f"latency p50 {self.latency(0.5) * 1e3:.0f} ms, p95 "
+                   f"{self.latency(0.95) * 1e3:.0f} ms" if self.latencies else "no rows")
         text = (f"{self.seen} frames seen, {self.processed} pairs processed ({rate:.2f}/s), "
-                f"{self.dropped} frames dropped; latency p50 {self.latency(0.5) * 1e3:.0f} ms, "
-                f"p95 {self.latency(0.95) * 1e3:.0f} ms; CPU {100 * self.cpu_share:.0f} % of "
+                f"{self.dropped} frames dropped; {latency}; CPU {100 * self.cpu_share:.0f} % of "
                 f"one core over {self.wall_s:.1f} s; ended {self.tail_s:.2f} s after the last "
                 "frame")
         if self.rejected:
@@ -362,6 +365,7 @@ class LiveMonitor:
         else:
             result, _ = self._chain.estimate(prev, curr, b.t, dt)
             status = result.status
+        stats.statuses[status] += 1
         m = result.to_measurement(b.index, b.t) if status == "ok" else None
         if m is None:
             m = PairMeasurement(b.index, b.t, np.full(7, np.nan), np.full((7, 7), np.nan),
@@ -385,12 +389,15 @@ class LiveMonitor:
             self.stats.first_recalibrate = {"t": m.t, "frame": m.frame, "reason": out.reason}
         if self.on_row is not None:
             self.on_row(LiveRow(m, state, out, result, b.image, row, latency))
-        if self._watchdog_held and out.state != "HOLD":
-            # the data returned after a watchdog HOLD: say what the monitor says now
-            event = dict(out.event) if out.event is not None else event_dict(
-                m.t, m.frame, out.state, "", out.estimate, out.interval95, out.mount)
-            event["reason"] = f"data back; {out.reason}"
-            self._announce(event)
+        if self._watchdog_held:
+            # the watchdog's HOLD stands while data is missing (a first pair that finished
+            # after the wheel speed fell silent said "data back" for data that never came);
+            # once it returns, say what the monitor says now
+            if out.state != "HOLD" and not self._holds:
+                event = dict(out.event) if out.event is not None else event_dict(
+                    m.t, m.frame, out.state, "", out.estimate, out.interval95, out.mount)
+                event["reason"] = f"data back; {out.reason}"
+                self._announce(event)
         elif out.event is not None and out.state != self._reported:
             self._announce(out.event)
 

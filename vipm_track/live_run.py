@@ -201,6 +201,8 @@ def run_live(
             for thread in (reader, replay and replay.thread, bus_reader):
                 if thread is not None and thread.is_alive():
                     thread.join(5.0)
+            if isinstance(bus, str):  # opened here (a bus passed in is its owner's to close)
+                can_bus.shutdown()
             try:
                 stats = monitor.stop(drain=not interrupted)
             finally:

@@ -9,7 +9,7 @@ import argparse
 import math
 
 from ..camera import load_camera
-from ..errors import InputError
+from ..errors import InputError, NothingUsable
 from ..live_monitor import LIVE_TABLE
 from ..table import choose_columns
 from .common import (
@@ -125,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
                          "camera's clock by its time stamps")
     speed = None if args.bus else load_speed(args)
     sink = sink_from_args(args, "vipm-track live")
-    run_live(
+    stats = run_live(
         args.video, rig, nominal, out, config=config, realtime=args.realtime, fps=args.fps,
         speed=speed, bus=args.bus, dbc=args.dbc, signals=args.signals, combine=args.combine,
         can_channel=args.can_channel, speed_scale=args.speed_scale, events=args.events,
@@ -135,4 +135,8 @@ def run(args: argparse.Namespace) -> int:
                          "road_std_deg": args.road_std, "road_tau_s": args.road_tau},
         sink=sink, quiet=args.quiet,
     )
+    if not stats.statuses["ok"]:
+        counts = ", ".join(f"{s} × {n}" for s, n in stats.statuses.most_common())
+        raise NothingUsable(f"{out}: no pair gave an estimate ({counts or 'no pair of frames'}); "
+                            "the table holds its rows as written")
     return 0
