@@ -104,11 +104,16 @@ class DecodeSummary:
         if self.channels:
             # python-can numbers a Vector log's channels from 0 where the file counts from 1:
             # `--can-channel 1` on "channel 1" of an .asc picked the file's channel 2
-            vector = Path(self.source).suffix.lower() in (".asc", ".blf")
+            suffix = Path(self.source).suffix.lower()
+            vector = (" (as python-can numbers them, from 0: the file's channel 1 is 0; "
+                      "--can-channel takes these)")
+            numbering = {
+                ".asc": vector, ".blf": vector,
+                # PCAN counts buses from 1 and python-can keeps it: can0 is no channel here
+                ".trc": " (as the file numbers them, from 1; --can-channel takes these)",
+            }.get(suffix, "")
             out.append("  channels: " + ", ".join(f"{printable(c, 40)}={n}" for c, n in sorted(
-                self.channels.items(), key=lambda kv: str(kv[0]))) + (
-                " (as python-can numbers them, from 0: the file's channel 1 is 0; "
-                "--can-channel takes these)" if vector else ""))
+                self.channels.items(), key=lambda kv: str(kv[0]))) + numbering)
         labels = [
             ("other_ids", "frames of other DBC ids (not errors)"),
             ("unknown_ids", "frames of ids not in the DBC (not errors)"),

@@ -480,6 +480,8 @@ def test_other_python_can_formats(dbc, messages, tmp_path, suffix):
     assert summary.frames == len(part) and summary.bad == 0
     np.testing.assert_allclose(series.speed_mps, want.speed_mps, atol=1e-12)
     np.testing.assert_allclose(np.diff(series.t), np.diff(want.t), atol=2e-4)
+    if suffix == "trc":  # PCAN numbers buses from 1: the channel to give is no can0
+        assert "channels: 1=1626, 2=1374 (as the file numbers them, from 1" in "\n".join(summary.lines())
 
 
 @pytest.mark.parametrize("command", ["smooth", "track"])

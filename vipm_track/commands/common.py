@@ -332,7 +332,8 @@ def add_can_decoding_options(group: argparse._ActionsContainer, dbc_required: bo
     group.add_argument("--can-channel", metavar="CH", default=None,
                        help="only use frames from this CAN channel, as the summary's "
                             "'channels:' line names them (python-can's numbering: a Vector "
-                            ".asc/.blf's channel 1 is 0; can0 also matches 0)")
+                            ".asc/.blf's channel 1 is 0, a PCAN .trc's 1 is 1; can0 also "
+                            "matches 0)")
     group.add_argument("--speed-scale", type=float, default=1.0,
                        help="scale factor on the speed (tyre-radius correction)")
     group.add_argument("--clock-offset", type=seconds_or_auto, default=0.0,
