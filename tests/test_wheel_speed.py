@@ -281,7 +281,7 @@ class _InterruptedRead(can.Message):
 @pytest.mark.parametrize("at", [5000, 15000])
 def test_an_interrupt_between_reads_keeps_what_was_read(dbc, messages, at):
     part = list(messages[:20000])
-    wanted = [i for i, m in enumerate(part) if m.arbitration_id == 0xAA and i >= at][0]
+    wanted = next(i for i, m in enumerate(part) if m.arbitration_id == 0xAA and i >= at)
     m = part[wanted]
     part[wanted] = _InterruptedRead(timestamp=m.timestamp, arbitration_id=m.arbitration_id,
                                     data=m.data, channel=m.channel, is_extended_id=False)
@@ -481,7 +481,8 @@ def test_other_python_can_formats(dbc, messages, tmp_path, suffix):
     np.testing.assert_allclose(series.speed_mps, want.speed_mps, atol=1e-12)
     np.testing.assert_allclose(np.diff(series.t), np.diff(want.t), atol=2e-4)
     if suffix == "trc":  # PCAN numbers buses from 1: the channel to give is no can0
-        assert "channels: 1=1626, 2=1374 (as the file numbers them, from 1" in "\n".join(summary.lines())
+        lines = "\n".join(summary.lines())
+        assert "channels: 1=1626, 2=1374 (as the file numbers them, from 1" in lines
 
 
 @pytest.mark.parametrize("command", ["smooth", "track"])
