@@ -45,6 +45,8 @@ def drives(tmp_path_factory) -> Path:
     # the camera was knocked; 3 s of frames (the monitor's first second weighs little)
     b = render_small_drive(root / "b", frames=30, seed=2, pitch_deg=46.0)
     (b / "drive.yaml").write_text("vehicle: van1\nstarted: '2024-05-02T09:00'\n")
+    lines = (b / "speed.csv").read_text().splitlines(keepends=True)  # a logger's bad row
+    (b / "speed.csv").write_text("".join([*lines[:2], "0.01,nan\n", *lines[2:]]))
     bag = root / "c_bag"
     bag.mkdir()
     write_bag(render_small_drive(root.parent / "c_src", seed=3), bag / "rec", "mcap")
@@ -129,7 +131,7 @@ def test_drive_equals_smooth_alone(fleet, drives, tmp_path):
     assert mine["pitch"] == summary["pitch"] and mine["height"] == summary["height"]
 
 
-def test_report_shows_the_moved_camera(fleet):
+def test_report_shows_the_moved_camera(fleet, drives):
     out, rows = fleet
     from vipm_track.sinks.fleet_report import write_fleet_report
 
@@ -144,6 +146,10 @@ def test_report_shows_the_moved_camera(fleet):
     # a 1.2-s drive's caveat was in its summary.json only, not in the fleet's summary/report
     assert "the drive spans 1.1 s" in rows["a"]["warnings"]
     assert "## Warnings" in text and "- **a**: the drive spans 1.1 s" in text
+    # a bad wheel-speed row was skipped without a word (smooth names it)
+    assert f"speed.csv: 1 rows of the wheel speed skipped ({drives}/b/speed.csv:3: not " \
+        "finite" in rows["b"]["warnings"]
+    assert "wheel speed skipped" not in rows["a"]["warnings"]
 
 
 def test_resume_skips_what_is_done(fleet, drives, cluster, tmp_path):
@@ -376,6 +382,10 @@ def test_interrupt_keeps_every_drive_in_the_summary(fleet, drives, cluster, tmp_
     shutil.copytree(out, again)
     (again / "fleet_summary.csv").unlink()
     shutil.rmtree(again / "drive=b")  # b has to run again
+    # as a worker killed part-way leaves it: a table, no done.json (fleet.md: a drive that
+    # did not finish leaves no folder)
+    (again / "drive=d_clock").mkdir(exist_ok=True)
+    shutil.copy(out / "drive=a" / "estimates.parquet", again / "drive=d_clock")
     seen: list[str] = []
 
     def interrupt(row):
@@ -393,6 +403,9 @@ def test_interrupt_keeps_every_drive_in_the_summary(fleet, drives, cluster, tmp_
     assert status["a"] == "ok" and status["c_bag"] == "ok"  # done before: kept
     assert status["b"] == "ok" or "interrupted" in status["b"]
     assert status["no_nominal"].startswith("error:") and "interrupted" not in status["no_nominal"]
+    unfinished = [d for d, st in status.items() if "interrupted" in st]
+    assert "d_clock" in unfinished or status["d_clock"].startswith("error:")
+    assert not any((again / f"drive={d}").exists() for d in [*unfinished, "d_clock"])
 
 
 def test_a_drive_with_a_kitti_calib_takes_its_size_from_the_frames(tmp_path):

@@ -39,7 +39,14 @@ from ..progress import progress_bar, redraw_interval_s
 from ..table import format_value
 from ..workers import THREADS_ENV
 from .drive_progress import FleetProgress, progress_topic
-from .drive_run import DONE_FILE, FleetSettings, done_row, drive_folder, run_drive
+from .drive_run import (
+    DONE_FILE,
+    FleetSettings,
+    done_row,
+    drive_folder,
+    remove_outputs,
+    run_drive,
+)
 from .drives import DriveSpec
 
 
@@ -113,7 +120,12 @@ def run_fleet(
         # done.json; every other unfinished drive is a row saying so (run again to resume)
         for spec in specs:
             if spec.drive not in rows:
-                row = _finished_row(spec, out, settings) or {
+                finished = _finished_row(spec, out, settings)
+                if finished is None:
+                    # a worker killed mid-drive left tables that no done.json vouches for
+                    # (a `drive=*` glob read them) or an empty partition
+                    remove_outputs(drive_folder(out, spec.drive))
+                row = finished or {
                     "drive": spec.drive, "vehicle": spec.vehicle, "started": spec.started,
                     "status": f"error: {spec.problem}" if spec.problem else
                               "error: interrupted before the drive finished (run again with "

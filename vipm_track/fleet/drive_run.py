@@ -119,13 +119,13 @@ def run_drive(spec: DriveSpec, out: str | Path, settings: FleetSettings,
         # an earlier run's outputs go first: a drive that now stops part-way must not leave
         # tables that no done.json vouches for
         rerun = True
-        _remove_outputs(folder)
+        remove_outputs(folder)
         row = {**base, **_process(spec, folder, settings, progress_topic), "input_hash": key}
     except Exception as exc:  # a failed drive is a row of the summary; the fleet goes on
         if rerun or isinstance(exc, (InputError, NothingUsable, FileNotFoundError)):
             # a drive that is no longer what it was (a file missing or broken now, found
             # before the step above): the same; a passing read error leaves its outputs
-            _remove_outputs(folder)
+            remove_outputs(folder)
         if isinstance(exc, (InputError, NothingUsable, OSError)):
             why = printable(exc, 500)
         else:
@@ -140,7 +140,7 @@ def run_drive(spec: DriveSpec, out: str | Path, settings: FleetSettings,
     return {**row, "skipped": False}
 
 
-def _remove_outputs(folder: Path) -> None:
+def remove_outputs(folder: Path) -> None:
     """What a run of the drive wrote into ``folder``, its done file first; then the folder
     itself where nothing else is in it (a drive that failed leaves no empty partition)."""
     for name in (DONE_FILE, *OUTPUT_FILES):
@@ -258,7 +258,18 @@ def _process(spec: DriveSpec, folder: Path, settings: FleetSettings,
         states.append(o)
     _table_atomic(folder / "monitor.parquet", monitor_rows, settings)
     _write_atomic(folder / "summary.json", json_text.dumps(summary, indent=2) + "\n")
-    return _row(spec, summary, measurements, states, nominal, speed is not None)
+    return _row(spec, summary, measurements, states, nominal, speed)
+
+
+def speed_warnings(speed: SpeedSeries | None) -> list[str]:
+    """What the drive's wheel-speed file held that was skipped (rows, log lines, frames),
+    with the first few places: ``smooth`` prints it; a fleet row said nothing."""
+    summary = None if speed is None else speed.summary
+    if summary is None or not summary.bad:
+        return []
+    where = "; ".join(summary.examples[:3]) or "; ".join(summary.read_errors[:1])
+    return [f"{printable(Path(summary.source).name, 80)}: {summary.bad} {summary.unit} of the "
+            f"wheel speed skipped" + (f" ({where})" if where else "")]
 
 
 def _frame_count(source: FrameSource) -> int | None:
@@ -270,7 +281,7 @@ def _frame_count(source: FrameSource) -> int | None:
 
 
 def _row(spec: DriveSpec, summary: dict, measurements: list, outputs: list,
-         nominal: NominalCalibration, with_speed: bool) -> dict[str, Any]:
+         nominal: NominalCalibration, speed: SpeedSeries | None) -> dict[str, Any]:
     """The fleet-summary numbers of a processed drive (degrees, metres, minutes)."""
     ok = sum(m.ok for m in measurements)
     flagged = next((o for o in outputs if o.state == "RECALIBRATE"), None)
@@ -280,7 +291,7 @@ def _row(spec: DriveSpec, summary: dict, measurements: list, outputs: list,
         "share_ok": ok / max(len(measurements), 1),
         "duration_s": summary.get("duration_s", 0.0),
         "t_start_s": measurements[0].t if measurements else float("nan"),
-        "wheel_speed": with_speed,
+        "wheel_speed": speed is not None,
         "nominal_pitch_deg": nominal.pitch_deg,
         "nominal_roll_deg": nominal.roll_deg,
         "nominal_height_m": nominal.height_m,
@@ -289,7 +300,7 @@ def _row(spec: DriveSpec, summary: dict, measurements: list, outputs: list,
         "monitor_states": ", ".join(f"{s} {n}" for s, n in
                                     Counter(o.state for o in outputs).most_common()),
         # the short drive, a knock within it...: the summary.json's caveats, in the row too
-        "warnings": " | ".join(summary_warnings(summary)),
+        "warnings": " | ".join(summary_warnings(summary) + speed_warnings(speed)),
     }
     for axis, unit in (("pitch", "deg"), ("roll", "deg"), ("height", "m")):
         d = summary.get(axis) or {}
