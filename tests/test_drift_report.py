@@ -13,6 +13,7 @@ import re
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -304,3 +305,40 @@ def test_a_short_drives_knock_is_dated_by_its_frames(first_s, last_s):
     short = {k: np.asarray(v)[keep] for k, v in table.items()}
     pitch = summarize_drift(short, load_nominal(ROOT / "data" / "nominal_cart.yaml")).axes["pitch"]
     assert abs(pitch.changed_at_s - true_knock_s()) <= 0.3, pitch.changed_at_s
+
+
+def test_a_table_edited_by_hand_is_said_so(tmp_path: Path) -> None:
+    """What the report showed as fact from a hand-cut table: 'ok × 180' without a status
+    column, ok rows without numbers, a monitor state no monitor writes, a mount axis gone
+    from the calibration without a word. Each is a note now; the tables vipm-track writes
+    give none."""
+    for name in ("monitor", "smoothed", "est"):
+        notes: list[str] = []
+        write_report(DATA / f"knock_cart_{name}.csv", tmp_path / name, notes=notes)
+        assert notes == [], (name, notes)
+    table = read_table(DATA / "knock_cart_monitor.csv")
+    cut = {k: v for k, v in table.items() if k not in ("status", "mount_roll_deg")}
+    cut["monitor_state"] = np.asarray(cut["monitor_state"], dtype=object).copy()
+    cut["monitor_state"][40] = "BOGUS"
+    pd.DataFrame(cut).to_csv(tmp_path / "cut.csv", index=False)
+    notes = []
+    report = write_report(tmp_path / "cut.csv", tmp_path / "cut", notes=notes)
+    assert "- statuses: no status column" in report.markdown.read_text()
+    frame = int(table["frame"][40])
+    assert notes == [
+        f"{tmp_path / 'cut.csv'}: no status column: the report counts no statuses",
+        f"{tmp_path / 'cut.csv'}: monitor states vipm-track does not write ('BOGUS'): row 42 "
+        f"frame {frame}",
+        f"{tmp_path / 'cut.csv'}: no column mount_roll_deg: the calibration has no roll row",
+    ]
+    table = read_table(DATA / "knock_cart_smoothed.csv")
+    ok = np.flatnonzero(np.asarray(table["status"], dtype=object) == "ok")
+    blank = dict(table)
+    for column, row in (("pitch_deg", ok[5]), ("tz_m", ok[9])):
+        blank[column] = np.asarray(blank[column], float).copy()
+        blank[column][row] = np.nan
+    pd.DataFrame(blank).to_csv(tmp_path / "blank.csv", index=False)
+    notes = []
+    write_report(tmp_path / "blank.csv", tmp_path / "blank", notes=notes)
+    rows = ", ".join(f"row {r + 2} frame {int(table['frame'][r])}" for r in (ok[5], ok[9]))
+    assert notes == [f"{tmp_path / 'blank.csv'}: rows say ok but lack numbers: {rows}"]

@@ -42,6 +42,7 @@ from ..table import TEXT_COLUMNS, first_data_row, read_table
 from .drift_report import STATE_COLORS, drift_figure, fmt, summary_lines, write_html
 from .drift_summary import (
     MIN_RATE_SPAN_S,
+    MOUNT_AXES,
     DriftSummary,
     has_finite,
     state_runs,
@@ -139,6 +140,8 @@ def write_report(
     if not np.isfinite(pitch).any() and notes is not None:
         notes.append(f"{track}: no row has a pitch (pitch_deg missing or empty): the report "
                      "shows no pose")
+    if notes is not None:
+        notes.extend(table_notes(est, track))
     truth = read_truth(gt) if gt is not None else None
     relative = gt is not None and is_kitti_poses(gt)  # only pitch/roll changes are truth
     if truth is not None:
@@ -191,6 +194,49 @@ def write_report(
     markdown.write_text(text)
     page = write_html(text, out, out / "report.html") if html else None
     return Report(out, plots, markdown, summary, error_summary, drift, page)
+
+
+def table_notes(est: Mapping[str, NDArray], track: Path) -> list[str]:
+    """What in the table the report cannot vouch for, one line each: no status column, rows
+    saying ``ok`` without their numbers (a monitor table's pose is the filter's, empty
+    while it starts: not checked), monitor states vipm-track does not write, a mount
+    axis without its column (a table edited or cut by hand)."""
+    notes = []
+    first = first_data_row(track)
+    frames = np.asarray(est["frame"])
+
+    def rows_text(index: NDArray) -> str:
+        shown = ", ".join(f"row {i + first} frame {int(frames[i])}" for i in index[:3])
+        return shown + (f", … ({index.size} rows)" if index.size > 3 else "")
+
+    if "status" not in est:
+        notes.append(f"{track}: no status column: the report counts no statuses")
+    elif "monitor_state" not in est:  # a monitor's status is the pair's, its pose the filter's
+        ok = np.asarray(est["status"], dtype=object) == "ok"
+
+        def finite(panels: tuple) -> NDArray:  # (columns present, rows)
+            return np.array([np.isfinite(np.asarray(est[c], float)) for c, *_ in panels
+                             if c in est]).reshape(-1, ok.size)
+
+        # a filter's first frame has a pose and no motion yet: the motion all or none
+        pose, motion = finite(POSE_PANELS), finite(MOTION_PANELS)
+        lacking = ok & (~pose.all(axis=0) | (motion.any(axis=0) & ~motion.all(axis=0)))
+        if lacking.any():
+            notes.append(f"{track}: rows say ok but lack numbers: "
+                         f"{rows_text(np.flatnonzero(lacking))}")
+    if "monitor_state" in est:
+        state = np.asarray(est["monitor_state"], dtype=object)
+        odd = np.flatnonzero([str(v) not in STATE_COLORS and v not in ("", None) for v in state])
+        if odd.size:
+            notes.append(f"{track}: monitor states vipm-track does not write "
+                         f"({', '.join(sorted({repr(str(state[i])) for i in odd}))}): "
+                         f"{rows_text(odd)}")
+    mount = [axis[2] for axis in MOUNT_AXES if axis[2] in est]
+    if mount and len(mount) < len(MOUNT_AXES):
+        absent = [axis[2] for axis in MOUNT_AXES if axis[2] not in est]
+        notes.append(f"{track}: no column {', '.join(absent)}: the calibration has no "
+                     f"{', '.join(a.split('_')[1] for a in absent)} row")
+    return notes
 
 
 def _check_finite(table: Mapping[str, NDArray], path: Path) -> None:
@@ -522,8 +568,7 @@ def _markdown(title: str, track: Path, gt: str | Path | None, est: Mapping,
               summary: dict, errors: dict, plots: dict[str, Path], out: Path,
               drift: DriftSummary | None = None) -> str:
     n = len(est["frame"])
-    status = np.asarray(est.get("status", np.array(["ok"] * n, dtype=object)), dtype=object)
-    counts = Counter(str(s) for s in status)
+    counts = Counter(str(s) for s in est["status"]) if "status" in est else None
     has_pose = np.isfinite(np.asarray(est.get("pitch_deg", np.full(n, np.nan)), float))
     lines = [f"# Report: {title}", "",
              f"- table: `{track}` ({n} rows, frames {int(est['frame'][0])}–"
@@ -536,8 +581,9 @@ def _markdown(title: str, track: Path, gt: str | Path | None, est: Mapping,
         lines.append(f"- ground truth: `{gt}`")
     lines.append(f"- rows with a pose: {int(has_pose.sum())} / {n} "
                  f"({100.0 * has_pose.sum() / max(n, 1):.1f} %)")
-    lines.append("- statuses: " + ", ".join(f"{s or '(empty)'} × {c}"
-                                            for s, c in counts.most_common()))
+    lines.append("- statuses: " + (", ".join(f"{s or '(empty)'} × {c}"
+                                             for s, c in counts.most_common())
+                                   if counts is not None else "no status column"))
     if drift is not None:
         lines += ["", "## Calibration", "", *summary_lines(drift)]
         if "drift" in plots:
