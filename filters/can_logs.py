@@ -196,8 +196,12 @@ class LogRecords:
             raise InputError(f"{self.path}: empty file, no CAN log in it")
         try:
             reader = can.LogReader(str(self.path))
-        except ImportError as exc:
-            raise InputError(f"{self.path}: this log format needs an optional package: "
+        except (ImportError, NotImplementedError) as exc:
+            if "asammdf" not in str(exc) and isinstance(exc, NotImplementedError):
+                raise InputError(f"{self.path}: cannot open as a CAN log: {_why(exc)}") from None
+            # python-can says NotImplementedError where asammdf is missing
+            hint = " (pip install 'vipm-track[mf4]')" if "asammdf" in str(exc) else ""
+            raise InputError(f"{self.path}: this log format needs an optional package{hint}: "
                              f"{printable(exc)}") from None
         except Exception as exc:
             raise InputError(f"{self.path}: cannot open as a CAN log: {_why(exc)}") from None

@@ -468,7 +468,7 @@ def test_cli_can_speed(data, tmp_path, capsys):
     assert rc == 2 and "CAN log not found" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("suffix", ["trc", "csv"])
+@pytest.mark.parametrize("suffix", ["trc", "csv", "mf4"])
 def test_other_python_can_formats(dbc, messages, tmp_path, suffix):
     part = messages[:3000]
     path = tmp_path / f"part.{suffix}"
@@ -483,6 +483,20 @@ def test_other_python_can_formats(dbc, messages, tmp_path, suffix):
     if suffix == "trc":  # PCAN numbers buses from 1: the channel to give is no can0
         lines = "\n".join(summary.lines())
         assert "channels: 1=1626, 2=1374 (as the file numbers them, from 1" in lines
+
+
+def test_an_mf4_without_asammdf_says_what_to_install(dbc, tmp_path, monkeypatch):
+    """python-can raises NotImplementedError for a missing asammdf: it read 'cannot open as
+    a CAN log' under a usage page that listed .mf4 as supported."""
+    def no_asammdf(path, **kwargs):
+        raise NotImplementedError("The asammdf package was not found. Install python-can "
+                                  "with the optional dependency [mf4] to use the MF4Reader.")
+
+    monkeypatch.setattr(can, "LogReader", no_asammdf)
+    (tmp_path / "drive.mf4").write_bytes(b"MDF     4.10    ")
+    with pytest.raises(InputError, match=r"drive.mf4: this log format needs an optional "
+                       r"package \(pip install 'vipm-track\[mf4\]'\): The asammdf package"):
+        decode_can_log(tmp_path / "drive.mf4", dbc)
 
 
 @pytest.mark.parametrize("command", ["smooth", "track"])
