@@ -584,15 +584,16 @@ def decode_bus(bus, dbc: str | Path | cantools.database.can.Database,
                signals: str | list[str] | None = None, combine: str = "mean",
                channel: str | None = None, scale: float = 1.0, duration: float | None = None,
                max_messages: int | None = None, idle_timeout: float = 1.0,
-               on_sample: Callable[[float, float], None] | None = None
-               ) -> tuple[SpeedSeries, DecodeSummary]:
+               on_sample: Callable[[float, float], None] | None = None,
+               source: str | None = None) -> tuple[SpeedSeries, DecodeSummary]:
     """Speed series decoded live from a python-can ``bus`` (e.g. ``can.Bus(interface=
     "virtual", channel=...)``), message by message; ``on_sample(t, speed_mps)`` is called for
     each sample as it arrives. Stops as :func:`iter_bus` says, or at an interrupt (Ctrl-C),
     keeping the samples decoded before it (``summary.interrupted`` set; the interrupt goes
-    on where there are none, as :func:`decode_can_log`'s)."""
+    on where there are none, as :func:`decode_can_log`'s). ``source`` names the bus in the
+    summary (default: python-can's ``channel_info``, "unknown" for some interfaces)."""
     decoder = SpeedDecoder(dbc, signals, combine=combine, channel=channel, scale=scale,
-                           source=f"bus {getattr(bus, 'channel_info', bus)}")
+                           source=source or f"bus {getattr(bus, 'channel_info', bus)}")
     try:
         for msg in iter_bus(bus, duration, max_messages, idle_timeout):
             sample = decoder.feed(msg)

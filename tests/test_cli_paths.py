@@ -221,7 +221,7 @@ def test_rerun_connect_to_nobody_finishes(drive, tmp_path: Path) -> None:
 # --- wheel speed -------------------------------------------------------------------------------
 
 
-def test_can_speed_from_a_virtual_bus(tmp_path: Path) -> None:
+def test_can_speed_from_a_virtual_bus(tmp_path: Path, capsys) -> None:
     dbc = shared_data("comma2k19_can", "toyota_2017.dbc")
     db = cantools.database.load_file(str(dbc), strict=False)
     message = db.get_message_by_name("WHEEL_SPEEDS")
@@ -264,6 +264,8 @@ def test_can_speed_from_a_virtual_bus(tmp_path: Path) -> None:
     speeds = np.array([float(r["speed_mps"]) for r in rows])
     assert np.abs(speeds[:, None] - possible[None]).min(axis=1).max() < 0.01 / 3.6
     assert np.all(np.diff([float(r["t"]) for r in rows]) > 0)
+    # named as given (the summary said "bus unknown" for a udp_multicast bus)
+    assert f"bus virtual:{channel}: " in capsys.readouterr().err
 
 
 def test_can_speed_bus_needs_interface_and_channel(tmp_path: Path, capsys) -> None:

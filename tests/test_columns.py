@@ -276,6 +276,9 @@ def test_json_outputs_are_strict_json(tmp_path):
 
     assert json.loads(dumps({"a": float("nan"), "b": [1.0, float("inf")], "c": (2,)}),
                       parse_constant=refuse) == {"a": None, "b": [1.0, None], "c": [2]}
+    # numbers as the tables write them (a live event's "t": 1.9000000000000001)
+    assert dumps({"t": 19 * 0.1, "unix": 1.7e9 + 0.123456789}) == \
+        '{"t": 1.9, "unix": 1700000000.1234567}'
     out = tmp_path / "s.csv"
     assert main(["smooth", "--estimates", str(DATA / "knock_cart_est.csv"), "--height", "0.7",
                  "--vehicle", "cart", "--out", str(out), "--quiet"]) == 0

@@ -8,6 +8,8 @@ import json
 import math
 from typing import Any
 
+from .table import format_float
+
 
 def finite(value: Any) -> Any:
     """``value`` with every non-finite float inside it (dicts, lists, tuples) None."""
@@ -15,8 +17,9 @@ def finite(value: Any) -> Any:
         return {k: finite(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [finite(v) for v in value]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
+    if isinstance(value, float):
+        # as the tables' numbers (docs/formats.md): 1.9, not 1.9000000000000001
+        return float(format_float(value)) if math.isfinite(value) else None
     return value
 
 

@@ -75,19 +75,12 @@ def run(args: argparse.Namespace) -> int:
                                          channel=args.can_channel, scale=args.speed_scale,
                                          progress=True)
     else:
-        import can
+        from ..live_sources import open_bus
 
-        interface, _, channel = args.bus.partition(":")
-        if not interface or not channel:
-            raise InputError(f"--bus {args.bus!r}: expected INTERFACE:CHANNEL")
-        try:
-            bus = can.Bus(interface=interface, channel=channel)
-        except Exception as exc:
-            raise InputError(f"--bus {args.bus}: cannot open: {exc}") from exc
-        with bus:
+        with open_bus(args.bus) as bus:
             series, summary = decode_bus(bus, args.dbc, args.signals, combine=args.combine,
                                          channel=args.can_channel, scale=args.speed_scale,
-                                         duration=args.duration)
+                                         duration=args.duration, source=f"bus {args.bus}")
     for line in summary.lines():
         print(line, file=sys.stderr)
     if len(series) == 0:
