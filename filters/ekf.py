@@ -257,7 +257,9 @@ class ExtrinsicsEKF:
         dts = np.array([d for _, d in pairs])
         h0s = np.array([m.height_assumed for m, _ in pairs])
         travel = M.travel_sign(zs) * np.hypot(zs[:, 4], zs[:, 5]) * h_mean / h0s
-        self._direction = M.initial_direction(zs)
+        self._direction = M.initial_direction(
+            zs, np.array([np.nan if v is None else v for m, v, _, _ in boot if m is not None],
+                         dtype=float))
         speeds = np.array([M.signed_speed(v, self._direction)
                            for _, v, _, _ in boot if v is not None and np.isfinite(v)])
         x = np.zeros(M.STATE_DIM)
@@ -394,13 +396,21 @@ class ExtrinsicsEKF:
         yaw_prior = np.radians(nz.prior_mount_yaw_std_deg) ** 2
         # a wrong height or mount yaw also makes every translation disagree (the yaw turns
         # the predicted (tx, tz) off the measured direction): let the next pairs move them
-        _reopen(kf, {M.SPEED: speed, M.YAW_RATE: yaw_rate}, {
-            M.SPEED: nz.prior_speed_std_mps**2,
+        values = {M.YAW_RATE: yaw_rate}
+        variances = {
             M.YAW_RATE: np.radians(nz.prior_yaw_rate_std_dps) ** 2,
             M.MOUNT_HEIGHT: max(h_prior, float(kf.P[M.MOUNT_HEIGHT, M.MOUNT_HEIGHT])),
             M.MOUNT_YAW: max(yaw_prior, float(kf.P[M.MOUNT_YAW, M.MOUNT_YAW])),
-        })
-        self._add_motion_note(f"speed/yaw rate/height/mount yaw re-opened after "
+        }
+        if not self._metric():
+            # with a wheel speed the wheel says the speed, not pairs the model could not
+            # follow (travel beyond the estimator's range aliases backwards: a car at 30 m/s
+            # was restarted at -18 m/s every few pairs)
+            values[M.SPEED] = speed
+            variances[M.SPEED] = nz.prior_speed_std_mps**2
+        _reopen(kf, values, variances)
+        opened = "speed/yaw rate" if M.SPEED in values else "yaw rate"
+        self._add_motion_note(f"{opened}/height/mount yaw re-opened after "
                               f"{self._motion_gated_run} pairs gated on motion")
         self._motion_gated_run = 0
 

@@ -249,11 +249,26 @@ def pair_rates(
 REVERSAL_MAX_SPEED_MPS = 1.0
 
 
-def initial_direction(z: FloatArray) -> float:
+#: fastest a vehicle is taken to reverse (m/s, 18 km/h): a drive that starts with its wheels
+#: faster goes forward, whatever its first pairs say
+REVERSING_MAX_SPEED_MPS = 5.0
+
+
+def initial_direction(z: FloatArray, readings: FloatArray | None = None) -> float:
     """Direction of travel (+1 / −1, ``travel_sign``) of a drive's first pair motions ``z``
-    (n, 7): the sign of their median tz; +1 without any."""
+    (n, 7): the sign of their median tz; +1 without any, or where the wheel ``readings`` at
+    those pairs (m/s, NaN: none) read faster than ``REVERSING_MAX_SPEED_MPS`` (median of
+    their magnitudes): travel beyond the estimator's range aliases to a short backward one,
+    and a car at 35 m/s taken as reversing from three such pairs went backwards all drive."""
     z = np.asarray(z, dtype=float).reshape(-1, 7)
-    return float(travel_sign(np.median(z, axis=0))) if len(z) else 1.0
+    if not len(z):
+        return 1.0
+    if readings is not None:
+        known = np.abs(np.asarray(readings, dtype=float))
+        known = known[np.isfinite(known)]
+        if known.size and float(np.median(known)) > REVERSING_MAX_SPEED_MPS:
+            return 1.0
+    return float(travel_sign(np.median(z, axis=0)))
 
 
 def travel_direction(previous: float, reading: float, z: FloatArray | None) -> float:

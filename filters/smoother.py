@@ -125,7 +125,7 @@ def _initial_guess(
     body = np.where(ok[:, None], z[:, 2:4] - mount, 0.0)
     safe_dt = np.where(dts > 0, dts, np.nan)
     v = _interp_missing(np.where(ok, sign * travel * height / safe_dt, np.nan))
-    direction = M.initial_direction(z[ok][:10])
+    direction = M.initial_direction(z[ok][:10], speeds[ok][:10])
     wheel = np.empty(n)
     for k, reading in enumerate(speeds):
         direction = M.travel_direction(direction, float(reading), z[k] if ok[k] else None)

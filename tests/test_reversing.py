@@ -76,3 +76,43 @@ def test_travel_direction(previous, reading, tz, expected):
     assert direction == expected
     if np.isfinite(reading):
         assert M.signed_speed(reading, direction) == direction * abs(reading)
+
+
+@pytest.mark.parametrize("method", ["ekf", "batch"])
+def test_pairs_that_alias_backwards_at_speed_do_not_reverse_the_drive(method):
+    """Beyond the estimator's range (a car at 35 m/s, 10 fps) the few pairs that pass read
+    a short backward travel (aliased); the batch smoother took its first pairs' direction and
+    reported the car reversing at 35 m/s all drive. Its wheels are far faster than any
+    vehicle reverses: forward."""
+    from dataclasses import replace
+
+    profile = DriveProfile((0.0, 20.0), (30.0, 30.0), (0.01, 0.01))
+    cfg = DriveConfig.preset("car", duration_s=20.0, height_m=H0, height_assumed_m=H0,
+                             failure_fraction=0.0)
+    run = simulate_drive(cfg, 4, profile)
+    measurements = []
+    for k, m in enumerate(run.measurements):
+        if k % 8 == 5:
+            z = m.z.copy()
+            z[5] = -0.6 * z[5]
+            measurements.append(replace(m, z=z))
+        else:
+            measurements.append(replace(m, z=np.full(7, np.nan), covariance=np.full((7, 7), np.nan),
+                                        status="too few inliers"))
+    assert sum(m.ok for m in measurements) >= 20
+    if method == "ekf":
+        frames = run_filter(measurements, run.speed, EkfConfig(height_m=H0, noise=cfg.noise))
+    else:
+        frames = smooth(measurements, run.speed, SmootherConfig(height_m=H0, noise=cfg.noise))
+    v = np.array([f.speed for f in frames])
+    assert np.isfinite(v).sum() > 0.5 * len(v)
+    assert np.all(v[np.isfinite(v)] > 25.0)
+
+
+def test_initial_direction_from_pairs_only_at_a_reversing_speed():
+    back = np.array([[0, 0, 0, 0, 0.0, -0.2, 0]] * 3)
+    assert M.initial_direction(back) == -1.0
+    assert M.initial_direction(back, np.array([2.0, np.nan, 2.5])) == -1.0  # backing out
+    assert M.initial_direction(back, np.array([30.0, 31.0, np.nan])) == 1.0
+    assert M.initial_direction(back, np.full(3, np.nan)) == -1.0
+    assert M.initial_direction(np.zeros((0, 7)), np.zeros(0)) == 1.0
