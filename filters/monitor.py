@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -46,6 +46,15 @@ from .monitor_types import (
 from .nominal import NominalCalibration
 
 FloatArray = NDArray[np.float64]
+
+#: how far back [s] the new extrinsics look for a second move of the camera within the frames
+#: they are read from (the step test finds older ones; each second more costs every frame)
+MOVED_AGAIN_S = 6.0
+#: ... and how far apart the two sides' medians must read, in their 95 % half-widths taken
+#: together: the splits are a dozen tests a frame (over 30 simulated drives held after a
+#: step the largest was 1.3–1.9; a second 1° knock of a rendered car or cart reads 2 within
+#: 0.3–1.5 s)
+MOVED_APART = 2.0
 
 
 class _Frame(NamedTuple):
@@ -237,6 +246,20 @@ class DriftMonitor:
         var = np.array([h.var for h in hist])
         est = np.full(3, np.nan)
         half = np.full(3, np.nan)
+        lo, hi = np.full(3, np.nan), np.full(3, np.nan)
+
+        def median_interval(d: FloatArray, v: FloatArray, j: int) -> tuple[float, float]:
+            """Median of the deviations ``d`` [rad, m] of axis ``j`` and its 95 % half-width
+            (the body's and road's correlation; the data's own scatter where wider)."""
+            n = len(d)
+            mv = (mean_variance(body_std[j], a[j], float(np.mean(v)), n)
+                  + mean_variance(core.road_std[j], a_road, 0.0, n))
+            width = 1.96 * math.sqrt(math.pi / 2.0 * mv)
+            data = batch_means(d)
+            if data is not None:
+                width = max(width, math.sqrt(math.pi / 2.0) * data.half_width95)
+            return float(np.median(d)), width
+
         for j in range(3):
             ok = np.isfinite(dev[:, j])
             if not ok.any() and fallback:
@@ -245,18 +268,46 @@ class DriftMonitor:
                 ok = np.isfinite(dev_j[:, j])
             else:
                 dev_j, var_j = dev, var
-            n = int(ok.sum())
-            if n == 0:
+            if not ok.any():
                 continue
-            est[j] = float(np.median(dev_j[ok, j]))
-            mv = (mean_variance(body_std[j], a[j], float(np.mean(var_j[ok, j])), n)
-                  + mean_variance(core.road_std[j], a_road, 0.0, n))
-            half[j] = 1.96 * math.sqrt(math.pi / 2.0 * mv)
-            data = batch_means(dev_j[ok, j])  # the data's own scatter, where wider
-            if data is not None:
-                half[j] = max(half[j], math.sqrt(math.pi / 2.0) * data.half_width95)
+            d, v = dev_j[ok, j], var_j[ok, j]
+            est[j], half[j] = median_interval(d, v, j)
+            lo[j], hi[j] = est[j] - half[j], est[j] + half[j]
+            if dev_j is not dev:
+                continue
+            # where the latest seconds read apart from the frames before them, the camera
+            # moved again (a second knock while RECALIBRATE is held) before the step test
+            # could say so
+            cut = self._moved_again(
+                d, lambda a, b, d=d, v=v, j=j: median_interval(d[a:b], v[a:b], j))
+            if cut is not None:
+                # it reads where the camera is now, within what both readings allow; the
+                # next frames are read from there on (found stays found, as a step)
+                now, now_half = median_interval(d[cut:], v[cut:], j)
+                est[j] = now
+                lo[j], hi[j] = min(lo[j], now - now_half), max(hi[j], now + now_half)
+                moved = hist[int(np.flatnonzero(ok)[cut])].used - 1
+                self._step_at = moved if self._step_at is None else max(self._step_at, moved)
         value = core.nominal_values + est
-        return value, np.stack([value - half, value + half], axis=1)
+        return value, np.stack([core.nominal_values + lo, core.nominal_values + hi], axis=1)
+
+    def _moved_again(self, d: FloatArray,
+                     interval_of: Callable[[int, int], tuple[float, float]]) -> int | None:
+        """Where the deviations ``d`` (one axis, in time order) read apart from those before:
+        of the splits on half-second steps within the last :data:`MOVED_AGAIN_S`, the one
+        whose two medians differ most, by more than :data:`MOVED_APART` times their 95 %
+        half-widths taken together (``interval_of(first, stop)``: median and half-width of
+        ``d[first:stop]``); None where none does."""
+        step = self._half_second
+        first = max(step, len(d) - round(MOVED_AGAIN_S * self.config.fps))
+        best, most = None, MOVED_APART
+        for cut in range(len(d) - step, first - 1, -step):
+            (before, before_half), (after, after_half) = interval_of(0, cut), interval_of(cut,
+                                                                                        len(d))
+            apart = abs(after - before) / math.hypot(before_half, after_half)
+            if apart > most:
+                best, most = cut, apart
+        return best
 
     def _reason(self, code: int, base: int, inp: MonitorInput, stat: FloatArray,
                 estimate: FloatArray | None, interval: FloatArray | None) -> str:
