@@ -422,3 +422,26 @@ def test_start_and_max_frames_window_every_filter(short_cart: Path, tmp_path: Pa
     # a start beyond the table said "no frame has a usable pair estimate ()", exit 1
     assert main([command, "--estimates", str(est), "--start", "1000", "--out", str(out),
                  "--quiet", *extra]) == 2
+
+
+@pytest.mark.parametrize("command", ["smooth", "monitor"])
+def test_a_table_without_a_usable_pair_points_at_its_statuses(tmp_path, capsys, command):
+    """A table whose every pair failed (a cart at 10 m/s, beyond the estimator's range): the
+    filters said "For a forward-looking camera give --pitch" to a user who had given it to
+    estimate, and whose options they refuse with --estimates."""
+    from vipm_track.table import read_table
+
+    table = read_table(Path(__file__).parent / "data" / "knock_cart_est.csv")
+    with (tmp_path / "est.csv").open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(list(table))
+        for k in range(len(table["frame"])):
+            writer.writerow([table[c][k] if c in ("frame", "t", "height_m") else
+                             "too few inliers" if c == "status" else "" for c in table])
+    extra = (["--nominal", str(ROOT / "data" / "nominal_cart.yaml")] if command == "monitor"
+             else ["--height", "0.7"])
+    assert main([command, "--estimates", str(tmp_path / "est.csv"), "--out",
+                 str(tmp_path / "out.csv"), "--quiet", *extra]) == 1
+    err = capsys.readouterr().err
+    assert "no frame has a usable pair estimate (180× too few inliers)" in err, err
+    assert "Its statuses say why; estimate the frames again" in err and "give --pitch" not in err

@@ -498,7 +498,7 @@ def measurements_from_args(
         raise KeyboardInterrupt  # an interrupted run, not an unusable input
     if not out.items:
         raise InputError(f"{args.images or args.video}: no frames")
-    require_usable(out.items, str(args.images or args.video))
+    require_usable(out.items, str(args.images or args.video), estimated_here=True)
     if out.interrupted:
         print(f"vipm-track: interrupted while estimating: going on with the {len(out.items)} "
               "frames estimated before it (interrupt again to stop at once)", file=sys.stderr)
@@ -530,14 +530,20 @@ def collect_until_interrupt(stream: Iterable[Any]) -> Collected:
     return out
 
 
-def require_usable(measurements: list[PairMeasurement], source: str) -> None:
+def require_usable(measurements: list[PairMeasurement], source: str,
+                   estimated_here: bool = False) -> None:
     """:class:`NothingUsable` (exit 1) when not one frame of ``source`` has a usable pair:
-    the filters would output their priors only, which reads like an answer."""
+    the filters would output their priors only, which reads like an answer.
+    ``estimated_here``: the pairs were estimated by this run from frames (the estimator's
+    options apply), not read from an estimates table (where they are refused)."""
     if any(m.ok for m in measurements):
         return
     counts = Counter(m.status for m in measurements)
+    hint = ("For a forward-looking camera give --pitch; see the estimator options."
+            if estimated_here else
+            "Its statuses say why; estimate the frames again (a forward-looking camera: "
+            "with --pitch; the estimator options).")
     raise NothingUsable(
         f"{source}: no frame has a usable pair estimate ("
         + ", ".join(f"{n}× {status}" for status, n in counts.most_common())
-        + "); nothing is written. For a forward-looking camera give --pitch; see the "
-        "estimator options.")
+        + f"); nothing is written. {hint}")
