@@ -78,7 +78,8 @@ def slow_share_note(pitch_deg: NDArray[np.float64], slow: NDArray[np.bool_],
         f"; these pairs' median: {float(np.median(np.asarray(travel_frac)[slow])):.2f}")
     return (f"{int(slow.sum())} of the {slow.size} usable pairs ({share:.0%}) travel less than "
             f"{MIN_TRAVEL_FRAC_FORWARD:g} camera heights per frame: a forward camera's pitch "
-            "reads low there, the more the slower (renders: 0.4–0.6° at 0.1 heights per "
-            f"frame, about 0.9° at 0.05{median}) and its travel long (the height with wheel "
-            "speed low), one way for the whole stretch, which the mount intervals do not "
-            "include; judge the mount from faster driving (docs/kitti.md, \"Slow driving\")")
+            "is biased there, the more the slower (renders of open road: 0.4–0.6° low at 0.1 "
+            "heights per frame, about 0.9° at 0.05; among traffic up to 1° either way"
+            f"{median}) and its travel with it (the height with wheel speed), one way for the "
+            "whole stretch, which the mount intervals do not include; judge the mount from "
+            "faster driving (docs/kitti.md, \"Slow driving\")")
