@@ -278,6 +278,26 @@ class _InterruptedRead(can.Message):
         self._data = value
 
 
+def test_deferred_interrupts_note_ctrl_c_and_leave_an_ignored_one_ignored():
+    """A worker process ignores Ctrl-C (the whole group gets it): reading a CAN log there
+    must not start taking it."""
+    import os
+
+    from vipm_track.errors import interrupts_deferred
+
+    before = signal.getsignal(signal.SIGINT)
+    try:
+        with interrupts_deferred() as flag:
+            os.kill(os.getpid(), signal.SIGINT)
+        assert flag.requested and signal.getsignal(signal.SIGINT) is before
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        with interrupts_deferred() as flag:
+            os.kill(os.getpid(), signal.SIGINT)
+        assert not flag.requested and signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, before)
+
+
 @pytest.mark.parametrize("at", [5000, 15000])
 def test_an_interrupt_between_reads_keeps_what_was_read(dbc, messages, at):
     part = list(messages[:20000])

@@ -121,7 +121,9 @@ def interrupts_deferred() -> Iterator[InterruptFlag]:
     def note(signum: int, frame: object) -> None:
         flag.requested = True
 
-    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    # a signal ignored (a worker process's Ctrl-C, which reaches the whole group) stays so
+    previous = {sig: handler for sig in (signal.SIGINT, signal.SIGTERM)
+                if (handler := signal.getsignal(sig)) is not signal.SIG_IGN}
     for sig in previous:
         signal.signal(sig, note)
     try:
