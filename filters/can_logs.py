@@ -200,7 +200,8 @@ class LogRecords:
             if "asammdf" not in str(exc) and isinstance(exc, NotImplementedError):
                 raise InputError(f"{self.path}: cannot open as a CAN log: {_why(exc)}") from None
             # python-can says NotImplementedError where asammdf is missing
-            hint = " (pip install 'vipm-track[mf4]')" if "asammdf" in str(exc) else ""
+            hint = (" (the mf4 extra: pip install 'vipm-track[mf4]', or '.[mf4]' in a "
+                    "checkout)" if "asammdf" in str(exc) else "")
             raise InputError(f"{self.path}: this log format needs an optional package{hint}: "
                              f"{printable(exc)}") from None
         except Exception as exc:

@@ -286,8 +286,12 @@ class DriftMonitor:
                 now, now_half = median_interval(d[cut:], v[cut:], j)
                 est[j] = now
                 lo[j], hi[j] = min(lo[j], now - now_half), max(hi[j], now + now_half)
-                moved = hist[int(np.flatnonzero(ok)[cut])].used - 1
+                first = hist[int(np.flatnonzero(ok)[cut])]
+                moved = first.used - 1
                 self._step_at = moved if self._step_at is None else max(self._step_at, moved)
+                # the reason's "median of N frames over the last …" is of these frames
+                self._estimate_frames = len(d) - cut
+                self._estimate_from = first.t
         value = core.nominal_values + est
         return value, np.stack([core.nominal_values + lo, core.nominal_values + hi], axis=1)
 

@@ -409,6 +409,8 @@ class SpeedDecoder:
         with interrupts_deferred() as interrupt:
             self._read(iter(messages), batches, interrupt, progress, resume)
             t, v = self._process(batches)
+        if interrupt.requested:  # also one that came during the last read or the decode
+            self.summary.interrupted = True
         return SpeedSeries(t, v, source=self.summary.source, signals=self.signal_names,
                            scale=self.scale, summary=self.summary)
 
@@ -426,7 +428,7 @@ class SpeedDecoder:
                 msg = next(iterator)
             except StopIteration:
                 break
-            except KeyboardInterrupt:  # off the main thread, interrupts still raise
+            except KeyboardInterrupt:  # raised by the iterator itself (a reader of its own)
                 self.summary.interrupted = True
                 break
             except InputError:  # the log cannot be opened at all: nothing to go on with

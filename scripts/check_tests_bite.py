@@ -477,6 +477,12 @@ MUTANTS: tuple[Mutant, ...] = (
            "filters/monitor.py", "            if cut is not None:\n", "            if False:\n",
            ("tests/test_monitor.py::"
             "test_the_interval_holds_the_camera_soon_after_a_second_change",)),
+    Mutant("monitor-moved-again-forgotten", "monitor",
+           "dropped memory: a second move found on one frame is looked for again on the next",
+           "filters/monitor.py",
+           "                self._step_at = moved if self._step_at is None else max(self._step_at, "
+           "moved)\n", "",
+           ("tests/test_monitor.py::test_a_second_move_found_stays_found",)),
     Mutant("clock-offset-residuals-independent", "filters' motion",
            "dropped term: the clock offset's σ counts correlated residuals as independent",
            "filters/clock_offset.py", "    std *= correlation_inflation(residual[used_v])\n",
@@ -497,8 +503,8 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("live-data-back-without-data", "live",
            "'data back' announced while the watchdog's reason still holds",
            "vipm_track/live_monitor.py",
-           "            if out.state != \"HOLD\" and not self._holds:",
-           "            if out.state != \"HOLD\":",
+           "        if self._holds and out.state != \"HOLD\":",
+           "        if False:",
            ("tests/test_live.py::test_a_wheel_speed_that_never_came_is_no_data_back",)),
 )
 

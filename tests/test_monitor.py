@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
 from collections import Counter
 from pathlib import Path
 
@@ -745,6 +746,36 @@ def test_the_interval_holds_the_camera_soon_after_a_second_change(tmp_path):
               if not (rows["new_pitch_lo_deg"][k] <= true_pitch[rows["frame"][k]]
                       <= rows["new_pitch_hi_deg"][k])]
     assert missed == []
+    # once found, the frames since the move are the ones read (and said), not both mounts'
+    since = [float(re.search(r"frames over the last ([0-9.]+) s", rows["reason"][k]).group(1))
+             for k in held if rows["t"][k] >= knock + 1.0]
+    late = [rows["t"][k] - knock for k in held if rows["t"][k] >= knock + 1.0]
+    assert since and all(s <= t + 0.6 for s, t in zip(since, late, strict=True)), since
+
+
+def test_a_second_move_found_stays_found(tmp_path):
+    """A noisy rendered cart (``simulate --preset cart --frames 100 --profile knock --noise 8
+    --seed 14``, ``estimate --height 0.7 --readout-time 0 --pitch 45``) against a nominal 2°
+    off, knocked +1° at 4.8 s: the recent frames read apart from the rest on some frames
+    and not on the next, and the reported pitch flipped between both mounts five times;
+    once found, the frames since the move are read until a step says otherwise."""
+    from vipm_track.cli import main
+    from vipm_track.table import read_table
+
+    nominal = tmp_path / "nominal.yaml"
+    nominal.write_text("pitch_deg: 47.0\nroll_deg: 0.0\nheight_m: 0.7\ntolerances:\n"
+                       "  pitch_deg: 0.2\n  roll_deg: 0.2\n  height_m: 0.005\n")
+    out = tmp_path / "m.csv"
+    assert main(["monitor", "--estimates", str(DATA / "cart_knock_noisy_est.csv"), "--nominal",
+                 str(nominal), "--speed-csv", str(DATA / "cart_knock_noisy_speed.csv"), "--out",
+                 str(out), "--quiet"]) == 0
+    rows = read_table(out)
+    held = np.asarray(rows["monitor_state"], dtype=object) == "RECALIBRATE"
+    pitch = np.asarray(rows["new_pitch_deg"], float)[held]
+    t = np.asarray(rows["t"], float)[held]
+    jumps = t[1:][np.abs(np.diff(pitch)) > 0.2]
+    assert len(jumps) == 1 and 4.8 <= jumps[0] <= 6.0, jumps
+    assert abs(pitch[-1] - 46.0) < 0.2
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3, 5])

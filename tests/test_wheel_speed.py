@@ -298,6 +298,21 @@ def test_deferred_interrupts_note_ctrl_c_and_leave_an_ignored_one_ignored():
         signal.signal(signal.SIGINT, before)
 
 
+def test_an_interrupt_during_the_decode_is_not_lost(dbc, messages, monkeypatch):
+    """Ctrl-C while the read frames were decoded was noted and then dropped: the command
+    wrote every sample and exited 0 as if it had not come."""
+    original = SpeedDecoder._process
+
+    def interrupted(self, batches):
+        signal.raise_signal(signal.SIGINT)
+        return original(self, batches)
+
+    monkeypatch.setattr(SpeedDecoder, "_process", interrupted)
+    decoder = SpeedDecoder(dbc)
+    series = decoder.feed_many(messages[:5000])
+    assert decoder.summary.interrupted and len(series) > 100
+
+
 @pytest.mark.parametrize("at", [5000, 15000])
 def test_an_interrupt_between_reads_keeps_what_was_read(dbc, messages, at):
     part = list(messages[:20000])
@@ -515,7 +530,8 @@ def test_an_mf4_without_asammdf_says_what_to_install(dbc, tmp_path, monkeypatch)
     monkeypatch.setattr(can, "LogReader", no_asammdf)
     (tmp_path / "drive.mf4").write_bytes(b"MDF     4.10    ")
     with pytest.raises(InputError, match=r"drive.mf4: this log format needs an optional "
-                       r"package \(pip install 'vipm-track\[mf4\]'\): The asammdf package"):
+                       r"package \(the mf4 extra: pip install 'vipm-track\[mf4\]', or "
+                       r"'.\[mf4\]' in a checkout\): The asammdf package"):
         decode_can_log(tmp_path / "drive.mf4", dbc)
 
 

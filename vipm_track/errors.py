@@ -111,8 +111,9 @@ class InterruptFlag:
 def interrupts_deferred() -> Iterator[InterruptFlag]:
     """Ctrl-C and SIGTERM noted on the yielded flag, not raised, while the block runs: a loop
     that checks ``flag.requested`` between its steps stops where its state is whole (an
-    interrupt raised mid-step could leave half of it). The handlers are restored after; from
-    a thread other than the main one the flag stays unset and interrupts raise as before."""
+    interrupt raised mid-step could leave half of it). The handlers are restored after; a
+    signal ignored stays ignored; from a thread other than the main one (which never gets
+    the interrupt) nothing is changed and the flag stays unset."""
     flag = InterruptFlag()
     if threading.current_thread() is not threading.main_thread():
         yield flag

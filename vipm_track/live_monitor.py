@@ -389,11 +389,13 @@ class LiveMonitor:
             self.stats.first_recalibrate = {"t": m.t, "frame": m.frame, "reason": out.reason}
         if self.on_row is not None:
             self.on_row(LiveRow(m, state, out, result, b.image, row, latency))
-        if self._watchdog_held:
-            # the watchdog's HOLD stands while data is missing (a first pair that finished
-            # after the wheel speed fell silent said "data back" for data that never came);
-            # once it returns, say what the monitor says now
-            if out.state != "HOLD" and not self._holds:
+        if self._holds and out.state != "HOLD":
+            pass  # the watchdog's HOLD stands while data is missing (a first pair that
+            # finished after the wheel speed fell silent said "data back" for data that
+            # never came)
+        elif self._watchdog_held:
+            # the data returned after a watchdog HOLD: say what the monitor says now
+            if out.state != "HOLD":
                 event = dict(out.event) if out.event is not None else event_dict(
                     m.t, m.frame, out.state, "", out.estimate, out.interval95, out.mount)
                 event["reason"] = f"data back; {out.reason}"

@@ -9,6 +9,7 @@ summary on stderr at the end, also after Ctrl-C / SIGTERM.
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import threading
 import time
@@ -201,8 +202,6 @@ def run_live(
             for thread in (reader, replay and replay.thread, bus_reader):
                 if thread is not None and thread.is_alive():
                     thread.join(5.0)
-            if isinstance(bus, str):  # opened here (a bus passed in is its owner's to close)
-                can_bus.shutdown()
             try:
                 stats = monitor.stop(drain=not interrupted)
             finally:
@@ -211,6 +210,9 @@ def run_live(
                     events_file.close()
                 if sink is not None:
                     sink.finish()
+                if isinstance(bus, str):  # opened here (one passed in is its owner's)
+                    with contextlib.suppress(Exception):  # a failing driver costs no rows
+                        can_bus.shutdown()
     if not quiet:
         with interrupts_held():
             _print_summary(out, stats, reader, decoder)
