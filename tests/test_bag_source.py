@@ -58,6 +58,33 @@ def test_bag_holds_the_drive(drive, bags, kind):
     assert [f.index for f in chunk] == [3, 4, 5, 6] and len(chunk) == 4
 
 
+@pytest.mark.parametrize("share", [0.4, 0.75, 0.999])
+def test_an_mcap_cut_short_gives_its_complete_frames(drive, bags, tmp_path, capsys, share):
+    """A logger that died mid-file: rosbags refuses an MCAP without its footer ("File end
+    magic is invalid") and the whole recording read as nothing; its complete records are
+    read now, said once, and are the drive's first frames exactly."""
+    whole = bags["mcap"].read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(whole[: int(share * len(whole))])
+    source = BagSource(cut)
+    frames = list(source)
+    images = sorted((drive / "images").glob("*.png"))
+    assert 1 <= len(frames) == len(source) <= len(images)
+    for f, png in zip(frames, images, strict=False):
+        assert f.error is None
+        assert np.array_equal(f.image, cv2.imread(str(png), cv2.IMREAD_GRAYSCALE))
+    assert read_bag_camera(cut).width == 400
+    err = capsys.readouterr().err
+    assert err.count(f"{cut}: cut short (no MCAP footer): reading its complete records") == 1
+
+
+def test_an_mcap_cut_within_its_header_is_still_refused(bags, tmp_path):
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(bags["mcap"].read_bytes()[:40])
+    with pytest.raises(BagError, match=r"cut.mcap: cannot read the bag: AnyReaderError"):
+        BagSource(cut)
+
+
 def test_estimate_bag_matches_images(drive, bags, tmp_path):
     common = ["--height", "0.7", "--pitch", "45", "--quiet", "--parquet"]
     assert main(["estimate", "--images", str(drive / "images"), "--out",
@@ -96,3 +123,19 @@ def test_garbage_bags_are_input_errors(tmp_path, data):
         path.write_bytes(data)
         with pytest.raises(BagError):
             list(BagSource(path))
+
+
+@settings(max_examples=40, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.integers(min_value=0, max_value=10**9), st.binary(max_size=200))
+def test_a_cut_mcap_with_garbage_is_read_or_refused(bags, tmp_path, cut_at, tail):
+    """Cut anywhere and followed by garbage: the complete records before the damage are read,
+    or the bag is refused; never another error."""
+    whole = bags["mcap"].read_bytes()
+    path = tmp_path / "g.mcap"
+    path.write_bytes(whole[: cut_at % len(whole)] + tail)
+    try:
+        frames = list(BagSource(path))
+    except BagError:
+        return
+    assert all(f.error is None or f.error.startswith("unreadable frame") for f in frames)

@@ -25,7 +25,8 @@ from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.typesys import Stores, get_typestore
 
 from .camera import CameraModel
-from .sources import Frame, FrameSource, SourceError, _to_grey
+from .mcap_recovery import repaired_copy
+from .sources import Frame, FrameSource, SourceError, _say_once, _to_grey
 
 IMAGE_TYPES: tuple[str, ...] = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 CAMERA_INFO_TYPES: tuple[str, ...] = ("sensor_msgs/msg/CameraInfo",)
@@ -71,16 +72,43 @@ def _reader(path: Path) -> AnyReader:
 
 @contextmanager
 def _opened(path: Path) -> Iterator[AnyReader]:
-    """The bag at ``path`` open for reading (BagError naming it where it cannot be)."""
+    """The bag at ``path`` open for reading (BagError naming it where it cannot be); a bare
+    MCAP file cut short is read up to its last complete record (``mcap_recovery``), said
+    once on stderr."""
     reader = _reader(path)
     try:
         reader.open()
     except Exception as exc:  # rosbags raises its own error types per storage
-        raise BagError(f"{path}: cannot read the bag: {type(exc).__name__}: {exc}") from None
+        reader = _cut_mcap_reader(path, exc)
+        if reader is None:
+            raise BagError(f"{path}: cannot read the bag: {type(exc).__name__}: {exc}") from None
     try:
         yield reader
     finally:
         reader.close()
+
+
+def _cut_mcap_reader(path: Path, error: Exception) -> AnyReader | None:
+    """A reader open on the complete records of ``path`` where it is an MCAP file whose end
+    is missing (``error`` the reader's own), else None."""
+    if path.is_dir() or path.suffix.lower() != ".mcap" or "magic" not in str(error).lower():
+        return None
+    try:
+        repaired = repaired_copy(path)
+    except OSError:
+        return None
+    if repaired is None:
+        return None
+    copy, kept, size = repaired
+    _say_once(f"vipm-track: warning: {path}: cut short (no MCAP footer): reading its complete "
+              f"records, the first {kept:,} of {size:,} bytes (a chunk cut part-way is left "
+              "out)")
+    reader = AnyReader([copy], default_typestore=get_typestore(Stores.LATEST))
+    try:
+        reader.open()
+    except Exception:
+        return None
+    return reader
 
 
 def _topic(reader: AnyReader, path: Path, topic: str | None, types: tuple[str, ...],
