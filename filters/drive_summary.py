@@ -24,6 +24,7 @@ from .mount_steps import (
     untested_drive_note,
     usable_angles,
 )
+from .pair_height import HEIGHT_SCALE_WARNING
 from .smoother_config import SmoothedFrame
 
 FloatArray = NDArray[np.float64]
@@ -158,11 +159,6 @@ def mount_steps_in(mount: FloatArray, std: FloatArray) -> list[int]:
     return [int(k) + 1 for k in np.flatnonzero(step.any(axis=1))]
 
 
-#: a smoothed height further than this factor from the height the pairs were estimated with
-#: is called out: wheel speed scales the pairs' travel, and one from another drive, in other
-#: units or on another clock moves the height with it (a CAN log of another drive: 5.56 m
-#: for a 0.7 m cart, no other warning)
-HEIGHT_SCALE_WARNING = 1.25
 
 
 def _height_scale_note(height_m: float, measurements: Sequence[PairMeasurement]) -> str:

@@ -16,6 +16,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from .wheel_speed import cumulative_distance
 
+#: a smoothed height further than this factor from the height the pairs were estimated with
+#: is called out: wheel speed scales the pairs' travel, and one from another drive, in other
+#: units or on another clock moves the height with it (a CAN log of another drive: 5.56 m
+#: for a 0.7 m cart, no other warning)
+HEIGHT_SCALE_WARNING = 1.25
+
 FloatArray = NDArray[np.float64]
 
 #: a pair measures the height only while the vehicle moves at least this fast [m/s] and

@@ -19,8 +19,7 @@ from vipm_track.errors import InputError
 from vipm_track.measurement import PairMeasurement
 
 from .clock_offset import estimate_clock_offset
-from .drive_summary import HEIGHT_SCALE_WARNING
-from .pair_height import MIN_TRAVEL_FRAC, wheel_distance
+from .pair_height import HEIGHT_SCALE_WARNING, MIN_TRAVEL_FRAC, wheel_distance
 from .wheel_speed import SpeedSeries
 
 #: a fitted clock offset is called out from this size [s] on (and beyond

@@ -1001,3 +1001,61 @@ def test_a_missing_height_and_a_folder_given_as_a_dbc_are_named_as_such(tmp_path
     rc, err = _run(capsys, "can-speed", tmp_path / "empty.blf", "--dbc",
                    can_data / "toyota_2017.dbc", "--out", tmp_path / "s.csv")
     assert rc == 2 and "empty.blf: empty file, no CAN log in it" in err
+
+
+def test_ctrl_c_inside_a_lazy_import_is_an_interrupt(tmp_path, capsys, est, monkeypatch):
+    """Ctrl-C while `track` first imported gtsam came back as "ImportError: initialization
+    failed": a traceback, exit 1."""
+    from vipm_track.commands import track as track_command
+
+    def importing(args):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise ImportError("initialization failed") from exc
+
+    monkeypatch.setattr(track_command, "run", importing)
+    rc, err = _run(capsys, "track", "--estimates", est, "--height", "1.65", "--out",
+                   tmp_path / "t.csv")
+    assert rc == 130 and "interrupted" in err and "Traceback" not in err
+
+
+def test_ctrl_c_while_the_parquet_is_written_keeps_it(tmp_path, monkeypatch):
+    """A Ctrl-C after the last row, while the Parquet table was written (pyarrow's import
+    alone takes a while), lost it without a word; it is written, then the interrupt goes on."""
+    from vipm_track import table as table_module
+
+    original = table_module.write_parquet
+
+    def interrupted(*args, **kwargs):
+        signal.raise_signal(signal.SIGINT)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(table_module, "write_parquet", interrupted)
+    writer = table_module.TableWriter(tmp_path / "t.csv", ["frame", "t"],
+                                      parquet_path=tmp_path / "t.parquet")
+    writer.write({"frame": 0, "t": 0.0})
+    with pytest.raises(KeyboardInterrupt):
+        writer.close()
+    assert len(read_table(tmp_path / "t.parquet")["frame"]) == 1
+
+
+def test_ctrl_c_after_the_last_smoothed_frame_keeps_the_summary(tmp_path, capsys, est,
+                                                                 monkeypatch):
+    """Ctrl-C once every frame was smoothed, while the drive's summary was made: the table
+    was complete but the Parquet file and the summary were not written, and nothing said so."""
+    from vipm_track.filters import drive_summary
+
+    original = drive_summary.summarize_mount
+
+    def interrupted(*args, **kwargs):
+        signal.raise_signal(signal.SIGINT)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(drive_summary, "summarize_mount", interrupted)
+    out = tmp_path / "s.csv"
+    rc, _ = _run(capsys, "smooth", "--estimates", est, "--height", "1.65", "--lag", "1",
+                   "--out", out, "--parquet", "--quiet")
+    assert rc == 130
+    assert len(read_table(out)["frame"]) == len(read_table(tmp_path / "s.parquet")["frame"])
+    assert json.loads(out.with_suffix(".summary.json").read_text())["status"] == "complete"

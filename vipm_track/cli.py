@@ -114,7 +114,9 @@ def _run(argv: list[str]) -> int:
         infer_inputs(args)  # first: an input found beside the images is an input too
         check_outputs_apart(args)
         return int(args.handler(args) or 0)
-    except SystemError as exc:
+    except (SystemError, ImportError) as exc:
+        # Ctrl-C inside a compiled kernel, or inside a lazy import of a compiled module
+        # (gtsam: "ImportError: initialization failed"), comes back as one of these
         if not interrupted_in(exc):
             raise
         return _interrupted(name, args, started)

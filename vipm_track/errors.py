@@ -107,15 +107,21 @@ class InterruptFlag:
     requested: bool = False
 
 
+_deferring = False  # an interrupts_deferred block is open (on the main thread)
+
+
 @contextmanager
 def interrupts_deferred() -> Iterator[InterruptFlag]:
     """Ctrl-C and SIGTERM noted on the yielded flag, not raised, while the block runs: a loop
     that checks ``flag.requested`` between its steps stops where its state is whole (an
     interrupt raised mid-step could leave half of it). The handlers are restored after; a
     signal ignored stays ignored; from a thread other than the main one (which never gets
-    the interrupt) nothing is changed and the flag stays unset."""
+    the interrupt) nothing is changed and the flag stays unset, and within another such
+    block the outer block's flag takes it (its owner acts on it)."""
+    global _deferring
     flag = InterruptFlag()
-    if threading.current_thread() is not threading.main_thread():
+    if threading.current_thread() is not threading.main_thread() or _deferring:
+        # nested: the outer block's flag takes the interrupt and its owner acts on it
         yield flag
         return
 
@@ -127,9 +133,11 @@ def interrupts_deferred() -> Iterator[InterruptFlag]:
                 if (handler := signal.getsignal(sig)) is not signal.SIG_IGN}
     for sig in previous:
         signal.signal(sig, note)
+    _deferring = True
     try:
         yield flag
     finally:
+        _deferring = False
         for sig, handler in previous.items():
             signal.signal(sig, handler)
 

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import InputError, printable
+from .errors import InputError, interrupts_deferred, printable
 from .text_files import read_text
 
 BASE_COLUMNS: tuple[str, ...] = (
@@ -258,13 +258,18 @@ class TableWriter:
             raise OSError(exc.errno, exc.strerror, str(self.path)) from None
 
     def close(self) -> None:
+        """Close the CSV and write the Parquet table; a Ctrl-C meanwhile (pyarrow's import
+        alone takes a while) is raised after, not into them (it lost the Parquet file)."""
         self._open()  # a run without rows still leaves its header
         if self._file.closed:
             return
-        with self._named_os_errors():
-            self._file.close()
-        if self.parquet_path is not None:
-            write_parquet(self._rows, self.columns, self.parquet_path)
+        with interrupts_deferred() as interrupt:
+            with self._named_os_errors():
+                self._file.close()
+            if self.parquet_path is not None:
+                write_parquet(self._rows, self.columns, self.parquet_path)
+        if interrupt.requested:
+            raise KeyboardInterrupt
 
     def __enter__(self) -> TableWriter:
         return self

@@ -15,7 +15,7 @@ from vipm_track.filters.factors import LOSSES
 from vipm_track.filters.smoother_config import SmootherConfig
 
 from .. import json_text
-from ..errors import InputError, interrupts_held
+from ..errors import InputError, interrupts_deferred, interrupts_held
 from .common import (
     add_filter_inputs,
     add_output_options,
@@ -213,6 +213,7 @@ def run(args: argparse.Namespace) -> int:
         interrupted = (f"interrupted while estimating: smoothed over the frames up to "
                        f"{args.interrupted_at}")
     held = ExitStack()
+    late = None
     with held:
         with TableWriter(out, TRACK_COLUMNS, parquet_path=pq, columns=columns) as writer:
             try:
@@ -226,6 +227,10 @@ def run(args: argparse.Namespace) -> int:
                 interrupted = _write_interrupted(writer, measurements, frames, rows)
                 if str(stop):  # the batch's estimate kept, without its σ
                     interrupted = f"{interrupted}; {stop}"
+            else:
+                # every frame smoothed: a Ctrl-C now waits for the Parquet table and the
+                # summary (it lost both), then ends the run as interrupted
+                late = held.enter_context(interrupts_deferred())
         if sink is not None:
             log_filter_run(sink, measurements, rows, "smoothed")
             sink.finish()
@@ -257,7 +262,7 @@ def run(args: argparse.Namespace) -> int:
             # said under --quiet too (as track does): the numbers do not say these on their own
             for note in summary_warnings(summary):
                 print(f"vipm-track smooth: warning: {note}", file=sys.stderr)
-        if interrupted:
+        if interrupted or (late is not None and late.requested):
             raise KeyboardInterrupt
     return 0
 
