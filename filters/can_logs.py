@@ -196,15 +196,14 @@ class LogRecords:
             raise InputError(f"{self.path}: empty file, no CAN log in it")
         try:
             reader = can.LogReader(str(self.path))
-        except (ImportError, NotImplementedError) as exc:
-            if "asammdf" not in str(exc) and isinstance(exc, NotImplementedError):
-                raise InputError(f"{self.path}: cannot open as a CAN log: {_why(exc)}") from None
-            # python-can says NotImplementedError where asammdf is missing
-            hint = (" (the mf4 extra: pip install 'vipm-track[mf4]', or '.[mf4]' in a "
-                    "checkout)" if "asammdf" in str(exc) else "")
-            raise InputError(f"{self.path}: this log format needs an optional package{hint}: "
-                             f"{printable(exc)}") from None
         except Exception as exc:
+            # python-can says NotImplementedError (not ImportError) where asammdf is missing
+            mf4 = "asammdf" in str(exc)
+            if mf4 or isinstance(exc, ImportError):
+                hint = (" (the mf4 extra: pip install 'vipm-track[mf4]', or '.[mf4]' in a "
+                        "checkout)" if mf4 else "")
+                raise InputError(f"{self.path}: this log format needs an optional "
+                                 f"package{hint}: {printable(exc)}") from None
             raise InputError(f"{self.path}: cannot open as a CAN log: {_why(exc)}") from None
         index = 0
         try:

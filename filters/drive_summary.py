@@ -159,8 +159,6 @@ def mount_steps_in(mount: FloatArray, std: FloatArray) -> list[int]:
     return [int(k) + 1 for k in np.flatnonzero(step.any(axis=1))]
 
 
-
-
 def _height_scale_note(height_m: float, measurements: Sequence[PairMeasurement]) -> str:
     """A warning where the smoothed ``height_m`` is beyond ``HEIGHT_SCALE_WARNING`` times (or
     below its inverse) the median height the usable ``measurements`` assumed ("" if not)."""

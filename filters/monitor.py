@@ -245,7 +245,6 @@ class DriftMonitor:
         dev = np.array([h.dev for h in hist])
         var = np.array([h.var for h in hist])
         est = np.full(3, np.nan)
-        half = np.full(3, np.nan)
         lo, hi = np.full(3, np.nan), np.full(3, np.nan)
 
         def median_interval(d: FloatArray, v: FloatArray, j: int) -> tuple[float, float]:
@@ -271,8 +270,8 @@ class DriftMonitor:
             if not ok.any():
                 continue
             d, v = dev_j[ok, j], var_j[ok, j]
-            est[j], half[j] = median_interval(d, v, j)
-            lo[j], hi[j] = est[j] - half[j], est[j] + half[j]
+            est[j], half = median_interval(d, v, j)
+            lo[j], hi[j] = est[j] - half, est[j] + half
             if dev_j is not dev:
                 continue
             # where the latest seconds read apart from the frames before them, the camera

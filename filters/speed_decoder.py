@@ -409,7 +409,7 @@ class SpeedDecoder:
         with interrupts_deferred() as interrupt:
             self._read(iter(messages), batches, interrupt, progress, resume)
             t, v = self._process(batches)
-        if interrupt.requested:  # also one that came during the last read or the decode
+        if interrupt.requested:  # in the read, or during the decode at its end
             self.summary.interrupted = True
         return SpeedSeries(t, v, source=self.summary.source, signals=self.signal_names,
                            scale=self.scale, summary=self.summary)
@@ -417,12 +417,12 @@ class SpeedDecoder:
     def _read(self, iterator: Iterator, batches: dict, interrupt: InterruptFlag,
               progress: bool, resume: Callable[[], Iterator] | None) -> None:
         """Screen messages into ``batches`` until the end, an unreadable record without
-        ``resume``, or an interrupt (``summary.interrupted``)."""
+        ``resume``, or an interrupt (``interrupt`` noted, or raised by the iterator itself:
+        ``summary.interrupted``)."""
         seq = 0
         bar = _progress(progress, self.summary.source)
         while True:
             if interrupt.requested:
-                self.summary.interrupted = True
                 break
             try:
                 msg = next(iterator)

@@ -347,7 +347,7 @@ def test_a_video_with_nothing_usable_exits_1(knock, tmp_path, capsys):
     writer = cv2.VideoWriter(str(one), cv2.VideoWriter_fourcc(*"MJPG"), 10, (320, 240))
     writer.write(cv2.imread(str(knock["files"][0])))
     writer.release()
-    for video, counts in ((blank, "no texture × 5"), (one, "no pair of frames")):
+    for video, counts in ((blank, "5× no texture"), (one, "no pair of frames")):
         rc = main(["live", "--video", str(video), "--camera", str(knock["folder"] / "camera.yaml"),
                    "--nominal", str(knock["nominal"]), "--out", str(tmp_path / "live.csv")])
         err = capsys.readouterr().err

@@ -65,9 +65,13 @@ def _reader(path: Path) -> AnyReader:
         raise BagError(f"{path}: not a bag (a .bag, .mcap or .db3 file, or a rosbag2 folder "
                        "with metadata.yaml)")
     try:
-        return AnyReader([path], default_typestore=get_typestore(Stores.LATEST))
+        return _any_reader(path)
     except (AnyReaderError, OSError, ValueError) as exc:
         raise BagError(f"{path}: cannot open the bag: {exc}") from None
+
+
+def _any_reader(path: Path) -> AnyReader:
+    return AnyReader([path], default_typestore=get_typestore(Stores.LATEST))
 
 
 @contextmanager
@@ -103,7 +107,7 @@ def _cut_mcap_reader(path: Path, error: Exception) -> AnyReader | None:
     _say_once(f"vipm-track: warning: {path}: cut short (no MCAP footer): reading its complete "
               f"records, the first {kept:,} of {size:,} bytes (a chunk cut part-way is left "
               "out)")
-    reader = AnyReader([copy], default_typestore=get_typestore(Stores.LATEST))
+    reader = _any_reader(copy)
     try:
         reader.open()
     except Exception:

@@ -9,6 +9,7 @@ import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Any
 
 
 class InputError(ValueError):
@@ -90,14 +91,24 @@ def interrupts_held() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    with _interrupts_to(signal.SIG_IGN, keep_ignored=False):
+        yield
+
+
+@contextmanager
+def _interrupts_to(handler: Any, keep_ignored: bool) -> Iterator[None]:
+    """SIGINT and SIGTERM sent to ``handler`` while the block runs (main thread only), each
+    restored after; with ``keep_ignored``, a signal ignored now is left ignored."""
     previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    if keep_ignored:
+        previous = {sig: old for sig, old in previous.items() if old is not signal.SIG_IGN}
     for sig in previous:
-        signal.signal(sig, signal.SIG_IGN)
+        signal.signal(sig, handler)
     try:
         yield
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        for sig, old in previous.items():
+            signal.signal(sig, old)
 
 
 @dataclass
@@ -128,16 +139,11 @@ def interrupts_deferred() -> Iterator[InterruptFlag]:
     def note(signum: int, frame: object) -> None:
         flag.requested = True
 
-    # a signal ignored (a worker process's Ctrl-C, which reaches the whole group) stays so
-    previous = {sig: handler for sig in (signal.SIGINT, signal.SIGTERM)
-                if (handler := signal.getsignal(sig)) is not signal.SIG_IGN}
-    for sig in previous:
-        signal.signal(sig, note)
     _deferring = True
     try:
-        yield flag
+        # a signal ignored (a worker process's Ctrl-C, which reaches the whole group) stays so
+        with _interrupts_to(note, keep_ignored=True):
+            yield flag
     finally:
         _deferring = False
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
 

@@ -390,16 +390,15 @@ class LiveMonitor:
         if self.on_row is not None:
             self.on_row(LiveRow(m, state, out, result, b.image, row, latency))
         if self._holds and out.state != "HOLD":
-            pass  # the watchdog's HOLD stands while data is missing (a first pair that
-            # finished after the wheel speed fell silent said "data back" for data that
-            # never came)
-        elif self._watchdog_held:
+            # the watchdog's HOLD stands while data is missing (a first pair that finished
+            # after the wheel speed fell silent said "data back" for data that never came)
+            return
+        if self._watchdog_held and out.state != "HOLD":
             # the data returned after a watchdog HOLD: say what the monitor says now
-            if out.state != "HOLD":
-                event = dict(out.event) if out.event is not None else event_dict(
-                    m.t, m.frame, out.state, "", out.estimate, out.interval95, out.mount)
-                event["reason"] = f"data back; {out.reason}"
-                self._announce(event)
+            event = dict(out.event) if out.event is not None else event_dict(
+                m.t, m.frame, out.state, "", out.estimate, out.interval95, out.mount)
+            event["reason"] = f"data back; {out.reason}"
+            self._announce(event)
         elif out.event is not None and out.state != self._reported:
             self._announce(out.event)
 

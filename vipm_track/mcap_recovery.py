@@ -25,7 +25,7 @@ _FOOTER, _DATA_END = 0x02, 0x0F
 _CLOSING = (_HEAD.pack(_DATA_END, 4) + struct.pack("<I", 0)
             + _HEAD.pack(_FOOTER, 20) + struct.pack("<QQI", 0, 0, 0) + MAGIC)
 
-_copies: dict[tuple[str, int, int], Path] = {}
+_copies: dict[tuple[str, int, int], tuple[Path, int]] = {}  # file version: (copy, kept)
 _folder: Path | None = None
 
 
@@ -60,11 +60,11 @@ def repaired_copy(path: str | Path) -> tuple[Path, int, int] | None:
     path = Path(path)
     stat = path.stat()
     key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns)
+    if key in _copies:  # a bag is opened once per pass over it: the file walked once
+        return (*_copies[key], stat.st_size)
     kept = complete_length(path)
     if kept is None:
         return None
-    if key in _copies:
-        return _copies[key], kept, stat.st_size
     with path.open("rb") as fh:
         fh.seek(len(MAGIC))
         _, length = _HEAD.unpack(fh.read(_HEAD.size))
@@ -83,7 +83,7 @@ def repaired_copy(path: str | Path) -> tuple[Path, int, int] | None:
             dst.write(block)
             remaining -= len(block)
         dst.write(_CLOSING)
-    _copies[key] = copy
+    _copies[key] = (copy, kept)
     return copy, kept, stat.st_size
 
 

@@ -19,6 +19,7 @@ from .pipeline import FIRST_FRAME, SequenceStep, run_sequence
 from .progress import progress_bar
 from .rig import Rig
 from .sources import FrameSource
+from .statuses import counts_text
 from .table import (
     CONCISE,
     ESTIMATE_COLUMNS,
@@ -112,9 +113,7 @@ class RunSummary:
 
     def line(self) -> str:
         """One-line summary: frames ok / total, pairs per second, other statuses."""
-        others = ", ".join(
-            f"{n}× {s}" for s, n in self.statuses.most_common() if s not in ("ok", FIRST_FRAME)
-        )
+        others = counts_text(self.statuses, leave_out=("ok", FIRST_FRAME))
         text = (
             f"{self.ok}/{self.frames} frames ok ({100.0 * self.ok / max(self.frames, 1):.1f} %), "
             f"{self.pairs_per_second:.2f} pairs/s"

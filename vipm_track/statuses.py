@@ -3,6 +3,9 @@ table readers write (docs/formats.md), and :func:`is_known` for a table read bac
 
 from __future__ import annotations
 
+from collections import Counter
+from collections.abc import Collection, Mapping
+
 STATUS_OK = "ok"
 STATUS_NO_TEXTURE = "no texture"
 STATUS_NO_MOTION = "no motion"
@@ -36,3 +39,9 @@ PREFIXES: tuple[str, ...] = (UNREADABLE, WRONG_SIZE, ESTIMATOR_ERROR)
 def is_known(status: str) -> bool:
     """Whether ``status`` is one vipm-track writes."""
     return status in KNOWN or status.startswith(PREFIXES)
+
+
+def counts_text(counts: Mapping[str, int], leave_out: Collection[str] = ()) -> str:
+    """``12× ok, 3× no texture``: status counts, most common first, without ``leave_out``."""
+    return ", ".join(f"{n}× {status}" for status, n in Counter(counts).most_common()
+                     if status not in leave_out)

@@ -8,6 +8,7 @@ from collections import Counter
 
 from ..camera import load_camera
 from ..errors import InputError, NothingUsable
+from ..statuses import counts_text
 from ..table import ESTIMATE_TABLE, choose_columns
 from .common import (
     add_camera_options,
@@ -125,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
         warn_given_pitch(args, source, rig)
     if summary.ok == 0:
         kinds = Counter(s.split(":")[0] for s in summary.statuses.elements())
-        counts = ", ".join(f"{n}× {s}" for s, n in kinds.most_common())
+        counts = counts_text(kinds)
         raise NothingUsable(f"{out}: no frame has an estimate ({counts or 'no frames'}); the "
                             "table holds each frame's status")
     return 0

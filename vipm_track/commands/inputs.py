@@ -20,6 +20,7 @@ from vipm_track.filters.wheel_speed import SpeedSeries, read_speed_csv
 from ..camera import CameraModel, load_camera
 from ..errors import InputError, NothingUsable, interrupted_in
 from ..measurement import PairMeasurement, in_sequence, read_measurements
+from ..statuses import counts_text
 from ..table import first_data_row
 from .common import ONE_INPUT, check_images_folder, frame_window
 
@@ -544,6 +545,5 @@ def require_usable(measurements: list[PairMeasurement], source: str,
             "Its statuses say why; estimate the frames again (a forward-looking camera: "
             "with --pitch; the estimator options).")
     raise NothingUsable(
-        f"{source}: no frame has a usable pair estimate ("
-        + ", ".join(f"{n}× {status}" for status, n in counts.most_common())
-        + f"); nothing is written. {hint}")
+        f"{source}: no frame has a usable pair estimate ({counts_text(counts)}); nothing is "
+        f"written. {hint}")

@@ -11,6 +11,7 @@ import math
 from ..camera import load_camera
 from ..errors import InputError, NothingUsable
 from ..live_monitor import LIVE_TABLE
+from ..statuses import counts_text
 from ..table import choose_columns
 from .common import (
     add_can_decoding_options,
@@ -136,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
         sink=sink, quiet=args.quiet,
     )
     if not stats.statuses["ok"]:
-        counts = ", ".join(f"{s} × {n}" for s, n in stats.statuses.most_common())
-        raise NothingUsable(f"{out}: no pair gave an estimate ({counts or 'no pair of frames'}); "
-                            "the table holds its rows as written")
+        counts = counts_text(stats.statuses) or "no pair of frames"
+        raise NothingUsable(f"{out}: no pair gave an estimate ({counts}); the table holds its "
+                            "rows as written")
     return 0

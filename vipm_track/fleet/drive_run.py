@@ -41,6 +41,7 @@ from ..errors import InputError, NothingUsable, printable
 from ..estimator_config import EstimatorConfig
 from ..runs import sequence_steps, step_measurement, step_row
 from ..sources import FrameSource, first_frame_size, open_source
+from ..statuses import counts_text
 from ..table import CONCISE, ESTIMATE_TABLE, choose_columns_each, write_table
 from .drive_progress import DriveProgress
 from .drives import DriveSpec
@@ -233,9 +234,9 @@ def _process(spec: DriveSpec, folder: Path, settings: FleetSettings,
     progress.update("smooth", None, final=True)
     _table_atomic(folder / "estimates.parquet", estimate_rows, settings)
     if not any(m.ok for m in measurements):
-        counts = Counter(m.status for m in measurements)
-        raise NothingUsable(f"{source.description}: no frame has a usable pair estimate ("
-                            + ", ".join(f"{n}× {s}" for s, n in counts.most_common()) + ")")
+        counts = counts_text(Counter(m.status for m in measurements))
+        raise NothingUsable(f"{source.description}: no frame has a usable pair estimate "
+                            f"({counts})")
     if speed is not None:
         covered, spans = speed.overlap([m.t for m in measurements])
         if covered == 0:  # as `smooth`: a drive without its speed is no drive with one
