@@ -200,6 +200,17 @@ def test_parquet_without_pyarrow_fails_before_any_work(drive, tmp_path: Path, mo
     assert not out.exists()
 
 
+def test_a_parquet_of_an_earlier_run_is_pointed_out(drive, tmp_path: Path, capsys) -> None:
+    est, _ = drive
+    out = tmp_path / "track.csv"
+    args = ["track", "--estimates", str(est), "--height", "0.7", "--out", str(out), "--quiet"]
+    assert main([*args, "--parquet"]) == 0
+    assert "earlier run" not in capsys.readouterr().err
+    assert main(args) == 0  # the CSV rewritten, the Parquet beside it not
+    assert (f"{out.with_suffix('.parquet')} is from an earlier run; this run writes {out} only"
+            in capsys.readouterr().err)
+
+
 def test_rerun_connect_to_nobody_finishes(drive, tmp_path: Path) -> None:
     est, _ = drive
     out = tmp_path / "track.csv"

@@ -235,8 +235,13 @@ def check_output(out: str, parquet: bool = False, option: str = "--out") -> Path
         raise InputError(f"{option} {out}: give a .csv name; --parquet writes the Parquet "
                          "beside it")
     check_writable(path, option)
+    beside = path.with_suffix(".parquet")
     if parquet:
-        check_writable(path.with_suffix(".parquet"), "--parquet")
+        check_writable(beside, "--parquet")
+    elif beside.is_file():
+        # a reader of the Parquet would take an earlier run for this one
+        print(f"vipm-track: warning: {beside} is from an earlier run; this run writes {path} "
+              "only (give --parquet to write both)", file=sys.stderr)
     return path
 
 
