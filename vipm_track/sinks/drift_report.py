@@ -3,7 +3,7 @@ calibration engineer reads first (Markdown) and the whole report as one self-con
 page. ``report.write_report`` puts them together; the numbers come from
 ``drift_summary.summarize_drift``.
 
-Numbers are written in fixed decimals by unit (:func:`fmt`): degrees 3, metres 4, seconds 1,
+Numbers are written in fixed decimals by unit (:func:`fmt`): degrees 3, metres 4, seconds 2,
 rates 4, errors against ground truth one more (degrees 4, metres 5) — never in scientific
 notation.
 """
@@ -65,13 +65,19 @@ def summary_lines(s: DriftSummary) -> list[str]:
     for a in s.axes.values():
         u = a.unit
         interval = f" [{fmt(a.lo, u)}, {fmt(a.hi, u)}]" if math.isfinite(a.lo) else ""
-        when = f"{fmt(a.changed_at_s, 's')} s" if math.isfinite(a.changed_at_s) else "no change"
+        when = (f"{fmt(a.changed_at_s, 's')} s" if math.isfinite(a.changed_at_s)
+                else "before the table" if a.off_before_start else "no change")
         rate = (f"{fmt(a.rate_per_min, 'rate', True)} ± {fmt(a.rate_std_per_min, 'rate')} {u}"
                 if math.isfinite(a.rate_per_min) else a.rate_note)
         p = "–" if not math.isfinite(a.p_beyond) else _percent(a.p_beyond)
         lines.append(f"| {a.axis} [{u}] | {fmt(a.current, u)}{interval} | {fmt(a.reference, u)} "
                      f"({a.reference_from}) | {fmt(a.change, u, True)} ± "
                      f"{fmt(a.change_std, u)} | {fmt(a.tolerance, u)} | {p} | {when} | {rate} |")
+    creeping = [a.axis for a in s.axes.values() if a.interval_from == "drift fit"]
+    if creeping:
+        lines += ["", f"{' and '.join(creeping).capitalize()} drift{'s' * (len(creeping) == 1)}"
+                  " (rate beyond 3σ): current is where the drift line through the frames "
+                  "ends, not the filter's mount, which lags a creep."]
     truth = [a for a in s.axes.values() if math.isfinite(a.true_current)]
     if truth:
         lines += ["", "Against the true mount (ground truth):", "",
