@@ -133,6 +133,8 @@ def test_ros_yaml_errors_name_file_and_field(tmp_path, changes, field):
 def test_other_file_errors(tmp_path):
     with pytest.raises(CameraFileError, match="file not found"):
         load_camera(tmp_path / "nope.yaml")
+    with pytest.raises(CameraFileError, match="is a folder; give the camera file"):
+        load_camera(tmp_path)  # it said "file not found" of a folder that exists
     bad = tmp_path / "bad.yaml"
     bad.write_text("image_width: [1, 2\n")
     with pytest.raises(CameraFileError, match=r"bad\.yaml"):

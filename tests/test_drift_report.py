@@ -208,9 +208,13 @@ def test_drift_rate_only_over_long_spans() -> None:
     assert np.isnan(short.rate_per_min) and f"< {MIN_RATE_SPAN_S:.0f} s" in short.rate_note
 
 
-def test_estimates_table_has_no_calibration_section(tmp_path: Path) -> None:
+def test_estimates_table_has_no_calibration_section(tmp_path: Path, capsys) -> None:
     report = write_report(DATA / "knock_cart_est.csv", tmp_path)
     assert report.drift is None and "## Calibration" not in report.markdown.read_text()
+    # a nominal given for it is said to be unused (it was dropped without a word)
+    assert main(["report", str(DATA / "knock_cart_est.csv"), "--nominal", str(NOMINAL),
+                 "--out", str(tmp_path / "r")]) == 0
+    assert "no mount (calibration) to hold against the nominal" in capsys.readouterr().err
 
 
 @pytest.mark.skipif(not (KITTI / "poses.txt").is_file(),

@@ -196,7 +196,8 @@ def load_camera(path: str | Path, image_size: tuple[int, int] | None = None) -> 
     files state theirs."""
     path = Path(path)
     if not path.is_file():
-        raise CameraFileError(path, "file not found")
+        raise CameraFileError(path, "is a folder; give the camera file" if path.is_dir()
+                              else "file not found")
     text = read_text(path)
     if text.lstrip().startswith("%YAML") or "opencv-matrix" in text or path.suffix == ".xml":
         return _read_opencv_storage(path)

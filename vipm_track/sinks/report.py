@@ -164,6 +164,10 @@ def write_report(
     plt = _pyplot()
     plots: dict[str, Path] = {}
     drift = summarize_drift(est, nominal, truth) if _has_time(est) else None
+    if drift is None and nominal is not None and notes is not None:
+        notes.append(f"{track}: no mount (calibration) to hold against the nominal (the "
+                     "mount_* columns of track, smooth and monitor tables): the nominal is "
+                     "not used")
     if drift is not None:
         plots["drift"] = drift_figure(plt, est, drift, nominal, truth, out / "drift.png",
                                       f"{title}: calibration")
