@@ -106,7 +106,8 @@ def test_monitor_knock_report_timeline(tmp_path: Path) -> None:
     pitch = report.drift.axes["pitch"]
     assert pitch.interval_from == "monitor" and pitch.covers_truth
     text = report.markdown.read_text()
-    assert "Monitor: now **RECALIBRATE**; first alarm at frame" in text
+    # the state named: the monitor's own line names its first RECALIBRATE, later
+    assert "Monitor: now **RECALIBRATE**; first alarm (DRIFTING) at frame" in text
     assert "CALIBRATED → DRIFTING" in text and "## Monitor" not in text
 
 

@@ -91,7 +91,8 @@ def summary_lines(s: DriftSummary) -> list[str]:
                          f"{fmt(a.error, a.unit, True)} | {covered} | {when} |")
     if s.monitor is not None:
         m = s.monitor
-        alarm = (f"first alarm at frame {m.first_alarm[0]}, t = {fmt(m.first_alarm[1], 's')} s"
+        alarm = (f"first alarm ({m.first_alarm_state}) at frame "
+                 f"{m.first_alarm[0]}, t = {fmt(m.first_alarm[1], 's')} s"
                  if m.first_alarm else "no alarm")
         lines += ["", f"Monitor: now **{m.final_state}**; {alarm}; "
                   + ", ".join(f"{k or '(empty)'} {fmt(v, 's')} s" for k, v in m.seconds.items())

@@ -109,13 +109,14 @@ class AxisDrift:
 @dataclass(frozen=True)
 class MonitorTimeline:
     """The monitor's run (a ``monitor`` table): final state, the first alarm (first row in
-    DRIFTING / RECALIBRATE / INVALID: frame, t [s]; None without one), every transition
-    ``(frame, t, before, after)`` and the time spent per state [s]."""
+    DRIFTING / RECALIBRATE / INVALID: frame, t [s]; None without one) and its state, every
+    transition ``(frame, t, before, after)`` and the time spent per state [s]."""
 
     final_state: str
     first_alarm: tuple[int, float] | None
     transitions: tuple[tuple[int, float, str, str], ...]
     seconds: dict[str, float]
+    first_alarm_state: str = ""
 
 
 @dataclass(frozen=True)
@@ -362,7 +363,8 @@ def monitor_timeline(table: Mapping[str, NDArray]) -> MonitorTimeline | None:
     seconds = {str(s): float(np.nansum(dt[states == s])) for s in dict.fromkeys(states)}
     alarm = next((i for i, s in enumerate(states) if s in ALARM_STATES), None)
     first = (int(frames[alarm]), float(t[alarm])) if alarm is not None else None
-    return MonitorTimeline(str(states[-1]), first, transitions, seconds)
+    return MonitorTimeline(str(states[-1]), first, transitions, seconds,
+                           str(states[alarm]) if alarm is not None else "")
 
 
 def state_runs(values: NDArray) -> list[tuple[int, int, object]]:
