@@ -84,11 +84,12 @@ class MountStep:
 MIN_BLOCKS = 8
 
 
-def untested_drive_note(t: FloatArray, cfg: StepTestConfig | None = None) -> str:
+def untested_drive_note(t: FloatArray, cfg: StepTestConfig | None = None,
+                        tests: str = "the batch's step and drift tests") -> str:
     """A warning for a drive whose frames at times ``t`` [s] fill too few blocks for the step
     and drift tests (:data:`MIN_BLOCKS` of ``block_s`` with 3 frames or more: the long-run
     variance they rest on): a knock or a creeping mount there is not looked for, and the
-    batch's mount intervals assume none. Empty where the tests run."""
+    mount intervals assume none. ``tests`` names what is not run. Empty where they run."""
     cfg = cfg or StepTestConfig()
     t = np.asarray(t, dtype=float)
     t = t[np.isfinite(t)]
@@ -98,8 +99,8 @@ def untested_drive_note(t: FloatArray, cfg: StepTestConfig | None = None) -> str
     if filled >= MIN_BLOCKS:
         return ""
     return (f"the drive's frames fill {filled} of the {MIN_BLOCKS} blocks of {cfg.block_s:g} s "
-            "the batch's step and drift tests need: a knock or a creeping mount within it is "
-            "not looked for, and the mount intervals assume none (docs/filters.md)")
+            f"{tests} need: a knock or a creeping mount within it is not looked for, and the "
+            "mount intervals assume none (docs/filters.md)")
 
 
 def _blocks(t: FloatArray, length: float) -> NDArray[np.int64]:
