@@ -400,4 +400,4 @@ def test_a_camera_off_the_nominal_from_the_start_is_not_no_change(tmp_path: Path
     assert main(["report", str(tmp_path / "track.csv"), "--nominal", str(NOMINAL), "--out",
                  str(tmp_path / "r")]) == 0
     cells = calibration_row((tmp_path / "r" / "report.md").read_text(), "pitch")
-    assert cells[3].startswith("+1.0") and cells[6] == "before the table"
+    assert cells[3].startswith("+1.0") and cells[6] == "not found"

@@ -66,7 +66,7 @@ def summary_lines(s: DriftSummary) -> list[str]:
         u = a.unit
         interval = f" [{fmt(a.lo, u)}, {fmt(a.hi, u)}]" if math.isfinite(a.lo) else ""
         when = (f"{fmt(a.changed_at_s, 's')} s" if math.isfinite(a.changed_at_s)
-                else "before the table" if a.off_before_start else "no change")
+                else "not found" if a.off_unfound else "no change")
         rate = (f"{fmt(a.rate_per_min, 'rate', True)} ± {fmt(a.rate_std_per_min, 'rate')} {u}"
                 if math.isfinite(a.rate_per_min) else a.rate_note)
         p = "–" if not math.isfinite(a.p_beyond) else _percent(a.p_beyond)

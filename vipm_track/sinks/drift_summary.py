@@ -90,10 +90,11 @@ class AxisDrift:
         return self.current - self.true_current
 
     @property
-    def off_before_start(self) -> bool:
-        """Whether the mount was off the nominal before the table began: no change found
-        within it, yet the change from the nominal beyond its 95 % interval and the
-        tolerance (a camera already knocked at the start said "no change" beside +1.0°)."""
+    def off_unfound(self) -> bool:
+        """Whether the mount is off the nominal, beyond its 95 % interval and the tolerance,
+        with no change found within the table (off before it began, or a creep the filter's
+        mount did not follow): a camera already knocked at the start said "no change" beside
+        +1.0°."""
         return (self.reference_from == "nominal" and not math.isfinite(self.changed_at_s)
                 and abs(self.change) > Z95 * self.change_std
                 and abs(self.change) > self.tolerance)
