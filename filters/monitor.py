@@ -9,7 +9,11 @@ deviation of the frames after the last step of the mount (``filters.monitor_segm
 looked for from a second before the CUSUM's change time on; that change time where none
 stands out); the 95 % interval uses the long-run variance of a mean of n correlated frames
 (× π/2 for the median), or the frames' own batch-means scatter (``filters.long_run``) where
-wider. ``scripts/bench_monitor_estimates.py`` scores both against the truth.
+wider. Where those frames rise along a line by more than their scatter makes, the interval
+also spans the line's end (a creeping mount, which their median lags); where the line fits
+them better than any one step and surely rises, the value is the line's end
+(:meth:`DriftMonitor._line_end`). ``scripts/bench_monitor_estimates.py`` scores both against
+the truth.
 """
 
 from __future__ import annotations
@@ -55,6 +59,10 @@ MOVED_AGAIN_S = 6.0
 #: step the largest was 1.3–1.9; a second 1° knock of a rendered car or cart reads 2 within
 #: 0.3–1.5 s)
 MOVED_APART = 2.0
+#: the frames since a change are read from a line through them where it fits better than one
+#: step; its interval alone stands where it rises by more than this many of its standard
+#: deviations (else the frames' median's too)
+CREEP_SIGMAS = 3.0
 
 
 class _Frame(NamedTuple):
@@ -97,6 +105,7 @@ class DriftMonitor:
         # frames behind the last _estimate, and whether all of them follow the change's start
         self._estimate_frames, self._since_change = 0, True
         self._estimate_from = math.nan  # time of the first frame behind the last _estimate (s)
+        self._line_axes: set[int] = set()  # axes the last _estimate read from a drift line
         self._alarm_t = math.nan  # when RECALIBRATE was entered (s)
         self._hold_event: dict[str, Any] | None = None  # a HOLD not yet long enough to report
         self._announced_off: set[int] = set()  # axes RECALIBRATE's events have read off
@@ -242,6 +251,7 @@ class DriftMonitor:
             hist = history[-self._half_second:]
         self._estimate_frames = len(hist)
         self._estimate_from = hist[0].t if hist else math.nan
+        self._line_axes = set()
         dev = np.array([h.dev for h in hist])
         var = np.array([h.var for h in hist])
         est = np.full(3, np.nan)
@@ -277,6 +287,18 @@ class DriftMonitor:
             # where the latest seconds read apart from the frames before them, the camera
             # moved again (a second knock while RECALIBRATE is held) before the step test
             # could say so
+            line = self._line_end(np.array([h.t for h in hist])[ok], d,
+                                  lambda r, v=v, j=j: median_interval(r, v, j)[1])
+            if line is not None:
+                # a creeping mount: the median of the frames since the change lags it (a
+                # 1.5° ramp over 30 s held in 48 % of its frames); the line ends on it, and
+                # the interval spans both readings where the rise is not yet sure
+                end, end_half, sure = line
+                if sure:
+                    est[j], lo[j], hi[j] = end, end - end_half, end + end_half
+                    self._line_axes.add(j)
+                    continue
+                lo[j], hi[j] = min(lo[j], end - end_half), max(hi[j], end + end_half)
             cut = self._moved_again(
                 d, lambda a, b, d=d, v=v, j=j: median_interval(d[a:b], v[a:b], j))
             if cut is not None:
@@ -293,6 +315,35 @@ class DriftMonitor:
                 self._estimate_from = first.t
         value = core.nominal_values + est
         return value, np.stack([core.nominal_values + lo, core.nominal_values + hi], axis=1)
+
+    def _line_end(self, t: FloatArray, d: FloatArray,
+                  half_width_of: Callable[[FloatArray], float],
+                  ) -> tuple[float, float, bool] | None:
+        """The end of the straight line through the deviations ``d`` at times ``t`` [s], its
+        95 % half-width and whether it surely rises (by more than :data:`CREEP_SIGMAS` of
+        its standard deviation), where the line fits them better than any one step on
+        half-second splits does (a creep, not a knock); None otherwise.
+        ``half_width_of(r)``: the 95 % half-width of the middle of residuals ``r`` (the
+        body's and road's correlation, or their own scatter); a line's end is twice as
+        uncertain as its middle (uniform frames)."""
+        step, n = self._half_second, len(d)
+        if n < 4 * step:
+            return None
+        span = float(t[-1] - t[0])
+        slope, intercept = np.polyfit(t - t[-1], d, 1)
+        residual = d - (slope * (t - t[-1]) + intercept)
+        total, square = np.cumsum(d), np.cumsum(d * d)
+        cuts = np.arange(step, n - step + 1, step)
+        left = square[cuts - 1] - total[cuts - 1] ** 2 / cuts
+        right = (square[-1] - square[cuts - 1]) - (total[-1] - total[cuts - 1]) ** 2 / (n - cuts)
+        half = half_width_of(residual)
+        # the rise's σ is √12 times the middle's over a uniform span
+        rise = abs(slope * span) / (math.sqrt(12.0) * half / 1.96)
+        if rise <= 1.0:
+            return None  # no more rise than the frames' scatter makes
+        # a step (a knock, its change time early) that reads better is no creep
+        stepped = float(residual @ residual) >= float(np.min(left + right))
+        return float(intercept), 2.0 * half, bool(rise > CREEP_SIGMAS and not stepped)
 
     def _moved_again(self, d: FloatArray,
                      interval_of: Callable[[int, int], tuple[float, float]]) -> int | None:
@@ -355,6 +406,8 @@ class DriftMonitor:
         j = int(core.s.alarm_axis[0])
         tol = _fmt_dev(j, core.nominal.tolerances[j], sign=False)
         dev = (estimate - core.nominal_values)[j] if estimate is not None else core.s.ema[0, j]
+        # a creeping axis is read from the line through its frames, not their median
+        read = "end of the drift line" if j in self._line_axes else "median"
         if code == RECALIBRATE:
             span = ""
             if interval is not None:
@@ -369,11 +422,11 @@ class DriftMonitor:
                 back = settled and self._since_change and self._estimate_from > self._alarm_t
                 return (f"{AXES[j]} changed beyond the tolerance {tol} (the test crossed its "
                         f"threshold), and reads {_fmt_dev(j, dev)} from nominal "
-                        f"{'again ' if back else ''}(median {over}{span})"
+                        f"{'again ' if back else ''}({read} {over}{span})"
                         + (f": set back? RECALIBRATE clears after "
                            f"{self.config.clear_after_s:g} s of frames without a warning"
                            if back else ""))
-            text = (f"{AXES[j]} changed: {_fmt_dev(j, dev)} from nominal (median {over}"
+            text = (f"{AXES[j]} changed: {_fmt_dev(j, dev)} from nominal ({read} {over}"
                     f"{span}), beyond the tolerance {tol}: the test crossed its threshold")
             for k in sorted(self._axes_off(interval) - {j}):
                 # a second change while the first is held (a knock after a height change)
@@ -391,7 +444,7 @@ class DriftMonitor:
         over = (self._since_text(inp) if estimate is None or self._since_change else
                 f"over the last {self._estimate_frames} frames, from before it began")
         return (f"{AXES[j]} drifting: the test stands at {stat[j]:.0%} of its threshold "
-                f"(DRIFTING from {self.config.warn_enter:.0%}); median deviation {over} "
+                f"(DRIFTING from {self.config.warn_enter:.0%}); {read} deviation {over} "
                 f"{_fmt_dev(j, dev)}, tolerance {tol}")
 
     def _axes_off(self, interval: FloatArray | None) -> set[int]:

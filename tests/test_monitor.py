@@ -850,3 +850,25 @@ def test_a_second_change_while_recalibrate_is_held_is_said(tmp_path):
     table = read_table(out)
     before = np.asarray(table["t"]) < 7.2
     assert not any("reads off too" in str(r) for r in np.asarray(table["reason"])[before])
+
+
+def test_new_extrinsics_of_a_creeping_mount_are_where_it_is_now():
+    """The mount creeping +1.5° over 30 s: the median of the frames since the change lagged
+    it, and its interval held the camera in about half the flagged frames; the line through
+    them ends on it. A step of the same size is still read from the frames after it."""
+    covered = []
+    for seed in (31, 32):
+        run = drive(60.0, seed=seed, stop_probability=0.0,
+                    changes=[MountChange(15.0, pitch_deg=1.5, duration_s=30.0)])
+        _, out = monitor_run(run)
+        truth = np.degrees(run.truth.mount_pitch)
+        for o in out:
+            if o.state in ("DRIFTING", "RECALIBRATE") and o.estimate is not None and o.t >= 25:
+                lo, hi = np.degrees(o.interval95[0])
+                covered.append(lo <= truth[int(o.frame)] <= hi)
+    assert len(covered) > 300 and np.mean(covered) >= 0.85, np.mean(covered)
+    run = drive(60.0, seed=31, stop_probability=0.0, changes=[MountChange(20.0, pitch_deg=1.5)])
+    _, out = monitor_run(run)
+    at = _reported_at(out, 40.0)
+    assert "end of the drift line" not in at.reason
+    assert abs(math.degrees(at.estimate[0]) - 4.5) < 0.1
