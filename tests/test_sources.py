@@ -43,6 +43,16 @@ def test_folder_sorted_by_name_and_fps_fallback(tmp_path: Path) -> None:
     assert [int(f.image[0, 0]) for f in frames] == [5, 15, 25]
 
 
+def test_unpadded_names_are_read_in_their_numbers_order(tmp_path: Path) -> None:
+    """ffmpeg's ``frame_%d.png``: sorted as text they were read 0, 1, 10, 11, 2, … and each
+    jump estimated as a pair; a macOS ``._`` file beside a frame was read as frame 0."""
+    for i in range(12):
+        cv2.imwrite(str(tmp_path / f"frame_{i}.png"), np.full((30, 40), 10 * i + 5, np.uint8))
+    (tmp_path / "._frame_3.png").write_bytes(b"\x00\x05\x16\x07 AppleDouble")
+    frames = list(open_source(images=tmp_path, fps=10.0))
+    assert [int(f.image[0, 0]) for f in frames] == [10 * i + 5 for i in range(12)]
+
+
 def test_start_and_max_frames_keep_recording_indices(tmp_path: Path) -> None:
     _write_images(tmp_path, 6)
     source = open_source(images=tmp_path, fps=10.0, start=2, max_frames=3)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import copy
 import math
+import re
 import sys
 from collections import Counter
 from collections.abc import Iterator
@@ -159,14 +160,25 @@ class ArraySource(FrameSource):
 # --- image folders ---------------------------------------------------------------------------
 
 
+def natural_key(name: str) -> tuple[tuple[int, int | str], ...]:
+    """Sort key of a file name with its digit runs as numbers: ``frame_2`` before
+    ``frame_10`` (ffmpeg's ``%d`` names; sorted as text they were read 0, 1, 10, 11, …, 2 and
+    their pairs estimated across the jumps); zero-padded names keep their order."""
+    return tuple((0, int(part)) if part.isdigit() else (1, part)
+                 for part in re.split(r"(\d+)", name) if part)
+
+
 def list_images(folder: str | Path) -> list[Path]:
-    """Image files (by suffix) directly in ``folder``, sorted by name."""
+    """Image files (by suffix) directly in ``folder``, in natural order of their names
+    (:func:`natural_key`); hidden files (``.name``: macOS's ``._000010.png`` beside each
+    frame copied from its disks) are not frames."""
     folder = Path(folder)
     if not folder.is_dir():
         raise SourceError(f"{folder}: image folder not found")
     files = sorted(
-        p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()
-    )
+        (p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES
+         and not p.name.startswith(".") and p.is_file()),
+        key=lambda p: natural_key(p.name))
     if not files:
         suffixes = ", ".join(sorted(IMAGE_SUFFIXES))
         raise SourceError(f"{folder}: no images in the folder (looked for {suffixes})")
