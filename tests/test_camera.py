@@ -67,6 +67,29 @@ def test_opencv_filestorage_yaml(tmp_path, model):
     assert cam.distortion_model == model and np.allclose(cam.distortion, DISTORTIONS[model])
 
 
+def test_opencv_calibration_samples_fisheye_flag_is_the_fisheye_model(tmp_path):
+    """OpenCV's calibration sample writes a fisheye calibration as ``fisheye_model: 1`` and
+    4 coefficients, no ``distortion_model``: read as plumb_bob's k1, k2, p1, p2 it gave rows
+    8° off (a new user's fisheye cart); a ``distortion_model`` that contradicts it is named."""
+    def write(path, **extra):
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+        fs.write("image_width", 800)
+        fs.write("image_height", 600)
+        fs.write("camera_matrix", K)
+        fs.write("distortion_coefficients", DISTORTIONS["equidistant"].reshape(-1, 1))
+        for key, value in extra.items():
+            fs.write(key, value)
+        fs.release()
+        return path
+
+    cam = load_camera(write(tmp_path / "fish.yaml", fisheye_model=1))
+    assert cam.is_fisheye and np.allclose(cam.distortion, DISTORTIONS["equidistant"])
+    assert load_camera(write(tmp_path / "pin.yaml", fisheye_model=0)).distortion_model == \
+        "plumb_bob"
+    with pytest.raises(CameraFileError, match="'plumb_bob' contradicts fisheye_model: 1"):
+        load_camera(write(tmp_path / "both.yaml", fisheye_model=1, distortion_model="plumb_bob"))
+
+
 def test_kitti_calib():
     path = shared_data("kitti07", "calib.txt")
     cam = load_camera(path)

@@ -316,8 +316,16 @@ def _read_opencv_nodes(path: Path) -> CameraModel:
             size.append(int(node.real()))
         model_node = fs.getNode("distortion_model")
         model = model_node.string() if not model_node.empty() else ""
+        # OpenCV's calibration sample marks a fisheye calibration with ``fisheye_model: 1``
+        # (its 4 coefficients, read as plumb_bob's, gave rows 8° off without a word)
+        fisheye_node = fs.getNode("fisheye_model")
+        fisheye = not fisheye_node.empty() and fisheye_node.isInt() and fisheye_node.real() != 0
+        if fisheye and model and model not in FISHEYE_MODELS:
+            raise CameraFileError(path, f"'{model}' contradicts fisheye_model: 1",
+                                  "distortion_model")
         if not model:
-            model = "rational_polynomial" if dist.size > 5 else "plumb_bob"
+            model = ("equidistant" if fisheye else
+                     "rational_polynomial" if dist.size > 5 else "plumb_bob")
     finally:
         fs.release()
     return _build(path, k, size[0], size[1], model, dist, "camera_matrix")
