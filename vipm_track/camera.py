@@ -201,9 +201,20 @@ def load_camera(path: str | Path, image_size: tuple[int, int] | None = None) -> 
     text = read_text(path)
     if text.lstrip().startswith("%YAML") or "opencv-matrix" in text or path.suffix == ".xml":
         return _read_opencv_storage(path)
-    if path.suffix == ".txt" or text.lstrip().startswith("P0:"):
+    if _is_kitti_calib(path, text):
         return read_kitti_calib(path, image_size)
     return _read_ros_yaml(path, text)
+
+
+def _is_kitti_calib(path: Path, text: str) -> bool:
+    return path.suffix == ".txt" or text.lstrip().startswith("P0:")
+
+
+def states_image_size(path: str | Path) -> bool:
+    """Whether the camera file at ``path`` (one :func:`load_camera` reads) states the image
+    size it was calibrated for (a KITTI calib.txt does not)."""
+    path = Path(path)
+    return not _is_kitti_calib(path, read_text(path))
 
 
 def read_kitti_calib(path: str | Path, image_size: tuple[int, int] | None = None) -> CameraModel:
