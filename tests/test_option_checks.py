@@ -344,3 +344,22 @@ def test_a_size_less_camera_file_on_resized_frames_is_questioned(tmp_path, capsy
                 str(tmp_path / "off.yaml"), "--height", "0.7", "--pitch", "45",
                 "--readout-time", "0", "--out", str(tmp_path / "e.csv"), "--quiet"])
     assert "principal point" not in capsys.readouterr().err
+
+
+def test_an_estimates_table_timed_in_milliseconds_is_refused(tmp_path, capsys):
+    """Times in milliseconds (frames 100 "s" apart) were taken as seconds: `track` wrote the
+    cart's speed as 0.001 m/s without a word (only times more than an hour apart were
+    refused)."""
+    from pathlib import Path
+
+    from vipm_track.table import read_table, write_table
+
+    table = read_table(Path(__file__).parent / "data" / "knock_cart_est.csv")
+    table["t"] = table["t"] * 1000.0
+    rows = [{c: table[c][i] for c in table} for i in range(len(table["frame"]))]
+    write_table(tmp_path / "ms.csv", rows, [c for c in table if c not in ("frame", "t")])
+    rc = _exit_code(["track", "--estimates", str(tmp_path / "ms.csv"), "--height", "0.7",
+                     "--out", str(tmp_path / "t.csv"), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "ms.csv: t: consecutive frames are 100 s apart (median), a frame rate " \
+        "outside 0.1–1000 Hz: the times must be in seconds" in err, err

@@ -91,6 +91,14 @@ def test_bad_times_lines(tmp_path: Path) -> None:
     path.write_text("0 0.0\n1 0.1\n")
     with pytest.raises(SourceError, match="line 1: 2 numbers on the line, which is the time"):
         read_times(path)
+    # milliseconds, nanoseconds and hours: frames 100 s (1e8 s, 1e-5 s) apart were taken as
+    # seconds, and a track's speed read 0.001 m/s
+    for scale in (1e3, 1e9, 1e-4):
+        path.write_text("".join(f"{i * 0.1 * scale!r}\n" for i in range(5)))
+        with pytest.raises(SourceError, match=r"times\.txt: consecutive frames are .* s apart "
+                           r"\(median\), a frame rate outside 0\.1–1000 Hz: the times must "
+                           "be in seconds"):
+            read_times(path)
 
 
 def test_a_video_without_frames_is_named_so(tmp_path: Path) -> None:

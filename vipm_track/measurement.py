@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import InputError
+from .frame_rates import interval_problem
 from .increasing import kept_around, left_out_between
 from .statuses import MISSING_NUMBERS, is_known
 from .table import CORRELATION_COLUMNS, first_data_row, read_table
@@ -141,8 +142,6 @@ _MAX_TRAVEL_M = 1000.0
 #: no vehicle's speed (360 km/h) [m/s]: beyond it a table's travel or times are in other
 #: units (millimetres, nanoseconds), a speed sample is a corrupt row
 MAX_SPEED_MPS = 100.0
-#: consecutive frames further apart than this (median) are no camera's: times not in seconds
-_MAX_FRAME_INTERVAL_S = 3600.0
 
 
 def _check_units(frames: NDArray, t: NDArray, z: NDArray, usable: NDArray,
@@ -155,10 +154,9 @@ def _check_units(frames: NDArray, t: NDArray, z: NDArray, usable: NDArray,
         consecutive = (np.diff(frames) == 1) & (step > 0)
     if not consecutive.any():
         return
-    interval = float(np.median(step[consecutive]))
-    if interval > _MAX_FRAME_INTERVAL_S:
-        raise InputError(f"{source}: t: consecutive frames are {interval:.4g} s apart (median); "
-                         "t must be in seconds")
+    problem = interval_problem(step[consecutive])
+    if problem is not None:
+        raise InputError(f"{source}: t: {problem}")
     moving = consecutive & usable[1:]
     if not moving.any():
         return

@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import InputError, printable
+from .frame_rates import fps_problem, interval_problem
 from .text_files import read_text
 
 IMAGE_SUFFIXES: frozenset[str] = frozenset(
@@ -79,19 +80,6 @@ class FrameSource:
         """The source of this one's frames at positions ``position … position + count − 1``
         (0: its first frame), with their own indices and times: a chunk of a long run."""
         raise NotImplementedError(f"{type(self).__name__} cannot be split into chunks")
-
-
-FPS_RANGE_HZ = (0.1, 1000.0)
-"""Frame rates a vehicle camera's timestamps may be made from: slower than 0.1 Hz no two
-frames share the ground at driving speeds, faster than 1 kHz no camera this serves runs."""
-
-
-def fps_problem(fps: float) -> str | None:
-    """Why ``fps`` [Hz] cannot time frames (completes "--fps must be ..."), or ``None``."""
-    low, high = FPS_RANGE_HZ
-    if math.isfinite(fps) and low <= fps <= high:
-        return None
-    return f"a number of frames per second in [{low:g}, {high:g}], got {fps:g}"
 
 
 def open_source(
@@ -261,6 +249,8 @@ def read_times(path: str | Path, expected: int | None = None) -> NDArray[np.floa
             f"{path}: {len(values)} timestamps but {expected} images in the folder; "
             "times.txt needs one line per image"
         )
+    if (problem := interval_problem(np.diff(values))) is not None:
+        raise SourceError(f"{path}: {problem}")
     return np.asarray(values, dtype=np.float64)
 
 

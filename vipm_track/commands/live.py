@@ -80,8 +80,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from vipm_track.filters.nominal import load_nominal
 
+    from ..frame_rates import fps_problem
     from ..live_run import run_live
-    from ..sources import first_frame_size, fps_problem
+    from ..sources import first_frame_size
     from .monitor import nominal_height
     from .rerun_options import sink_from_args
 

@@ -8,11 +8,11 @@ import sys
 import numpy as np
 
 from ..errors import InputError
+from ..frame_rates import FPS_RANGE_HZ
 from ..measurement import MAX_SPEED_MPS
 from ..render import Effects
 from ..rig import MAX_ANGLE_DEG
 from ..sim import PRESETS, PROFILES, clear_earlier_run, make_trajectory, simulate_sequence
-from ..sources import FPS_RANGE_HZ
 from ..texture import TEXTURES
 from ..traffic import LEVELS
 from .common import check_output_dir

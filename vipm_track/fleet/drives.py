@@ -19,8 +19,9 @@ from pathlib import Path
 
 from ..bag_source import BAG_SUFFIXES, is_bag
 from ..errors import InputError, InvalidYaml, os_error_line, parse_yaml, printable
+from ..frame_rates import fps_problem
 from ..sinks.fleet_report import started_instant
-from ..sources import IMAGE_SUFFIXES, fps_problem
+from ..sources import IMAGE_SUFFIXES
 
 VIDEO_SUFFIXES: frozenset[str] = frozenset({".mp4", ".avi", ".mkv", ".mov", ".webm", ".m4v"})
 CAN_SUFFIXES: frozenset[str] = frozenset({".log", ".asc", ".blf", ".trc", ".mf4"})
