@@ -567,3 +567,22 @@ def test_track_says_a_drive_too_short_to_check_its_steps(tmp_path, capsys):
     err = capsys.readouterr().err
     assert ("blocks of 1 s the check for steps of the pairs that the mount did not follow "
             "need: a knock" in err), err
+
+
+def test_track_from_images_holds_the_wheel_speed_to_the_pairs_travel(tmp_path, capsys):
+    """`track --images/--video` estimates as it filters: the check of the wheel speed against
+    the pairs' travel, which `track --estimates` makes, was never made (a video's wrong frame
+    rate put the wheels at 0.34× the images' travel without a word). Now it is, at the end."""
+    from conftest import render_small_drive
+
+    drive = render_small_drive(tmp_path / "d", frames=13)
+    lines = (drive / "speed.csv").read_text().splitlines()
+    rows = [line.split(",") for line in lines[1:]]
+    (tmp_path / "fast.csv").write_text(
+        "\n".join([lines[0], *(f"{t},{3.0 * float(v)!r}" for t, v in rows)]) + "\n")
+    assert main(["track", "--images", str(drive / "images"), "--height", "0.7", "--pitch",
+                 "45", "--readout-time", "0", "--vehicle", "cart", "--speed-csv",
+                 str(tmp_path / "fast.csv"), "--out", str(tmp_path / "t.csv"),
+                 "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "moving pairs the wheels travel 3.00× what the images" in err, err

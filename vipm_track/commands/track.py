@@ -37,6 +37,8 @@ from .inputs import (
     read_estimates,
     require_usable,
     speed_on_camera_clock,
+    warn_speed_fit,
+    warn_speed_sign,
 )
 
 
@@ -85,6 +87,7 @@ def run(args: argparse.Namespace) -> int:
     from .rerun_options import sink_from_args
 
     sink = sink_from_args(args, "vipm-track track", layout="drift")
+    streamed = False
     if args.clock_offset == "auto" and speed is not None:
         # the offset is found against every pair, so the estimates come first here
         measurements = measurements_from_args(args, height, sink=sink, progress=not args.quiet)
@@ -104,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
         total = len(measurements)
     elif args.images or args.video:
         stream, total = estimate_stream(args, height, sink=sink), frame_total(args)
+        streamed = True
     else:
         raise InputError("give --images DIR, --video FILE or --estimates EST.csv")
 
@@ -119,6 +123,11 @@ def run(args: argparse.Namespace) -> int:
     counts = write_track(steps, out, parquet=args.parquet, columns=columns)
     if speed is not None and not args.quiet:
         check_speed_overlap(speed, frame_times, strict=False)
+    if speed is not None and streamed:
+        # estimated as it filtered: the speed is held to the pairs' travel once they are known
+        # (a video's wrong frame rate put the wheels at 0.34× the images' travel, unsaid)
+        warn_speed_sign(speed, usable.pairs)
+        warn_speed_fit(speed, usable.pairs)
     if not args.quiet:
         summary = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
         print(f"vipm-track track: {sum(counts.values())} frames ({summary}) → {args.out}",
@@ -161,6 +170,7 @@ class _Usable:
     slow: list[bool] = field(default_factory=list)
     t: list[float] = field(default_factory=list)
     roll_deg: list[float] = field(default_factory=list)
+    pairs: list[PairMeasurement] = field(default_factory=list)
 
 
 def _noting_times(stream: Iterator[PairMeasurement], times: list[float], usable: _Usable,
@@ -172,6 +182,7 @@ def _noting_times(stream: Iterator[PairMeasurement], times: list[float], usable:
     for m in stream:
         times.append(m.t)
         if m.ok:
+            usable.pairs.append(m)
             usable.t.append(m.t)
             usable.roll_deg.append(math.degrees(m.z[3]))
             usable.pitch_deg.append(math.degrees(m.z[2]))
