@@ -90,6 +90,27 @@ def test_opencv_calibration_samples_fisheye_flag_is_the_fisheye_model(tmp_path):
         load_camera(write(tmp_path / "both.yaml", fisheye_model=1, distortion_model="plumb_bob"))
 
 
+def test_a_camera_info_printed_by_ros2_topic_echo_is_read(tmp_path):
+    """``ros2 topic echo --once /camera_info > cam.yaml``: lower-case fields, flat lists, a
+    header and a closing ``---`` (refused as an unknown key 'header' before)."""
+    k = ", ".join(repr(float(v)) for v in K.ravel())
+    d = "\n".join(f"- {float(v)!r}" for v in DISTORTIONS["plumb_bob"])
+    path = tmp_path / "echo.yaml"
+    path.write_text(
+        "header:\n  stamp:\n    sec: 1700000000\n    nanosec: 5\n  frame_id: camera\n"
+        f"height: 600\nwidth: 800\ndistortion_model: plumb_bob\nd:\n{d}\nk: [{k}]\n"
+        "r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]\n"
+        f"p: [{k[:k.rindex(',')]}, 0.0, 0.0, 0.0, 0.0]\n"
+        "binning_x: 0\nbinning_y: 0\nroi:\n  x_offset: 0\n  y_offset: 0\n  height: 0\n"
+        "  width: 0\n  do_rectify: false\n---\n")
+    cam = load_camera(path)
+    assert np.allclose(cam.k, K) and (cam.width, cam.height) == (800, 600)
+    assert np.allclose(cam.distortion, DISTORTIONS["plumb_bob"])
+    path.write_text(path.read_text().replace("k: [", "kk: ["))
+    with pytest.raises(CameraFileError, match="'kk'"):
+        load_camera(path)
+
+
 def test_kitti_calib():
     path = shared_data("kitti07", "calib.txt")
     cam = load_camera(path)

@@ -10,6 +10,7 @@ The estimator works on undistorted images whose intrinsic matrix is :attr:`Camer
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,6 +28,9 @@ FISHEYE_MODELS = ("equidistant", "fisheye")
 #: Keys of a ROS camera_info YAML (what ``camera_calibration`` writes); others are errors.
 ROS_KEYS = ("image_width", "image_height", "camera_name", "camera_matrix", "distortion_model",
             "distortion_coefficients", "rectification_matrix", "projection_matrix")
+#: Fields of a ``sensor_msgs/CameraInfo`` message printed by ``ros2 topic echo``.
+ROS2_MESSAGE_KEYS = ("header", "height", "width", "distortion_model", "d", "k", "r", "p",
+                     "binning_x", "binning_y", "roi")
 #: Keys of a matrix in a ROS camera_info YAML.
 ROS_MATRIX_KEYS = ("rows", "cols", "data")
 #: Nodes of an OpenCV FileStorage camera file: the ones read, then the ones OpenCV's
@@ -257,12 +261,17 @@ def _kitti_image_size(folder: Path) -> tuple[int, int] | None:
 
 
 def _read_ros_yaml(path: Path, text: str) -> CameraModel:
+    # ``ros2 topic echo --once`` ends its message with a document separator
+    body = re.sub(r"\n---\s*\Z", "\n", text)
     try:
-        doc = parse_yaml(text)
+        doc = parse_yaml(body)
     except InvalidYaml as exc:
         raise CameraFileError(path, str(exc)) from None
     if not isinstance(doc, dict):
         raise CameraFileError(path, "expected a YAML mapping (ROS camera_info)")
+    if not set(doc) & {"camera_matrix", "image_width", "image_height"} and set(doc) & {
+            "header", "width", "height", "k"}:
+        return _read_ros2_message(path, doc)
     _check_keys(path, doc, ROS_KEYS, "")
     for name in ("camera_matrix", "distortion_coefficients", "rectification_matrix",
                  "projection_matrix"):
@@ -276,6 +285,19 @@ def _read_ros_yaml(path: Path, text: str) -> CameraModel:
     if "distortion_coefficients" in doc:
         dist = _matrix(doc, "distortion_coefficients", path, None).ravel()
     return _build(path, k, width, height, model, dist, "camera_matrix")
+
+
+def _read_ros2_message(path: Path, doc: dict) -> CameraModel:
+    """A ``sensor_msgs/CameraInfo`` message as ``ros2 topic echo`` prints it (``width``,
+    ``height``, ``k`` and ``d`` as flat lists, ``distortion_model``; refused as an unknown
+    ``header`` key before)."""
+    _check_keys(path, doc, ROS2_MESSAGE_KEYS, "")
+    width = _required(doc, "width", path)
+    height = _required(doc, "height", path)
+    k = _matrix(doc, "k", path, (3, 3))
+    model = str(doc.get("distortion_model") or "plumb_bob")
+    dist = _matrix(doc, "d", path, None).ravel() if doc.get("d") else np.zeros(0)
+    return _build(path, k, width, height, model, dist, "k")
 
 
 def _check_keys(path: Path, doc: dict, valid: tuple[str, ...], prefix: str) -> None:
