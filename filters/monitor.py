@@ -284,21 +284,21 @@ class DriftMonitor:
             lo[j], hi[j] = est[j] - half, est[j] + half
             if dev_j is not dev:
                 continue
-            # where the latest seconds read apart from the frames before them, the camera
-            # moved again (a second knock while RECALIBRATE is held) before the step test
-            # could say so
             line = self._line_end(np.array([h.t for h in hist])[ok], d,
                                   lambda r, v=v, j=j: median_interval(r, v, j)[1])
             if line is not None:
-                # a creeping mount: the median of the frames since the change lags it (a
-                # 1.5° ramp over 30 s held in 48 % of its frames); the line ends on it, and
-                # the interval spans both readings where the rise is not yet sure
+                # a creeping mount: the median of the frames since the change lags it; the
+                # line ends on it, and the interval spans both readings where the rise is not
+                # yet sure
                 end, end_half, sure = line
                 if sure:
                     est[j], lo[j], hi[j] = end, end - end_half, end + end_half
                     self._line_axes.add(j)
                     continue
                 lo[j], hi[j] = min(lo[j], end - end_half), max(hi[j], end + end_half)
+            # where the latest seconds read apart from the frames before them, the camera
+            # moved again (a second knock while RECALIBRATE is held) before the step test
+            # could say so
             cut = self._moved_again(
                 d, lambda a, b, d=d, v=v, j=j: median_interval(d[a:b], v[a:b], j))
             if cut is not None:
@@ -320,16 +320,17 @@ class DriftMonitor:
                   half_width_of: Callable[[FloatArray], float],
                   ) -> tuple[float, float, bool] | None:
         """The end of the straight line through the deviations ``d`` at times ``t`` [s], its
-        95 % half-width and whether it surely rises (by more than :data:`CREEP_SIGMAS` of
-        its standard deviation), where the line fits them better than any one step on
-        half-second splits does (a creep, not a knock); None otherwise.
+        95 % half-width and whether it surely creeps (rises by more than
+        :data:`CREEP_SIGMAS` of its standard deviation, and fits them better than any one
+        step on half-second splits does: a creep, not a knock), where it rises by more than
+        its standard deviation; None otherwise.
         ``half_width_of(r)``: the 95 % half-width of the middle of residuals ``r`` (the
         body's and road's correlation, or their own scatter); a line's end is twice as
         uncertain as its middle (uniform frames)."""
         step, n = self._half_second, len(d)
-        if n < 4 * step:
+        span = float(t[-1] - t[0]) if n else 0.0
+        if n < 4 * step or not span > 0:
             return None
-        span = float(t[-1] - t[0])
         slope, intercept = np.polyfit(t - t[-1], d, 1)
         residual = d - (slope * (t - t[-1]) + intercept)
         total, square = np.cumsum(d), np.cumsum(d * d)
@@ -339,9 +340,11 @@ class DriftMonitor:
         half = half_width_of(residual)
         # the rise's σ is √12 times the middle's over a uniform span
         rise = abs(slope * span) / (math.sqrt(12.0) * half / 1.96)
-        if rise <= 1.0:
+        if not rise > 1.0:
             return None  # no more rise than the frames' scatter makes
-        # a step (a knock, its change time early) that reads better is no creep
+        # a step that reads better (a knock, its change time early) is not surely a creep;
+        # on a shaking body one step often reads better than a line through a creep too, so
+        # the line's end still widens the interval
         stepped = float(residual @ residual) >= float(np.min(left + right))
         return float(intercept), 2.0 * half, bool(rise > CREEP_SIGMAS and not stepped)
 

@@ -84,6 +84,10 @@ def test_opencv_calibration_samples_fisheye_flag_is_the_fisheye_model(tmp_path):
 
     cam = load_camera(write(tmp_path / "fish.yaml", fisheye_model=1))
     assert cam.is_fisheye and np.allclose(cam.distortion, DISTORTIONS["equidistant"])
+    for flag in (1.0, "true"):  # written as a real number or a word: the same flag
+        assert load_camera(write(tmp_path / "fish2.yaml", fisheye_model=flag)).is_fisheye
+    with pytest.raises(CameraFileError, match="field 'fisheye_model': must be 0 or 1"):
+        load_camera(write(tmp_path / "odd.yaml", fisheye_model="maybe"))
     assert load_camera(write(tmp_path / "pin.yaml", fisheye_model=0)).distortion_model == \
         "plumb_bob"
     with pytest.raises(CameraFileError, match="'plumb_bob' contradicts fisheye_model: 1"):

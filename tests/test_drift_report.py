@@ -401,3 +401,17 @@ def test_a_camera_off_the_nominal_from_the_start_is_not_no_change(tmp_path: Path
                  str(tmp_path / "r")]) == 0
     cells = calibration_row((tmp_path / "r" / "report.md").read_text(), "pitch")
     assert cells[3].startswith("+1.0") and cells[6] == "not found"
+
+
+@pytest.mark.parametrize("changes", [((100.0, 0.19),), ((50.0, 1.0), (120.0, -0.5))],
+                         ids=["knock within the tolerance", "two knocks"])
+def test_knocks_are_no_drift_line(changes) -> None:
+    """A line through a knock is no creep: a 0.19° knock (within the 0.2° tolerance, so no
+    change found) and two knocks read as drifts whose line's end replaced the right mount
+    (45.23 for 45.19, P(beyond) 95 %; 45.37 for 45.50), outside its interval."""
+    t = np.arange(0.0, 200.0, 0.1)
+    true = 45.0 + sum(step * (t >= at) for at, step in changes)
+    table = lagging_mount_table(true, 0.0)
+    truth = {"frame": np.arange(t.size), "t": t, "mount_pitch_deg": true}
+    pitch = summarize_drift(table, load_nominal(NOMINAL), truth).axes["pitch"]
+    assert pitch.interval_from == "filter" and pitch.covers_truth

@@ -51,6 +51,14 @@ def test_unpadded_names_are_read_in_their_numbers_order(tmp_path: Path) -> None:
     (tmp_path / "._frame_3.png").write_bytes(b"\x00\x05\x16\x07 AppleDouble")
     frames = list(open_source(images=tmp_path, fps=10.0))
     assert [int(f.image[0, 0]) for f in frames] == [10 * i + 5 for i in range(12)]
+    # times written by str(float) are numbers too: .25 before .5 (as text sorted them)
+    stamps = tmp_path / "stamps"
+    stamps.mkdir()
+    for i, stamp in enumerate(("1403636579.25", "1403636579.5", "1403636579.75",
+                               "1403636580.0")):
+        cv2.imwrite(str(stamps / f"{stamp}.png"), np.full((30, 40), 10 * i + 5, np.uint8))
+    frames = list(open_source(images=stamps, fps=10.0))
+    assert [int(f.image[0, 0]) for f in frames] == [5, 15, 25, 35]
 
 
 def test_start_and_max_frames_keep_recording_indices(tmp_path: Path) -> None:

@@ -203,22 +203,29 @@ def load_camera(path: str | Path, image_size: tuple[int, int] | None = None) -> 
         raise CameraFileError(path, "is a folder; give the camera file" if path.is_dir()
                               else "file not found")
     text = read_text(path)
-    if text.lstrip().startswith("%YAML") or "opencv-matrix" in text or path.suffix == ".xml":
+    kind = _file_kind(path, text)
+    if kind == "opencv":
         return _read_opencv_storage(path)
-    if _is_kitti_calib(path, text):
+    if kind == "kitti":
         return read_kitti_calib(path, image_size)
     return _read_ros_yaml(path, text)
 
 
-def _is_kitti_calib(path: Path, text: str) -> bool:
-    return path.suffix == ".txt" or text.lstrip().startswith("P0:")
+def _file_kind(path: Path, text: str) -> str:
+    """Which reader a camera file is for: ``opencv`` (FileStorage), ``kitti`` (calib.txt)
+    or ``ros`` (camera_info YAML, or a CameraInfo message)."""
+    if text.lstrip().startswith("%YAML") or "opencv-matrix" in text or path.suffix == ".xml":
+        return "opencv"
+    if path.suffix == ".txt" or text.lstrip().startswith("P0:"):
+        return "kitti"
+    return "ros"
 
 
 def states_image_size(path: str | Path) -> bool:
     """Whether the camera file at ``path`` (one :func:`load_camera` reads) states the image
     size it was calibrated for (a KITTI calib.txt does not)."""
     path = Path(path)
-    return not _is_kitti_calib(path, read_text(path))
+    return _file_kind(path, read_text(path)) != "kitti"
 
 
 def read_kitti_calib(path: str | Path, image_size: tuple[int, int] | None = None) -> CameraModel:
@@ -350,9 +357,8 @@ def _read_opencv_nodes(path: Path) -> CameraModel:
         model_node = fs.getNode("distortion_model")
         model = model_node.string() if not model_node.empty() else ""
         # OpenCV's calibration sample marks a fisheye calibration with ``fisheye_model: 1``
-        # (its 4 coefficients, read as plumb_bob's, gave rows 8° off without a word)
-        fisheye_node = fs.getNode("fisheye_model")
-        fisheye = not fisheye_node.empty() and fisheye_node.isInt() and fisheye_node.real() != 0
+        # and no ``distortion_model``: its 4 coefficients are not plumb_bob's
+        fisheye = _flag(fs.getNode("fisheye_model"), path, "fisheye_model")
         if fisheye and model and model not in FISHEYE_MODELS:
             raise CameraFileError(path, f"'{model}' contradicts fisheye_model: 1",
                                   "distortion_model")
@@ -362,6 +368,19 @@ def _read_opencv_nodes(path: Path) -> CameraModel:
     finally:
         fs.release()
     return _build(path, k, size[0], size[1], model, dist, "camera_matrix")
+
+
+def _flag(node: cv2.FileNode, path: Path, name: str) -> bool:
+    """A FileStorage node read as a yes/no flag (``1``, ``1.0``, ``"true"``; absent: no);
+    CameraFileError for any other value."""
+    if node.empty():
+        return False
+    if node.isInt() or node.isReal():
+        return node.real() != 0
+    text = node.string().strip().lower() if node.isString() else ""
+    if text in ("1", "true", "yes", "0", "false", "no"):
+        return text in ("1", "true", "yes")
+    raise CameraFileError(path, "must be 0 or 1", name)
 
 
 def _required(doc: dict, name: str, path: Path) -> int:

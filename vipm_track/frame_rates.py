@@ -22,8 +22,8 @@ def fps_problem(fps: float) -> str | None:
 
 def interval_problem(intervals: ArrayLike) -> str | None:
     """Why the ``intervals`` between consecutive frames are not in seconds, or ``None``: their
-    median outside what :data:`FPS_RANGE_HZ` allows (milliseconds at 10 Hz read as frames
-    100 s apart, and a track's speed as 0.001 m/s)."""
+    median outside what :data:`FPS_RANGE_HZ` allows (milliseconds taken for seconds slow a
+    track's speed a thousandfold)."""
     step = np.asarray(intervals, dtype=float)
     step = step[np.isfinite(step) & (step > 0)]
     if step.size == 0:

@@ -24,6 +24,7 @@ import sys
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass
+from decimal import Decimal
 from pathlib import Path
 
 import cv2
@@ -148,12 +149,13 @@ class ArraySource(FrameSource):
 # --- image folders ---------------------------------------------------------------------------
 
 
-def natural_key(name: str) -> tuple[tuple[int, int | str], ...]:
-    """Sort key of a file name with its digit runs as numbers: ``frame_2`` before
-    ``frame_10`` (ffmpeg's ``%d`` names; sorted as text they were read 0, 1, 10, 11, …, 2 and
-    their pairs estimated across the jumps); zero-padded names keep their order."""
-    return tuple((0, int(part)) if part.isdigit() else (1, part)
-                 for part in re.split(r"(\d+)", name) if part)
+def natural_key(name: str) -> tuple[tuple[int, Decimal | str], ...]:
+    """Sort key of a file name with its numbers as numbers: ``frame_2`` before ``frame_10``
+    (ffmpeg's ``%d`` names, which sorted as text were read 0, 1, 10, 11, …, 2), a decimal
+    ``1403636579.25`` before ``1403636579.5`` (a time written by ``str(float)``);
+    zero-padded names keep their order."""
+    return tuple((0, Decimal(part)) if part[0].isdecimal() else (1, part)
+                 for part in re.split(r"(\d+(?:\.\d+)?)", name, flags=re.ASCII) if part)
 
 
 def list_images(folder: str | Path) -> list[Path]:
@@ -166,7 +168,7 @@ def list_images(folder: str | Path) -> list[Path]:
     files = sorted(
         (p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES
          and not p.name.startswith(".") and p.is_file()),
-        key=lambda p: natural_key(p.name))
+        key=lambda p: (natural_key(p.name), p.name))
     if not files:
         suffixes = ", ".join(sorted(IMAGE_SUFFIXES))
         raise SourceError(f"{folder}: no images in the folder (looked for {suffixes})")

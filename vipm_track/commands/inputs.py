@@ -292,7 +292,7 @@ def load_frames_camera(path: str, images: str | None, video: str | None) -> Came
     sizeless = not states_image_size(path)
     if max(off) > OFF_CENTRE_WARNING or (sizeless and off[0] > SIZELESS_OFF_CENTRE_WARNING):
         # a KITTI calib.txt has no size to refuse: another camera's file on these frames
-        # gave `ok` rows 4-7° off at σ 0.007°, its own on frames resized to 75 % 3.7° off
+        # gave `ok` rows 4-7° off at σ 0.007°, as did its own on resized frames
         print(f"vipm-track: warning: {path}: the principal point ({camera.cx:g}, "
               f"{camera.cy:g}) lies {100 * max(off):.0f} % of the image from the centre of "
               f"the {camera.width}×{camera.height} frames: is it their camera"
@@ -306,8 +306,7 @@ def load_frames_camera(path: str, images: str | None, video: str | None) -> Came
 #: is questioned (calibrated lenses: a few per cent; a cropped image's may be more)
 OFF_CENTRE_WARNING = 0.2
 #: the same across the width for a camera file that states no image size (KITTI calib.txt):
-#: frames are cropped in height (a hood), seldom in width; resized to 75 %, KITTI's is 16 %
-#: off across the width (its own frames: 1 %)
+#: frames are cropped in height (a hood), seldom in width, so across the width a resize shows
 SIZELESS_OFF_CENTRE_WARNING = 0.1
 
 

@@ -125,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
         check_speed_overlap(speed, frame_times, strict=False)
     if speed is not None and streamed:
         # estimated as it filtered: the speed is held to the pairs' travel once they are known
-        # (a video's wrong frame rate put the wheels at 0.34× the images' travel, unsaid)
+        # (a video's wrong frame rate, say)
         warn_speed_sign(speed, usable.pairs)
         warn_speed_fit(speed, usable.pairs)
     if not args.quiet:
@@ -134,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
     times = [t for t in frame_times if math.isfinite(t)]
     # a knock before the EKF's test is armed (6 s) is left to the check of the pairs' steps
-    # below, which needs 8 blocks of frames: a 6.6-s car's 1° knock was missed unsaid
+    # below, which needs 8 blocks of frames: between the two, a knock went unsaid
     short = ((short_drive_note(times[-1] - times[0]) if len(times) > 1 else "")
              or untested_drive_note(np.array(usable.t), tests="the check for steps of the "
                                     "pairs that the mount did not follow"))

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .drift_summary import MOUNT_AXES, Z95, DriftSummary, state_runs
+from .drift_summary import DRIFT_SIGMAS, MOUNT_AXES, Z95, DriftSummary, state_runs
 
 #: decimals a number is written with, by unit
 DECIMALS: dict[str, int] = {"deg": 3, "m": 4, "s": 2, "%": 2, "rate": 4, "": 3,
@@ -76,8 +76,9 @@ def summary_lines(s: DriftSummary) -> list[str]:
     creeping = [a.axis for a in s.axes.values() if a.interval_from == "drift fit"]
     if creeping:
         lines += ["", f"{' and '.join(creeping).capitalize()} drift{'s' * (len(creeping) == 1)}"
-                  " (rate beyond 3σ): current is where the drift line through the frames "
-                  "ends, not the filter's mount, which lags a creep."]
+                  f" (rate beyond {DRIFT_SIGMAS:g}σ, a line fitting better than a step): "
+                  "current is where the drift line through the frames ends, not the filter's "
+                  "mount, which lags a creep."]
     truth = [a for a in s.axes.values() if math.isfinite(a.true_current)]
     if truth:
         lines += ["", "Against the true mount (ground truth):", "",

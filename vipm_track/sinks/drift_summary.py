@@ -31,8 +31,10 @@ Z95 = 1.959963984540054
 #: seconds the mount's shaking residue and its interval dominate any slope
 MIN_RATE_SPAN_S = 60.0
 #: a drift this many of its standard deviations from none makes the current extrinsics the
-#: drift line's end rather than the filter's mount
+#: drift line's end rather than the filter's mount (where the line fits better than a step)
 DRIFT_SIGMAS = 3.0
+#: block means a drift rate is fitted to at the least
+MIN_RATE_BLOCKS = 4
 #: (axis, unit, mount column, its std column, monitor's new column, its 95 % lo / hi columns,
 #: nominal attribute, tolerance attribute)
 MOUNT_AXES: tuple[tuple[str, str, str, str, str, str, str, str, str], ...] = (
@@ -93,11 +95,10 @@ class AxisDrift:
     def off_unfound(self) -> bool:
         """Whether the mount is off the nominal, beyond its 95 % interval and the tolerance,
         with no change found within the table (off before it began, or a creep the filter's
-        mount did not follow): a camera already knocked at the start said "no change" beside
-        +1.0°."""
+        mount did not follow), which is not "no change"."""
+        sure = not math.isfinite(self.change_std) or abs(self.change) > Z95 * self.change_std
         return (self.reference_from == "nominal" and not math.isfinite(self.changed_at_s)
-                and abs(self.change) > Z95 * self.change_std
-                and abs(self.change) > self.tolerance)
+                and sure and abs(self.change) > self.tolerance)
 
     @property
     def covers_truth(self) -> bool | None:
@@ -206,9 +207,9 @@ def _axis(table: Mapping[str, NDArray], t: NDArray, frames: NDArray, spec: tuple
             changed_at = _halfway_time(t[rows], mount[rows], start, current)
     fit = _drift_fit(table, t, f"{name}_{unit}", (t[rows], mount[rows], std[rows]),
                      changed_at)
-    if abs(fit.rate) > DRIFT_SIGMAS * fit.rate_std:
-        # a creeping mount: the filter's mount (a nearly constant state) lags it, by 0.3–0.7°
-        # a minute and a half into a 0.6°/min creep; the line through the frames ends on it
+    if fit.creeps and abs(fit.rate) > DRIFT_SIGMAS * fit.rate_std:
+        # a creeping mount: the filter's mount (a nearly constant state) lags it; the line
+        # through the frames ends on it
         current, sigma, source = fit.end, fit.end_std, "drift fit"
         lo, hi = current - Z95 * sigma, current + Z95 * sigma
         change = current - reference
@@ -227,10 +228,13 @@ def _axis(table: Mapping[str, NDArray], t: NDArray, frames: NDArray, spec: tuple
         # middle: what "changed at" says of each
         here = [index[int(f)] for f in frames[rows] if int(f) in index]
         tt, true = tt[here], true[here]
-        known = np.isfinite(true) & np.isfinite(tt)
-        if known.any() and np.abs(true[known] - true[known][0]).max() > 1e-9:
-            true_changed = _halfway_time(tt[known], true[known], float(true[known][0]),
-                                         float(true[known][-1]))
+        tt, true = tt[np.isfinite(true) & np.isfinite(tt)], true[np.isfinite(true) &
+                                                               np.isfinite(tt)]
+        moved = np.flatnonzero(np.abs(true - true[0]) > 1e-9) if true.size else []
+        if len(moved) and abs(true[-1] - true[0]) > 1e-9:
+            true_changed = _halfway_time(tt, true, float(true[0]), float(true[-1]))
+        elif len(moved):  # set back by the end: when it first moved
+            true_changed = float(tt[moved[0]])
     return AxisDrift(name, unit, current, lo, hi, source, reference, reference_from, change,
                      change_std, tolerance, p_beyond, changed_at, fit.rate, fit.rate_std,
                      fit.span_s, fit.note,
@@ -303,8 +307,9 @@ def _halfway_time(t: NDArray, v: NDArray, start: float, current: float) -> float
 class DriftFit(NamedTuple):
     """A straight line through an axis since its last change (:func:`_drift_fit`): ``rate``
     and its 1-σ ``rate_std`` [unit per minute], the ``span_s`` [s] it was fitted over, the
-    ``note`` (why NaN, or "since the change" / "over the table"), and the line's value at the
-    span's end with its 1-σ (``end``, ``end_std``)."""
+    ``note`` (why NaN, or "since the change" / "over the table"), the line's value at the
+    span's end with its 1-σ (``end``, ``end_std``), and whether the line fits the frames
+    better than one step does (``creeps``)."""
 
     rate: float
     rate_std: float
@@ -312,6 +317,7 @@ class DriftFit(NamedTuple):
     note: str
     end: float = NAN
     end_std: float = NAN
+    creeps: bool = False
 
 
 def _drift_fit(table: Mapping[str, NDArray], t: NDArray, column: str,
@@ -320,10 +326,10 @@ def _drift_fit(table: Mapping[str, NDArray], t: NDArray, column: str,
     the span is shorter than :data:`MIN_RATE_SPAN_S`. The line is that of the frames' own
     ``column`` (as :func:`_step_time`; the ``mount`` series ``(t, value, std)`` where the
     table has too few of them or they do not vary, a height the pairs were given): a
-    filter's mount follows a knock over tens of seconds, and its catch-up read as a drift
-    (+0.45°/min after a rendered cart's 1° knock). It is fitted to block means (30 blocks:
-    shaking averages out within a block); the rate's σ is the larger of the fit's standard
-    error and the mount's own σ at both ends over the span."""
+    filter's mount follows a knock over tens of seconds, and its catch-up is no drift. It is
+    fitted to block means (30 blocks: shaking averages out within a block); the rate's σ is
+    the larger of the fit's standard error (widened where the blocks' errors run on) and the
+    mount's own σ at both ends over the span."""
     tm, vm, std = mount
     tx, x = _frame_series(table, t, column)
     if tx.size < 4 or np.ptp(x) == 0:
@@ -337,17 +343,36 @@ def _drift_fit(table: Mapping[str, NDArray], t: NDArray, column: str,
         return DriftFit(NAN, NAN, span, f"not given: {span:.1f} s {since} < "
                         f"{MIN_RATE_SPAN_S:.0f} s")
     blocks = min(30, tx.size // 2)
+    if blocks < MIN_RATE_BLOCKS:
+        return DriftFit(NAN, NAN, span, f"not given: {tx.size} frames {since}")
     tb = np.array([b.mean() for b in np.array_split(tx, blocks)]) / 60.0
     vb = np.array([b.mean() for b in np.array_split(x, blocks)])
     (slope, intercept), cov = np.polyfit(tb, vb, 1, cov="unscaled")
     residual = vb - (slope * tb + intercept)
-    cov = cov * float(residual @ residual) / max(blocks - 2, 1)
+    cov = cov * float(residual @ residual) / (blocks - 2) * _run_on(residual)
     ends = [s for s in (std[:1], std[-1:]) if s.size and math.isfinite(s[0])]
     model_std = (math.hypot(ends[0][0], ends[1][0]) / (span / 60.0) if len(ends) == 2
                  else 0.0)
     end = np.array([tx[-1] / 60.0, 1.0])
+    # a knock (or a creep that stopped) reads better as one step: its line's end is no place
+    total, square, k = np.cumsum(vb), np.cumsum(vb * vb), np.arange(2, blocks - 1)
+    one_step = (square[k - 1] - total[k - 1] ** 2 / k
+                + (square[-1] - square[k - 1]) - (total[-1] - total[k - 1]) ** 2 / (blocks - k))
+    creeps = bool(k.size) and float(residual @ residual) < float(one_step.min())
     return DriftFit(float(slope), max(math.sqrt(cov[0, 0]), model_std), span, since,
-                    float(slope * end[0] + intercept), math.sqrt(float(end @ cov @ end)))
+                    float(slope * end[0] + intercept), math.sqrt(float(end @ cov @ end)),
+                    creeps)
+
+
+def _run_on(residual: NDArray) -> float:
+    """The factor by which errors that run on from one block to the next (lag-1
+    autocorrelation ρ > 0, at most 0.9) widen a fit's variance: (1+ρ)/(1−ρ) (Bartlett); a
+    road's slow wander, or a body's, spans blocks of seconds."""
+    r = residual - residual.mean()
+    denominator = float(r @ r)
+    rho = float(r[1:] @ r[:-1]) / denominator if denominator > 0 else 0.0
+    rho = min(max(rho, 0.0), 0.9)
+    return (1.0 + rho) / (1.0 - rho)
 
 
 def monitor_timeline(table: Mapping[str, NDArray]) -> MonitorTimeline | None:
