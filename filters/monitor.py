@@ -59,9 +59,9 @@ MOVED_AGAIN_S = 6.0
 #: step the largest was 1.3–1.9; a second 1° knock of a rendered car or cart reads 2 within
 #: 0.3–1.5 s)
 MOVED_APART = 2.0
-#: the frames since a change are read from a line through them where it fits better than one
-#: step; its interval alone stands where it rises by more than this many of its standard
-#: deviations (else the frames' median's too)
+#: a line through the frames since a change that rises by more than this many of its standard
+#: deviations, and fits them better than one step, gives the new extrinsics (a line rising
+#: by more than one only widens the median's interval to its end)
 CREEP_SIGMAS = 3.0
 
 

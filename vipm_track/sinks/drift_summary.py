@@ -228,8 +228,8 @@ def _axis(table: Mapping[str, NDArray], t: NDArray, frames: NDArray, spec: tuple
         # middle: what "changed at" says of each
         here = [index[int(f)] for f in frames[rows] if int(f) in index]
         tt, true = tt[here], true[here]
-        tt, true = tt[np.isfinite(true) & np.isfinite(tt)], true[np.isfinite(true) &
-                                                               np.isfinite(tt)]
+        known = np.isfinite(true) & np.isfinite(tt)
+        tt, true = tt[known], true[known]
         moved = np.flatnonzero(np.abs(true - true[0]) > 1e-9) if true.size else []
         if len(moved) and abs(true[-1] - true[0]) > 1e-9:
             true_changed = _halfway_time(tt, true, float(true[0]), float(true[-1]))
