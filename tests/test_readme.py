@@ -371,14 +371,16 @@ def test_shutter_assumed_status_quotes_the_results_file():
 
 
 def test_monitor_extrinsics_status_quotes_the_results_file():
-    rows = [r for r in _rows(RESULTS / "bench_monitor_estimates.md") if len(r) == 10
+    rows = [r for r in _rows(RESULTS / "bench_monitor_estimates.md") if len(r) == 11
             and r[0] != "case"]
     steps = [r for r in rows if " step " in r[0] and "road" not in r[0]]
     second = [r for r in rows if "more at" in r[0]]
+    ramp = [r for r in rows if "ramp" in r[0]]
     at_alarm = [float(r[4].rstrip(" %")) for r in steps]
     held = [float(r[9].split(" %")[0]) for r in second]
-    assert (f"| {_range(at_alarm, '.0f')} %; {_range(held, '.0f')} % (renders"
-            in _status("monitor's new extrinsics"))
+    ramp_held = [float(r[9].split(" %")[0]) for r in ramp]
+    assert (f"| {_range(at_alarm, '.0f')} %; {_range(held, '.0f')} % (renders 90–100 %); "
+            f"{_range(ramp_held, '.0f')} % (was 48) |" in _status("monitor's new extrinsics"))
 
 
 def test_lateral_motion_status_quotes_the_results_file():
