@@ -586,3 +586,20 @@ def test_track_from_images_holds_the_wheel_speed_to_the_pairs_travel(tmp_path, c
                  "--quiet"]) == 0
     err = capsys.readouterr().err
     assert "moving pairs the wheels travel 3.00× what the images" in err, err
+
+
+def test_a_streamed_tracks_kept_pairs_are_bounded_and_spread(monkeypatch):
+    """The pairs kept for the wheel speed's check after `track --images/--video` are at most
+    KEPT_PAIRS, spread over the whole run, not its first ones."""
+    from types import SimpleNamespace
+
+    from vipm_track.commands import track as track_command
+
+    monkeypatch.setattr(track_command, "KEPT_PAIRS", 100)
+    usable = track_command._Usable()
+    for i in range(1000):
+        usable.t.append(float(i))
+        usable.keep(SimpleNamespace(t=float(i)))
+    kept = [m.t for m in usable.pairs]
+    assert len(kept) < 100 and kept[0] == 0.0 and kept[-1] >= 900.0
+    assert np.all(np.diff(kept) == kept[1] - kept[0])  # evenly spread

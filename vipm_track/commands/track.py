@@ -161,16 +161,33 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+#: usable pairs kept for the wheel speed's check after a streamed run: an hour of a 30 fps
+#: camera would otherwise keep 100,000 measurements; every other one is let go each time
+KEPT_PAIRS = 20_000
+
+
 @dataclass
 class _Usable:
     """The usable pairs seen: each one's pitch [deg], whether it was slow
-    (``forward_slow``), its time [s] and roll [deg]."""
+    (``forward_slow``), its time [s] and roll [deg]; and the pairs themselves, every
+    ``stride``-th of them, at most :data:`KEPT_PAIRS` (:meth:`keep`)."""
 
     pitch_deg: list[float] = field(default_factory=list)
     slow: list[bool] = field(default_factory=list)
     t: list[float] = field(default_factory=list)
     roll_deg: list[float] = field(default_factory=list)
     pairs: list[PairMeasurement] = field(default_factory=list)
+    stride: int = 1
+
+    def keep(self, m: PairMeasurement) -> None:
+        """Keep ``m`` if it is the next ``stride``-th usable pair, thinning the kept ones by
+        half whenever they reach :data:`KEPT_PAIRS` (spread over the whole run)."""
+        if (len(self.t) - 1) % self.stride:
+            return
+        self.pairs.append(m)
+        if len(self.pairs) >= KEPT_PAIRS:
+            self.pairs = self.pairs[::2]
+            self.stride *= 2
 
 
 def _noting_times(stream: Iterator[PairMeasurement], times: list[float], usable: _Usable,
@@ -182,8 +199,8 @@ def _noting_times(stream: Iterator[PairMeasurement], times: list[float], usable:
     for m in stream:
         times.append(m.t)
         if m.ok:
-            usable.pairs.append(m)
             usable.t.append(m.t)
+            usable.keep(m)
             usable.roll_deg.append(math.degrees(m.z[3]))
             usable.pitch_deg.append(math.degrees(m.z[2]))
             usable.slow.append(bool(slow_pairs(m.z[None, :], np.array([m.height_assumed]))[0]))
