@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 from vipm_track.errors import InputError
 from vipm_track.measurement import PairMeasurement
 
+from .row_correlation import correlation_inflation
 from .wheel_speed import SpeedSeries, cumulative_distance
 
 FloatArray = NDArray[np.float64]
@@ -396,23 +397,12 @@ def _refine(pairs: _Pairs, t_speed: FloatArray, cum: FloatArray, start: float,
     _, scale_v, used_v = _profile(pairs, t_speed, cum, np.array([offset]), keep)
     wheel = _wheel_travel(t_speed, cum, pairs.a, pairs.b, offset)
     residual = (pairs.d - _local_scale(pairs, wheel, used_v) * wheel) / pairs.sigma
+    # the parabola's σ counts every pair as news; a travel error that drifts with the pose
+    # over seconds moves the fit further than it says
     std *= correlation_inflation(residual[used_v])
     return _Fine(offset=offset, std=float(std), scale=float(scale_v[0]),
                  used=int(used_v.sum()), outliers=int((~keep).sum()), noise_scale=s,
                  residual=np.where(np.isfinite(wheel) & (wheel > 0), residual, np.nan))
-
-
-def correlation_inflation(residual: FloatArray) -> float:
-    """How much wider the offset's σ is where the pairs' residuals (in time order) are
-    correlated, as an AR(1) of their lag-1 correlation ρ makes a smooth regressor's:
-    √((1 + ρ) / (1 − ρ)), ρ in [0, 0.9]. The parabola's σ counts every pair as news; a travel
-    error that drifts with the pose over seconds (a rendered car's pitch ramp: ρ 0.84) moved
-    the fit by −75 ms where it said ± 9 ms."""
-    r = residual[np.isfinite(residual)]
-    if r.size < 3 or not np.std(r) > 0:
-        return 1.0
-    rho = float(np.clip(np.corrcoef(r[:-1], r[1:])[0, 1], 0.0, 0.9))
-    return float(np.sqrt((1.0 + rho) / (1.0 - rho)))
 
 
 def _select(fits: list[_Fine]) -> tuple[_Fine, _Fine | None, float]:

@@ -47,6 +47,7 @@ from .monitor_types import (
     MonitorInput,
     MonitorOutput,
 )
+from .mount_steps import one_step_squares
 from .nominal import NominalCalibration
 
 FloatArray = NDArray[np.float64]
@@ -333,10 +334,6 @@ class DriftMonitor:
             return None
         slope, intercept = np.polyfit(t - t[-1], d, 1)
         residual = d - (slope * (t - t[-1]) + intercept)
-        total, square = np.cumsum(d), np.cumsum(d * d)
-        cuts = np.arange(step, n - step + 1, step)
-        left = square[cuts - 1] - total[cuts - 1] ** 2 / cuts
-        right = (square[-1] - square[cuts - 1]) - (total[-1] - total[cuts - 1]) ** 2 / (n - cuts)
         half = half_width_of(residual)
         # the rise's σ is √12 times the middle's over a uniform span
         rise = abs(slope * span) / (math.sqrt(12.0) * half / 1.96)
@@ -345,7 +342,8 @@ class DriftMonitor:
         # a step that reads better (a knock, its change time early) is not surely a creep;
         # on a shaking body one step often reads better than a line through a creep too, so
         # the line's end still widens the interval
-        stepped = float(residual @ residual) >= float(np.min(left + right))
+        cuts = np.arange(step, n - step + 1, step)
+        stepped = float(residual @ residual) >= float(np.min(one_step_squares(d, cuts)))
         return float(intercept), 2.0 * half, bool(rise > CREEP_SIGMAS and not stepped)
 
     def _moved_again(self, d: FloatArray,

@@ -149,6 +149,16 @@ def _split(x: FloatArray, t: FloatArray, cfg: StepTestConfig) -> tuple[float, in
     return float(partial[k] / np.sqrt(variance * len(x))), k
 
 
+def one_step_squares(x: FloatArray, cuts: NDArray[np.int64]) -> FloatArray:
+    """Per cut k of ``cuts`` (0 < k < len(x)): the sum of squares of ``x`` about the means of
+    ``x[:k]`` and ``x[k:]``, what one step at k leaves unexplained (least squares); the
+    smallest set against a line's tells a knock from a creep."""
+    total, square, n = np.cumsum(x), np.cumsum(x * x), len(x)
+    left = square[cuts - 1] - total[cuts - 1] ** 2 / cuts
+    right = (square[-1] - square[cuts - 1]) - (total[-1] - total[cuts - 1]) ** 2 / (n - cuts)
+    return left + right
+
+
 def _best_split(x: FloatArray, t: FloatArray, cfg: StepTestConfig) -> MountStep | None:
     """The most significant split over ``x`` and its seeded intervals (halves, quarters, …
     overlapping by half, each at least ``SEEDED_MIN_BLOCKS`` blocks long): a second step in

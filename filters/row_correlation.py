@@ -132,6 +132,18 @@ def ar1_variance_factor(rho: FloatArray) -> FloatArray:
     return (1.0 + rho) / (1.0 - rho)
 
 
+def correlation_inflation(residual: FloatArray) -> float:
+    """How much wider a fit's σ is where its residuals (in time order; NaN left out) run on:
+    √ of :func:`ar1_variance_factor` of their lag-1 correlation ρ (at least 0), 1 with fewer
+    than three or no scatter. A fit's σ counts every residual as news (the clock offset's
+    parabola, the drift report's line through block means)."""
+    r = residual[np.isfinite(residual)]
+    if r.size < 3 or not np.std(r) > 0:
+        return 1.0
+    rho = max(float(np.corrcoef(r[:-1], r[1:])[0, 1]), 0.0)
+    return float(np.sqrt(ar1_variance_factor(np.float64(rho))))
+
+
 def widen(estimate: Estimate, scale: FloatArray) -> Estimate:
     """``estimate`` with its pose and mount covariances' pitch and roll scaled by
     ``scale[:2]`` and its motion's (tx, tz, yaw) by ``scale[2:]`` (on σ). The full state

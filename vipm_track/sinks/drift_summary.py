@@ -24,7 +24,8 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from vipm_track.filters.mount_steps import mount_steps, untested_drive_note
+from vipm_track.filters.mount_steps import mount_steps, one_step_squares, untested_drive_note
+from vipm_track.filters.row_correlation import correlation_inflation
 
 Z95 = 1.959963984540054
 #: shortest span [s] a drift rate is given over: a calibration creeps over minutes, and over
@@ -182,14 +183,8 @@ def _axis(table: Mapping[str, NDArray], t: NDArray, frames: NDArray, spec: tuple
     if nominal is not None:
         reference, reference_from = float(getattr(nominal, nom_attr)), "nominal"
         tolerance = float(getattr(nominal, tol_attr))
-        change_std = sigma
     else:
         reference, reference_from, tolerance = start, "start", NAN
-        change_std = math.hypot(sigma, start_sigma) if math.isfinite(start_sigma) else sigma
-    change = current - reference
-    # without a tolerance there is nothing to be beyond (a tolerance of 0 made it 1)
-    p_beyond = (_p_beyond(change, change_std, tolerance) if math.isfinite(tolerance)
-                else NAN)
     step = current - start
     # a monitor's table has no mount σ at its start: its interval of where the camera now
     # sits is then the step's (it said "no change" beside a 1° knock)
@@ -212,11 +207,13 @@ def _axis(table: Mapping[str, NDArray], t: NDArray, frames: NDArray, spec: tuple
         # through the frames ends on it
         current, sigma, source = fit.end, fit.end_std, "drift fit"
         lo, hi = current - Z95 * sigma, current + Z95 * sigma
-        change = current - reference
-        change_std = (sigma if nominal is not None or not math.isfinite(start_sigma)
-                      else math.hypot(sigma, start_sigma))
-        p_beyond = (_p_beyond(change, change_std, tolerance) if math.isfinite(tolerance)
-                    else NAN)
+    change = current - reference
+    # against the table's start, that start's own σ too
+    change_std = (sigma if nominal is not None or not math.isfinite(start_sigma)
+                  else math.hypot(sigma, start_sigma))
+    # without a tolerance there is nothing to be beyond (a tolerance of 0 made it 1)
+    p_beyond = (_p_beyond(change, change_std, tolerance) if math.isfinite(tolerance)
+                else NAN)
     true_current = true_changed = NAN
     if truth is not None and has_finite(truth, col):
         index = {int(f): i for i, f in enumerate(truth["frame"])}
@@ -349,30 +346,19 @@ def _drift_fit(table: Mapping[str, NDArray], t: NDArray, column: str,
     vb = np.array([b.mean() for b in np.array_split(x, blocks)])
     (slope, intercept), cov = np.polyfit(tb, vb, 1, cov="unscaled")
     residual = vb - (slope * tb + intercept)
-    cov = cov * float(residual @ residual) / (blocks - 2) * _run_on(residual)
+    # errors that run on from block to block (a slow wander) say less than their count
+    cov = cov * float(residual @ residual) / (blocks - 2) * correlation_inflation(residual)**2
     ends = [s for s in (std[:1], std[-1:]) if s.size and math.isfinite(s[0])]
     model_std = (math.hypot(ends[0][0], ends[1][0]) / (span / 60.0) if len(ends) == 2
                  else 0.0)
     end = np.array([tx[-1] / 60.0, 1.0])
     # a knock (or a creep that stopped) reads better as one step: its line's end is no place
-    total, square, k = np.cumsum(vb), np.cumsum(vb * vb), np.arange(2, blocks - 1)
-    one_step = (square[k - 1] - total[k - 1] ** 2 / k
-                + (square[-1] - square[k - 1]) - (total[-1] - total[k - 1]) ** 2 / (blocks - k))
-    creeps = bool(k.size) and float(residual @ residual) < float(one_step.min())
+    cuts = np.arange(2, blocks - 1)
+    creeps = bool(cuts.size) and float(residual @ residual) < float(
+        one_step_squares(vb, cuts).min())
     return DriftFit(float(slope), max(math.sqrt(cov[0, 0]), model_std), span, since,
                     float(slope * end[0] + intercept), math.sqrt(float(end @ cov @ end)),
                     creeps)
-
-
-def _run_on(residual: NDArray) -> float:
-    """The factor by which errors that run on from one block to the next (lag-1
-    autocorrelation ρ > 0, at most 0.9) widen a fit's variance: (1+ρ)/(1−ρ) (Bartlett); a
-    road's slow wander, or a body's, spans blocks of seconds."""
-    r = residual - residual.mean()
-    denominator = float(r @ r)
-    rho = float(r[1:] @ r[:-1]) / denominator if denominator > 0 else 0.0
-    rho = min(max(rho, 0.0), 0.9)
-    return (1.0 + rho) / (1.0 - rho)
 
 
 def monitor_timeline(table: Mapping[str, NDArray]) -> MonitorTimeline | None:
