@@ -147,8 +147,9 @@ MAX_SPEED_MPS = 100.0
 def _check_units(frames: NDArray, t: NDArray, z: NDArray, usable: NDArray,
                  source: str) -> None:
     """An :class:`InputError` where the table's times or travel are plainly not in seconds and
-    metres: consecutive frames more than an hour apart, or usable pairs faster than
-    ``MAX_SPEED_MPS`` (medians, so one odd row does not decide)."""
+    metres: consecutive frames further apart or closer than the frame rates ``--fps`` takes
+    (``frame_rates.interval_problem``), or usable pairs faster than ``MAX_SPEED_MPS``
+    (medians, so one odd row does not decide)."""
     with np.errstate(invalid="ignore"):
         step = np.diff(t)
         consecutive = (np.diff(frames) == 1) & (step > 0)
