@@ -24,15 +24,16 @@ from .mount_steps import (
     untested_drive_note,
     usable_angles,
 )
-from .pair_height import HEIGHT_SCALE_WARNING
+from .pair_height import HEIGHT_SCALE_WARNING, measured_heights
 from .smoother_config import SmoothedFrame
+from .wheel_speed import SpeedSource
 
 FloatArray = NDArray[np.float64]
 
 
 def summarize_mount(
     frames: Sequence[SmoothedFrame], measurements: Sequence[PairMeasurement] | None = None,
-    step_test: StepTestConfig | None = None,
+    step_test: StepTestConfig | None = None, speed: SpeedSource | None = None,
 ) -> dict[str, object]:
     """The drive's extrinsics in brief (degrees, metres, minutes): for mount pitch, roll and
     height the mean with a 95 % interval, its 1-σ, the start and end values, the drift
@@ -46,7 +47,15 @@ def summarize_mount(
     noise. Where slow errors the model lacks (road camber, load, the front end's tracking
     correlation) make that wider, the interval is the data's (``interval_from``: ``data``);
     ``std_model`` / ``std_data`` give both. ``step_test``: the batch's step and drift tests'
-    design where they ran (a drive too short for them is then warned of)."""
+    design where they ran (a drive too short for them is then warned of).
+
+    With ``speed`` (the wheel speed the drive was smoothed with, on the camera clock) the
+    height is checked against the heights the pairs measure with it (``pair_height``) the
+    same way; the model holds the camera height still at the mount's, so where the body's
+    height swings (a heaving body, a load shifting) it can settle away from the heights'
+    mean (a car's ±10 % swing: 1.619 ± 0.002 m, the frames' mean 1.513 m). Where the pairs'
+    mean height is beyond both intervals from the mount's, the height's mean and interval
+    are the pairs' (``height_from_pairs`` says so)."""
     good = [f for f in frames if f.initialised and np.all(np.isfinite(f.mount))]
     counts: dict[str, int] = {}
     for f in frames:
@@ -62,7 +71,7 @@ def summarize_mount(
         out["short_drive"] = note
     mount = np.array([f.mount for f in good])
     std = np.array([f.mount_std for f in good])
-    residual = _pose_residuals(good, measurements)
+    residual = _pose_residuals(good, measurements, speed)
     out["duration_s"] = float(t[-1] - t[0])
     steps = mount_steps_in(mount[:, :2], std[:, :2])
     if not np.isfinite(std[:, :2]).any() and step_test is not None and measurements:
@@ -95,11 +104,18 @@ def summarize_mount(
         mean = float(np.mean(v))
         sigma = float(np.nanmean(sd)) if np.any(np.isfinite(sd)) else float("nan")
         half, source, sigma_data = 1.96 * sigma, "model", float("nan")
-        data = batch_means(conv(residual[:, i])) if residual is not None and i < 2 else None
+        data = batch_means(conv(residual[:, i])) if residual is not None else None
         if data is not None:
             sigma_data = data.std
             if not data.half_width95 <= half:  # also where the model gave no σ
                 half, source = data.half_width95, "data"
+            # the pitch and roll the mount is fitted to scatter about it; the heights the
+            # model holds still at the mount's may not (module doc)
+            offset = float(np.nanmean(conv(residual[:, i])))
+            if i == 2 and abs(offset) > 1.96 * math.hypot(sigma if math.isfinite(sigma) else 0,
+                                                          sigma_data):
+                out["height_from_pairs"] = _height_note(mean, mean + offset, sigma_data)
+                mean, half, source = mean + offset, data.half_width95, "data"
         slope = float(np.polyfit(t / 60.0, v, 1)[0]) if len(t) > 1 and t[-1] > t[0] else 0.0
         out[name] = {
             "unit": unit,
@@ -219,20 +235,53 @@ def _unfollowed_step_note(measurements: Sequence[PairMeasurement],
 
 
 def _pose_residuals(
-    frames: Sequence[SmoothedFrame], measurements: Sequence[PairMeasurement] | None
+    frames: Sequence[SmoothedFrame], measurements: Sequence[PairMeasurement] | None,
+    speed: SpeedSource | None = None,
 ) -> FloatArray | None:
-    """(n, 2) measured pitch/roll of each frame's pair minus the frame's smoothed mount
+    """(n, 3) measured pitch/roll of each frame's pair minus the frame's smoothed mount
     (rad; NaN where the pair is not usable or the smoother rejected its pose: one corrupt
-    row 75° off widened the data's interval fifteenfold), or None without measurements."""
+    row 75° off widened the data's interval fifteenfold), and the height the wheel ``speed``
+    puts each frame at (measured by the pair after it) minus its smoothed mount's (m; NaN
+    without speed or such a pair, and beyond ``HEIGHT_OUTLIER_MADS`` robust σ of the
+    others), or None without measurements."""
     if measurements is None:
         return None
     by_frame = {m.frame: m for m in measurements}
-    out = np.full((len(frames), 2), np.nan)
+    out = np.full((len(frames), 3), np.nan)
     for i, f in enumerate(frames):
         m = by_frame.get(f.frame)
         if m is not None and m.ok and "pose" not in f.gated:
-            out[i] = m.z[2:4] - f.mount[:2]
+            out[i, :2] = m.z[2:4] - f.mount[:2]
+    if speed is not None:
+        heights = measured_heights(list(measurements), speed.t, speed.speed_mps)
+        of_frame = {m.frame - 1: h for m, h in zip(measurements, heights, strict=True)}
+        out[:, 2] = [of_frame.get(f.frame, np.nan) - f.mount[2] for f in frames]
+        out[~_robust_inliers(out[:, 2]), 2] = np.nan
     return out
+
+
+#: a pair's height residual this many robust σ (1.4826 × MAD) from the median is an outlier
+#: (a pair whose travel is near zero puts the camera metres up)
+HEIGHT_OUTLIER_MADS = 5.0
+
+
+def _robust_inliers(x: FloatArray) -> NDArray[np.bool_]:
+    """Finite values of ``x`` within ``HEIGHT_OUTLIER_MADS`` robust σ of their median."""
+    finite = np.isfinite(x)
+    if finite.sum() < 3:
+        return finite
+    median = float(np.median(x[finite]))
+    mad = 1.4826 * float(np.median(np.abs(x[finite] - median)))
+    with np.errstate(invalid="ignore"):
+        return finite & (np.abs(x - median) <= HEIGHT_OUTLIER_MADS * mad if mad > 0 else finite)
+
+
+def _height_note(model_m: float, pairs_m: float, pairs_std_m: float) -> str:
+    """Why the summary's height is the pairs' mean ``pairs_m`` and not the mount's."""
+    return (f"the heights the wheel speed and the pairs' travel measure average {pairs_m:.3f} "
+            f"m (±{1.96 * pairs_std_m:.3f} m), the smoothed mount's {model_m:.3f} m: the "
+            "camera's height swings more than the model, which holds it at the mount's, "
+            "allows (a heaving body, a shifting load); the height given is the pairs' mean")
 
 
 def summary_markdown(summary: dict[str, object]) -> str:
@@ -266,6 +315,7 @@ def summary_warnings(summary: dict[str, object]) -> list[str]:
     return [w for w in (str(summary.get("since_step", "")), str(summary.get("pairs_step", "")),
                         _rejection_warning(summary),
                         str(summary.get("short_drive", "")), str(summary.get("height_scale", "")),
+                        str(summary.get("height_from_pairs", "")),
                         str(summary.get("slow_forward", "")),
                         str(summary.get("pairs_trend", ""))) if w]
 

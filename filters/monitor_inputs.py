@@ -43,7 +43,7 @@ from .forward_slow import (
 from .monitor import DriftMonitor
 from .monitor_types import MonitorConfig, MonitorInput, MonitorOutput
 from .nominal import NominalCalibration
-from .pair_height import MIN_SPEED_MPS, MIN_TRAVEL_FRAC, pair_heights
+from .pair_height import MIN_SPEED_MPS, MIN_TRAVEL_FRAC, pair_heights, pair_spans
 
 FloatArray = NDArray[np.float64]
 
@@ -103,10 +103,7 @@ def input_arrays(
     status = np.asarray(status, dtype=object)
     ok = (status == "ok") & np.all(np.isfinite(z), axis=1)
     travel = np.hypot(z[:, 4], z[:, 5])
-    consecutive = np.zeros(n, dtype=bool)
-    consecutive[1:] = frame[1:] == frame[:-1] + 1
-    dt = np.full(n, np.nan)
-    dt[1:] = np.where(consecutive[1:], t[1:] - t[:-1], np.nan)
+    dt = pair_spans(frame, t)
     height = np.full(n, np.nan)
     height_var = np.full(n, np.nan)
     if speed is not None:

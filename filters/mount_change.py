@@ -175,11 +175,24 @@ class MountChangeDetector:
                 self._g[j], self._sum[j], self._n[j] = 0.0, 0.0, 0
         return out
 
+    def pending_since(self, fraction: float) -> float:
+        """The time (s) the evidence began of a change not yet called where a statistic has
+        reached ``fraction`` of the threshold (the earliest, over axes and sides), else NaN:
+        a smoother that reports frames before the call takes the new mount for the old."""
+        armed = np.array([self._measured(j) for j in range(2)])[:, None]
+        pending = armed & (self._g >= fraction * self.config.threshold)
+        return float(np.min(self._since[pending])) if pending.any() else math.nan
+
+    def _measured(self, axis: int) -> bool:
+        """The axis's long-run variance is measured (``min_blocks`` blocks before the
+        holdout): its test runs at full sensitivity."""
+        cfg = self.config
+        return len(self._blocks[axis]) - cfg.holdout >= cfg.min_blocks
+
     def _long_run_variance(self, axis: int) -> float:
         """Measured long-run variance of the axis's whitened innovations (module doc), ≥ 1;
         ``unmeasured_variance`` until ``min_blocks`` blocks older than the holdout are in."""
         cfg = self.config
-        blocks = list(self._blocks[axis])[: -cfg.holdout or None]
-        if len(blocks) < cfg.min_blocks:
+        if not self._measured(axis):
             return cfg.unmeasured_variance
-        return max(1.0, float(np.mean(blocks)))
+        return max(1.0, float(np.mean(list(self._blocks[axis])[: -cfg.holdout or None])))

@@ -159,6 +159,17 @@ def one_step_squares(x: FloatArray, cuts: NDArray[np.int64]) -> FloatArray:
     return left + right
 
 
+def step_onset(t: FloatArray, x: FloatArray, after_s: float) -> float:
+    """Time [s] of the first sample after the least-squares single step of ``x`` (finite,
+    at times ``t`` [s], in order) among the cuts at or after ``after_s``; NaN where there
+    is no such cut (a sequential test's alarm says that a step came, the series where)."""
+    cuts = np.flatnonzero(t >= after_s)
+    cuts = cuts[(cuts > 0) & (cuts < len(x))]
+    if not cuts.size:
+        return math.nan
+    return float(t[cuts[int(np.argmin(one_step_squares(x, cuts)))]])
+
+
 def _best_split(x: FloatArray, t: FloatArray, cfg: StepTestConfig) -> MountStep | None:
     """The most significant split over ``x`` and its seeded intervals (halves, quarters, …
     overlapping by half, each at least ``SEEDED_MIN_BLOCKS`` blocks long): a second step in

@@ -10,11 +10,14 @@ averaged over the samples within the pair). The monitor tests the mount's height
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .wheel_speed import cumulative_distance
+from vipm_track.measurement import PairMeasurement
+
+from .wheel_speed import DEFAULT_MAX_GAP, cumulative_distance
 
 #: a smoothed height further than this factor from the height the pairs were estimated with
 #: is called out: wheel speed scales the pairs' travel, and one from another drive, in other
@@ -99,6 +102,38 @@ def pair_heights(
         height, height_var = height_from_travel(h0, d_wheel, dist_var, z, cov)
         moving = (v_mean > min_speed_mps) & (d_wheel > min_travel_frac * h0)
     return np.where(moving, height, np.nan), np.where(moving, height_var, np.nan), v_now
+
+
+def pair_spans(frame: ArrayLike, t: ArrayLike) -> FloatArray:
+    """Each pair's span [s]: ``t[k] − t[k−1]`` where frame k follows frame k−1 (the pair
+    joins them), NaN otherwise (the first, and after a left-out frame)."""
+    frame, t = np.asarray(frame), np.asarray(t, dtype=float)
+    dt = np.full(len(t), np.nan)
+    if len(t) > 1:
+        dt[1:] = np.where(frame[1:] == frame[:-1] + 1, t[1:] - t[:-1], np.nan)
+    return dt
+
+
+def measured_heights(measurements: Sequence[PairMeasurement], speed_t: ArrayLike,
+                     speed_mps: ArrayLike, *, speed_std_rel: float = 0.005,
+                     speed_std_abs_mps: float = 0.002,
+                     max_speed_gap_s: float = DEFAULT_MAX_GAP) -> FloatArray:
+    """The height [m] each usable pair of ``measurements`` measures (:func:`pair_heights`,
+    that of its first frame) with the wheel speed (``speed_t`` on the camera clock [s],
+    ``speed_mps``) and the monitor's thresholds; NaN where it measures none, (n,)."""
+    if not measurements:
+        return np.zeros(0)
+    frame = np.array([m.frame for m in measurements])
+    t = np.array([m.t for m in measurements], dtype=float)
+    z = np.array([m.z if m.ok else np.full(7, np.nan) for m in measurements], dtype=float)
+    cov = np.array([m.covariance for m in measurements], dtype=float)
+    h0 = np.array([m.height_assumed for m in measurements], dtype=float)
+    height, _, _ = pair_heights(
+        t, pair_spans(frame, t), z, cov, h0, np.asarray(speed_t, dtype=float),
+        np.asarray(speed_mps, dtype=float), min_speed_mps=MIN_SPEED_MPS,
+        min_travel_frac=MIN_TRAVEL_FRAC, speed_std_rel=speed_std_rel,
+        speed_std_abs_mps=speed_std_abs_mps, max_speed_gap_s=max_speed_gap_s)
+    return height
 
 
 def point_speed_height(m_z: FloatArray, m_cov: FloatArray, h0: float, dt: float,

@@ -11,6 +11,11 @@ the rendered camera height of that frame: the RMS error, the RMS of the error ov
 metric forward travel. Without wheel speed the
 height is the assumed one at its prior's 5 %, which no heave here reaches.
 
+Then the drive's height as the smoothers' summaries state it (``summarize_mount``, as
+``smooth`` and ``fleet`` write it) against the mean rendered height of the drive's frames:
+its error, its 95 % half-width and whether it holds the truth, with the summary's check
+against the heights the pairs measure with the wheel speed and without it (before), same run.
+
     python scripts/bench_heave.py [--seeds 3] [--jobs 2] [--out FILE.md]
 """
 
@@ -32,6 +37,7 @@ from bench_camera_pitch import write_report  # noqa: E402
 from bench_verdicts import Case, _folder, render_and_estimate, scores_by_case  # noqa: E402
 
 from vipm_track.filters import heave  # noqa: E402
+from vipm_track.filters.drive_summary import summarize_mount  # noqa: E402
 from vipm_track.filters.ekf import run_filter  # noqa: E402
 from vipm_track.filters.ekf_state import EkfConfig  # noqa: E402
 from vipm_track.filters.model import NoiseParams  # noqa: E402
@@ -80,6 +86,12 @@ def score(case: Case, seed: int, cache: Path) -> dict[str, tuple[np.ndarray, ...
     finally:
         heave.widen = widen
     out = {}
+    truth = float(np.mean(gt["height_m"][[f.frame for f in runs["batch"]]]))
+    for name in FILTERS[1:]:
+        steps = SmootherConfig().mount_steps if name == "batch" else None
+        out[f"summary {name}"] = tuple(
+            _summary_height(summarize_mount(runs[name], ms, steps, given), truth)
+            for given in (speed, None))
     for name, frames in runs.items():
         rows = []
         for f, b in zip(frames, before[name], strict=True):
@@ -90,6 +102,21 @@ def score(case: Case, seed: int, cache: Path) -> dict[str, tuple[np.ndarray, ...
                          np.sqrt(f.motion_cov[1, 1]), np.sqrt(b.motion_cov[1, 1])))
         out[name] = tuple(np.array(c) for c in zip(*rows, strict=True))
     return out
+
+
+def _summary_height(summary: dict, truth: float) -> tuple[float, float]:
+    """(error [m], 95 % half-width [m]) of a summary's height against ``truth`` [m]."""
+    h = summary["height"]
+    return h["mean"] - truth, 0.5 * (h["ci95"][1] - h["ci95"][0])
+
+
+def _summary_cells(scores: list[dict], name: str) -> list[str]:
+    cells = []
+    for i in range(2):
+        err, half = np.array([s[f"summary {name}"][i] for s in scores]).T
+        cells.append(f"{1000 * np.max(np.abs(err)):.1f} / {1000 * np.median(half):.1f} / "
+                     f"{int(np.sum(np.abs(err) <= half))} of {len(err)}")
+    return cells
 
 
 def _cells(scores: list[dict], name: str) -> list[str]:
@@ -135,10 +162,22 @@ def main(argv: list[str] | None = None) -> int:
         header, "|" + " --- |" * 8,
     ]
     print(header)
-    for case, scores in zip(CASES, scores_by_case(score, CASES, args.seeds, args.jobs, cache),
-                            strict=True):
+    results = list(zip(CASES, scores_by_case(score, CASES, args.seeds, args.jobs, cache),
+                       strict=True))
+    for case, scores in results:
         for name in FILTERS:
             row = f"| {case.name} | {name} | " + " | ".join(_cells(scores, name)) + " |"
+            print(row, flush=True)
+            lines.append(row)
+    header = ("| drive | smoother | with the pairs' heights: largest error mm / median "
+              "half-width mm / holds the mean height | without (before) |")
+    lines += ["", "The drive's height in the smoothers' summaries against the drive's mean "
+              "rendered height (largest error and median 95 % half-width over the seeds):", "",
+              header, "|" + " --- |" * 4]
+    print(header)
+    for case, scores in results:
+        for name in FILTERS[1:]:
+            row = f"| {case.name} | {name} | " + " | ".join(_summary_cells(scores, name)) + " |"
             print(row, flush=True)
             lines.append(row)
     write_report(lines, args.out, t0, "python scripts/bench_heave.py " + " ".join(argv or

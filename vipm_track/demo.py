@@ -45,7 +45,7 @@ from vipm_track.filters.smoother import mount_jumps
 from vipm_track.filters.smoother_config import SmootherConfig
 from vipm_track.filters.smoothing import smooth, speeds_at_frames
 from vipm_track.filters.track import TRACK_COLUMNS, TRACK_TABLE, track_row, write_track
-from vipm_track.filters.wheel_speed import read_speed_csv
+from vipm_track.filters.wheel_speed import SpeedSeries, read_speed_csv
 
 from .camera import load_camera
 from .errors import InputError
@@ -346,8 +346,8 @@ def run_demo(
         pairs=sum(1 for m in measurements if m.status != "first frame"),
         pairs_ok=sum(1 for m in measurements if m.ok),
         accuracy=accuracy, steps_s=steps,
-        spans=_mount_spans(smoothed, measurements, truth, steps),
-        height=_whole_height(smoothed, measurements, truth),
+        spans=_mount_spans(smoothed, measurements, truth, steps, speed),
+        height=_whole_height(smoothed, measurements, truth, speed),
         calibrated_s=calibrated,
         first_flag=after[0] if after else None,
         first_recalibrate=next((o for o in after if o.state == "RECALIBRATE"), None),
@@ -447,10 +447,12 @@ def _step_times(measurements: Sequence[PairMeasurement], speeds: NDArray,
 
 
 def _mount_spans(smoothed: Sequence[Any], measurements: Sequence[PairMeasurement],
-                 truth: Mapping[str, NDArray], steps: Sequence[float]) -> tuple[MountSpan, ...]:
+                 truth: Mapping[str, NDArray], steps: Sequence[float],
+                 speed: SpeedSeries | None = None) -> tuple[MountSpan, ...]:
     """The smoothed mount over each span between the ``steps`` (``summarize_mount``: its mean
-    and 95 % interval), :data:`STEP_MARGIN_S` left out beside each step, against the true
-    mount's median over the same frames."""
+    and 95 % interval, its height checked against the pairs' with the wheel ``speed``),
+    :data:`STEP_MARGIN_S` left out beside each step, against the true mount's median over
+    the same frames."""
     t = np.array([f.t for f in smoothed])
     edges = [-math.inf, *steps, math.inf]
     spans = []
@@ -458,7 +460,8 @@ def _mount_spans(smoothed: Sequence[Any], measurements: Sequence[PairMeasurement
         keep = np.flatnonzero((t >= lo + STEP_MARGIN_S) & (t < hi - STEP_MARGIN_S))
         if len(keep) < 2:
             continue
-        s = summarize_mount([smoothed[i] for i in keep], [measurements[i] for i in keep])
+        s = summarize_mount([smoothed[i] for i in keep], [measurements[i] for i in keep],
+                            speed=speed)
         if "pitch" not in s:
             continue
         frames = [measurements[i].frame for i in keep]
@@ -470,9 +473,10 @@ def _mount_spans(smoothed: Sequence[Any], measurements: Sequence[PairMeasurement
 
 
 def _whole_height(smoothed: Sequence[Any], measurements: Sequence[PairMeasurement],
-                  truth: Mapping[str, NDArray]) -> Interval:
-    """The smoothed mount height over the whole drive against the true one (metres)."""
-    s = summarize_mount(smoothed, measurements)
+                  truth: Mapping[str, NDArray], speed: SpeedSeries | None = None) -> Interval:
+    """The smoothed mount height over the whole drive (checked against the pairs' with the
+    wheel ``speed``) against the true one (metres)."""
+    s = summarize_mount(smoothed, measurements, speed=speed)
     if "height" not in s:
         return Interval(math.nan, math.nan, math.nan, math.nan)
     return _interval(s["height"], _true_mount(truth, "height_m", [m.frame for m in measurements]))

@@ -236,7 +236,7 @@ def run(args: argparse.Namespace) -> int:
             sink.finish()
         summary = summarize_mount(
             frames, measurements[: len(frames)],
-            config.mount_steps if config.lag_s == 0 else None) if frames else {}
+            config.mount_steps if config.lag_s == 0 else None, speed) if frames else {}
         summary["status"] = interrupted or "complete"
         summary["input_notes"] = getattr(args, "input_notes", [])
         summary["smoother"] = {

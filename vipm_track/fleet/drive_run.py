@@ -249,7 +249,7 @@ def _process(spec: DriveSpec, folder: Path, settings: FleetSettings,
         rows.append(row)
     _table_atomic(folder / "smoothed.parquet", rows, settings)
     summary = summarize_mount(frames, measurements,
-                              config.mount_steps if config.lag_s == 0 else None)
+                              config.mount_steps if config.lag_s == 0 else None, speed)
     progress.update("monitor", None, final=True)
     ekf_config = EkfConfig(height_m=height)
     monitor_config = MonitorConfig.from_noise(ekf_config.noise, fps=frame_rate(measurements))
