@@ -1,7 +1,14 @@
 """Wheel speed decoded from CAN: ``SpeedDecoder`` turns frames of the wanted messages into a
 ``wheel_speed.SpeedSeries`` through a DBC (cantools), from a log file (``decode_can_log``,
 any format python-can reads) or a live bus (``decode_bus``), counting bad data in a
-``DecodeSummary`` instead of failing."""
+``DecodeSummary`` instead of failing.
+
+Two things of the log's clock and buses are settled before decoding: a 32-bit microsecond
+clock that wraps around (its times step back by exactly 2^32 µs) is unwrapped, and a wanted
+message that comes on several channels is decoded from one of them only, and only if the
+others carry identical copies of its frames (a gateway mirroring the bus); copies that differ
+are two signals, which no decoding may mix: the decoder refuses them until a channel is
+chosen."""
 
 from __future__ import annotations
 
@@ -10,8 +17,9 @@ import math
 import re
 import statistics
 import time
+from collections import Counter, deque
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cantools
@@ -19,7 +27,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
-from vipm_track.errors import InputError, InterruptFlag, interrupts_deferred
+from vipm_track.errors import InputError, InterruptFlag, interrupts_deferred, printable
 
 from .can_decode import MessageDecoder, SignalSpec, load_dbc, parse_signal_specs
 from .can_logs import LogRecords
@@ -39,6 +47,84 @@ _COMBINE_SCALAR: dict[str, Callable[[list[float]], float]] = {
 #: many frames in a row stamped after the frames around them, or behind them, are outliers;
 #: a longer run is taken as the clock, and a step back to it as a clock step.
 LOOKAHEAD = 8
+#: Period [s] of a 32-bit microsecond clock: where the time steps back by this much (within
+#: :data:`WRAP_TOLERANCE_S`) from one frame of the log to the next, the clock wrapped around.
+WRAP_S = 2**32 * 1e-6
+#: How far [s] a step back may be from :data:`WRAP_S` and still be unwrapped: the time
+#: between the two frames across the wrap. A step farther from it is no wrap (a clock reset).
+WRAP_TOLERANCE_S = 0.005
+#: How far apart [s] a frame and its copy on another channel (a gateway mirroring the bus)
+#: may be stamped.
+MIRROR_WINDOW_S = 0.005
+#: Latest frames of a wanted message kept, on its decoded channel, to match copies against.
+_RECENT = 32
+
+
+@dataclass
+class CanDecodeSummary(DecodeSummary):
+    """A :class:`DecodeSummary` of CAN frames, with what was done to the log's clock and
+    channels (``notes``: a wrap-around unwrapped, a refused channel mix) and, per wanted
+    message (``NAME (0xID)``), the channel decoded and the identical copies of its frames
+    skipped on each other channel (``copies``)."""
+
+    notes: list[str] = field(default_factory=list)
+    copies: dict[str, tuple[object, Counter]] = field(default_factory=dict)
+
+    def lines(self) -> list[str]:
+        out = super().lines()
+        at = 1
+        for i, line in enumerate(out[1:3], start=1):
+            if line.startswith("  time span "):
+                at = i + 1
+                if self.t_last < self.t_first:  # first .. last is no span: the clock stepped
+                    out[i] = (f"  time stamps {self.t_first:.6f} .. {self.t_last:.6f} s: the "
+                              "clock steps back in between (see the clock steps below)")
+            elif line.startswith("  channels:"):
+                at = i + 1
+        extra = [f"  note: {printable(n, 400)}" for n in self.notes]
+        for name, (channel, copies) in self.copies.items():
+            extra.append(f"  {name} decoded on channel {_channel_name(channel)} only: its "
+                         + ", ".join(f"{n} frames on {_channel_name(c)}"
+                                     for c, n in copies.items())
+                         + " are identical copies of them (a mirrored bus), skipped; "
+                         "--can-channel chooses another")
+        out[at:at] = extra
+        return out
+
+
+def _channel_name(channel: object) -> str:
+    return printable(str(channel), 40)
+
+
+def _unmatched(t_copy: NDArray[np.float64], p_copy: NDArray[np.uint8],
+               t_main: NDArray[np.float64], p_main: NDArray[np.uint8],
+               window: float = MIRROR_WINDOW_S) -> NDArray[np.bool_]:
+    """Which frames of one message on another channel (times ``t_copy`` [s], payloads
+    ``p_copy`` (n, length)) have no frame with the same payload on the decoded channel
+    (``t_main``, ``p_main``) stamped within ``window`` [s] of them."""
+    n = t_copy.size
+    if n == 0:
+        return np.zeros(0, dtype=bool)
+    if t_main.size == 0:
+        return np.ones(n, dtype=bool)
+    order = np.argsort(t_main, kind="stable")
+    t_main, p_main = t_main[order], p_main[order]
+    lo = np.searchsorted(t_main, t_copy - window, side="left")
+    hi = np.searchsorted(t_main, t_copy + window, side="right")
+    found = np.zeros(n, dtype=bool)
+    for k in range(int((hi - lo).max(initial=0))):
+        j = lo + k
+        inside = j < hi
+        jj = np.minimum(j, t_main.size - 1)
+        found |= inside & np.all(p_main[jj] == p_copy, axis=1)
+    return ~found
+
+
+def _payloads(data: list[bytes]) -> NDArray[np.uint8]:
+    """Payloads of one message (all of the DBC's length) as an (n, length) array."""
+    if not data:
+        return np.zeros((0, 0), dtype=np.uint8)
+    return np.frombuffer(b"".join(data), dtype=np.uint8).reshape(len(data), -1)
 
 
 @dataclass(frozen=True)
@@ -195,13 +281,24 @@ def _channel_matches(channel: object, want: str) -> bool:
     return have.isdigit() or want.isdigit()
 
 
+_NO_CHANNEL = object()  # a message not seen yet: no channel decoded
+
+
 @dataclass
 class _Wanted:
-    """One DBC message carrying wanted signals: its decoder and where its columns go."""
+    """One DBC message carrying wanted signals: its decoder and where its columns go; with no
+    channel chosen, the channel it is decoded on (the first it came on), its frames on each
+    channel, its latest frames there (``recent``: time [s], payload) and its frames on others
+    still waiting for a copy there (``pending``: time, payload, channel)."""
 
     decoder: MessageDecoder
     columns: NDArray[np.intp]
     t_last: float = -math.inf
+    channel: object = _NO_CHANNEL
+    counts: Counter = field(default_factory=Counter)
+    recent: deque = field(default_factory=lambda: deque(maxlen=_RECENT))
+    pending: deque = field(default_factory=deque)
+    refused: str | None = None
 
     @property
     def column_list(self) -> list[int]:
@@ -211,6 +308,19 @@ class _Wanted:
 def _message_name(wanted: _Wanted) -> str:
     """``NAME (0xID)`` of a wanted message, as a log line shows its id."""
     return f"{wanted.decoder.message.name} (0x{wanted.decoder.message.frame_id:X})"
+
+
+def _mix_error(source: str, wanted: _Wanted, channel: object, bad: int, copies: int) -> str:
+    """Why ``wanted`` cannot be decoded with no channel chosen: ``bad`` of its ``copies``
+    frames on ``channel`` are no copy of a frame on the channel it is decoded on."""
+    name = _message_name(wanted)
+    main = _channel_name(wanted.channel)
+    counts = ", ".join(f"{_channel_name(c)} ({n} frames)" for c, n in wanted.counts.items())
+    return (f"{source}: {name}, the message the speed is decoded from, comes on "
+            f"{len(wanted.counts)} channels: {counts}, with different payloads ({bad} of its "
+            f"{copies} frames on {_channel_name(channel)} have no identical frame on {main} "
+            f"within {MIRROR_WINDOW_S * 1e3:g} ms): decoding them together mixes two signals. "
+            f"Choose one with --can-channel (e.g. --can-channel {main})")
 
 
 class SpeedDecoder:
@@ -228,6 +338,16 @@ class SpeedDecoder:
     Signals from several messages are combined with each signal's latest value; a sample is
     produced at each wanted frame once every signal has been seen, and only if its time is
     after every earlier wanted frame's, so the output times strictly increase.
+
+    A log whose times step back by 2^32 µs (:data:`WRAP_S`, within :data:`WRAP_TOLERANCE_S`)
+    from one frame to the next has a 32-bit microsecond clock that wrapped around: the times
+    from there on are unwrapped (``summary.notes`` says where).
+
+    With no ``channel``, a wanted message is decoded on the first channel it comes on. Its
+    frames on other channels are skipped if each is a copy (the same payload stamped within
+    :data:`MIRROR_WINDOW_S`) of a frame there (a mirrored bus; ``summary.copies``); if one is
+    not, the decoder raises :class:`InputError` naming the channels (two signals that
+    decoding must not mix: ``channel`` chooses one), and decodes that message no more.
 
     A frame whose time is not after its id's running time (the latest kept) is skipped. A
     log's frames are judged with the frames that follow them too (:func:`_time_order`): a
@@ -252,7 +372,7 @@ class SpeedDecoder:
             raise InputError(f"speed scale {scale!r} must be a positive number")
         self.specs: list[SignalSpec] = parse_signal_specs(db, signals, dbc_name)
         self.combine, self.channel, self.scale = combine, channel, float(scale)
-        self.summary = DecodeSummary(source=source)
+        self.summary = CanDecodeSummary(source=source)
         self._known = {(m.frame_id, bool(m.is_extended_frame)) for m in db.messages}
         by_message: dict[str, list[int]] = {}
         for j, spec in enumerate(self.specs):
@@ -266,6 +386,8 @@ class SpeedDecoder:
         self._to_mps_list = self._to_mps.tolist()
         self._hold = [math.nan] * len(self.specs)   # latest value of each signal [m/s]
         self._t_max = -math.inf                      # latest accepted wanted-frame time
+        self._wraps = 0                              # wrap-arounds of the clock so far
+        self._t_prev = math.nan                      # the previous frame's unwrapped time
         self._t: list[NDArray[np.float64]] = []     # emitted samples, in chunks
         self._v: list[NDArray[np.float64]] = []
         self._pending_t: list[float] = []           # samples from feed() not yet chunked
@@ -318,25 +440,56 @@ class SpeedDecoder:
                 continue
             if len(s.clock_steps) >= MAX_EXAMPLES:
                 continue
-            text = (f"{at}: {name} time steps back {skip.t_run - skip.t:.6f} s (from "
-                    f"{skip.t_run:.6f} to {skip.t:.6f} s) and goes on from there (a clock "
-                    f"reset): its {skip.count} frames up to {self._at(where[skip.last])} are "
-                    "before the time already decoded and skipped")
+            back = skip.t_run - skip.t
+            wrap = ""
+            if abs(back - WRAP_S) < 1.0:  # near 2^32 µs: say why it is no wrap-around
+                wrap = (f"; not unwrapped: not within {WRAP_TOLERANCE_S * 1e3:g} ms of the "
+                        f"2^32 µs ({WRAP_S:.6f} s) of a 32-bit microsecond clock wrapping "
+                        "around from one frame of the log to the next")
+            text = (f"{at}: {name} time steps back {back:.6f} s (from {skip.t_run:.6f} to "
+                    f"{skip.t:.6f} s) and goes on from there (a clock reset{wrap}): its "
+                    f"{skip.count} frames up to {self._at(where[skip.last])} "
+                    f"({100 * skip.count / t.size:.0f} % of its {t.size} frames) are before "
+                    "the time already decoded and skipped")
             if skip.resumed >= 0:
                 text += (f"; decoding goes on at {self._at(where[skip.resumed])}, where its "
                          "time passes the old clock again")
             else:
-                text += ", to the end of its frames; split the log here to decode them"
+                text += (f", to the end of its frames: the speed samples of all {skip.count} "
+                         "are left out; split the log here to decode them")
             s.clock_steps.append(text)
 
     # -- per-frame screening (shared by feed and feed_many) ---------------------------------
-    def _screen(self, msg) -> _Wanted | None:
+    def _unwrap(self, t: float) -> float:
+        """The time ``t`` [s] of the frame being screened on the log's clock unwrapped: with
+        :data:`WRAP_S` added for each wrap-around of a 32-bit microsecond clock before it."""
+        if not math.isfinite(t):
+            return t
+        raw = t
+        t += self._wraps * WRAP_S
+        back = self._t_prev - t  # NaN for the first frame: no step
+        if abs(back - WRAP_S) <= WRAP_TOLERANCE_S:
+            self._wraps += 1
+            if len(self.summary.notes) < MAX_EXAMPLES:
+                self.summary.notes.append(
+                    f"{self.where()}: the time steps back {back:.6f} s, to {raw:.6f} s: a "
+                    f"32-bit microsecond clock wrapping around (2^32 µs = {WRAP_S:.6f} s); "
+                    f"{WRAP_S:.6f} s added to the times from here on")
+            t += WRAP_S
+        elif self._wraps and abs(back + WRAP_S) <= WRAP_TOLERANCE_S:
+            return t - WRAP_S  # stamped before the latest wrap-around, logged after it
+        self._t_prev = t
+        return t
+
+    def _screen(self, msg) -> tuple[_Wanted, float] | None:
+        """The wanted message of ``msg`` and its time [s] unwrapped, or None (counted)."""
         s = self.summary
         s.frames += 1
-        t = float(msg.timestamp)
-        if s.frames == 1:
-            s.t_first = t
-        s.t_last = t
+        t = self._unwrap(float(msg.timestamp))
+        if math.isfinite(t):
+            if not math.isfinite(s.t_first):
+                s.t_first = t
+            s.t_last = t
         s.channels[msg.channel] += 1
         if msg.is_error_frame or msg.is_remote_frame:
             s.error_frames += 1
@@ -358,24 +511,108 @@ class SpeedDecoder:
             s.note(self.where(), f"{len(msg.data)} data bytes, the DBC's "
                    f"{wanted.decoder.message.name} has {wanted.decoder.length}")
             return None
-        return wanted
+        return wanted, t
+
+    def _copy(self, wanted: _Wanted, channel: object, n: int = 1) -> None:
+        """Count ``n`` frames of ``wanted`` on ``channel`` as copies of its decoded ones."""
+        name = _message_name(wanted)
+        copies = self.summary.copies.setdefault(name, (wanted.channel, Counter()))[1]
+        copies[channel] += n
+
+    def _refuse(self, wanted: _Wanted, channel: object, bad: int, copies: int) -> None:
+        text = _mix_error(self.summary.source, wanted, channel, bad, copies)
+        wanted.refused = text
+        self.summary.notes.append(text)
+        raise InputError(text)
+
+    def _on_channel(self, wanted: _Wanted, channel: object, t: float, data: bytes) -> bool:
+        """Whether a frame of ``wanted`` (time ``t`` [s], payload ``data``) on ``channel``
+        is decoded: with no channel chosen, only on the first the message came on. A frame
+        on another is skipped as a copy once one is found there; InputError where none is
+        found within :data:`MIRROR_WINDOW_S` (see :class:`SpeedDecoder`)."""
+        if self.channel is not None:
+            return True
+        if wanted.refused is not None:
+            return False
+        wanted.counts[channel] += 1
+        if wanted.channel is _NO_CHANNEL:
+            wanted.channel = channel
+        main = channel == wanted.channel
+        waiting: deque = deque()
+        for tc, pc, cc in wanted.pending:
+            if main and pc == data and abs(tc - t) <= MIRROR_WINDOW_S:
+                self._copy(wanted, cc)
+            elif tc < t - MIRROR_WINDOW_S:  # its copy would have come by now
+                self._refuse(wanted, cc, 1, wanted.counts[cc])
+            else:
+                waiting.append((tc, pc, cc))
+        wanted.pending = waiting
+        if main:
+            wanted.recent.append((t, data))
+            return True
+        self.summary.other_channel += 1
+        if any(pm == data and abs(tm - t) <= MIRROR_WINDOW_S for tm, pm in wanted.recent):
+            self._copy(wanted, channel)
+        else:
+            wanted.pending.append((t, data, channel))
+        return False
+
+    def _on_channel_many(self, wanted: _Wanted, t: NDArray[np.float64],
+                         payload: NDArray[np.uint8], channels: list) -> NDArray[np.bool_] | None:
+        """Which frames of ``wanted`` (times ``t`` [s], payloads, channels, in log order) are
+        decoded, as :meth:`_on_channel` says frame by frame; None: all of them."""
+        if self.channel is not None or not channels:
+            return None
+        if wanted.refused is not None:
+            return np.zeros(len(channels), dtype=bool)
+        wanted.counts.update(channels)
+        if wanted.channel is _NO_CHANNEL:
+            wanted.channel = channels[0]
+        if len(wanted.counts) == 1:
+            wanted.recent.extend(zip(t[-_RECENT:].tolist(), map(bytes, payload[-_RECENT:]),
+                                     strict=True))
+            return None
+        main = np.fromiter((c == wanted.channel for c in channels), dtype=bool,
+                           count=len(channels))
+        t_main = np.concatenate([[tm for tm, _ in wanted.recent], t[main]])
+        p_main = np.concatenate([_payloads([pm for _, pm in wanted.recent]).reshape(
+            -1, payload.shape[1]), payload[main]])
+        others = [*wanted.pending, *((t[i], bytes(payload[i]), channels[i])
+                                     for i in np.flatnonzero(~main))]
+        wanted.pending.clear()
+        by_channel: dict[object, list[int]] = {}
+        for k, (_, _, c) in enumerate(others):
+            by_channel.setdefault(c, []).append(k)
+        for c, ks in by_channel.items():
+            t_copy = np.array([others[k][0] for k in ks], dtype=np.float64)
+            bad = _unmatched(t_copy, _payloads([others[k][1] for k in ks]), t_main, p_main)
+            if bad.any():
+                self._refuse(wanted, c, int(bad.sum()), wanted.counts[c])
+            self._copy(wanted, c, len(ks))
+        self.summary.other_channel += int((~main).sum())
+        wanted.recent.extend(zip(t_main[-_RECENT:].tolist(), map(bytes, p_main[-_RECENT:]),
+                                 strict=True))
+        return main
 
     def feed(self, msg) -> tuple[float, float] | None:
         """Screen and decode one ``can.Message``; the (t [s], speed [m/s]) sample it yields,
         or None (other id, bad frame, or not every signal seen yet). Same rules and results
         as :meth:`feed_many`, in scalar Python for per-frame speed."""
-        wanted = self._screen(msg)
-        if wanted is None:
+        screened = self._screen(msg)
+        if screened is None:
+            return None
+        wanted, t = screened
+        data = bytes(msg.data)
+        if not self._on_channel(wanted, msg.channel, t, data):
             return None
         s = self.summary
-        t = float(msg.timestamp)
         if not (math.isfinite(t) and t > wanted.t_last):
             s.non_monotonic += 1
             kind = "behind" if math.isfinite(t) else "nan"
             s.note(self.where(), self._time_note(wanted, _TimeSkip(kind, 0, 1, t, wanted.t_last)))
             return None
         wanted.t_last = t
-        values = wanted.decoder.decode_one(bytes(msg.data))
+        values = wanted.decoder.decode_one(data)
         if values is None:
             s.decode_errors += 1
             s.note(self.where(), "undecodable or outside the DBC's range")
@@ -403,7 +640,7 @@ class SpeedDecoder:
         continues after the bad record) where given, else stops keeping what was read. An
         interrupt (Ctrl-C) stops the reading too: the frames read before it are decoded and
         ``summary.interrupted`` is set."""
-        batches: dict[int, tuple[list[float], list[bytes], list[int], list[int]]] = {}
+        batches: dict[int, tuple[list[float], list[bytes], list[int], list[int], list]] = {}
         # an interrupt raised between next() and the appends, or in the decode at the end,
         # lost every frame read (a partial batch); noted instead, it ends the loop cleanly
         with interrupts_deferred() as interrupt:
@@ -446,14 +683,17 @@ class SpeedDecoder:
             if bar is not None and seq % 4096 == 0:
                 bar.update(self.summary.frames - bar.n)
             seq += 1
-            wanted = self._screen(msg)
-            if wanted is None:
+            screened = self._screen(msg)
+            if screened is None:
                 continue
-            ts, data, order, where = batches.setdefault(id(wanted), ([], [], [], []))
-            ts.append(float(msg.timestamp))
+            wanted, t = screened
+            ts, data, order, where, channels = batches.setdefault(id(wanted),
+                                                                  ([], [], [], [], []))
+            ts.append(t)
             data.append(bytes(msg.data))
             order.append(seq)
             where.append(self.position())
+            channels.append(msg.channel)
         if bar is not None:
             bar.update(self.summary.frames - bar.n)
             bar.close()
@@ -473,19 +713,25 @@ class SpeedDecoder:
                            scale=self.scale, summary=self.summary)
 
     # -- vectorised decode and combination --------------------------------------------------
-    def _process(self, batches: dict[int, tuple[list[float], list[bytes], list[int], list[int]]]
+    def _process(self, batches: dict[int, tuple[list[float], list[bytes], list[int], list[int],
+                                                  list]]
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         self._flush()
         by_id = {id(w): w for w in self._wanted.values()}
         ev_t, ev_order, ev_rows, ev_msg = [], [], [], []
-        for m_index, (key, (ts, data, order, where)) in enumerate(batches.items()):
+        for m_index, (key, (ts, data, order, where, channels)) in enumerate(batches.items()):
             wanted = by_id[key]
             t = np.asarray(ts, dtype=np.float64)
+            payload = _payloads(data)
+            on = self._on_channel_many(wanted, t, payload, channels)
+            if on is not None:
+                t, payload = t[on], payload[on]
+                order = np.asarray(order)[on]
+                where = np.asarray(where)[on].tolist()
             mono, skips = _time_order(t, wanted.t_last)
             self._report_time_skips(wanted, skips, t, where)
             if mono.any():
                 wanted.t_last = float(t[mono][-1])
-            payload = np.frombuffer(b"".join(data), dtype=np.uint8).reshape(len(ts), -1)
             values, ok = wanted.decoder.decode(payload[mono])
             self.summary.decode_errors += int((~ok).sum())
             for i in np.flatnonzero(mono)[~ok][:MAX_EXAMPLES]:

@@ -1,6 +1,7 @@
 """CAN frame times out of order: a lone stamp far ahead (or behind) of its id's other frames
 is skipped and named, the rest of the log kept; a clock that steps back and goes on from
-there keeps the log's first clock and is reported as a clock step (filters.speed_decoder)."""
+there keeps the log's first clock and is reported as a clock step, unless it is a 32-bit
+microsecond clock wrapping around, which is unwrapped (filters.speed_decoder)."""
 
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ from vipm_track.cli import main
 from vipm_track.filters.can_decode import load_dbc
 from vipm_track.filters.speed_decoder import (
     LOOKAHEAD,
+    WRAP_S,
     SpeedDecoder,
     _time_order,
     decode_can_log,
@@ -317,3 +319,70 @@ def test_feed_and_feed_many_agree_on_a_stamp_behind(dbc):
     assert len(batch) == 40 and stream.summary.examples == batch.summary.examples == [
         "CAN: frame 20: WHEEL_SPEEDS (0xAA) time -3.000000 s is not after its frames before "
         "it (0.190000 s): out of order, skipped"]
+
+
+# -- a 32-bit microsecond clock wrapping around ---------------------------------------------
+
+def _wrapped(lines: list[str], at_s: float, step: float = WRAP_S) -> list[str]:
+    """``lines`` on a 32-bit microsecond clock that reaches 2^32 µs ``at_s`` seconds in, and
+    there steps back by ``step`` (a wrap-around: 2^32 µs)."""
+    t0 = float(STAMP.match(lines[0])[1])
+    out = []
+    for line in lines:
+        u = round((float(STAMP.match(line)[1]) - t0 + WRAP_S - at_s) * 1e6) * 1e-6
+        out.append(_stamped(line, u - step if u >= WRAP_S else u))
+    return out
+
+
+def test_a_32_bit_microsecond_clock_wrapping_around_is_unwrapped(lines, data, clean, folder,
+                                                                 capsys):
+    """The user's log wraps 5 s in: 92 % of it was left out as after a clock step, exit 0,
+    and its span printed as negative (-4234.975 s)."""
+    path = _write(folder, _wrapped(lines, 5.0), "wrap.log")
+    out = folder / "wrap.csv"
+    rc = main(["can-speed", str(path), "--dbc", str(data / "toyota_2017.dbc"),
+               "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 0
+    got = read_speed_csv(out)
+    assert len(got) == len(clean) == 1006
+    np.testing.assert_allclose(got.t, clean.t - clean.t[0] + got.t[0], atol=2e-6)
+    np.testing.assert_allclose(got.speed_mps, clean.speed_mps, atol=1e-9)
+    assert "32-bit microsecond clock wrapping around" in err and "added to the times" in err
+    assert "clock step" not in err and "(-" not in err
+    span = re.search(r"time span \S+ \.\. \S+ s \((\S+) s\)", err)
+    assert span and 11.0 < float(span[1]) < 13.0
+
+
+def test_a_stream_unwraps_the_clock_as_a_log_does(lines, dbc, folder):
+    path = _write(folder, _wrapped(lines, 5.0), "wrap_stream.log")
+    batch, _ = decode_can_log(path, dbc)
+    stream = SpeedDecoder(dbc)
+    for msg in can.LogReader(str(path)):
+        stream.feed(msg)
+    np.testing.assert_array_equal(stream.series().t, batch.t)
+    assert stream.summary.notes and "wrapping around" in stream.summary.notes[0]
+
+
+def test_a_frame_stamped_before_the_wrap_logged_after_it_stays_before(dbc):
+    times = [WRAP_S - 0.003, WRAP_S - 0.002, 0.0005, WRAP_S - 0.0015, 0.001, 0.002]
+    series = SpeedDecoder(dbc).feed_many([_frame(round(t, 6)) for t in times])
+    np.testing.assert_allclose(series.t, [WRAP_S - 0.003, WRAP_S - 0.002, WRAP_S + 0.0005,
+                                          WRAP_S + 0.001, WRAP_S + 0.002], atol=1e-6)
+    assert series.summary.non_monotonic == 1 and not series.summary.clock_steps
+
+
+def test_a_step_back_near_a_wrap_but_not_one_is_left_out_and_counted(lines, dbc, folder):
+    """Half a second short of 2^32 µs: no wrap-around, a clock step, whose frames are left
+    out saying how many of the log's they are; the span never printed negative."""
+    path = _write(folder, _wrapped(lines, 5.0, WRAP_S - 0.5), "near_wrap.log")
+    series, summary = decode_can_log(path, dbc)
+    assert 380 < len(series) < 450 and not summary.notes
+    (text,) = summary.clock_steps
+    n = summary.non_monotonic
+    assert n == 1006 - len(series)
+    assert f"its {n} frames up to line" in text and f"({round(100 * n / 1006)} % of its 1006 " \
+        "frames)" in text
+    assert f"the speed samples of all {n} are left out" in text and "not unwrapped" in text
+    report = str(summary)
+    assert "(-" not in report and "the clock steps back in between" in report

@@ -107,11 +107,14 @@ def test_drives_ok_and_broken_ones_are_rows(fleet, drives):
 def test_tables_read_as_a_partitioned_dataset(fleet):
     import dask.dataframe as dd
 
+    from vipm_track.fleet.cluster import DRIVE_PARTITIONING
+
     out, _ = fleet
     files = sorted(str(p) for p in out.glob("drive=*/smoothed.parquet"))
     by_pandas = pd.read_parquet(files)
     by_arrow = fleet_dataset(out, "smoothed").to_table().to_pandas()
-    by_dask = dd.read_parquet(str(out / "drive=*" / "smoothed.parquet")).compute()
+    by_dask = dd.read_parquet(str(out / "drive=*" / "smoothed.parquet"),  # docs/fleet.md's
+                              dataset={"partitioning": DRIVE_PARTITIONING}).compute()
     for table in (by_pandas, by_arrow, by_dask):
         assert sorted(set(table["drive"].astype(str))) == ["a", "b", "c_bag"]
         assert len(table) == 12 + 30 + 12
@@ -585,3 +588,99 @@ def test_ctrl_c_removes_the_tables_of_a_drive_it_stopped(fleet, drives, tmp_path
     assert not (again / "drive=b").exists()
     status = dict(pd.read_csv(again / "fleet_summary.csv")[["drive", "status"]].values)
     assert "interrupted before the drive finished" in status["b"]
+
+
+def test_resume_redoes_a_drive_whose_outputs_are_gone(fleet, drives, cluster, tmp_path,
+                                                      capsys):
+    """a's monitor table removed, c_bag's estimates garbled after a complete run: the rerun
+    said "unchanged, skipped" off done.json alone, and the dataset lacked a's rows."""
+    out, _ = fleet
+    again, root = tmp_path / "out", tmp_path / "drives"
+    shutil.copytree(out, again)
+    for name in ("a", "b", "c_bag"):
+        shutil.copytree(drives / name, root / name)
+    (again / "drive=a" / "monitor.parquet").unlink()
+    (again / "drive=c_bag" / "estimates.parquet").write_bytes(b"not parquet")
+    rows = {r["drive"]: r for r in run_fleet(find_drives(root), again, SETTINGS,
+                                             scheduler=cluster.scheduler_address,
+                                             progress=True)}
+    err = capsys.readouterr().err
+    assert not rows["a"]["skipped"] and not rows["c_bag"]["skipped"] and rows["b"]["skipped"]
+    assert all(r["status"] == "ok" for r in rows.values())
+    assert "output missing: monitor.parquet, redone)" in err, err
+    assert "output unreadable: estimates.parquet, redone)" in err, err
+    served = fleet_dataset(again, "monitor").to_table().to_pandas()
+    assert served["drive"].value_counts().to_dict() == {"a": 12, "b": 30, "c_bag": 12}
+    pd.testing.assert_frame_equal(pd.read_parquet(again / "drive=a" / "monitor.parquet"),
+                                  pd.read_parquet(out / "drive=a" / "monitor.parquet"))
+
+
+def test_resume_redoes_a_drive_another_version_made(fleet, drives, cluster, tmp_path, capsys):
+    """The input hash left the version out: after an upgrade the old tables were reused."""
+    from vipm_track import __version__
+    from vipm_track.fleet.drive_run import VERSION_FIELD, resume_check
+
+    out, _ = fleet
+    again, root = tmp_path / "out", tmp_path / "drives"
+    shutil.copytree(out, again)
+    shutil.copytree(drives / "a", root / "a")
+    done = again / "drive=a" / "done.json"
+    row = json.loads(done.read_text())
+    assert row[VERSION_FIELD] == __version__
+    row[VERSION_FIELD] = "0.0.1"
+    done.write_text(json.dumps(row))
+    rows = run_fleet(find_drives(root), again, SETTINGS, scheduler=cluster.scheduler_address,
+                     progress=True)
+    assert rows[0]["status"] == "ok" and not rows[0]["skipped"]
+    err = capsys.readouterr().err
+    assert f"made by vipm-track 0.0.1, this is {__version__}, redone)" in err, err
+    row = json.loads(done.read_text())
+    assert row[VERSION_FIELD] == __version__
+    # a done.json of before the version was written down: redone too
+    del row[VERSION_FIELD]
+    done.write_text(json.dumps(row))
+    assert resume_check(done.parent, row["input_hash"]) == (
+        None, f"made by an earlier vipm-track, this is {__version__}")
+
+
+def test_numeric_drive_names_stay_apart_and_text(fleet, tmp_path):
+    """Drives '01', '1' and '07' (KITTI's names): the partition was inferred as an integer,
+    '01' and '1' read back as one drive 1 and '07' as 7."""
+    import dask.dataframe as dd
+
+    from vipm_track.fleet.cluster import DRIVE_PARTITIONING, write_summary
+    from vipm_track.fleet.drive_run import drive_folder
+
+    out, rows = fleet
+    again = tmp_path / "out"
+    names = ("01", "1", "07")
+    for name in names:  # as run_drive writes drive a's outputs under each name
+        shutil.copytree(out / "drive=a", drive_folder(again, name))
+    write_summary(again, [{**rows["a"], "drive": name} for name in names])
+    served = fleet_dataset(again, "monitor").to_table().to_pandas()
+    assert served["drive"].value_counts().to_dict() == {"01": 12, "1": 12, "07": 12}
+    # docs/fleet.md's dask example
+    by_dask = dd.read_parquet(str(again / "drive=*" / "monitor.parquet"),
+                              dataset={"partitioning": DRIVE_PARTITIONING}).compute()
+    assert by_dask["drive"].astype(str).value_counts().to_dict() == {"01": 12, "1": 12,
+                                                                      "07": 12}
+
+
+def test_a_stray_log_beside_speed_csv_is_left_alone(drives, tmp_path):
+    """A notes.log beside a good speed.csv made the drive fail "CAN log notes.log without a
+    .dbc"; without a speed.csv it still is that mistake, with a .dbc a CAN log."""
+    root = tmp_path / "drives"
+    for name in ("a", "no_speed", "with_dbc"):
+        shutil.copytree(drives / "a", root / name)
+    plain = find_drives(root)[0]
+    for name in ("a", "no_speed", "with_dbc"):
+        (root / name / "notes.log").write_text("picked up the cart at 9\n")
+    (root / "no_speed" / "speed.csv").unlink()
+    (root / "with_dbc" / "car.dbc").write_text("")
+    a, no_speed, with_dbc = find_drives(root)
+    assert a.problem == "" and a.can is None and a.speed_csv == root / "a" / "speed.csv"
+    assert a.input_hash(SETTINGS.key()) == plain.input_hash(SETTINGS.key())  # notes: no rerun
+    assert no_speed.problem == (f"{root / 'no_speed'}: CAN log notes.log without a .dbc to "
+                                "decode it")
+    assert with_dbc.can == root / "with_dbc" / "notes.log"
+    assert with_dbc.dbc == root / "with_dbc" / "car.dbc"

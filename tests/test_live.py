@@ -90,6 +90,54 @@ def test_paced_video_flags_the_knock_within_5_s_and_ends_with_the_video(knock, t
     assert f"{len(knock['files'])} frames seen, {len(frame)} pairs processed" in captured.err
 
 
+def test_a_knock_while_the_wheel_speed_is_silent_is_no_calibrated_camera(knock, tmp_path):
+    """The wheel speed silent for 4 s from 1 s before the knock: the frames were held from
+    the monitor, and with the data back it said "CALIBRATED: data back; no change beyond
+    the tolerance" of a camera 1° off, the alarm 4.7 s late (`monitor` on the same data:
+    DRIFTING 0.6 s after the knock). The pitch and roll are judged on through the silence;
+    only the height waits for the wheels."""
+    speed = np.genfromtxt(knock["folder"] / "speed.csv", delimiter=",", names=True)
+    gap = (speed["t"] > knock["knock_t"] - 1.0) & (speed["t"] < knock["knock_t"] + 3.0)
+    lines = ["t,speed_mps"] + [f"{t:.6f},{v:.6f}" for t, v in zip(
+        speed["t"][~gap], speed["speed_mps"][~gap], strict=True)]
+    gapped = tmp_path / "speed_gap.csv"
+    gapped.write_text("\n".join(lines) + "\n")
+    out, events = tmp_path / "live.csv", tmp_path / "events.jsonl"
+    assert main(["live", "--video", str(knock["video"]), "--realtime",
+                 "--camera", str(knock["folder"] / "camera.yaml"), "--nominal",
+                 str(knock["nominal"]), "--speed-csv", str(gapped), "--out", str(out),
+                 "--events", str(events), "--quiet"]) == 0
+    rows = read_table(out)
+    state, t = np.asarray(rows["monitor_state"], dtype=object), np.asarray(rows["t"])
+    after = t >= knock["knock_t"] + 0.5
+    assert not np.any(state[after] == "CALIBRATED"), list(zip(t[after], state[after], strict=True))
+    delay, early = _flag_delay(rows, knock["knock_t"])
+    assert early == [] and delay <= 5.0, delay
+    said = [json.loads(line) for line in events.read_text().splitlines()]
+    assert not any(e["state"] == "CALIBRATED" and e["t"] >= knock["knock_t"] for e in said)
+    assert any(e["state"] in FLAGS and e["t"] < knock["knock_t"] + 3.0 for e in said), said
+
+
+def test_an_axis_going_off_within_recalibrate_is_announced(knock, tmp_path):
+    """A wheel speed 10 % high calls RECALIBRATE for the height at once; the pitch knocked
+    later read "pitch reads off too" on 52 rows, but `live` announced only changes of state,
+    so --events (and every on_event listener) never heard of the knock; `monitor` did."""
+    speed = np.genfromtxt(knock["folder"] / "speed.csv", delimiter=",", names=True)
+    fast = tmp_path / "speed_x11.csv"
+    fast.write_text("t,speed_mps\n" + "".join(
+        f"{t:.6f},{1.1 * v:.6f}\n" for t, v in zip(speed["t"], speed["speed_mps"],
+                                                     strict=True)))
+    events = tmp_path / "events.jsonl"
+    assert main(["live", "--video", str(knock["video"]), "--camera",
+                 str(knock["folder"] / "camera.yaml"), "--nominal", str(knock["nominal"]),
+                 "--speed-csv", str(fast), "--out", str(tmp_path / "live.csv"),
+                 "--events", str(events), "--quiet"]) == 0
+    said = [json.loads(line) for line in events.read_text().splitlines()]
+    assert any(e["state"] == "RECALIBRATE" and e["t"] < knock["knock_t"] for e in said), said
+    assert any(e["state"] == "RECALIBRATE" and e["t"] >= knock["knock_t"]
+               and "pitch" in e["reason"] for e in said), said
+
+
 def test_pushed_frames_camera_stops_and_resumes(knock):
     """Frames pushed at 10 fps with a 1.5 s outage: HOLD saying so while the camera is
     silent, no pair across the gap, rows again after it, every frame accounted for."""

@@ -26,7 +26,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -145,6 +145,19 @@ class _Arrived:
     arrived: float
 
 
+#: the monitor's states that call for action: said also while the watchdog holds
+ALARMS = frozenset({"DRIFTING", "RECALIBRATE"})
+
+
+def _held_for_speed(out: MonitorOutput, why: str) -> MonitorOutput:
+    """``out`` while the wheel speed the run expects is silent (``why``): no verdict of
+    calibration without the height (HOLD, as the watchdog announced), but the pitch and
+    roll's alarms stand, their reason saying the height was not tested."""
+    if out.state in ALARMS:
+        return replace(out, reason=f"{out.reason}; {why}: height not tested")
+    return replace(out, state="HOLD", reason=why, estimate=None, interval95=None, event=None)
+
+
 class LiveMonitor:
     """The online chain (module doc): estimator → EKF → drift monitor on a live stream.
 
@@ -207,7 +220,9 @@ class LiveMonitor:
         self._fresh = False
         self._next_index = 0
         self._last_pair_end: int | None = None
-        self._waiting: dict[int, tuple[_Arrived, _Arrived, Any, int]] = {}
+        #: frame → (its pair's frames, estimate, frames dropped before it, the watchdog's
+        #: speed HOLD reason when it was processed)
+        self._waiting: dict[int, tuple[_Arrived, _Arrived, Any, int, str]] = {}
         self._holds: dict[str, str] = {}
         self._reported: str | None = None
         self._watchdog_held = False  # the last event announced is the watchdog's HOLD
@@ -371,13 +386,16 @@ class LiveMonitor:
             m = PairMeasurement(b.index, b.t, np.full(7, np.nan), np.full((7, 7), np.nan),
                                 self.nominal.height_m,
                                 status if status != "ok" else NO_ESTIMATE)
-        hold = self._holds.get("speed", "")
-        self._waiting[b.index] = (a, b, result, dropped)
-        for decided in self.online.step(m, a.t, hold):
+        # the monitor judges the pair's pitch and roll without the wheel speed (its height
+        # then goes untested, as `monitor` across a gap); only the verdict is held (_emit)
+        self._waiting[b.index] = (a, b, result, dropped, self._holds.get("speed", ""))
+        for decided in self.online.step(m, a.t):
             self._emit(*decided)
 
     def _emit(self, m: PairMeasurement, state: FilterState, out: MonitorOutput) -> None:
-        a, b, result, dropped = self._waiting.pop(m.frame)
+        a, b, result, dropped, speed_hold = self._waiting.pop(m.frame)
+        if speed_hold:
+            out = _held_for_speed(out, speed_hold)
         latency = time.monotonic() - b.arrived
         row = monitor_row(m, state, out)
         row.update(prev_frame=a.index, dropped=dropped, latency_s=latency)
@@ -389,18 +407,31 @@ class LiveMonitor:
             self.stats.first_recalibrate = {"t": m.t, "frame": m.frame, "reason": out.reason}
         if self.on_row is not None:
             self.on_row(LiveRow(m, state, out, result, b.image, row, latency))
-        if self._holds and out.state != "HOLD":
+        if self._holds:
             # the watchdog's HOLD stands while data is missing (a first pair that finished
-            # after the wheel speed fell silent said "data back" for data that never came)
-            return
-        if self._watchdog_held and out.state != "HOLD":
+            # after the wheel speed fell silent said "data back" for data that never came);
+            # an alarm the pitch and roll raise meanwhile is said at once
+            if out.state in ALARMS and (out.state != self._reported or out.event is not None):
+                self._announce(self._event(m, out, out.reason))
+            elif out.state == "HOLD" and self._reported != "HOLD":  # an alarm said meanwhile
+                self._announce(self._event(m, out, out.reason))
+                self._watchdog_held = True
+        elif self._watchdog_held and out.state != "HOLD":
             # the data returned after a watchdog HOLD: say what the monitor says now
-            event = dict(out.event) if out.event is not None else event_dict(
-                m.t, m.frame, out.state, "", out.estimate, out.interval95, out.mount)
-            event["reason"] = f"data back; {out.reason}"
-            self._announce(event)
-        elif out.event is not None and out.state != self._reported:
+            self._announce(self._event(m, out, f"data back; {out.reason}"))
+        elif out.event is not None and (out.state != self._reported or out.state != "HOLD"):
+            # also an event within a state ("pitch reads off too" while RECALIBRATE); not a
+            # second HOLD after the watchdog's
             self._announce(out.event)
+
+    @staticmethod
+    def _event(m: PairMeasurement, out: MonitorOutput, reason: str) -> dict[str, Any]:
+        """The event of ``out`` (one of its own where its state changed at it) with
+        ``reason``."""
+        event = dict(out.event) if out.event is not None else event_dict(
+            m.t, m.frame, out.state, "", out.estimate, out.interval95, out.mount)
+        event["reason"] = reason
+        return event
 
     # --- watchdog -------------------------------------------------------------------------
 

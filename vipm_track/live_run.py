@@ -188,8 +188,11 @@ def run_live(
                 break
             if monitor.failure is not None:  # raised by monitor.stop() below
                 break
-        if reader.failure is not None:
-            raise reader.failure
+            if bus_reader is not None and bus_reader.failure is not None:
+                break
+        for failed in (reader, bus_reader):
+            if failed is not None and failed.failure is not None:
+                raise failed.failure
     except KeyboardInterrupt:
         interrupted = True
     finally:

@@ -268,13 +268,16 @@ class BusReader(threading.Thread):
     """Reads a python-can ``bus`` and calls ``on_message(msg)`` with every message until
     ``stop`` is set; ``time_shift`` [s] is added to each message's timestamp first (a file
     played against a live bus: ``Playback.wall_offset``, negated). A failing bus is reported
-    on stderr once and read again after :data:`REOPEN_INTERVAL_S`."""
+    on stderr once and read again after :data:`REOPEN_INTERVAL_S`. Bad input from
+    ``on_message`` (a speed message on two channels that disagree) ends the thread, kept as
+    ``failure`` for the main thread to report."""
 
     def __init__(self, bus: Any, on_message: Callable[[Any], Any], stop: threading.Event,
                  time_shift: Callable[[], float] | None = None) -> None:
         super().__init__(name="vipm-live-bus", daemon=True)
         self.bus, self.on_message, self.stop, self.time_shift = bus, on_message, stop, time_shift
         self.stats = ReaderStats()
+        self.failure: InputError | None = None
 
     def run(self) -> None:
         import can
@@ -296,7 +299,11 @@ class BusReader(threading.Thread):
                     continue  # the playback has not started: no clock to put it on yet
                 msg.timestamp = float(msg.timestamp) + shift
             self.stats.delivered += 1
-            self.on_message(msg)
+            try:
+                self.on_message(msg)
+            except InputError as exc:
+                self.failure = exc
+                return
 
 
 def open_bus(text: str) -> Any:

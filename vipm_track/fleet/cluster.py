@@ -6,8 +6,8 @@ Every worker writes its drive's tables into ``OUT/drive=NAME/`` itself, so on se
 machines OUT (and the drives) must be on a file system they all mount at the same path.
 A worker that dies takes its task with it: the scheduler runs it again elsewhere, up to
 ``retries`` times, and then the drive is a row with the error. Drives whose ``done.json``
-holds the same input hash are not run again (their row is reused), so a fleet that was
-stopped resumes where it stopped.
+holds the same input hash and vipm-track version, their tables all there, are not run again
+(their row is reused), so a fleet that was stopped resumes where it stopped.
 """
 
 from __future__ import annotations
@@ -82,6 +82,9 @@ SUMMARY_COLUMNS: tuple[str, ...] = (
 SUMMARY_TEXT_COLUMNS = frozenset({"drive", "vehicle", "started", "status", "monitor_verdict",
                                   "monitor_states", "worker", "input_hash", "wheel_speed",
                                   "skipped", "warnings"})
+#: the tables' partitioning, ``drive`` read as text: inferred, drives "01" and "1" (KITTI's
+#: "00", "07") were both the number 1
+DRIVE_PARTITIONING = ds.partitioning(pa.schema([("drive", pa.string())]), flavor="hive")
 
 
 def run_fleet(
@@ -340,11 +343,14 @@ class _ClosingClient:
 
 
 def drive_line(row: dict[str, Any]) -> str:
-    """One line on a finished drive: its status, frames, mount and wall time."""
+    """One line on a finished drive: its status, frames, mount and wall time (and why an
+    earlier run's outputs were not reused)."""
     name = row.get("drive", "?")
     if row.get("status") != "ok":
         return f"drive {name}: {row.get('status')}"
     how = "unchanged, skipped" if row.get("skipped") else f"{row.get('wall_s', 0):.1f} s"
+    if row.get("redone"):
+        how += f", {row['redone']}, redone"
     return (f"drive {name}: ok, {row['frames']} frames ({100 * row['share_ok']:.0f} % ok), "
             f"mount pitch {row['mount_pitch_deg']:.3f}° roll {row['mount_roll_deg']:.3f}° "
             f"height {row['mount_height_m']:.4f} m, monitor {row['monitor_verdict']} ({how})")
@@ -381,7 +387,8 @@ def fleet_dataset(out: str | Path, table: str = "smoothed") -> ds.Dataset:
     in OUT's ``fleet_summary.parquet`` (the last run's drives: a folder that an earlier run
     with other drives left in OUT is not served) and whose ``done.json`` is written (not a
     drive that failed or was interrupted part-way), as a pyarrow dataset with the hive
-    partition column ``drive``. InputError where OUT holds no fleet summary."""
+    partition column ``drive`` (text, as the drives are named). InputError where OUT holds
+    no fleet summary."""
     out = Path(out)
     summary = out / "fleet_summary.parquet"
     try:
@@ -395,9 +402,9 @@ def fleet_dataset(out: str | Path, table: str = "smoothed") -> ds.Dataset:
                if r["status"] == "ok" and r["drive"] is not None]
     files = sorted(str(f / f"{table}.parquet") for f in folders
                    if (f / DONE_FILE).is_file() and (f / f"{table}.parquet").is_file())
-    return ds.dataset(files, format="parquet", partitioning="hive",
+    return ds.dataset(files, format="parquet", partitioning=DRIVE_PARTITIONING,
                       partition_base_dir=str(out))
 
 
-__all__ = ["CONNECT_TIMEOUT_S", "SUMMARY_COLUMNS", "connect_scheduler", "fleet_dataset",
-           "run_fleet", "scheduler_address", "write_summary"]
+__all__ = ["CONNECT_TIMEOUT_S", "DRIVE_PARTITIONING", "SUMMARY_COLUMNS", "connect_scheduler",
+           "fleet_dataset", "run_fleet", "scheduler_address", "write_summary"]

@@ -20,8 +20,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 
-from vipm_track import json_text
+from vipm_track import __version__, json_text
 from vipm_track.filters.drive_summary import summarize_mount, summary_warnings
 from vipm_track.filters.ekf_state import EkfConfig
 from vipm_track.filters.model import NoiseParams
@@ -50,6 +52,8 @@ from .drives import DriveSpec
 DONE_FILE = "done.json"
 #: what a drive writes before its done file
 OUTPUT_FILES = ("estimates.parquet", "smoothed.parquet", "monitor.parquet", "summary.json")
+#: the done file's field naming the vipm-track that wrote the outputs: another one redoes them
+VERSION_FIELD = "vipm_track_version"
 
 
 @dataclass(frozen=True)
@@ -102,10 +106,11 @@ def drive_folder(out: str | Path, drive: str) -> Path:
 def run_drive(spec: DriveSpec, out: str | Path, settings: FleetSettings,
               progress_topic: str | None = None) -> dict[str, Any]:
     """Process one drive into ``OUT/drive=NAME/`` (estimates, smoothed and monitor Parquet,
-    ``summary.json``, ``done.json``) and return its fleet-summary row; where ``done.json``
-    holds the same input hash, the earlier row (``skipped`` true). A drive that fails is a
-    row whose ``status`` is the error; nothing is raised. ``progress_topic``: the Dask event
-    topic its progress goes to (``drive_progress``; None: none sent)."""
+    ``summary.json``, ``done.json``) and return its fleet-summary row; where an earlier run
+    is still good (:func:`resume_check`), its row (``skipped`` true). A drive run again
+    though it had been done has ``redone``: why. A drive that fails is a row whose
+    ``status`` is the error; nothing is raised. ``progress_topic``: the Dask event topic its
+    progress goes to (``drive_progress``; None: none sent)."""
     start = time.perf_counter()
     folder = drive_folder(out, spec.drive)
     base = {"drive": spec.drive, "vehicle": spec.vehicle, "started": spec.started}
@@ -114,14 +119,15 @@ def run_drive(spec: DriveSpec, out: str | Path, settings: FleetSettings,
         if spec.problem:
             raise InputError(spec.problem)
         key = spec.input_hash(settings.key())
-        done = done_row(folder, key)
+        done, redone = resume_check(folder, key)
         if done is not None:
             return {**done, "skipped": True}
         # an earlier run's outputs go first: a drive that now stops part-way must not leave
         # tables that no done.json vouches for
         rerun = True
         remove_outputs(folder)
-        row = {**base, **_process(spec, folder, settings, progress_topic), "input_hash": key}
+        row = {**base, **_process(spec, folder, settings, progress_topic), "input_hash": key,
+               VERSION_FIELD: __version__}
     except Exception as exc:  # a failed drive is a row of the summary; the fleet goes on
         if rerun or isinstance(exc, (InputError, NothingUsable, FileNotFoundError)):
             # a drive that is no longer what it was (a file missing or broken now, found
@@ -138,7 +144,7 @@ def run_drive(spec: DriveSpec, out: str | Path, settings: FleetSettings,
     row["wall_s"] = time.perf_counter() - start
     row["worker"] = _worker()
     _write_atomic(folder / DONE_FILE, json_text.dumps(row, indent=2) + "\n")
-    return {**row, "skipped": False}
+    return {**row, "skipped": False, "redone": redone}
 
 
 def remove_outputs(folder: Path) -> None:
@@ -156,13 +162,52 @@ def _worker() -> str:
 
 
 def done_row(folder: Path, key: str) -> dict[str, Any] | None:
-    """The summary row a finished drive left in ``folder`` (its done file), if it was made
-    from inputs and settings of hash ``key``; None otherwise (not run, or run on others)."""
+    """The summary row a finished drive left in ``folder`` where it still holds
+    (:func:`resume_check`); None otherwise."""
+    return resume_check(folder, key)[0]
+
+
+def resume_check(folder: Path, key: str) -> tuple[dict[str, Any] | None, str]:
+    """(the summary row of ``folder``'s done file, "") where that run can be reused: made
+    from inputs and settings of hash ``key`` by this vipm-track, its outputs all there;
+    else (None, why it is redone), why "" where the drive never finished."""
     try:
         row = json.loads((folder / DONE_FILE).read_text())
     except (OSError, ValueError):
-        return None
-    return row if isinstance(row, dict) and row.get("input_hash") == key else None
+        return None, ""
+    if not isinstance(row, dict):
+        return None, ""
+    made_by = row.get(VERSION_FIELD)
+    if made_by != __version__:  # another estimator may give other tables from the same inputs
+        by = ("an earlier vipm-track" if made_by is None
+              else f"vipm-track {printable(str(made_by), 40)}")
+        return None, f"made by {by}, this is {__version__}"
+    if row.get("input_hash") != key:
+        return None, "inputs or settings changed"
+    problem = _outputs_problem(folder)
+    return (None, problem) if problem else (row, "")
+
+
+def _outputs_problem(folder: Path) -> str:
+    """Which of a drive's outputs are gone or unreadable ("" where none): a done file alone
+    does not vouch for tables removed or broken since."""
+    missing = [name for name in OUTPUT_FILES if not (folder / name).is_file()]
+    broken = [name for name in OUTPUT_FILES
+              if name not in missing and not _readable(folder / name)]
+    return "; ".join(f"output {what}: {', '.join(names)}"
+                     for what, names in (("missing", missing), ("unreadable", broken)) if names)
+
+
+def _readable(path: Path) -> bool:
+    """Whether a drive's output file reads as what it is: a Parquet file's footer (not its
+    rows: a resumed fleet checks every drive's), a JSON object."""
+    try:
+        if path.suffix == ".parquet":
+            pq.read_metadata(path)
+            return True
+        return isinstance(json.loads(path.read_text()), dict)
+    except (OSError, ValueError, pa.ArrowException):
+        return False
 
 
 def _write_atomic(path: Path, text: str) -> None:

@@ -4,8 +4,9 @@ A drive folder holds its recording — ``images/`` (timestamps from ``times.txt`
 or a bag (``.bag``, ``.mcap``, ``.db3`` or a rosbag2 folder) — its intrinsics
 (``camera.yaml`` or ``calib.txt``; a bag's ``camera_info`` topic otherwise), its
 ``nominal.yaml`` (``pitch_deg``, ``roll_deg``, ``height_m``, as ``vipm-track monitor``
-reads) and optionally a speed (``speed.csv``, or a CAN log with a ``.dbc`` beside it) and a
-``drive.yaml`` with ``vehicle`` (which vehicle drove it) and ``started`` (sorts the
+reads) and optionally a speed (``speed.csv``, or a CAN log with a ``.dbc`` beside it; a
+log without a ``.dbc``, such as ``notes.log``, is left alone where there is a ``speed.csv``)
+and a ``drive.yaml`` with ``vehicle`` (which vehicle drove it) and ``started`` (sorts the
 vehicle's drives in time). A manifest CSV has one row per drive with the columns of
 :data:`MANIFEST_COLUMNS`, paths relative to the manifest.
 """
@@ -122,12 +123,14 @@ def drive_in_folder(folder: Path) -> DriveSpec:
     bag = folder if is_bag(folder) else next((p for p in files if is_bag(p)), None)
     video = first(VIDEO_SUFFIXES)
     camera = first(frozenset(), "camera.yaml", "camera.yml", "camera_info.yaml", "calib.txt")
-    can = first(CAN_SUFFIXES)
+    speed_csv = folder / "speed.csv" if (folder / "speed.csv").is_file() else None
+    can, dbc = first(CAN_SUFFIXES), first(frozenset({".dbc"}))
+    if dbc is None and speed_csv is not None:
+        can = None  # no DBC to decode it: a stray log (notes.log) beside the drive's speed
     spec = DriveSpec(
         drive=folder.name, images=images, video=video, bag=bag, camera=camera,
         nominal=folder / "nominal.yaml" if (folder / "nominal.yaml").is_file() else None,
-        speed_csv=folder / "speed.csv" if (folder / "speed.csv").is_file() else None,
-        can=can, dbc=first(frozenset({".dbc"})) if can else None,
+        speed_csv=speed_csv, can=can, dbc=dbc if can else None,
         vehicle=str(info.get("vehicle", "")), started=str(info.get("started", "")),
     )
     return _with_problem(spec, bad_info) if bad_info else _checked(spec, str(folder))
