@@ -415,3 +415,26 @@ def test_knocks_are_no_drift_line(changes) -> None:
     truth = {"frame": np.arange(t.size), "t": t, "mount_pitch_deg": true}
     pitch = summarize_drift(table, load_nominal(NOMINAL), truth).axes["pitch"]
     assert pitch.interval_from == "filter" and pitch.covers_truth
+
+
+def test_a_track_table_whose_mount_missed_an_early_knock_reports_where_the_frames_sit(
+        tmp_path: Path) -> None:
+    """A rendered robot (0.3 m, 30°) knocked +1° in pitch at 4.8 s, before the EKF's
+    mount-change test was armed: its mount crept to 30.56 ± 0.05° by the end and the report
+    said "pitch 30.561 [30.467, 30.656], change +0.561", 9σ from the camera's 31°, without a
+    word. The frames' own pose since their step is where the camera sits; the report says
+    why it is not the filter's mount."""
+    track = tmp_path / "track.csv"
+    assert main(["track", "--estimates", str(DATA / "robot_early_knock_est.csv"), "--vehicle",
+                 "cart", "--speed-csv", str(DATA / "robot_early_knock_speed.csv"), "--out",
+                 str(track), "--quiet"]) == 0
+    truth = read_table(DATA / "robot_early_knock_gt.csv")
+    s = summarize_drift(read_table(track), truth=truth)
+    pitch = s.axes["pitch"]
+    assert pitch.covers_truth, (pitch.current, pitch.lo, pitch.hi)
+    assert pitch.interval_from == "frames since their step"
+    assert abs(pitch.changed_at_s - 4.8) < 0.3
+    assert s.axes["roll"].interval_from == "filter"  # the axis that did not step keeps it
+    out = tmp_path / "report"
+    assert main(["report", str(track), "--out", str(out)]) == 0
+    assert "did not follow" in (out / "report.md").read_text()

@@ -285,6 +285,13 @@ def test_heave_status_quotes_the_results_file():
     now = f"{_range(shares('shaking', 3), '.0f')} % / {_range(shares('height', 3), '.0f')} %"
     before = f"{_range(shares('shaking', 4), '.0f')} % / {_range(shares('height', 4), '.0f')} %"
     assert f"| {now} ({before}) |" in _status("frame height σ")
+    summaries = [r for r in _rows(RESULTS / "bench_heave.md") if len(r) == 4
+                 and "height" in r[0]]
+    held = [[int(c.split(" / ")[2].split(" of ")[i]) for r in summaries for c in r[2:]]
+            for i in (0, 1)]
+    total = sum(held[1]) // 2
+    assert (f"| {sum(held[0][::2])} of {total} ({sum(held[0][1::2])} of {total}) |"
+            in _status("drive height"))
 
 
 def test_other_status_rows_quote_the_results_files():

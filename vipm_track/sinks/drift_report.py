@@ -21,7 +21,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .drift_summary import DRIFT_SIGMAS, MOUNT_AXES, Z95, DriftSummary, state_runs
+from .drift_summary import (
+    DRIFT_SIGMAS,
+    FRAMES_SINCE_STEP,
+    MOUNT_AXES,
+    Z95,
+    DriftSummary,
+    state_runs,
+)
 
 #: decimals a number is written with, by unit
 DECIMALS: dict[str, int] = {"deg": 3, "m": 4, "s": 2, "%": 2, "rate": 4, "": 3,
@@ -79,6 +86,12 @@ def summary_lines(s: DriftSummary) -> list[str]:
                   f" (rate beyond {DRIFT_SIGMAS:g}σ, a line fitting better than a step): "
                   "current is where the drift line through the frames ends, not the filter's "
                   "mount, which lags a creep."]
+    unfollowed = [a.axis for a in s.axes.values() if a.interval_from == FRAMES_SINCE_STEP]
+    if unfollowed:
+        lines += ["", f"{' and '.join(unfollowed).capitalize()}: the frames' own pose stepped "
+                  "and the filter's mount did not follow (beyond both intervals): current is "
+                  "the frames' mean since their step, with its standard error; smooth the "
+                  "drive (`smooth` splits it at the step) for the mount itself."]
     truth = [a for a in s.axes.values() if math.isfinite(a.true_current)]
     if truth:
         lines += ["", "Against the true mount (ground truth):", "",
