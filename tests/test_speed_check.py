@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from vipm_track.cli import main
@@ -115,5 +116,22 @@ def test_a_standing_wheel_speed_is_not_called_missing(car, tmp_path, capsys):
                  str(zero), "--nominal", str(nominal), "--out", str(tmp_path / "m.csv")]) == 0
     err = capsys.readouterr().err
     assert "the wheels travel 0.00× what the images do" in err
-    assert "height not tested: no frame had a metric travel (the wheel speed given says the " \
-           "vehicle stood or had no sample at every moving pair)" in err
+    assert "height not tested: no frame had a metric travel (118 of 120 frames held: " \
+           "standstill)" in err
+
+
+def test_untested_height_names_the_hold_that_kept_every_frame():
+    """A level truck camera at 30 fps whose pairs were all held "slow for a forward camera":
+    the monitor said its wheel speed (samples at 12 m/s all through) "says the vehicle stood
+    or had no sample at every moving pair"."""
+    from vipm_track.commands.monitor import _untested_height_why
+    from vipm_track.filters.monitor_types import MonitorOutput
+
+    def out(state: str, reason: str) -> MonitorOutput:
+        return MonitorOutput(0, 0.0, state, reason, np.zeros(3), np.full(3, np.nan))
+
+    slow = [out("HOLD", "slow for a forward camera; its pitch reads low")] * 119
+    why = _untested_height_why([out("UNCALIBRATED", ""), *slow], speed_given=True)
+    assert why == "119 of 120 frames held: slow for a forward camera"
+    assert "stood" in _untested_height_why([out("CALIBRATED", "")] * 3, speed_given=True)
+    assert "give wheel speed" in _untested_height_why(slow, speed_given=False)

@@ -164,14 +164,25 @@ def run(args: argparse.Namespace) -> int:
             print(f"first RECALIBRATE at t={flagged.t:.2f} s (frame {flagged.frame}): "
                   f"{flagged.reason}", file=sys.stderr)
         if not any(math.isfinite(o.deviation[2]) for o in outputs):
-            why = ("the wheel speed given says the vehicle stood or had no sample at every "
-                   "moving pair" if speed is not None else
-                   "give wheel speed: --speed-csv or --can")
+            why = _untested_height_why(outputs, speed is not None)
             print(f"height not tested: no frame had a metric travel ({why}); the tables' "
                   f"height columns repeat the nominal {nominal.height_m:g} m", file=sys.stderr)
     if getattr(args, "interrupted_at", None) is not None:
         raise KeyboardInterrupt
     return 0
+
+
+def _untested_height_why(outputs: list, speed_given: bool) -> str:
+    """Why no frame tested the height: no wheel speed, the frames held (for most of them one
+    reason: slow driving of a forward camera), or wheels that stood or had no sample."""
+    if not speed_given:
+        return "give wheel speed: --speed-csv or --can"
+    held = Counter(o.reason.split(";")[0] for o in outputs if o.state == "HOLD")
+    if held:
+        reason, n = held.most_common(1)[0]
+        if n >= len(outputs) / 2:
+            return f"{n} of {len(outputs)} frames held: {reason}"
+    return "the wheel speed given says the vehicle stood or had no sample at every moving pair"
 
 
 def nominal_height(height: float | None, nominal_height_m: float, nominal_file: str) -> float:
