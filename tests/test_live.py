@@ -213,6 +213,28 @@ def test_a_wheel_speed_that_never_came_is_no_data_back(knock):
     assert back and back[0]["frame"] >= 18 and back[0]["state"] != "HOLD"
 
 
+def test_a_wheel_speed_on_another_clock_is_said_so(knock):
+    """Bus time stamps from an adapter's own clock (1.8·10⁹ s from the frames'): the samples
+    kept the watchdog quiet while none met a frame, and the height went untested all run
+    without a word. They are now no wheel speed to the watchdog, which says why."""
+    from vipm_track.camera import load_camera
+    from vipm_track.filters.nominal import load_nominal
+    from vipm_track.live_monitor import LiveMonitor
+
+    nominal = load_nominal(knock["nominal"])
+    monitor = LiveMonitor(nominal.rig(load_camera(knock["folder"] / "camera.yaml")),
+                          nominal, expect_speed=True, speed_timeout_s=0.3)
+    images = [cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) for f in knock["files"][:12]]
+    with monitor:
+        for k, image in enumerate(images):
+            monitor.push_frame(image, 0.1 * k)
+            monitor.push_speed(-1.8e9 + 0.1 * k, 0.5)
+            assert monitor.wait_taken(120.0)  # the first pair may compile the kernels
+            time.sleep(0.1)
+        state = monitor.state()
+    assert state.state == "HOLD" and "from the frames' clock" in state.reason, state
+
+
 def test_virtual_bus_replays_the_rav4_log_at_its_pace():
     """3 s of the real RAV4 log sent on a python-can virtual bus at the log's pace: the live
     reader decodes the same speeds as the log decoder, at the log's spacing; the bus falling

@@ -145,6 +145,10 @@ class _Arrived:
     arrived: float
 
 
+#: a wheel-speed sample further than this from the frames' clock [s] is on another clock
+#: (a bus adapter's own time stamps: 1.8·10⁹ s off, the height test off all run, unsaid)
+SPEED_CLOCK_TOLERANCE_S = 10.0
+
 #: the monitor's states that call for action: said also while the watchdog holds
 ALARMS = frozenset({"DRIFTING", "RECALIBRATE"})
 
@@ -229,6 +233,9 @@ class LiveMonitor:
         self._state = LiveState("UNCALIBRATED", "waiting for frames")
         self._last_frame_at: float | None = None
         self._last_speed_at: float | None = None
+        #: the last wheel-speed sample's time less the frames' clock [s] where it was beyond
+        #: SPEED_CLOCK_TOLERANCE_S (None: the samples are on the frames' clock)
+        self._speed_off_clock: float | None = None
         self._started_at = time.monotonic()
         self._stop = threading.Event()
         self._drain = True
@@ -266,8 +273,16 @@ class LiveMonitor:
     def push_speed(self, t: float, speed_mps: float) -> None:
         """A wheel-speed sample: ``t`` [s, the frames' clock], speed [m/s, a magnitude or
         signed]. Returns at once."""
+        now = time.monotonic()
+        frames_t = self._now_t(now)
+        if frames_t is not None and abs(float(t) - frames_t) > SPEED_CLOCK_TOLERANCE_S:
+            # stamped on another clock (an adapter's own): it can never meet a frame, so it
+            # does not count as the wheel speed arriving
+            self._speed_off_clock = float(t) - frames_t
+            return
         if self.speed.push(float(t), float(speed_mps)):
-            self._last_speed_at = time.monotonic()
+            self._last_speed_at = now
+            self._speed_off_clock = None
 
     def push_can(self, msg: Any) -> None:
         """A ``can.Message`` (timestamp on the frames' clock), decoded by ``can_decoder``."""
@@ -445,7 +460,10 @@ class LiveMonitor:
         speed = ""
         if self.expect_speed:
             since_speed = now - (self._last_speed_at or self._started_at)
-            if since_speed > self.speed_timeout_s:
+            if since_speed > self.speed_timeout_s and self._speed_off_clock is not None:
+                speed = (f"wheel speed stamped {self._speed_off_clock:+.1f} s from the frames' "
+                         "clock: no sample meets a frame")
+            elif since_speed > self.speed_timeout_s:
                 speed = (f"wheel speed silent for {since_speed:.1f} s" if self._last_speed_at
                          else f"no wheel speed in {since_speed:.1f} s")
         for key, reason in (("camera", camera), ("speed", speed)):
