@@ -117,23 +117,24 @@ def pair_spans(frame: ArrayLike, t: ArrayLike) -> FloatArray:
 def measured_heights(measurements: Sequence[PairMeasurement], speed_t: ArrayLike,
                      speed_mps: ArrayLike, *, speed_std_rel: float = 0.005,
                      speed_std_abs_mps: float = 0.002,
-                     max_speed_gap_s: float = DEFAULT_MAX_GAP) -> FloatArray:
+                     max_speed_gap_s: float = DEFAULT_MAX_GAP) -> tuple[FloatArray, FloatArray]:
     """The height [m] each usable pair of ``measurements`` measures (:func:`pair_heights`,
     that of its first frame) with the wheel speed (``speed_t`` on the camera clock [s],
-    ``speed_mps``) and the monitor's thresholds; NaN where it measures none, (n,)."""
+    ``speed_mps``) and the monitor's thresholds, and its variance [m²]; NaN where it
+    measures none, (n,) each."""
     if not measurements:
-        return np.zeros(0)
+        return np.zeros(0), np.zeros(0)
     frame = np.array([m.frame for m in measurements])
     t = np.array([m.t for m in measurements], dtype=float)
     z = np.array([m.z if m.ok else np.full(7, np.nan) for m in measurements], dtype=float)
     cov = np.array([m.covariance for m in measurements], dtype=float)
     h0 = np.array([m.height_assumed for m in measurements], dtype=float)
-    height, _, _ = pair_heights(
+    height, variance, _ = pair_heights(
         t, pair_spans(frame, t), z, cov, h0, np.asarray(speed_t, dtype=float),
         np.asarray(speed_mps, dtype=float), min_speed_mps=MIN_SPEED_MPS,
         min_travel_frac=MIN_TRAVEL_FRAC, speed_std_rel=speed_std_rel,
         speed_std_abs_mps=speed_std_abs_mps, max_speed_gap_s=max_speed_gap_s)
-    return height
+    return height, variance
 
 
 def point_speed_height(m_z: FloatArray, m_cov: FloatArray, h0: float, dt: float,
