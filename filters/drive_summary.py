@@ -260,12 +260,9 @@ def _pose_residuals(
         # heights that scatter within their own noise show no swing: a steady body's pairs
         # sit a little above the mount (their 1/travel bias), which a long drive's small
         # standard error took for one (+2.8 mm on a 30-s car)
-        finite = np.isfinite(out[:, 2])
-        if finite.sum() >= 3:
-            spread = 1.4826 * float(np.median(np.abs(out[finite, 2]
-                                                     - np.median(out[finite, 2]))))
+        if np.isfinite(out[:, 2]).sum() >= 3:
             stated = math.sqrt(float(np.nanmedian(variances)))
-            if not spread > SWING_OVER_NOISE * stated:
+            if not _robust_spread(out[:, 2])[1] > SWING_OVER_NOISE * stated:
                 out[:, 2] = np.nan
     return out
 
@@ -279,13 +276,19 @@ SWING_OVER_NOISE = 2.0
 HEIGHT_OUTLIER_MADS = 5.0
 
 
+def _robust_spread(x: FloatArray) -> tuple[float, float]:
+    """(median, 1.4826 × median absolute deviation) of the finite values of ``x``."""
+    finite = x[np.isfinite(x)]
+    median = float(np.median(finite))
+    return median, 1.4826 * float(np.median(np.abs(finite - median)))
+
+
 def _robust_inliers(x: FloatArray) -> NDArray[np.bool_]:
     """Finite values of ``x`` within ``HEIGHT_OUTLIER_MADS`` robust σ of their median."""
     finite = np.isfinite(x)
     if finite.sum() < 3:
         return finite
-    median = float(np.median(x[finite]))
-    mad = 1.4826 * float(np.median(np.abs(x[finite] - median)))
+    median, mad = _robust_spread(x)
     with np.errstate(invalid="ignore"):
         return finite & (np.abs(x - median) <= HEIGHT_OUTLIER_MADS * mad if mad > 0 else finite)
 
