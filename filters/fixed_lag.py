@@ -10,7 +10,8 @@ measured motion puts it (``smoother.dead_reckoned``, as the batch's initial gues
 before moved by the pair's change of pose; the window is updated (one iSAM2 update;
 ``lag_max_iterations`` allows more while one still predicts more than
 ``lag_tolerance_chi2``); a frame
-is reported once ``lag_s`` of later data is in, with its joint marginal covariance with the
+is reported once ``lag_s`` of later data is in — up to :data:`MAX_HOLD_S` later while a
+change of the mount builds up (:data:`HOLD_AT`) — with its joint marginal covariance with the
 previous frame (iSAM2's ``jointMarginalCovariance``), and the frame before it leaves the
 window at the next update.
 
@@ -155,7 +156,8 @@ MAX_HOLD_S = 5.0
 
 class FixedLagSmoother:
     """Sliding-window smoother over ``config.lag_s`` seconds. Feed frames with ``step``; it
-    returns the frames that have ``lag_s`` of later data (smoothed with it), oldest first;
+    returns the frames that have ``lag_s`` of later data (smoothed with it; held up to
+    :data:`MAX_HOLD_S` longer while a change of the mount builds up), oldest first;
     ``finish`` returns the rest, smoothed with the data there is."""
 
     def __init__(self, config: SmootherConfig | None = None) -> None:

@@ -47,15 +47,19 @@ _COMBINE_SCALAR: dict[str, Callable[[list[float]], float]] = {
 #: many frames in a row stamped after the frames around them, or behind them, are outliers;
 #: a longer run is taken as the clock, and a step back to it as a clock step.
 LOOKAHEAD = 8
-#: Period [s] of a 32-bit microsecond clock: where the time steps back by this much (within
-#: :data:`WRAP_TOLERANCE_S`) from one frame of the log to the next, the clock wrapped around.
+#: Period [s] of a 32-bit microsecond clock: where the time steps back by about this much
+#: from one frame of the log to the next, the clock wrapped around.
 WRAP_S = 2**32 * 1e-6
-#: How far [s] a step back may be from :data:`WRAP_S` and still be unwrapped: the time
-#: between the two frames across the wrap. A step farther from it is no wrap (a clock reset).
+#: Most time [s] between the two frames across a wrap-around (a bus quiet there, or a log of
+#: one message): a step back up to this much short of :data:`WRAP_S` is unwrapped. A step
+#: back farther from it is no wrap-around (a clock reset).
+WRAP_GAP_S = 10.0
+#: How much [s] a step back may exceed :data:`WRAP_S` and still be unwrapped: the frame
+#: after the wrap stamped that much before the one logged before it (out of order).
 WRAP_TOLERANCE_S = 0.005
 #: How far apart [s] a frame and its copy on another channel (a gateway mirroring the bus)
-#: may be stamped.
-MIRROR_WINDOW_S = 0.005
+#: may be stamped: a gateway's forwarding delay, or two channels' time stamps taken apart.
+MIRROR_WINDOW_S = 0.05
 #: Latest frames of a wanted message kept, on its decoded channel, to match copies against.
 _RECENT = 32
 
@@ -317,9 +321,10 @@ def _mix_error(source: str, wanted: _Wanted, channel: object, bad: int, copies: 
     main = _channel_name(wanted.channel)
     counts = ", ".join(f"{_channel_name(c)} ({n} frames)" for c, n in wanted.counts.items())
     return (f"{source}: {name}, the message the speed is decoded from, comes on "
-            f"{len(wanted.counts)} channels: {counts}, with different payloads ({bad} of its "
-            f"{copies} frames on {_channel_name(channel)} have no identical frame on {main} "
-            f"within {MIRROR_WINDOW_S * 1e3:g} ms): decoding them together mixes two signals. "
+            f"{len(wanted.counts)} channels: {counts}, which are not copies of each other "
+            f"({bad} of its {copies} frames on {_channel_name(channel)} have no frame with the "
+            f"same payload on {main} within {MIRROR_WINDOW_S * 1e3:g} ms): decoding them "
+            "together would mix two signals. "
             f"Choose one with --can-channel (e.g. --can-channel {main})")
 
 
@@ -339,9 +344,9 @@ class SpeedDecoder:
     produced at each wanted frame once every signal has been seen, and only if its time is
     after every earlier wanted frame's, so the output times strictly increase.
 
-    A log whose times step back by 2^32 µs (:data:`WRAP_S`, within :data:`WRAP_TOLERANCE_S`)
-    from one frame to the next has a 32-bit microsecond clock that wrapped around: the times
-    from there on are unwrapped (``summary.notes`` says where).
+    A log whose times step back by 2^32 µs (:data:`WRAP_S`) from one frame to the next, less
+    the time between the two (up to :data:`WRAP_GAP_S`), has a 32-bit microsecond clock that
+    wrapped around: the times from there on are unwrapped (``summary.notes`` says where).
 
     With no ``channel``, a wanted message is decoded on the first channel it comes on. Its
     frames on other channels are skipped if each is a copy (the same payload stamped within
@@ -442,10 +447,12 @@ class SpeedDecoder:
                 continue
             back = skip.t_run - skip.t
             wrap = ""
-            if abs(back - WRAP_S) < 1.0:  # near 2^32 µs: say why it is no wrap-around
-                wrap = (f"; not unwrapped: not within {WRAP_TOLERANCE_S * 1e3:g} ms of the "
-                        f"2^32 µs ({WRAP_S:.6f} s) of a 32-bit microsecond clock wrapping "
-                        "around from one frame of the log to the next")
+            gap = WRAP_S - back  # the time between the frames, were it a wrap-around
+            if abs(gap) < 10 * WRAP_GAP_S:  # near 2^32 µs: say why it is no wrap-around
+                wrap = (f"; not unwrapped: as a 32-bit microsecond clock wrapping around "
+                        f"(2^32 µs = {WRAP_S:.6f} s) it would put {gap:.3f} s between two "
+                        f"frames of the log, not within -{WRAP_TOLERANCE_S:g} .. "
+                        f"{WRAP_GAP_S:g} s")
             text = (f"{at}: {name} time steps back {back:.6f} s (from {skip.t_run:.6f} to "
                     f"{skip.t:.6f} s) and goes on from there (a clock reset{wrap}): its "
                     f"{skip.count} frames up to {self._at(where[skip.last])} "
@@ -468,12 +475,13 @@ class SpeedDecoder:
         raw = t
         t += self._wraps * WRAP_S
         back = self._t_prev - t  # NaN for the first frame: no step
-        if abs(back - WRAP_S) <= WRAP_TOLERANCE_S:
+        if -WRAP_TOLERANCE_S <= WRAP_S - back <= WRAP_GAP_S:
             self._wraps += 1
             if len(self.summary.notes) < MAX_EXAMPLES:
                 self.summary.notes.append(
                     f"{self.where()}: the time steps back {back:.6f} s, to {raw:.6f} s: a "
-                    f"32-bit microsecond clock wrapping around (2^32 µs = {WRAP_S:.6f} s); "
+                    f"32-bit microsecond clock wrapping around (2^32 µs = {WRAP_S:.6f} s) "
+                    f"{(WRAP_S - back) * 1e3:.1f} ms after the frame before; "
                     f"{WRAP_S:.6f} s added to the times from here on")
             t += WRAP_S
         elif self._wraps and abs(back + WRAP_S) <= WRAP_TOLERANCE_S:

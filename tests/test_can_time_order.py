@@ -372,10 +372,27 @@ def test_a_frame_stamped_before_the_wrap_logged_after_it_stays_before(dbc):
     assert series.summary.non_monotonic == 1 and not series.summary.clock_steps
 
 
+def test_a_wrap_across_a_quiet_bus_or_in_a_log_of_one_message_is_unwrapped(lines, dbc, clean,
+                                                                           folder):
+    """Only 5 ms between the frames across the wrap were taken for one: a log of the wheel
+    speeds alone (12 ms apart) wrapping lost 58 % of them as after a clock reset, and so did a
+    log whose bus was quiet for half a second there."""
+    wheels = [line for line in _wrapped(lines, 5.0) if " 0AA#" in line]
+    series, summary = decode_can_log(_write(folder, wheels, "wrap_wheels.log"), dbc)
+    np.testing.assert_allclose(series.t - series.t[0], clean.t - clean.t[0], atol=2e-6)
+    assert not summary.clock_steps and "wrapping around" in summary.notes[0]
+    t = np.array([float(STAMP.match(line)[1]) for line in _wrapped(lines, 5.0)])
+    quiet = [line for line, ti in zip(_wrapped(lines, 5.0), t, strict=True)
+             if not WRAP_S - 0.3 < ti < WRAP_S and not 0 <= ti < 0.2]
+    series, summary = decode_can_log(_write(folder, quiet, "wrap_quiet.log"), dbc)
+    assert len(series) == len(clean) - 41 and not summary.clock_steps, summary.clock_steps
+    assert re.search(r"wrapping around .* 50\d\.\d ms after the frame before", summary.notes[0])
+
+
 def test_a_step_back_near_a_wrap_but_not_one_is_left_out_and_counted(lines, dbc, folder):
-    """Half a second short of 2^32 µs: no wrap-around, a clock step, whose frames are left
-    out saying how many of the log's they are; the span never printed negative."""
-    path = _write(folder, _wrapped(lines, 5.0, WRAP_S - 0.5), "near_wrap.log")
+    """30 s short of 2^32 µs: no wrap-around, a clock step, whose frames are left out saying
+    how many of the log's they are; the span never printed negative."""
+    path = _write(folder, _wrapped(lines, 5.0, WRAP_S - 30.0), "near_wrap.log")
     series, summary = decode_can_log(path, dbc)
     assert 380 < len(series) < 450 and not summary.notes
     (text,) = summary.clock_steps

@@ -213,6 +213,43 @@ def test_a_wheel_speed_that_never_came_is_no_data_back(knock):
     assert back and back[0]["frame"] >= 18 and back[0]["state"] != "HOLD"
 
 
+def test_wheel_speed_silent_during_an_alarm_holds_only_the_height(knock):
+    """A wheel speed 10 % high calls RECALIBRATE for the height; the wheels then falling
+    silent for 1.5 s made the watchdog announce HOLD over the alarm and the next pair
+    RECALIBRATE again — an alarm withdrawn and raised for data the pitch and roll never
+    needed. The alarm stands through the silence, its state saying the wheels are silent."""
+    from vipm_track.camera import load_camera
+    from vipm_track.filters.nominal import load_nominal
+    from vipm_track.live_monitor import LiveMonitor
+
+    events: list[dict] = []
+    nominal = load_nominal(knock["nominal"])
+    monitor = LiveMonitor(nominal.rig(load_camera(knock["folder"] / "camera.yaml")),
+                          nominal, expect_speed=True, speed_timeout_s=0.3,
+                          on_event=events.append)
+    images = [cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) for f in knock["files"][:40]]
+    gt = np.genfromtxt(knock["folder"] / "speed.csv", delimiter=",", names=True)
+    during: list = []
+    with monitor:
+        for k, image in enumerate(images):
+            t = 0.1 * k
+            if not 20 <= k < 35:  # silent for 1.5 s from frame 20
+                for ts, v in zip(gt["t"], gt["speed_mps"], strict=True):
+                    if t - 0.1 < ts <= t:
+                        monitor.push_speed(float(ts), 1.1 * float(v))
+            monitor.push_frame(image, t)
+            assert monitor.wait_taken(120.0)  # the first pair may compile the kernels
+            time.sleep(0.1)
+            if 26 <= k < 35:
+                during.append(monitor.state())
+    alarms = [i for i, e in enumerate(events) if e["state"] == "RECALIBRATE"]
+    assert alarms and events[alarms[0]]["t"] < 2.0, events
+    assert [e["state"] for e in events[alarms[0]:]] == ["RECALIBRATE"] * (
+        len(events) - alarms[0]), events
+    assert all(s.state == "RECALIBRATE" and "wheel speed silent" in s.reason
+               for s in during), during
+
+
 def test_a_wheel_speed_on_another_clock_is_said_so(knock):
     """Bus time stamps from an adapter's own clock (1.8·10⁹ s from the frames'): the samples
     kept the watchdog quiet while none met a frame, and the height went untested all run

@@ -380,6 +380,27 @@ def test_fixed_lag_streams_frames_after_the_lag():
     assert emitted == [m.frame for m in run.measurements]
 
 
+def test_a_change_that_never_comes_holds_frames_no_longer_than_the_bound(monkeypatch):
+    """The mount-change test's statistic stuck just below its threshold all drive: frames are
+    held at most ``MAX_HOLD_S`` beyond the lag, then reported; the stream goes on."""
+    from vipm_track.filters import fixed_lag
+
+    run = _drive(6, duration=12.0)
+    sm = FixedLagSmoother(SmootherConfig(height_m=H0, noise=run.config.noise, lag_s=0.5))
+    monkeypatch.setattr(sm._mount_change, "pending_since", lambda share: 0.0)
+    waits, emitted = [], []
+    for m in run.measurements:
+        for f in sm.step(m):
+            waits.append(m.t - f.t)
+            emitted.append(f.frame)
+    emitted += [f.frame for f in sm.finish()]
+    assert emitted == [m.frame for m in run.measurements]
+    frame_s = float(np.median(np.diff([m.t for m in run.measurements])))
+    assert len(waits) > 0.4 * len(emitted)
+    assert max(waits) <= 0.5 + fixed_lag.MAX_HOLD_S + 1.5 * frame_s, max(waits)
+    assert max(waits) >= 0.5 + fixed_lag.MAX_HOLD_S - 1.5 * frame_s  # (they were held)
+
+
 def test_fixed_lag_holds_the_mount_across_a_knock_its_test_calls_late():
     # A rendered car on a shaking body, its camera knocked 1° in pitch at 6.4 s: the
     # mount-change test calls it 3 s later. The frames reported before the call had the new

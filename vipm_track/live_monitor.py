@@ -299,6 +299,9 @@ class LiveMonitor:
         monitor's latest verdict."""
         holds = dict(self._holds)
         current = self._state
+        if current.state in ALARMS and set(holds) == {"speed"}:
+            # the pitch and roll's alarm stands through the wheels' silence (_held_for_speed)
+            return replace(current, reason=f"{current.reason}; {holds['speed']}")
         if holds:
             return LiveState("HOLD", "; ".join(holds.values()), current.frame, current.t,
                              current.mount)
@@ -469,7 +472,10 @@ class LiveMonitor:
         for key, reason in (("camera", camera), ("speed", speed)):
             if reason and key not in self._holds:
                 self._holds[key] = reason
-                if self._reported != "HOLD":
+                # the wheels' silence holds only the height: an alarm of the pitch and roll
+                # stands (its rows say the height went untested), no HOLD said over it
+                over_alarm = key == "speed" and self._reported in ALARMS
+                if self._reported != "HOLD" and not over_alarm:
                     # the watchdog's own: no estimate behind it
                     self._announce(event_dict(self._now_t(now), self._state.frame, "HOLD",
                                               reason))
