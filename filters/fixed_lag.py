@@ -51,6 +51,7 @@ from .smoother import (
 )
 from .smoother_config import SmoothedFrame, SmootherConfig
 from .smoother_marginals import BLOCK_LETTERS, block_norms, state_covariances
+from .step_watch import StepWatch
 
 FloatArray = NDArray[np.float64]
 
@@ -173,6 +174,7 @@ class FixedLagSmoother:
         self._start_pairs = pairs_to_start(cfg.init_pairs, cfg.body_window_s,
                                            cfg.body_window_min_pairs)
         self._mount_change = MountChangeDetector(cfg.mount_change)
+        self._steps = StepWatch(cfg.mount_steps)
         self._started = False
         self._t_last = -math.inf
         self._last_speed_t = -math.inf
@@ -214,6 +216,16 @@ class FixedLagSmoother:
                 return []
             boot, self._boot = self._boot, []
             return self._start(boot, final=True)
+        # the step watch tests once per block: its last test may have missed the last one
+        jumped = sorted({self._jump(j, onset, s)
+                         for j, onset, s in self._steps.due(self._t_last, last=True)})
+        if jumped:
+            self._held.clear()
+            graph = [(k, f) for k in jumped for f in self._frame_graph(k, self._added[k][0])]
+            try:
+                self._solve(graph, gtsam.Values(), [], self._cfg.lag_max_iterations)
+            except SolveError:  # the window as last solved, as a restart reports it
+                return self._emit(final=True, marginals=False)
         return self._emit(final=True)
 
     # --- window ------------------------------------------------------------------------------
@@ -292,43 +304,58 @@ class FixedLagSmoother:
         self, m: PairMeasurement, dt: float, prev: FloatArray, body_std: FloatArray
     ) -> list[int]:
         """Feed the mount-change test (``filters.mount_change``) the newest pair's angles
-        against the window's prediction (the newest frame's mount plus its decayed body); on a
-        step, let the mount jump into the frame where it began (or the window's oldest pair,
-        if that frame is final already): the key indices of the frames whose factors are to
-        be added again with the jump (their old ones go at the next update)."""
+        against the window's prediction (the newest frame's mount plus its decayed body), and
+        the step test (``filters.step_watch``: a knock the first test missed) its angles; on
+        a step, let the mount jump into the frame where it began (or the window's oldest
+        pair, if that frame is final already): the key indices of the frames whose factors
+        are to be added again with the jump (their old ones go at the next update)."""
         decay, _ = M.body_transition(dt, self._cfg.noise, body_std)
         cov = self._cfg.noise.pair_covariance(m.covariance, m.z[6])
         innovation = m.z[2:4] - (prev[5:7] + decay * prev[9:11])
         step = self._mount_change.update(m.t, innovation, body_std**2 + np.diag(cov)[2:4])
         out: list[int] = []
         for j in np.flatnonzero(np.isfinite(step)):
-            onset = self._step_onset(j, self._mount_change.onset[j])
-            # the frame's factors join it to the one before, which must still be in the window
-            i = next((i for i in range(1, len(self._ms)) if self._ms[i].t >= onset),
-                     len(self._ms) - 1)
-            k = self._k[i]
-            args, indices = self._added[k]
-            jump = np.zeros(2) if args[-1] is None else args[-1].copy()
-            jump[j] += jump_variance(step[j])
-            self._removed.extend(indices)
-            self._added[k] = ((*args[:-1], jump), [])
-            out.append(k)
+            # from lag_s before the test's evidence began: its start lags a step where the
+            # window's mount and body took part of it up first (0.35 s on a shaken car)
+            since = self._mount_change.onset[j]
+            onset = self._step_onset(j, since - self._cfg.lag_s, since)
+            self._steps.followed(onset, int(j))
+            out.append(self._jump(int(j), onset, float(step[j])))
+        self._steps.add(m.t, float(m.z[2]), float(m.z[3]))
+        for j, onset, s in self._steps.due(m.t):
+            if onset > self._ms[1].t:  # within the window: its least squares, as above (the
+                # split of the test's partial sums can miss by a frame: 0.05° more error)
+                near = onset - self._cfg.mount_steps.min_segment_s
+                onset = self._step_onset(j, max(near, self._ms[1].t), onset)
+            out.append(self._jump(j, onset, s))
         if out:  # the held frames are reported as the window has them after the jump
             self._held.clear()
         return out
 
-    def _step_onset(self, axis: int, since: float) -> float:
-        """When the mount stepped on ``axis`` (0 pitch, 1 roll), the test having alarmed with
-        its evidence since ``since`` [s]: the least-squares step of the window's pairs'
-        angle from ``lag_s`` before that on (the test's own start lags a step where the
-        window's mount and body took part of it up first: 0.35 s on a shaken car); ``since``
-        where the window holds too few pairs."""
+    def _jump(self, axis: int, onset: float, step: float) -> int:
+        """Let the mount jump by ``step`` [rad] on ``axis`` into the frame at ``onset`` [s]
+        (the window's oldest pair if that frame is final already): its key index."""
+        # the frame's factors join it to the one before, which must still be in the window
+        i = next((i for i in range(1, len(self._ms)) if self._ms[i].t >= onset),
+                 len(self._ms) - 1)
+        k = self._k[i]
+        args, indices = self._added[k]
+        jump = np.zeros(2) if args[-1] is None else args[-1].copy()
+        jump[axis] += jump_variance(step)
+        self._removed.extend(indices)
+        self._added[k] = ((*args[:-1], jump), [])
+        return k
+
+    def _step_onset(self, axis: int, after: float, fallback: float) -> float:
+        """When the mount stepped on ``axis`` (0 pitch, 1 roll): the least-squares step of
+        the window's pairs' angle among the cuts from ``after`` [s] on; ``fallback`` [s]
+        where the window holds too few pairs or no such cut."""
         usable = [m for m in self._ms if m.ok and math.isfinite(m.z[2 + axis])]
         if len(usable) < 3:
-            return since
+            return fallback
         onset = step_onset(np.array([m.t for m in usable]),
-                           np.array([m.z[2 + axis] for m in usable]), since - self._cfg.lag_s)
-        return onset if math.isfinite(onset) else since
+                           np.array([m.z[2 + axis] for m in usable]), after)
+        return onset if math.isfinite(onset) else fallback
 
     # --- start / restart -----------------------------------------------------------------------
 
@@ -367,6 +394,9 @@ class FixedLagSmoother:
             self._added[k] = (args, [])
             keys.append(k)
         self._ms, self._k = list(ms), keys
+        for m in ms:  # the step watch's series starts with the drive, not the window
+            if m.ok:
+                self._steps.add(m.t, float(m.z[2]), float(m.z[3]))
         convex = cfg.convex_start()
         try:
             if convex is not None:

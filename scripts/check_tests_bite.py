@@ -65,6 +65,12 @@ class Mutant:
     tests: tuple[str, ...]
 
 
+_EARLY_KNOCK = ("tests/test_smoother.py::"
+                "test_fixed_lag_follows_a_knock_before_its_online_test_is_armed")
+_FOLLOWED_KNOCK = ("tests/test_smoother.py::"
+                   "test_a_fixed_lag_summary_warns_of_a_step_its_mount_did_not_follow")
+
+
 MUTANTS: tuple[Mutant, ...] = (
     # --- estimator (and the geometry it shares with the renderer) ----------------------------
     Mutant("geometry-pitch-sign", "estimator", "sign flip: R_GC = Rx(+pitch)·Rz(roll)",
@@ -625,6 +631,19 @@ MUTANTS: tuple[Mutant, ...] = (
            "MAX_HOLD_S = 5.0\n",
            "MAX_HOLD_S = 1e9\n",
            ("tests/test_smoother.py::test_a_change_that_never_comes_holds_frames_no_longer_than_the_bound",)),
+    Mutant("fixed-lag-step-watch-off", "filters",
+           "dropped check: the fixed lag's step watch finds a knock and the window ignores it",
+           "filters/fixed_lag.py",
+           "            out.append(self._jump(j, onset, s))\n",
+           "            pass\n",
+           (_EARLY_KNOCK, _FOLLOWED_KNOCK)),
+    Mutant("step-watch-from-the-window", "filters",
+           "dropped part: the step watch's series starts after the bootstrap frames",
+           "filters/fixed_lag.py",
+           "                self._steps.add(m.t, float(m.z[2]), float(m.z[3]))\n        convex",
+           "                pass\n        convex",
+           (_EARLY_KNOCK, _FOLLOWED_KNOCK,
+            "tests/test_smoother.py::test_fixed_lag_looks_for_a_knock_in_the_frames_it_started_on")),
 )
 
 

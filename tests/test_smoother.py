@@ -401,22 +401,53 @@ def test_a_change_that_never_comes_holds_frames_no_longer_than_the_bound(monkeyp
     assert max(waits) >= 0.5 + fixed_lag.MAX_HOLD_S - 1.5 * frame_s  # (they were held)
 
 
+def _fixed_lag_pitch_errors(name: str, height: float, preset: str, start_s: float = 0.0,
+                            from_end_s: float = math.inf, frames_from_s: float = 0.0,
+                            ) -> tuple[np.ndarray, np.ndarray]:
+    """The rendered drive ``tests/data/{name}_*`` from ``start_s`` [s], smoothed with a 2-s
+    lag: its frames' mount pitch error and σ [deg], of the frames from ``frames_from_s`` [s]
+    and within ``from_end_s`` of its end."""
+    ms = [m for m in read_measurements(DATA / f"{name}_est.csv") if m.t >= start_s]
+    truth = read_table(DATA / f"{name}_gt.csv")["mount_pitch_deg"]
+    frames = smooth(ms, read_speed_csv(DATA / f"{name}_speed.csv"),
+                    SmootherConfig(height_m=height, noise=M.NoiseParams.for_preset(preset),
+                                   lag_s=2.0))
+    late = [f for f in frames if f.t >= max(frames[-1].t - from_end_s, frames_from_s)]
+    return (np.array([math.degrees(f.mount[0]) - truth[f.frame] for f in late]),
+            np.array([math.degrees(f.mount_std[0]) for f in late]))
+
+
 def test_fixed_lag_holds_the_mount_across_a_knock_its_test_calls_late():
     # A rendered car on a shaking body, its camera knocked 1° in pitch at 6.4 s: the
     # mount-change test calls it 3 s later. The frames reported before the call had the new
     # mount taken for the old — 0.2–0.3° off at z 2–4 before the knock, 0.7° at z 13 after
     # it, 83 % of the frames in their 95 % interval. The frames are now held while a change
     # builds up, and the step is put where the pairs' angles step.
-    ms = read_measurements(DATA / "car_knock_est.csv")
-    truth = read_table(DATA / "car_knock_gt.csv")["mount_pitch_deg"]
-    frames = smooth(ms, read_speed_csv(DATA / "car_knock_speed.csv"),
-                    SmootherConfig(height_m=1.5, noise=M.NoiseParams.for_preset("car"),
-                                   lag_s=2.0))
-    late = [f for f in frames if f.t >= 2.0]
-    err = np.array([math.degrees(f.mount[0]) - truth[f.frame] for f in late])
-    std = np.array([math.degrees(f.mount_std[0]) for f in late])
+    err, std = _fixed_lag_pitch_errors("car_knock", 1.5, "car", frames_from_s=2.0)
     assert np.mean(np.abs(err) <= 1.96 * std) >= 0.95
     assert np.max(np.abs(err)) < 0.2
+
+
+def test_fixed_lag_follows_a_knock_before_its_online_test_is_armed():
+    # A rendered robot (0.3 m, 30°) knocked +1° in pitch at 4.8 s, before the mount-change
+    # test has measured the road's wander (6 s): the window's body and mount took the step
+    # up and the test never called it — the mount ended at 30.60 ± 0.05° for 31° (8σ), none
+    # of the last 3 s in their interval. The batch's step test, run as the drive goes on,
+    # finds it once 8 s of pairs are in; the frames reported after that hold the new mount.
+    err, std = _fixed_lag_pitch_errors("robot_early_knock", 0.3, "cart", from_end_s=3.0)
+    assert np.all(np.abs(err) <= 1.96 * std), (err, std)
+    assert np.max(np.abs(err)) < 0.15
+
+
+def test_fixed_lag_looks_for_a_knock_in_the_frames_it_started_on():
+    # The rendered cart knocked +1° at 7.16 s, its drive cut to start 1.6 s before: the
+    # knock falls into the frames the smoother collects before its window opens. A step
+    # test on the window's frames only saw 0.6 s before the step, too little to find it:
+    # the mount ended 0.14° off, none of the last 3 s in their interval.
+    err, std = _fixed_lag_pitch_errors("knock_cart", 0.7, "cart", start_s=7.16 - 1.6,
+                                       from_end_s=3.0)
+    assert np.all(np.abs(err) <= 1.96 * std), (err, std)
+    assert np.max(np.abs(err)) < 0.05
 
 
 def test_bad_times_are_reported_and_skipped(drive):
@@ -1088,24 +1119,35 @@ def test_the_drive_summary_is_of_the_mount_since_a_knock():
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_fixed_lag_summary_warns_of_a_step_its_mount_did_not_follow(seed):
-    """A 1° knock 6 s into a 20-s cart drive, smoothed with a 2-s lag: the mount creeps, and
+    """A 1° knock 6 s into a 20-s cart drive, smoothed with a 2-s lag: the mount crept, and
     the summary's mean and interval (45.37 [45.22, 45.52]) held neither 45° nor 46° and said
-    nothing. The pairs' own step test now says so; a drive without a knock is not warned."""
+    nothing. The window now follows the step (its step watch finds it), and the summary
+    gives the mount since it; where the window does not follow (the watch off), the pairs'
+    own step test says so; a drive without a knock is not warned."""
     from vipm_track.filters.drive_sim import DriveConfig, MountChange, simulate_drive
     from vipm_track.filters.drive_summary import summarize_mount, summary_warnings
+    from vipm_track.filters.mount_steps import StepTestConfig
     from vipm_track.filters.smoother_config import SmootherConfig
     from vipm_track.filters.smoothing import smooth
 
-    for knock in (False, True):
+    for knock, watch in ((False, True), (True, True), (True, False)):
         changes = (MountChange(6.0, pitch_deg=1.0),) if knock else ()
         run = simulate_drive(DriveConfig.preset("cart", duration_s=20.0, mount_changes=changes,
                                                 mount_random_walk=False), seed)
         frames = smooth(run.measurements, run.speed,
-                        SmootherConfig(height_m=0.7, noise=run.config.noise, lag_s=2.0))
+                        SmootherConfig(height_m=0.7, noise=run.config.noise, lag_s=2.0,
+                                       mount_steps=StepTestConfig(enabled=watch)))
         summary = summarize_mount(frames, run.measurements, None)
         warned = [w for w in summary_warnings(summary) if "the pairs' pitch stepped" in w]
         if not knock:
             assert not warned and "pairs_steps" not in summary
+            continue
+        if watch:
+            # the summary's mount is the window's since its last step, the knock's
+            last = float(summary["since_step"].split(" (pitch")[0].split(", ")[-1][-7:-2])
+            assert not warned and abs(last - 6.0) < 0.3, summary["since_step"]
+            low, high = summary["pitch"]["ci95"]
+            assert low < 46.0 < high, (low, high)
             continue
         assert len(warned) == 1 and "did not follow" in warned[0], summary_warnings(summary)
         (step,) = summary["pairs_steps"]

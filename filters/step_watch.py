@@ -1,0 +1,79 @@
+"""The batch's offline step test run while a drive goes on: knocks the online test missed.
+
+The online mount-change test (``mount_change``) runs at full sensitivity only once it has
+measured the road's wander (``min_blocks + holdout`` blocks: 6 s from the start and from each
+change it calls); a knock before then is taken up by the window's body and mount and never
+called (a car knocked 1° at 4 s: the fixed lag's mount 0.3–0.4° off to the drive's end, z
+9–12, where the batch holds it within 0.1°). So a streaming filter also runs the batch's
+test (``mount_steps``) on its usable pairs' angles, once per block, over the last
+:data:`SPAN_S` seconds since the last change on each axis, and takes a step it finds that
+the online test did not call (no change on the axis within ``FOLLOWED_WITHIN_S``) as a
+change of the mount: late (the test needs ``MIN_BLOCKS`` blocks), but while the drive goes on.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .mount_change import FOLLOWED_WITHIN_S
+from .mount_steps import MIN_BLOCKS, StepTestConfig, mount_steps
+
+FloatArray = NDArray[np.float64]
+
+#: the longest stretch of pairs tested [s]: enough for the seeded intervals to stand a
+#: second step alone, and a bounded cost per block on an hours-long drive
+SPAN_S = 64.0
+
+
+class StepWatch:
+    """Feed it the usable pairs' (pitch, roll) with ``add``, the online test's changes with
+    ``followed``; ``due`` returns the steps the online test missed, at most once per block."""
+
+    def __init__(self, config: StepTestConfig | None = None) -> None:
+        self.config = config or StepTestConfig()
+        self._t: list[float] = []
+        self._angles: list[tuple[float, float]] = []
+        self._since = np.full(2, -math.inf)  # per axis, the last change's onset [s]
+        self._changes: list[tuple[float, int]] = []  # (onset s, axis) of the online test
+        self._next_test = -math.inf
+
+    def add(self, t: float, pitch: float, roll: float) -> None:
+        """A usable pair's angles of its current frame (rad) at time ``t`` [s]."""
+        self._t.append(t)
+        self._angles.append((pitch, roll))
+
+    def followed(self, onset: float, axis: int) -> None:
+        """The online test called a change on ``axis`` (0 pitch, 1 roll) from ``onset`` [s]:
+        a step there is not missed, and the test looks only after it on that axis."""
+        self._changes.append((onset, axis))
+        self._since[axis] = max(self._since[axis], onset)
+
+    def due(self, t: float, last: bool = False) -> list[tuple[int, float, float]]:
+        """At time ``t`` [s], once per ``block_s`` (and at the ``last`` pair, whenever it
+        comes): (axis, onset s, step rad) of each step the test finds in the pairs since the
+        axis's last change that the online test did not call, oldest first; each is then
+        taken as a change."""
+        cfg = self.config
+        if not cfg.enabled or (t < self._next_test and not last):
+            return []
+        self._next_test = t + cfg.block_s
+        times = np.asarray(self._t)
+        keep = times >= t - SPAN_S
+        self._t = list(times[keep])
+        self._angles = [a for a, k in zip(self._angles, keep, strict=True) if k]
+        times, angles = times[keep], np.asarray(self._angles).reshape(-1, 2)
+        out: list[tuple[int, float, float]] = []
+        for axis in (0, 1):
+            after = times >= self._since[axis]
+            if not after.any() or times[-1] - times[after][0] < MIN_BLOCKS * cfg.block_s:
+                continue
+            for s in mount_steps(times[after], angles[after, axis], cfg):
+                if not any(a == axis and abs(onset - s.onset_s) <= FOLLOWED_WITHIN_S
+                           for onset, a in self._changes):
+                    out.append((axis, s.onset_s, s.step))
+        for axis, onset, _ in out:
+            self.followed(onset, axis)
+        return sorted(out, key=lambda s: s[1])
