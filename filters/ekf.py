@@ -51,6 +51,7 @@ from .lever_arm import LeverArm
 from .model import NoiseParams
 from .mount_change import MountChangeDetector
 from .row_correlation import PairErrorCorrelation
+from .step_watch import StepWatch
 from .wheel_speed import SpeedSource, interpolate_speed
 
 FloatArray = NDArray[np.float64]
@@ -118,6 +119,7 @@ class ExtrinsicsEKF:
         #: pairs up to this time are in the body window already (the bootstrap's)
         self._body_seen_t = -math.inf
         self._mount_change = MountChangeDetector(cfg.mount_change)
+        self._steps = StepWatch(cfg.mount_steps)
         self._correlation = PairErrorCorrelation() if widen_pose else None
         self._heave = (HeaveWidening(self._cfg, speed_series, clock_offset_s) if widen_pose
                        else None)
@@ -316,8 +318,16 @@ class ExtrinsicsEKF:
         y[6] = M.wrap_angle(y[6])
         s = h @ kf.P @ h.T + r
         step = self._mount_change.update(m.t, y[2:4], np.diag(s)[2:4])
+        onset = self._mount_change.onset.copy()
+        for j in np.flatnonzero(np.isfinite(step)):
+            self._steps.followed(float(onset[j]), int(j))
+        # a knock the online test missed (before it was armed, the body took it up): the
+        # offline test on the pairs so far finds it, and the mount is re-opened as for a call
+        self._steps.add(m.t, float(m.z[2]), float(m.z[3]))
+        for j, at, d in self._steps.due(m.t):
+            step[j], onset[j] = d, at
         if np.isfinite(step).any():
-            self._reopen_mount(step)
+            self._reopen_mount(step, onset)
             s = h @ kf.P @ h.T + r
         nis = _mahalanobis(y, s)
         keep = []
@@ -350,9 +360,9 @@ class ExtrinsicsEKF:
         rejected = [name for name, rows in (("pose", 0), ("motion", 4)) if rows not in keep]
         return nis, "+".join(rejected)
 
-    def _reopen_mount(self, step: FloatArray) -> None:
-        """Re-open the mount angles for the found steps (pitch, roll; rad, NaN: none), and say
-        so in the frame's reason.
+    def _reopen_mount(self, step: FloatArray, onset: FloatArray) -> None:
+        """Re-open the mount angles for the found steps (pitch, roll; rad, NaN: none; begun at
+        ``onset`` [s]), and say so in the frame's reason.
 
         The step's variance d² is added to the mount and to both bodies, each alone: whether
         the bodies took the step so far (the pairs' angles fitted) or the gate held it out,
@@ -366,7 +376,7 @@ class ExtrinsicsEKF:
                 (M.MOUNT_ROLL, M.BODY_ROLL, M.PREV_BODY_ROLL))
         for j, ((mount, body, prev), d) in enumerate(zip(axes, step, strict=True)):
             if np.isfinite(d):
-                self.mount_changes.append((float(self._mount_change.onset[j]), j, float(d)))
+                self.mount_changes.append((float(onset[j]), j, float(d)))
                 kf.P[[mount, body, prev], [mount, body, prev]] += d * d
                 notes.append(f"{('pitch', 'roll')[j]} {math.degrees(d):+.2f}°")
         self._add_motion_note("mount re-opened after a step of " + ", ".join(notes))

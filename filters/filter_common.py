@@ -13,6 +13,7 @@ from vipm_track.measurement import PairMeasurement
 
 from .model import NoiseParams
 from .mount_change import MountChangeConfig
+from .mount_steps import StepTestConfig
 
 FloatArray = NDArray[np.float64]
 
@@ -37,6 +38,10 @@ class FilterConfig:
     #: a step of the mount (a knocked camera) found in the pose innovations re-opens the
     #: mount (``filters.mount_change``)
     mount_change: MountChangeConfig = field(default_factory=MountChangeConfig)
+    #: the offline test for steps of the mount in the pairs' angles (``filters.mount_steps``):
+    #: the batch's on the whole drive, the EKF's and fixed lag's as it goes on
+    #: (``filters.step_watch``), for the knocks the online test missed
+    mount_steps: StepTestConfig = field(default_factory=StepTestConfig)
     #: good pairs whose medians start (and restart) the filter
     init_pairs: int = 5
     #: a pair moves the height only with a wheel speed within this many seconds of it

@@ -175,6 +175,9 @@ class FixedLagSmoother:
                                            cfg.body_window_min_pairs)
         self._mount_change = MountChangeDetector(cfg.mount_change)
         self._steps = StepWatch(cfg.mount_steps)
+        #: the mount's jumps so far: (time s of the frame it jumped into, axis 0 pitch /
+        #: 1 roll, step rad), as the EKF's ``mount_changes``
+        self.mount_changes: list[tuple[float, int, float]] = []
         self._started = False
         self._t_last = -math.inf
         self._last_speed_t = -math.inf
@@ -217,8 +220,7 @@ class FixedLagSmoother:
             boot, self._boot = self._boot, []
             return self._start(boot, final=True)
         # the step watch tests once per block: its last test may have missed the last one
-        jumped = sorted({self._jump(j, onset, s)
-                         for j, onset, s in self._steps.due(self._t_last, last=True)})
+        jumped = sorted(set(self._watched_jumps(self._t_last, last=True)))
         if jumped:
             self._held.clear()
             graph = [(k, f) for k in jumped for f in self._frame_graph(k, self._added[k][0])]
@@ -322,14 +324,22 @@ class FixedLagSmoother:
             self._steps.followed(onset, int(j))
             out.append(self._jump(int(j), onset, float(step[j])))
         self._steps.add(m.t, float(m.z[2]), float(m.z[3]))
-        for j, onset, s in self._steps.due(m.t):
-            if onset > self._ms[1].t:  # within the window: its least squares, as above (the
-                # split of the test's partial sums can miss by a frame: 0.05° more error)
+        out += self._watched_jumps(m.t)
+        if out:  # the held frames are reported as the window has them after the jump
+            self._held.clear()
+        return out
+
+    def _watched_jumps(self, t: float, last: bool = False) -> list[int]:
+        """Jumps at the steps the step watch finds at time ``t`` [s] (``StepWatch.due``):
+        their frames' key indices."""
+        out = []
+        for j, onset, s in self._steps.due(t, last):
+            # within the window: its least squares, as for the online test's (the split of
+            # the test's partial sums can miss by a frame: 0.05° more error)
+            if len(self._ms) > 1 and onset > self._ms[1].t:
                 near = onset - self._cfg.mount_steps.min_segment_s
                 onset = self._step_onset(j, max(near, self._ms[1].t), onset)
             out.append(self._jump(j, onset, s))
-        if out:  # the held frames are reported as the window has them after the jump
-            self._held.clear()
         return out
 
     def _jump(self, axis: int, onset: float, step: float) -> int:
@@ -339,6 +349,7 @@ class FixedLagSmoother:
         i = next((i for i in range(1, len(self._ms)) if self._ms[i].t >= onset),
                  len(self._ms) - 1)
         k = self._k[i]
+        self.mount_changes.append((float(self._ms[i].t), axis, float(step)))
         args, indices = self._added[k]
         jump = np.zeros(2) if args[-1] is None else args[-1].copy()
         jump[axis] += jump_variance(step)

@@ -276,7 +276,8 @@ def mount_jumps(
     changes: list[tuple[float, int, float]] = []
     if cfg.mount_change.enabled:
         ekf = ExtrinsicsEKF(EkfConfig(height_m=cfg.height_m, noise=cfg.noise,
-                                      mount_change=cfg.mount_change), widen_pose=False)
+                                      mount_change=cfg.mount_change,
+                                      mount_steps=cfg.mount_steps), widen_pose=False)
         for m, v in zip(ms, speeds, strict=True):
             ekf.step(m, m.t, float(v), m.frame)
         changes = persistent_changes(ekf.mount_changes, cfg.mount_change_persist_s)

@@ -5,7 +5,7 @@ common settings) and ``SmoothedFrame`` (one frame's smoothed state: the EKF's
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -14,7 +14,6 @@ from scipy.stats import chi2
 
 from . import factors as F
 from .filter_common import FilterConfig, FrameEstimate
-from .mount_steps import StepTestConfig
 
 FloatArray = NDArray[np.float64]
 
@@ -48,9 +47,6 @@ class SmootherConfig(FilterConfig):
     motion_given_pose: bool = False
     #: ... unless undone within this many seconds (``persistent_changes``)
     mount_change_persist_s: float = 5.0
-    #: the batch's offline test for steps of the mount in the pairs' angles
-    #: (``filters.mount_steps``), with the EKF's online test; the fixed lag has only the latter
-    mount_steps: StepTestConfig = field(default_factory=StepTestConfig)
     #: robust loss of the wheel-speed factors
     speed_loss: str = "huber"
     #: side slip allowed per frame by the no-side-slip process model, metres

@@ -644,6 +644,25 @@ MUTANTS: tuple[Mutant, ...] = (
            "                pass\n        convex",
            (_EARLY_KNOCK, _FOLLOWED_KNOCK,
             "tests/test_smoother.py::test_fixed_lag_looks_for_a_knock_in_the_frames_it_started_on")),
+    Mutant("ekf-step-watch-off", "filters",
+           "dropped check: the EKF's step watch finds a knock and the mount is not re-opened",
+           "filters/ekf.py",
+           "            step[j], onset[j] = d, at\n",
+           "            pass\n",
+           ("tests/test_drift_report.py::"
+            "test_a_track_table_whose_mount_missed_an_early_knock_reports_where_the_frames_sit",)),
+    Mutant("fixed-lag-watch-refinds-calls", "filters",
+           "dropped call: the step watch is not told the online test's changes",
+           "filters/fixed_lag.py",
+           "            self._steps.followed(onset, int(j))\n",
+           "            pass\n",
+           ("tests/test_smoother.py::test_fixed_lag_jumps_once_at_a_knock_both_its_tests_find",)),
+    Mutant("step-watch-threshold-batch", "filters",
+           "threshold: the step watch's test at the batch's 5 (a road's wander called)",
+           "filters/step_watch.py",
+           "THRESHOLD = 10.0\n",
+           "THRESHOLD = 5.0\n",
+           ("tests/test_step_watch.py",)),
 )
 
 

@@ -422,19 +422,36 @@ def test_a_track_table_whose_mount_missed_an_early_knock_reports_where_the_frame
     """A rendered robot (0.3 m, 30°) knocked +1° in pitch at 4.8 s, before the EKF's
     mount-change test was armed: its mount crept to 30.56 ± 0.05° by the end and the report
     said "pitch 30.561 [30.467, 30.656], change +0.561", 9σ from the camera's 31°, without a
-    word. The frames' own pose since their step is where the camera sits; the report says
-    why it is not the filter's mount."""
-    track = tmp_path / "track.csv"
+    word. `track` now follows the knock (its step watch, ``filters.step_watch``); where a
+    table's mount did not (the watch off here), the frames' own pose since their step is
+    where the camera sits, and the report says why it is not the filter's mount."""
+    from vipm_track.filters.ekf_state import EkfConfig
+    from vipm_track.filters.model import NoiseParams
+    from vipm_track.filters.mount_steps import StepTestConfig
+    from vipm_track.filters.track import track, write_track
+    from vipm_track.filters.wheel_speed import read_speed_csv
+    from vipm_track.measurement import read_measurements
+
+    truth = read_table(DATA / "robot_early_knock_gt.csv")
+    followed = tmp_path / "track.csv"
     assert main(["track", "--estimates", str(DATA / "robot_early_knock_est.csv"), "--vehicle",
                  "cart", "--speed-csv", str(DATA / "robot_early_knock_speed.csv"), "--out",
-                 str(track), "--quiet"]) == 0
-    truth = read_table(DATA / "robot_early_knock_gt.csv")
-    s = summarize_drift(read_table(track), truth=truth)
+                 str(followed), "--quiet"]) == 0
+    pitch = summarize_drift(read_table(followed), truth=truth).axes["pitch"]
+    assert pitch.interval_from == "filter" and pitch.covers_truth, (pitch.lo, pitch.hi)
+    assert abs(pitch.current - 31.0) < 0.1
+
+    missed = tmp_path / "missed.csv"
+    write_track(track(read_measurements(DATA / "robot_early_knock_est.csv"),
+                      read_speed_csv(DATA / "robot_early_knock_speed.csv"),
+                      EkfConfig(height_m=0.3, noise=NoiseParams.for_preset("cart"),
+                                mount_steps=StepTestConfig(enabled=False))), missed)
+    s = summarize_drift(read_table(missed), truth=truth)
     pitch = s.axes["pitch"]
     assert pitch.covers_truth, (pitch.current, pitch.lo, pitch.hi)
     assert pitch.interval_from == "frames since their step"
     assert abs(pitch.changed_at_s - 4.8) < 0.3
     assert s.axes["roll"].interval_from == "filter"  # the axis that did not step keeps it
     out = tmp_path / "report"
-    assert main(["report", str(track), "--out", str(out)]) == 0
+    assert main(["report", str(missed), "--out", str(out)]) == 0
     assert "did not follow" in (out / "report.md").read_text()

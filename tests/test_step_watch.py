@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from vipm_track.filters.drive_sim import DriveConfig, simulate_drive
 from vipm_track.filters.step_watch import StepWatch
 
 
@@ -27,9 +28,10 @@ def test_a_missed_step_is_said_once_when_8_s_of_pairs_are_in():
 
 
 def test_a_step_the_online_test_called_is_not_said_again():
-    watch = StepWatch()
-    watch.followed(3.1, 0)  # within 2 s of the step: the online test's
-    assert _fed(watch, 1, 20.0) == []
+    for called in (3.1, 2.2):  # within 2 s of the step (the test looks from then on)
+        watch = StepWatch()
+        watch.followed(called, 0)
+        assert _fed(watch, 1, 20.0) == []
     watch = StepWatch()
     watch.followed(0.5, 0)  # a change before: the test looks after it, and finds the step
     assert [s[1:3] for s in _fed(watch, 1, 20.0)] == [(0, 3.0)]
@@ -37,3 +39,25 @@ def test_a_step_the_online_test_called_is_not_said_again():
 
 def test_no_step_no_word():
     assert _fed(StepWatch(), 2, 60.0, onset=np.inf) == []
+
+
+def test_a_pair_fed_again_is_left_out():
+    watch = StepWatch()
+    watch.add(1.0, 0.0, 0.0)
+    watch.add(1.0, 0.5, 0.5)  # a filter's restart feeds its frame again
+    watch.add(0.5, 0.5, 0.5)
+    watch.add(1.1, 0.0, 0.0)
+    assert watch._t == [1.0, 1.1]
+
+
+def test_a_road_wander_is_not_taken_for_a_step():
+    # a simulated cart under 0.3° of road wander (τ 2 s), its mount fixed: at the batch's
+    # threshold (5) the watch, testing every second, called a roll step at the first tests
+    run = simulate_drive(DriveConfig.preset("cart", duration_s=30.0, road_std_deg=0.3,
+                                            mount_random_walk=False), 8)
+    watch, said = StepWatch(), []
+    for m in run.measurements:
+        if m.ok:
+            watch.add(m.t, float(m.z[2]), float(m.z[3]))
+            said += watch.due(m.t)
+    assert said == []
