@@ -467,6 +467,27 @@ def test_fixed_lag_looks_for_a_knock_in_the_frames_it_started_on():
     assert np.max(np.abs(err)) < 0.05
 
 
+def test_fixed_lag_tests_for_a_knock_once_more_at_the_drive_s_end():
+    # The rendered cart knocked +1° at 7.16 s, its drive cut at 8.7 s: the step watch's last
+    # test, at 8 s, had too little after the knock to find it, and the window's frames held
+    # the old mount (0.84° off at 0.06° σ where the drive ended at 8.4 s). ``finish`` tests
+    # the pairs once more and re-solves the window with the jump.
+    ms = [m for m in read_measurements(DATA / "knock_cart_est.csv") if m.t <= 8.7]
+    truth = read_table(DATA / "knock_cart_gt.csv")["mount_pitch_deg"]
+    speeds = speeds_at_frames(ms, read_speed_csv(DATA / "knock_cart_speed.csv"))
+    sm = FixedLagSmoother(SmootherConfig(height_m=0.7, noise=M.NoiseParams.for_preset("cart"),
+                                         lag_s=2.0))
+    for m, v in zip(ms, speeds, strict=True):
+        sm.step(m, float(v))
+    assert sm.mount_changes == []
+    late = [f for f in sm.finish() if f.t >= 7.4]
+    (at, axis, step), = sm.mount_changes
+    assert axis == 0 and abs(at - 7.16) < 0.3 and 0.7 < math.degrees(step) < 1.3
+    err = np.array([math.degrees(f.mount[0]) - truth[f.frame] for f in late])
+    std = np.array([math.degrees(f.mount_std[0]) for f in late])
+    assert len(late) >= 10 and np.all(np.abs(err) <= 1.96 * std) and np.max(np.abs(err)) < 0.05
+
+
 def test_bad_times_are_reported_and_skipped(drive):
     ms = list(drive.measurements[:60])
     ms[30] = replace(ms[30], t=ms[29].t)  # a repeated time stamp

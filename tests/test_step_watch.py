@@ -61,3 +61,13 @@ def test_a_road_wander_is_not_taken_for_a_step():
             watch.add(m.t, float(m.z[2]), float(m.z[3]))
             said += watch.due(m.t)
     assert said == []
+
+
+def test_the_last_pair_is_tested_whenever_it_comes():
+    # a step at 7.6 s: the test at 8 s has too little after it; the drive's last pair, at
+    # 8.8 s (between two blocks' tests), is tested anyway
+    watch = StepWatch()
+    assert _fed(watch, 0, 8.9, onset=7.6) == []
+    assert watch.due(8.8) == []
+    (axis, onset, step), = watch.due(8.8, last=True)
+    assert axis == 0 and abs(onset - 7.6) < 0.15 and abs(np.degrees(step) - 1.0) < 0.1
