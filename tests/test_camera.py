@@ -280,3 +280,21 @@ def test_undistort_image_agrees_with_undistort_points(model):
     assert cam.undistort_image(img) is not img
     plain = CameraModel(K, 800, 600)
     assert plain.undistort_image(img) is img
+
+
+@pytest.mark.parametrize("coefficients", [[0.0, 0.0, 0.0, 0.0], []])
+def test_a_fisheye_lens_without_coefficients_is_still_a_fisheye(coefficients, tmp_path):
+    # The pure equidistant lens (r = f·θ) has all four coefficients zero; it was taken for a
+    # pinhole camera and its frames left as they were: on a rendered 122° lens the smoothed
+    # pitch read 4.15° for 3° and the monitor called the height 27 cm off.
+    cam = CameraModel(K, 800, 600, "equidistant", np.array(coefficients))
+    assert cam.has_distortion and cam.distortion.shape == (4,)
+    theta = 0.8  # a ray 0.8 rad off the axis lands f·θ from the centre, not f·tan θ
+    distorted = K[:2, 2] + [K[0, 0] * theta, 0.0]
+    ideal = cam.undistort_points(distorted)
+    assert np.allclose(ideal, K[:2, 2] + [K[0, 0] * np.tan(theta), 0.0], atol=1e-6)
+    assert np.allclose(cam.distort_points(ideal), distorted, atol=1e-6)
+    write_ros_yaml(cam, tmp_path / "camera.yaml")
+    assert load_camera(tmp_path / "camera.yaml").has_distortion
+    with pytest.raises(ValueError, match="4 distortion coefficients"):
+        CameraModel(K, 800, 600, "equidistant", np.zeros(5))

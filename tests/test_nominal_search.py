@@ -15,6 +15,7 @@ from vipm_track.camera import load_camera, write_ros_yaml
 from vipm_track.cli import main
 from vipm_track.estimator_config import EstimatorConfig
 from vipm_track.nominal_search import (
+    GROUND_AGREE_DEG,
     TRAVEL_PAIRS,
     _stretches,
     search_nominal_pose,
@@ -30,6 +31,7 @@ from vipm_track.sim import (
 )
 from vipm_track.sources import ArraySource, Frame, FrameSource, open_source
 from vipm_track.traffic import make_traffic
+from vipm_track.travel_direction import pitch_from_travel
 
 
 def _rig(camera, preset) -> Rig:
@@ -329,25 +331,40 @@ def test_a_ground_fit_far_from_the_scattered_travel_is_not_the_cameras(pitch_deg
                                                                        seed, stands):
     # KITTI's camera (1241×376, f 718 px, 1.65 m) at 1 m/s in dense traffic, its body
     # pitching ±2° over the drive: the pairs' directions of travel scatter, so they give no
-    # pitch, and the ground fit runs from the cold starts. On seed 7 it settled on the
-    # vehicles at pitch -5.3°, roll 3.9° (every row `ok`, 5° off); on seed 0 near the truth.
-    # The scattered travel still puts the pitch within a few degrees of the truth.
+    # pitch, and the ground fit runs from the cold starts. On seed 7 it settles on the
+    # vehicles (pitch -5.3°, roll 3.9°: every row `ok`, 5° off); on seed 0 near the truth.
+    # The scattered travel still puts the pitch within a few degrees of the truth. Where the
+    # ground fit lands is chaotic (seed 7, subset seeds 0-2 on one machine: -2.1°, -5.0°,
+    # -7.6°; the last bits of a compiled sum move it): the rule is held on three draws.
     preset = replace(PRESETS["kitti"], pitch_deg=pitch_deg, roll_deg=roll_deg)
     traj = make_trajectory("gradual", 60, None, preset, seed, 1.0)
     cars = make_traffic("dense", seed=seed, duration_s=float(traj.t[-1]), speed_mps=1.0)
     source = _RenderedOnDemand(traj, preset, seed=seed, vehicles=cars)
     travel = travel_pitch_over(source, preset.camera(), 300)
     assert not travel.determined and "disagree" in travel.reason, travel
-    found = search_nominal_pose(source, _rig(preset.camera(), preset), EstimatorConfig())
-    assert found is not None
     truth = np.degrees(np.median(traj.pitch))
     if stands:
-        assert found.determined, found.line()
-        assert abs(found.pitch_deg - truth) < 1.5, found.line()
-    else:
-        assert not found.determined, found.line()
-        assert "but the direction of travel over" in found.undetermined
-        assert abs(found.pitch_deg - truth) > 3.0  # the ground fit's pose, as reported
+        found = search_nominal_pose(source, _rig(preset.camera(), preset), EstimatorConfig())
+        assert found is not None and found.determined, found
+        # single pairs at 0.06 camera heights per frame read a level camera's pitch low
+        # (docs/kitti.md, "Slow driving"): -0.5° and 0.1° over subset seeds 0-2
+        assert abs(found.pitch_deg - truth) < 2.0, found.line()
+        return
+    caught = 0
+    for subset_seed in range(3):
+        found = search_nominal_pose(source, _rig(preset.camera(), preset),
+                                    EstimatorConfig(seed=subset_seed))
+        assert found is not None
+        at_roll = pitch_from_travel(list(travel.travels), math.radians(found.measured_roll_deg))
+        apart = abs(found.pitch_deg - at_roll.pitch_deg)
+        tolerance = GROUND_AGREE_DEG + 3.0 * at_roll.standard_error_deg
+        if found.determined:  # the rule's bound holds for a pose it let stand ...
+            assert apart <= tolerance, found.line()
+        else:  # ... and one beyond it is the ground fit's, as reported
+            assert apart > tolerance and "but the direction of travel over" in found.undetermined
+            assert abs(found.pitch_deg - truth) > 3.0
+            caught += 1
+    assert caught >= 2  # the vehicles taken for the ground, caught in most draws
 
 
 @pytest.mark.parametrize("frames, starts, length", [

@@ -89,7 +89,10 @@ class CameraModel:
         # nothing for a strided matrix, such as KITTI's K read as a view of its P
         k = np.ascontiguousarray(self.k, dtype=float)
         object.__setattr__(self, "k", k)
-        object.__setattr__(self, "distortion", np.asarray(self.distortion, dtype=float).ravel())
+        distortion = np.asarray(self.distortion, dtype=float).ravel()
+        if self.distortion_model in FISHEYE_MODELS and distortion.size == 0:
+            distortion = np.zeros(4)  # the pure equidistant lens, r = f·θ
+        object.__setattr__(self, "distortion", distortion)
         if k.shape != (3, 3):
             raise ValueError(f"camera matrix must be 3×3, got shape {k.shape}")
         if (problem := intrinsic_matrix_problem(k)) is not None:
@@ -100,6 +103,9 @@ class CameraModel:
             raise ValueError(f"image size must be positive, got {self.width}×{self.height}")
         if self.distortion_model not in PINHOLE_MODELS + FISHEYE_MODELS:
             raise ValueError(f"unknown distortion model '{self.distortion_model}'")
+        if self.is_fisheye and distortion.size != 4:
+            raise ValueError(f"an equidistant (fisheye) lens has 4 distortion coefficients, "
+                             f"got {distortion.size}")
 
     @property
     def fx(self) -> float:
@@ -123,7 +129,10 @@ class CameraModel:
 
     @property
     def has_distortion(self) -> bool:
-        return bool(np.any(self.distortion != 0))
+        """Whether the image differs from the ideal pinhole image of ``k``: any nonzero
+        coefficient, and every fisheye lens (its projection, r = f·θ, is not a pinhole's
+        even where its coefficients are all zero)."""
+        return self.is_fisheye or bool(np.any(self.distortion != 0))
 
     def check_image(self, shape: tuple[int, ...], source: str) -> None:
         """Raise ValueError naming ``source`` if an image's shape disagrees with the model."""
