@@ -402,3 +402,20 @@ def test_lateral_motion_status_quotes_the_results_file():
 
     assert (f"| {rms(batch[2])} / {rms(ekf[2])} mm ({rms(batch[4])} / {rms(ekf[4])}); "
             f"{cover(batch[3])} / {cover(ekf[3])} % |" in _status("lateral motion per frame"))
+
+
+def test_slow_driving_status_quotes_the_results_file():
+    rows = [r for r in _rows(RESULTS / "bench_long_baseline.md")
+            if len(r) == 8 and "open road" in r[0] and "shaking" not in r[0]]
+
+    def pitch(camera: str, variant: str) -> list[float]:
+        return sorted(float(r[3]) for r in rows if r[0].startswith(camera) and variant in r[0])
+
+    def cell(values: list[float], joined: bool) -> str:
+        text = [f"{v:.2f}".replace("-", "−") for v in values]
+        return ", ".join(text) if joined else f"{text[0]}–{text[-1]}"
+
+    car = f"{cell(pitch('car,', 'default'), False)}° ({cell(pitch('car,', 'alone'), False)}°)"
+    kitti = (f"{cell(pitch('KITTI', 'default'), True)}° "
+             f"({cell(pitch('KITTI', 'alone'), True)}°)")
+    assert f"| {car}; {kitti} |" in _status("slow driving")

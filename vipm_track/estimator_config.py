@@ -169,6 +169,10 @@ class EstimatorConfig:
         (``pair_chain.PairChain``) an ``ok`` pair whose mean velocity differs from the last
         ``ok`` pair's by more than it allows, plus three standard deviations, is marked
         "implausible motion" (inf: off).
+    long_baseline_heights : in a sequence, a tracked pair of a level camera (pose prior on,
+        global shutter) that travels less than this many camera heights also estimates frame
+        k's pose against an earlier frame that far back, and takes that pose
+        (``long_baseline``; 0: off). Default 0.3: about 0.5 m for a car.
     seed : seed of the subset sampler (runs are deterministic).
     keep_images : keep the last refinement's IPM images in the result.
     """
@@ -218,6 +222,7 @@ class EstimatorConfig:
     moved_ipm: bool | None = None
     blur_invariant_ipm: bool | None = None
     max_acceleration_mps2: float = 10.0
+    long_baseline_heights: float = 0.3
     seed: int = 0
     keep_images: bool = False
 
@@ -249,6 +254,7 @@ class EstimatorConfig:
             "max_deviation_deg": self.max_deviation_deg > 0,
             "max_roll_deg": 0 < self.max_roll_deg <= 90,
             "max_acceleration_mps2": self.max_acceleration_mps2 > 0,
+            "long_baseline_heights": 0 <= self.long_baseline_heights < 10,
             "cold_pitch_steps_deg": self.cold_pitch_steps_deg is None or all(
                 np.isfinite(step) and abs(step) < self.max_deviation_deg
                 for step in self.cold_pitch_steps_deg),

@@ -3,7 +3,8 @@
 :class:`PairChain` is what the sequence runner (``pipeline.run_sequence``) and the live
 monitor share: it seeds a pair from the last ``ok`` one (tracking: :func:`predict_guess`),
 starts a tracked pair whose pose wandered far from the nominal once more from the nominal
-(:func:`from_the_nominal_too`), tries a tracked pair that fails once more cold, and holds
+(:func:`from_the_nominal_too`), reads a slow pair's pose over a longer baseline
+(``long_baseline``), tries a tracked pair that fails once more cold, and holds
 every ``ok`` pair to the vehicle's physics: its mean velocity on the ground may differ
 from the reference pair's (the last ``ok`` pair that agreed with the one before it, within
 :data:`MOTION_HORIZON_S`) by no more than the largest acceleration allows over the time
@@ -29,6 +30,7 @@ from numpy.typing import NDArray
 
 from .displacement_model import pack
 from .estimator import PreparedPair, TwoFrameEstimator
+from .long_baseline import RecentFrames, condition_on_pose
 from .pair_result import FloatArray, PairGuess, add_timings, mark_failed
 from .statuses import ESTIMATOR_ERROR, STATUS_IMPLAUSIBLE_MOTION
 
@@ -150,6 +152,17 @@ def from_the_nominal_too(
     return chosen, spread
 
 
+def _reads_long_baselines(estimator: TwoFrameEstimator) -> bool:
+    """Whether the estimator reads a slow pair's pose over a longer baseline
+    (``long_baseline``): configured to, with a global shutter, holding its poses to a nominal
+    pose and tracked frames to their guess (a level camera's default; a steep camera's has no
+    pose prior)."""
+    config, rig = getattr(estimator, "config", None), getattr(estimator, "rig", None)
+    return bool(config is not None and rig is not None and config.pose_prior_deg
+                and config.track_prior_deg and not rig.readout_s
+                and config.long_baseline_heights > 0)
+
+
 @dataclass
 class _FailedResult:
     """Stand-in for a ``PairResult`` when the estimator raised (only ``status`` is read)."""
@@ -221,7 +234,9 @@ class PairChain:
     the bound on the motion between pairs (inf: none). ``wander_deg``: a tracked pose further
     than this from the nominal is also started from the nominal (:func:`from_the_nominal_too`;
     inf: never); where that start kept the tracked pose, the next
-    :data:`RECHECK_AFTER_PAIRS` wandered pairs take its spread instead.
+    :data:`RECHECK_AFTER_PAIRS` wandered pairs take its spread instead. A level camera's
+    tracked pair that travels less than ``config.long_baseline_heights`` reads frame k's pose
+    over a longer baseline (``long_baseline``).
     """
 
     def __init__(self, estimator: TwoFrameEstimator, tracking: bool = True,
@@ -240,11 +255,14 @@ class PairChain:
         self._intervals: deque[float] = deque(maxlen=_INTERVALS_KEPT)
         # the last second start's spread while it is carried, and for how many more pairs
         self._carried: tuple[FloatArray, int] | None = None
+        self._recent = RecentFrames()
+        self._long_baseline = tracking and _reads_long_baselines(estimator)
 
     def break_tracking(self) -> None:
         """The next pair does not follow the last one (a frame could not be used): start it
         cold. The bound on the motion still holds across the gap."""
         self._last_ok = None
+        self._recent.clear()
 
     def estimate(self, prev: NDArray, curr: NDArray, t: float, dt: float,
                  prepared: PreparedPair | None = None) -> tuple[PairResult, bool]:
@@ -266,6 +284,10 @@ class PairChain:
         if guess is not None and result.status != "ok" and self.retry_cold:
             result = estimate_pair(self.estimator, prev, curr, None, dt, prepared)
             guess = None
+        if self._long_baseline:
+            self._recent.add(prev, curr, t, dt, result)
+            if result.status == "ok":
+                self._over_a_longer_baseline(curr, result)
         if preparing_s:  # as the estimator counts a pair it prepares itself
             result.timings["total"] = result.timings.get("total", 0.0) + preparing_s
         if math.isfinite(dt) and dt > 0:
@@ -293,6 +315,19 @@ class PairChain:
         self._carried = (None if kept is not result or spread is None
                          else (spread, RECHECK_AFTER_PAIRS))
         return kept
+
+    def _over_a_longer_baseline(self, curr: NDArray, result: PairResult) -> None:
+        """A slow pair's frame k estimated once more against an earlier frame, and the pair
+        conditioned on that pose (``long_baseline``); both fits' time in its timings."""
+        longer = self._recent.reference(
+            self.estimator.config.long_baseline_heights * result.height)
+        if longer is None:
+            return
+        other = estimate_pair(self.estimator, longer.image, curr, longer.guess,
+                              longer.interval_s)
+        add_timings(result, other)
+        if other.status == "ok":
+            condition_on_pose(result, other)
 
     def _guess(self, t: float, dt: float) -> PairGuess | None:
         if not self.tracking or self._last_ok is None:

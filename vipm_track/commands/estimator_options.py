@@ -90,6 +90,12 @@ def add_estimator_options(parser: argparse.ArgumentParser) -> None:
                        "the one before it (within 1 s) by more than it allows, plus three "
                        "standard deviations, gets status 'implausible motion' (default 10, "
                        "about 1 g; 'inf' turns it off)")
+    group.add_argument("--long-baseline", type=float, default=None, metavar="HEIGHTS",
+                       help="a level camera's pair that travels less than this many camera "
+                       "heights also reads frame k's pose against an earlier frame that far "
+                       "back (up to 5 frames, 1 s), where the pitch no longer trades against "
+                       "a short travel (default 0.3; 0 turns it off; docs/kitti.md, 'Slow "
+                       "driving')")
     group.add_argument("--pose-prior-deg", type=float, default=None, metavar="DEG",
                        help="standard deviation of a prior on pitch and roll around "
                        "--pitch/--roll inside the fit, degrees; resolves the pitch/travel "
@@ -193,6 +199,10 @@ def build_config(args: argparse.Namespace, camera: CameraModel):
     max_accel = getattr(args, "max_acceleration", None)
     if max_accel is not None and not max_accel > 0:  # (NaN too)
         raise InputError(f"--max-acceleration must be > 0 m/s², got {max_accel}")
+    long_baseline = getattr(args, "long_baseline", None)
+    if long_baseline is not None and not 0 <= long_baseline < 10:  # (NaN too)
+        raise InputError(f"--long-baseline must be in [0, 10) camera heights, got "
+                         f"{long_baseline}")
     roi = parse_roi(args.roi, camera) if args.roi else None
     seed = getattr(args, "subset_seed", None)
     if seed is not None and seed < 0:
@@ -204,6 +214,7 @@ def build_config(args: argparse.Namespace, camera: CameraModel):
         patch_image=args.patch_size,
         max_roll_deg=max_roll,
         max_acceleration_mps2=max_accel,
+        long_baseline_heights=long_baseline,
         roi=roi,
         vertical_motion=args.vertical_motion,
         pose_prior_deg=prior,
