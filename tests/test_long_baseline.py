@@ -11,9 +11,9 @@ from hypothesis import strategies as st
 from vipm_track.displacement_model import pack
 from vipm_track.estimator import TwoFrameEstimator
 from vipm_track.estimator_config import EstimatorConfig
-from vipm_track.geometry import GroundPose, PlanarMotion
+from vipm_track.geometry import GroundPose, PlanarMotion, compose_motion
 from vipm_track.long_baseline import RecentFrames, condition_on_pose
-from vipm_track.pair_chain import PairChain
+from vipm_track.pair_chain import PairChain, _FailedResult, _reads_long_baselines
 from vipm_track.pair_result import PairResult
 from vipm_track.rig import Rig
 from vipm_track.sim import PRESETS, make_trajectory, preset_texture, render_trajectory_frame
@@ -155,3 +155,62 @@ def test_a_shaking_body_is_left_to_the_short_pair():
 
     assert _frames(pitching(0.5))[0].reference(BASELINE_M) is None
     assert _frames(pitching(0.2))[0].reference(BASELINE_M) is not None
+
+
+def test_the_guess_composes_the_pairs_between_in_order():
+    # pairs that turn and drift sideways: the longer pair's motion is the first pair's
+    # followed by the next ones' (G_r → G_k), which the reverse order is not
+    pairs = [_pair() for _ in range(6)]
+    for k, pair in enumerate(pairs):
+        pair.motion = PlanarMotion(0.02 * k, 0.2, math.radians(0.1 * k))
+    recent, _ = _frames(pairs)
+    motion = recent.reference(BASELINE_M).guess.motion
+    expected = compose_motion(compose_motion(pairs[-3].motion, pairs[-2].motion),
+                              pairs[-1].motion)
+    assert np.allclose([motion.tx, motion.tz, motion.yaw],
+                       [expected.tx, expected.tz, expected.yaw], atol=1e-12)
+    reverse = compose_motion(compose_motion(pairs[-1].motion, pairs[-2].motion),
+                             pairs[-3].motion)
+    assert not np.allclose([motion.tx, motion.tz], [reverse.tx, reverse.tz], atol=1e-4)
+
+
+def test_a_failed_attempt_or_a_repeated_frame_time_breaks_no_run():
+    # an estimator that raised leaves a stand-in with a status only; frame times that repeat
+    recent, images = RecentFrames(), [np.zeros(1) for _ in range(6)]
+    for k in range(1, 6):
+        pair = _FailedResult("estimator error: boom") if k == 3 else _pair()
+        recent.add(images[k - 1], images[k], 0.1 * k, 0.1, pair)
+    assert recent.reference(BASELINE_M).image is images[3]  # back to the failed pair's end
+    recent = RecentFrames()
+    for k, t in enumerate([0.1, 0.2, 0.2, 0.3, 0.4], start=1):
+        recent.add(images[k - 1], images[k], t, 0.1, _pair())
+    assert recent.reference(BASELINE_M) is None
+
+
+def test_a_second_starts_spread_stays_in_the_sigma_and_does_not_steer():
+    # the spread d dᵀ of two minima (frame k's pitch and the travel) is added back, not used
+    # to move frame k-1 or the travel along d
+    cov = np.eye(7) * 1e-4
+    spread = np.zeros((7, 7))
+    d = np.array([0.0, 0.0, 0.03, 0.0, 0.0, 0.05, 0.0])
+    spread += np.outer(d, d)
+    result = _pair(covariance=cov + spread)
+    longer = _pair(covariance=np.eye(7) * 1e-4)
+    longer.pose_curr = GroundPose(0.02, 0.0, 1.65)
+    assert condition_on_pose(result, longer, spread)
+    assert math.isclose(result.motion.tz, 0.2)  # the travel did not move along d
+    assert np.allclose(result.covariance[2:4, 2:4], longer.covariance[2:4, 2:4] + spread[2:4, 2:4])
+
+
+def test_only_a_level_global_shutter_camera_without_vertical_motion_reads_longer_pairs():
+    camera = PRESETS["kitti"].camera()
+
+    def reads(rig: Rig, **config) -> bool:
+        return _reads_long_baselines(TwoFrameEstimator(rig, EstimatorConfig(**config)))
+
+    level = Rig(camera, 1.65, 1.0)
+    assert reads(level)
+    assert not reads(level, long_baseline_heights=0.0)
+    assert not reads(level, vertical_motion=True)  # its height would be left behind
+    assert not reads(level.with_readout(0.03))
+    assert not reads(Rig(camera, 1.65, 45.0))  # a steep camera: no pose prior

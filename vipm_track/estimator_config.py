@@ -169,7 +169,7 @@ class EstimatorConfig:
         (``pair_chain.PairChain``) an ``ok`` pair whose mean velocity differs from the last
         ``ok`` pair's by more than it allows, plus three standard deviations, is marked
         "implausible motion" (inf: off).
-    long_baseline_heights : in a sequence, a tracked pair of a level camera (pose prior on,
+    long_baseline_heights : in a tracked sequence, a pair of a level camera (pose prior on,
         global shutter) that travels less than this many camera heights also estimates frame
         k's pose against an earlier frame that far back, and takes that pose
         (``long_baseline``; 0: off). Default 0.3: about 0.5 m for a car.

@@ -4,7 +4,7 @@ A level camera's pair measures the change of pose between its frames far better 
 pose itself, and the less it travels the worse: over 0.2 m (KITTI's camera at 2 m/s, 10 fps)
 the pitch trades against the travel, far-field patches that move less than a pixel are pulled
 towards zero by the warps' interpolation (docs/kitti.md, "Slow driving"), and a car ahead that
-moves with us can hold the fit (docs/traffic.md). Where a tracked pair travels less than
+moves with us can hold the fit (docs/traffic.md). Where a pair in tracking mode travels less than
 ``EstimatorConfig.long_baseline_heights`` camera heights (0.3), frame k's pose is estimated once
 more against an earlier frame r that far back (at most :data:`MAX_FRAMES_BACK` frames and
 :data:`MAX_SECONDS_BACK` s, through ``ok`` pairs only), seeded by the pairs between them and
@@ -99,7 +99,7 @@ class RecentFrames:
         pair travelled that far, or no earlier frame gains enough."""
         frames = list(self._frames)
         newest = frames[-1].pair
-        if newest is None or not newest.ok or not newest.motion.distance < baseline_m:
+        if not _ok(newest) or not newest.motion.distance < baseline_m:
             return None
         motion, after = newest.motion, newest  # the pair that starts at frames[i]
         best: tuple[int, PlanarMotion, PairResult] | None = None
@@ -111,7 +111,7 @@ class RecentFrames:
                 if motion.distance >= baseline_m:
                     break
             pair = frames[i].pair
-            if pair is None or not pair.ok:
+            if not _ok(pair):
                 break
             motion, after = compose_motion(pair.motion, motion), pair
         if best is None or not (best[1].distance >= baseline_m
@@ -125,23 +125,40 @@ class RecentFrames:
         return LongPair(frames[i].image, guess, frames[-1].t - frames[i].t)
 
 
+def _ok(pair: PairResult | None) -> bool:
+    """An ``ok`` pair (a failed attempt may be a stand-in that has only a ``status``)."""
+    return pair is not None and getattr(pair, "status", None) == "ok"
+
+
 def _angular_rate_dps(frames: list[_Frame]) -> float:
-    """RMS rate [deg/s] of the pitch and roll change of the pairs ending at ``frames[1:]``."""
-    rates = [math.degrees(math.hypot(f.pair.pose_curr.pitch - f.pair.pose_prev.pitch,
-                                     f.pair.pose_curr.roll - f.pair.pose_prev.roll))
-             / (f.t - before.t) for before, f in itertools.pairwise(frames)]
+    """RMS rate [deg/s] of the pitch and roll change of the pairs ending at ``frames[1:]``;
+    inf where an interval is not positive (frame times that repeat or go back)."""
+    rates = []
+    for before, f in itertools.pairwise(frames):
+        interval = f.t - before.t
+        if not interval > 0:
+            return math.inf
+        rates.append(math.degrees(math.hypot(f.pair.pose_curr.pitch - f.pair.pose_prev.pitch,
+                                             f.pair.pose_curr.roll - f.pair.pose_prev.roll))
+                     / interval)
     return math.sqrt(sum(r * r for r in rates) / len(rates)) if rates else 0.0
 
 
-def condition_on_pose(result: PairResult, longer: PairResult) -> bool:
+def condition_on_pose(result: PairResult, longer: PairResult,
+                      spread: FloatArray | None = None) -> bool:
     """Condition ``result`` on the pose of its frame k that ``longer`` measured (module doc);
-    whether it could (both covariances known).
+    whether it could (both covariances known). ``spread``: a part of ``result``'s covariance
+    that its own fit did not measure (a second start's d dᵀ: two minima the patches do not
+    tell apart, ``pair_chain.from_the_nominal_too``): left out of the conditioning, whose
+    gain it would turn along the other minimum's direction, and added back after it (the
+    longer pair, seeded from this one, does not settle which minimum is the camera's).
 
     The longer pair is taken whatever the two pairs' stated σ: the heave term of a pair's
     covariance grows with its interval, so the longer pair states a wider σ (1.2° against
     1.0° on an open road at 0.1 camera heights per frame) while it is nearer the truth (0.5°
     against 1.7° off); its own covariance goes with it."""
-    cov = np.asarray(result.covariance, dtype=float)
+    extra = np.zeros((7, 7)) if spread is None else np.asarray(spread, dtype=float)
+    cov = np.asarray(result.covariance, dtype=float) - extra
     other = np.asarray(longer.covariance, dtype=float)[_POSE, _POSE]
     own = cov[_POSE, _POSE]
     if not (np.all(np.isfinite(cov)) and np.all(np.isfinite(other))):
@@ -152,7 +169,7 @@ def condition_on_pose(result: PairResult, longer: PairResult) -> bool:
     x = x + gain @ (y - x[_POSE])
     keep = np.eye(7)
     keep[:, _POSE] -= gain
-    new = keep @ cov @ keep.T + gain @ other @ gain.T
+    new = keep @ cov @ keep.T + gain @ other @ gain.T + extra
     result.covariance = 0.5 * (new + new.T)
     pose_prev, pose_curr, motion = unpack(x, result.pose_prev.height)
     result.pose_prev = pose_prev

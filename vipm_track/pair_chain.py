@@ -156,11 +156,12 @@ def _reads_long_baselines(estimator: TwoFrameEstimator) -> bool:
     """Whether the estimator reads a slow pair's pose over a longer baseline
     (``long_baseline``): configured to, with a global shutter, holding its poses to a nominal
     pose and tracked frames to their guess (a level camera's default; a steep camera's has no
-    pose prior)."""
+    pose prior) and without a vertical motion in the fit (whose height the conditioning on
+    pitch and roll alone would leave behind)."""
     config, rig = getattr(estimator, "config", None), getattr(estimator, "rig", None)
     return bool(config is not None and rig is not None and config.pose_prior_deg
                 and config.track_prior_deg and not rig.readout_s
-                and config.long_baseline_heights > 0)
+                and not config.vertical_motion and config.long_baseline_heights > 0)
 
 
 @dataclass
@@ -235,7 +236,7 @@ class PairChain:
     than this from the nominal is also started from the nominal (:func:`from_the_nominal_too`;
     inf: never); where that start kept the tracked pose, the next
     :data:`RECHECK_AFTER_PAIRS` wandered pairs take its spread instead. A level camera's
-    tracked pair that travels less than ``config.long_baseline_heights`` reads frame k's pose
+    pair (tracking) that travels less than ``config.long_baseline_heights`` reads frame k's pose
     over a longer baseline (``long_baseline``).
     """
 
@@ -256,6 +257,7 @@ class PairChain:
         # the last second start's spread while it is carried, and for how many more pairs
         self._carried: tuple[FloatArray, int] | None = None
         self._recent = RecentFrames()
+        self._spread: FloatArray | None = None  # the second start's d dᵀ in this pair's σ
         self._long_baseline = tracking and _reads_long_baselines(estimator)
 
     def break_tracking(self) -> None:
@@ -269,6 +271,7 @@ class PairChain:
         """The pair of ``prev`` and ``curr`` (a frame ending at ``t``, ``dt`` [s] after the one
         before) and whether the returned result was seeded by tracking."""
         guess = self._guess(t, dt)
+        self._spread = None
         preparing_s = 0.0
         if prepared is None:
             # once for every start of this pair (a second start, a cold retry)
@@ -283,7 +286,7 @@ class PairChain:
             self._carried = None
         if guess is not None and result.status != "ok" and self.retry_cold:
             result = estimate_pair(self.estimator, prev, curr, None, dt, prepared)
-            guess = None
+            guess, self._spread = None, None
         if self._long_baseline:
             self._recent.add(prev, curr, t, dt, result)
             if result.status == "ok":
@@ -309,11 +312,13 @@ class PairChain:
             spread, left = self._carried
             self._carried = (spread, left - 1)
             result.covariance = result.covariance + spread
+            self._spread = spread
             return result
         kept, spread = from_the_nominal_too(self.estimator, prev, curr, guess, result, dt,
                                             prepared)
         self._carried = (None if kept is not result or spread is None
                          else (spread, RECHECK_AFTER_PAIRS))
+        self._spread = spread
         return kept
 
     def _over_a_longer_baseline(self, curr: NDArray, result: PairResult) -> None:
@@ -327,7 +332,7 @@ class PairChain:
                               longer.interval_s)
         add_timings(result, other)
         if other.status == "ok":
-            condition_on_pose(result, other)
+            condition_on_pose(result, other, self._spread)
 
     def _guess(self, t: float, dt: float) -> PairGuess | None:
         if not self.tracking or self._last_ok is None:
