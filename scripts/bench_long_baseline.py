@@ -24,8 +24,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
@@ -85,20 +83,6 @@ def _row(name: str, m: dict[str, float], ms: float) -> str:
             f"| {m['dist_median_pct']:.1f} / {m['dist_p95_pct']:.1f} | {ms:.0f} |")
 
 
-def _signed_pitch(est: dict, truth: dict, kitti: dict | None) -> float:
-    """Median signed pitch error [deg] of the ``ok`` rows that move."""
-    index = {int(f): i for i, f in enumerate(truth["frame"])}
-    rows = np.array([i for i, (f, s) in enumerate(zip(est["frame"], est["status"], strict=True))
-                     if s == "ok" and int(f) in index
-                     and np.hypot(truth["tx_m"][index[int(f)]], truth["tz_m"][index[int(f)]])
-                     > 0.01], int)
-    if kitti is not None:
-        true = kitti["pitch"][np.asarray(est["frame"], int)[rows]]
-    else:
-        true = truth["pitch_deg"][[index[int(est["frame"][i])] for i in rows]]
-    return float(np.median(est["pitch_deg"][rows] - true))
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--frames", type=int, default=60)
@@ -122,7 +106,6 @@ def main(argv: list[str] | None = None) -> int:
                                     ["--pitch", str(pitch), *extra],
                                     seq / f"est_{'alone' if extra else 'long'}.csv")
                 m, _ = bt.score(est, truth)
-                m["pitch_signed_median_deg"] = _signed_pitch(est, truth, None)
                 lines.append(_row(f"{scene}, seed {seed}: {label}", m, ms))
                 print(lines[-1], flush=True)
     if bt.KITTI.is_dir():
@@ -132,8 +115,7 @@ def main(argv: list[str] | None = None) -> int:
                 est, ms = _estimate(bt.KITTI / "image_0", bt.KITTI / "calib.txt", 1.65,
                                     ["--pitch", "1", "--subset-seed", str(seed), *extra],
                                     args.out / f"kitti07_{seed}_{'alone' if extra else 'long'}.csv")
-                m, kitti = bt.score(est, truth, poses)
-                m["pitch_signed_median_deg"] = _signed_pitch(est, truth, kitti)
+                m, _ = bt.score(est, truth, poses)
                 lines.append(_row(f"KITTI 07, subset seed {seed}: {label}", m, ms))
                 print(lines[-1], flush=True)
     text = ("# A slow level camera's pose over a longer baseline (scripts/bench_long_baseline.py)"

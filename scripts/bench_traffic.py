@@ -267,6 +267,7 @@ def score(est: dict, truth: dict, poses: np.ndarray | None = None
     out["wrong_ok"] = float(np.count_nonzero(wrong))
     out["confident_wrong_ok"] = float(np.count_nonzero(confident))
     out["normal_err_mean_deg"] = normal_error_deg(est["pitch_deg"][r], est["roll_deg"][r], true)
+    out["pitch_signed_median_deg"] = float(np.median(est["pitch_deg"][r] - true["pitch"]))
     pct = distance_errors_pct(est, r, truth, t)
     z = distance_z(est, r, truth, t)
     out["dist_median_pct"] = float(np.median(pct))

@@ -22,7 +22,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -126,8 +126,8 @@ class RecentFrames:
 
 
 def _ok(pair: PairResult | None) -> bool:
-    """An ``ok`` pair (a failed attempt may be a stand-in that has only a ``status``)."""
-    return pair is not None and getattr(pair, "status", None) == "ok"
+    """An ``ok`` pair ending at a frame (None where the frame began the chain)."""
+    return pair is not None and pair.ok
 
 
 def _angular_rate_dps(frames: list[_Frame]) -> float:
@@ -172,8 +172,6 @@ def condition_on_pose(result: PairResult, longer: PairResult,
     new = keep @ cov @ keep.T + gain @ other @ gain.T + extra
     result.covariance = 0.5 * (new + new.T)
     pose_prev, pose_curr, motion = unpack(x, result.pose_prev.height)
-    result.pose_prev = pose_prev
-    result.pose_curr = type(pose_curr)(pose_curr.pitch, pose_curr.roll,
-                                       result.pose_curr.height)
-    result.motion = motion
+    result.pose_prev, result.motion = pose_prev, motion
+    result.pose_curr = replace(result.pose_curr, pitch=pose_curr.pitch, roll=pose_curr.roll)
     return True

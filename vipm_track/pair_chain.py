@@ -114,7 +114,14 @@ def wandered(estimator: TwoFrameEstimator, result: PairResult,
     nominal, config = estimator.nominal, estimator.config
     return (max(abs(result.pose_curr.pitch - nominal.pitch),
                 abs(result.pose_curr.roll - nominal.roll)) > math.radians(wander_deg)
-            and bool(config.pose_prior_deg and config.track_prior_deg))
+            and _holds_poses(config))
+
+
+def _holds_poses(config: Any) -> bool:
+    """Whether an estimator's ``config`` holds its poses to the nominal pose and a tracked
+    pair's frame k-1 to its guess (a level camera's default; a steep camera's has no pose
+    prior)."""
+    return bool(config.pose_prior_deg and config.track_prior_deg)
 
 
 def from_the_nominal_too(
@@ -154,23 +161,24 @@ def from_the_nominal_too(
 
 def _reads_long_baselines(estimator: TwoFrameEstimator) -> bool:
     """Whether the estimator reads a slow pair's pose over a longer baseline
-    (``long_baseline``): configured to, with a global shutter, holding its poses to a nominal
-    pose and tracked frames to their guess (a level camera's default; a steep camera's has no
-    pose prior) and without a vertical motion in the fit (whose height the conditioning on
-    pitch and roll alone would leave behind)."""
+    (``long_baseline``): configured to, with a global shutter, holding its poses
+    (:func:`_holds_poses`) and without a vertical motion in the fit (whose height the
+    conditioning on pitch and roll alone would leave behind)."""
     config, rig = getattr(estimator, "config", None), getattr(estimator, "rig", None)
-    return bool(config is not None and rig is not None and config.pose_prior_deg
-                and config.track_prior_deg and not rig.readout_s
-                and not config.vertical_motion and config.long_baseline_heights > 0)
+    return bool(config is not None and rig is not None and _holds_poses(config)
+                and not rig.readout_s and not config.vertical_motion
+                and config.long_baseline_heights > 0)
 
 
 @dataclass
 class _FailedResult:
-    """Stand-in for a ``PairResult`` when the estimator raised (only ``status`` is read)."""
+    """Stand-in for a ``PairResult`` when the estimator raised (only ``status`` and ``ok``
+    are read)."""
 
     status: str
     reason: str = ""
     timings: dict[str, float] = field(default_factory=dict)
+    ok: bool = False
 
     def to_measurement(self, frame: int, t: float) -> Any:
         return None
